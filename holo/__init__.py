@@ -1,0 +1,1 @@
+"""The `holo` command line: subcommands live in `holo/cmd_*.py` and import heavy modules lazily."""

@@ -1,0 +1,3 @@
+from holo.app import main
+
+main()
