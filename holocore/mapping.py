@@ -1,0 +1,107 @@
+"""The world-to-hologram map T (paper Eq. 3, DESIGN.md §3), in float64.
+
+Eye-camera coordinates (xc right, yc up, zc > 0 forward) come from the scene's perspective sensor; Mitsuba's
+camera frame has +x towards the image's left, so xc = -x_camera. A point maps to hologram space as
+
+    x = f xc / zc,   y = f yc / zc,   z = z_inf + f^2 / zc        (DESIGN §3)
+
+The map is projective, so straight rays stay straight: a hologram ray maps to a world ray through two points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["HologramMap"]
+
+_FLIP_X = np.diag([-1.0, 1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class HologramMap:
+    """T for one sensor pose. ``cam_to_world`` is the sensor's 4x4 to_world matrix (Mitsuba convention)."""
+
+    cam_to_world: np.ndarray
+    focal_length_m: float
+    z_inf_m: float
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.cam_to_world, dtype=np.float64)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise ValueError(f"cam_to_world must be a finite 4x4 matrix, got shape {m.shape}")
+        if not (np.isfinite(self.focal_length_m) and self.focal_length_m > 0):
+            raise ValueError(f"focal_length_m must be finite and > 0, got {self.focal_length_m}")
+        if not (np.isfinite(self.z_inf_m) and self.z_inf_m > 0):
+            raise ValueError(f"z_inf_m must be finite and > 0, got {self.z_inf_m}")
+        rot = m[:3, :3]
+        # Rotation part may carry a uniform scale; keep it general with a true inverse.
+        object.__setattr__(self, "cam_to_world", m)
+        object.__setattr__(self, "_rot", rot @ _FLIP_X)  # eye-camera (xc right) -> world, linear part
+        object.__setattr__(self, "_rot_inv", np.linalg.inv(rot @ _FLIP_X))
+        object.__setattr__(self, "_origin", m[:3, 3].copy())
+
+    @classmethod
+    def from_sensor(cls, sensor, *, focal_length_m: float, z_inf_m: float) -> "HologramMap":
+        """Build T from a Mitsuba sensor (its to_world transform)."""
+        mat = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+        return cls(cam_to_world=mat, focal_length_m=focal_length_m, z_inf_m=z_inf_m)
+
+    # ---- eye-camera frame -----------------------------------------------------------------------------
+    def world_to_camera(self, p: np.ndarray) -> np.ndarray:
+        """World points [..., 3] -> eye-camera (xc, yc, zc) [..., 3]."""
+        return (np.asarray(p, dtype=np.float64) - self._origin) @ self._rot_inv.T
+
+    def camera_to_world(self, c: np.ndarray) -> np.ndarray:
+        return np.asarray(c, dtype=np.float64) @ self._rot.T + self._origin
+
+    def camera_dir_to_world(self, v: np.ndarray) -> np.ndarray:
+        w = np.asarray(v, dtype=np.float64) @ self._rot.T
+        return w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+    def world_dir_to_camera(self, v: np.ndarray) -> np.ndarray:
+        return np.asarray(v, dtype=np.float64) @ self._rot_inv.T
+
+    # ---- T and its inverse ----------------------------------------------------------------------------
+    def camera_to_holo(self, c: np.ndarray) -> np.ndarray:
+        """Eye-camera points (zc > 0) -> hologram points [..., 3] (DESIGN §3)."""
+        c = np.asarray(c, dtype=np.float64)
+        f = self.focal_length_m
+        zc = c[..., 2]
+        return np.stack([f * c[..., 0] / zc, f * c[..., 1] / zc, self.z_inf_m + f * f / zc], axis=-1)
+
+    def holo_to_camera(self, q: np.ndarray) -> np.ndarray:
+        """Hologram points with z > z_inf -> eye-camera points."""
+        q = np.asarray(q, dtype=np.float64)
+        f = self.focal_length_m
+        zc = f * f / (q[..., 2] - self.z_inf_m)
+        return np.stack([q[..., 0] * zc / f, q[..., 1] * zc / f, zc], axis=-1)
+
+    def world_to_holo(self, p: np.ndarray) -> np.ndarray:
+        return self.camera_to_holo(self.world_to_camera(p))
+
+    def holo_to_world(self, q: np.ndarray) -> np.ndarray:
+        return self.camera_to_world(self.holo_to_camera(q))
+
+    def holo_depth_m(self, zc: np.ndarray | float) -> np.ndarray:
+        """Hologram z of eye-camera depth zc (m)."""
+        return self.z_inf_m + self.focal_length_m**2 / np.asarray(zc, dtype=np.float64)
+
+    def camera_depth_m(self, z_holo: np.ndarray | float) -> np.ndarray:
+        """Eye-camera depth of hologram z (m); inverse of holo_depth_m."""
+        return self.focal_length_m**2 / (np.asarray(z_holo, dtype=np.float64) - self.z_inf_m)
+
+    def holo_rays_to_camera(self, x: np.ndarray, u: np.ndarray, *, z_mid: float) -> tuple[np.ndarray, np.ndarray]:
+        """Hologram rays (points x on a plane z > z_inf, unit directions u towards -z) -> eye-camera rays.
+
+        The second point is taken where the hologram ray reaches ``z_mid`` (z_inf < z_mid < z of x); the
+        camera-frame origin is T^-1 x and the direction is the unit vector to T^-1 of that second point.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        u = np.asarray(u, dtype=np.float64)
+        t = (z_mid - x[..., 2]) / u[..., 2]
+        c0 = self.holo_to_camera(x)
+        c1 = self.holo_to_camera(x + t[..., None] * u)
+        v = c1 - c0
+        return c0, v / np.linalg.norm(v, axis=-1, keepdims=True)
