@@ -48,6 +48,10 @@ class ChainResult:
     escaped: np.ndarray  # bool: left the scene (no image point)
     capped: np.ndarray  # bool: exceeded the delta-bounce cap
     p_world: np.ndarray  # float32 [R, 3] the real image point P (world)
+    radiance_p: np.ndarray  # float32 [R, 3] radiance leaving P (before the delta-chain throughput)
+    emission_p: np.ndarray  # float32 [R, 3] emitted radiance at P
+    albedo_p: np.ndarray  # float32 [R, 3] diffuse reflectance at P
+    normal_p: np.ndarray  # float32 [R, 3] shading normal at P
 
 
 def _dot(a, b):
@@ -78,8 +82,9 @@ def trace_chain(
     R = int(origins.shape[0])
     if R == 0:
         z = np.zeros(0)
-        return ChainResult(z.astype(bool), z, np.zeros((0, 3), np.float32), z.astype(np.int32), z,
-                           z.astype(bool), z.astype(bool), np.zeros((0, 3), np.float32))
+        z3 = np.zeros((0, 3), np.float32)
+        return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool), z3, z3, z3,
+                           z3, z3)
     F64, V3d = mi.Float64, mi.Vector3d
 
     o = np.ascontiguousarray(origins, dtype=np.float64)
@@ -219,30 +224,48 @@ def trace_chain(
 
     # ---- radiance leaving P towards the previous vertex --------------------------------------------
     ok = done & ~bad & ~capped & (d_out > 0)
-    L = mi.Color3f(0.0)
+    si_p = scene.ray_intersect(final_ray, mi.RayFlags.All, False, ok)
+    ok &= si_p.is_valid()
+    emission = si_p.emitter(scene).eval(si_p, ok)
+    albedo = si_p.bsdf().eval_diffuse_reflectance(si_p, ok)
+    L_p = mi.Color3f(0.0)
+    need = mi.Bool(ok)
     if radiance_cache is not None:
-        L = radiance_cache.lookup(scene, final_ray, ok)
-    else:
-        rd = mi.RayDifferential3f(final_ray)
-        for _ in range(max(1, amp_spp)):
-            spec, valid, _aov = integrator.sample(scene, sampler, rd, None, ok)
-            L += dr.select(valid, spec, 0.0)
-            dr.eval(L)
-        L = L / max(1, amp_spp)
-    L = L * thr
-    dr.eval(L, d_out, ok)
+        L_c, has = radiance_cache.lookup(si_p, albedo, emission, ok)
+        L_p = dr.select(has, L_c, L_p)
+        need = ok & ~has
+    L_int = mi.Color3f(0.0)
+    rd = mi.RayDifferential3f(final_ray)
+    for _ in range(max(1, amp_spp)):
+        spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
+        L_int += dr.select(valid & need, spec, 0.0)
+        dr.eval(L_int)
+    L_p = dr.select(need, L_int / max(1, amp_spp), L_p)
+    L = L_p * thr
+    n_p = si_p.sh_frame.n
+    dr.eval(L, L_p, d_out, ok, emission, albedo, n_p)
 
-    rad = np.stack([np.asarray(L[i], dtype=np.float32) for i in range(3)], axis=1)
-    d_np = np.asarray(d_out, dtype=np.float64)
-    ok_np = np.asarray(ok, dtype=bool) & np.isfinite(d_np) & np.all(np.isfinite(rad), axis=1)
+    def _np1(x, dtype):
+        return np.broadcast_to(np.asarray(x, dtype=dtype).reshape(-1), (R,)).copy()
+
+    def _np3(x, dtype=np.float32):
+        return np.stack([_np1(x[i], dtype) for i in range(3)], axis=1)
+
+    rad = _np3(L)
+    d_np = _np1(d_out, np.float64)
+    ok_np = _np1(ok, bool) & np.isfinite(d_np) & np.all(np.isfinite(rad), axis=1)
     rad = np.where(ok_np[:, None], np.maximum(rad, 0.0), 0.0).astype(np.float32)
     return ChainResult(
         valid=ok_np,
         d=np.where(ok_np, d_np, 0.0),
         radiance=rad,
-        n_delta=np.asarray(n_delta, dtype=np.int32),
-        opl_m=np.asarray(opl, dtype=np.float64),
-        escaped=np.asarray(escaped, dtype=bool),
-        capped=np.asarray(capped, dtype=bool),
-        p_world=np.stack([np.asarray(p_world[i], dtype=np.float32) for i in range(3)], axis=1),
+        n_delta=_np1(n_delta, np.int32),
+        opl_m=_np1(opl, np.float64),
+        escaped=_np1(escaped, bool),
+        capped=_np1(capped, bool),
+        p_world=_np3(p_world),
+        radiance_p=np.where(ok_np[:, None], _np3(L_p), 0.0).astype(np.float32),
+        emission_p=np.where(ok_np[:, None], _np3(emission), 0.0).astype(np.float32),
+        albedo_p=np.where(ok_np[:, None], _np3(albedo), 0.0).astype(np.float32),
+        normal_p=_np3(n_p),
     )

@@ -1,0 +1,128 @@
+"""`holo render` and `holo plan`: a scene bundle to RESULT.npz, and the effect plan alone."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from holo.common import fail, optics_from_options, progress_writer
+
+
+def register(app: typer.Typer) -> None:
+    app.command("render")(render)
+    app.command("plan")(plan)
+
+
+def render(
+    scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
+    out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
+    preset: str = typer.Option("balanced", help="fast | balanced | reference"),
+    frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames (default: optics, 8)."),
+    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
+    resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
+    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
+    wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
+    seed: Optional[int] = typer.Option(None, help="Seed of rays and random-phase bank."),
+    method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
+    z_inf_mm: Optional[float] = typer.Option(None, "--z-inf-mm", help="Virtual-infinity plane distance, mm."),
+    focal_length_mm: Optional[float] = typer.Option(None, "--focal-length-mm", help="Eyepiece f in mm."),
+    force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
+    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig as a JSON file."),
+    progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
+    estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
+) -> None:
+    """Render a scene into WRP and SLM wave fields (RESULT.npz)."""
+    optics = optics_from_options(optics_json=optics_json, frames=frames, resolution=resolution, pitch_um=pitch_um,
+                                 wavelengths_nm=wavelengths_nm, seed=seed, z_inf_mm=z_inf_mm,
+                                 focal_length_mm=focal_length_mm)
+    if preset not in ("fast", "balanced", "reference"):
+        fail(f"--preset must be fast, balanced or reference, got {preset!r}")
+    if method not in ("wrp", "direct"):
+        fail(f"--method must be wrp or direct, got {method!r}")
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from holocore.pipeline import RenderOptions, render as do_render
+
+    try:
+        options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects)
+    except ValueError as exc:
+        fail(str(exc))
+    console = Console(stderr=True)
+    if estimate:
+        from holocore.estimate import estimate_seconds
+
+        secs = estimate_seconds(optics, options)
+        console.print(f"estimated render time: {secs:.1f} s (calibrated on this machine)")
+        return
+    write_progress = progress_writer(progress_jsonl)
+    t0 = time.perf_counter()
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=console, transient=True, disable=not sys.stderr.isatty()) as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+            write_progress(stage, done, total)
+
+        try:
+            result = do_render(scene, optics, options, progress=progress)
+        except (ValueError, FileNotFoundError) as exc:
+            fail(str(exc))
+    from holocore.io import save_result
+
+    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
+    m = result.meta
+    F, C, H, W = m["shape_fchw"]
+    st = m["stats"]
+    console.print(
+        f"rendered {Path(scene).name}: {F} frame(s) x {C} color(s) x {H}x{W}, {st['rays']:,} rays "
+        f"({st['valid'] / max(1, st['rays']):.0%} with an image point), z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
+        f"in {time.perf_counter() - t0:.1f} s -> {out}"
+    )
+    for line in m["plan"]["summary"]:
+        console.print(f"  - {line}")
+
+
+def plan(
+    scene: Path = typer.Argument(..., help="Scene folder or XML."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON."),
+    preset: str = typer.Option("balanced", help="fast | balanced | reference"),
+    frames: Optional[int] = typer.Option(None, help="Frames."),
+    resolution: Optional[str] = typer.Option(None, help="HxW."),
+    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig JSON file."),
+    force_all_effects: bool = typer.Option(False, "--force-all-effects"),
+) -> None:
+    """Analyse a scene and print what the renderer would simulate (the EffectPlan)."""
+    optics = optics_from_options(optics_json=optics_json, frames=frames, resolution=resolution)
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+    from holocore.pipeline import RenderOptions, plan_scene
+    from holocore.scene import load_scene
+
+    try:
+        loaded = load_scene(scene)
+        pl = plan_scene(loaded, optics, RenderOptions(preset=preset, force_all_effects=force_all_effects))
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    doc = {"plan": json.loads(pl["plan"].model_dump_json()), "summary": pl["plan"].summary,
+           "analysis": json.loads(pl["analysis"].model_dump_json()),
+           "inventory": json.loads(pl["inventory"].model_dump_json()), "focal_length_m": pl["focal_length_m"]}
+    if as_json:
+        print(json.dumps(doc, indent=2))
+    else:
+        for line in pl["plan"].summary:
+            print(f"- {line}")
+        a = pl["analysis"]
+        print(f"- WRP at {a.z_wrp_m * 1e3:.3f} mm from the SLM; image volume "
+              f"{(a.z_near_holo_m or 0) * 1e3:.3f}..{(a.z_far_holo_m or 0) * 1e3:.3f} mm")

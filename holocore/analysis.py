@@ -1,0 +1,136 @@
+"""Scene analysis: a sparse pre-pass that finds the depth range of the first surfaces and of the image
+points (through a mirror the image lies behind it), which colors carry light, and where the WRP goes
+(DESIGN.md §3: on the viewer's side of every surface and image point, with a margin)."""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+from pydantic import BaseModel
+
+from holocore.mapping import HologramMap
+from holocore.mitsuba_env import mitsuba
+from holocore.tracer import channel_of
+from holocore.wavetrace import trace_chain
+
+__all__ = ["SceneAnalysis", "analyze", "SceneDoesNotFit"]
+
+
+class SceneDoesNotFit(ValueError):
+    """The scene needs a WRP farther from z_inf than allowed."""
+
+
+class SceneAnalysis(BaseModel):
+    rays: int
+    hit_fraction: float
+    zc_first_min_m: Optional[float]
+    zc_first_max_m: Optional[float]
+    zc_image_min_m: Optional[float]
+    zc_image_max_m: Optional[float]
+    image_points_behind_viewer: int
+    max_delta_seen: int
+    colors_lit: list[bool]
+    z_wrp_m: float
+    z_near_holo_m: Optional[float]  # hologram depth of the nearest surface or image point
+    z_far_holo_m: Optional[float]  # ... of the farthest
+    subhologram_radius_px: float  # of the farthest image point on the WRP, widest cone
+    margin_m: float
+
+
+def _camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Eye-camera unit directions covering the hologram's field of view (x = f tan(angle)), jittered."""
+    H, W = shape_hw
+    f = hmap.focal_length_m
+    tx = 1.15 * W * pitch_m / (2 * f)
+    ty = 1.15 * H * pitch_m / (2 * f)
+    nx = n_side
+    ny = max(4, int(round(n_side * ty / tx))) if tx > 0 else n_side
+    gx, gy = np.meshgrid((np.arange(nx) + rng.random(nx)) / nx, (np.arange(ny) + rng.random(ny)) / ny)
+    d = np.stack([(2 * gx.ravel() - 1) * tx, (2 * gy.ravel() - 1) * ty, np.ones(gx.size)], axis=1)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def analyze(
+    scene,
+    hmap: HologramMap,
+    *,
+    wavelengths_m: list[float],
+    pitch_m: float,
+    shape_hw: tuple[int, int],
+    margin_px: float,
+    max_wrp_distance_m: float,
+    max_delta: int = 16,
+    n_side: int = 64,
+    seed: int = 0,
+) -> SceneAnalysis:
+    """Sparse pre-pass from the eye point; places the WRP or raises :class:`SceneDoesNotFit`."""
+    mi = mitsuba()
+    rng = np.random.default_rng([seed, 31337])
+    dirs_c = _camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
+    R = dirs_c.shape[0]
+    eye_w = hmap.camera_to_world(np.zeros((1, 3)))
+    o = np.repeat(eye_w, R, axis=0)
+    v = hmap.camera_dir_to_world(dirs_c)
+
+    # First surfaces (any BSDF): the WRP must stay in air, in front of them.
+    import drjit as dr
+
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(o[:, i].astype(np.float32)) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float(v[:, i].astype(np.float32)) for i in range(3)]))
+    si = scene.ray_intersect(ray)
+    dr.eval(si.t)
+    hit = np.asarray(si.is_valid(), dtype=bool)
+    t = np.asarray(si.t, dtype=np.float64)
+    zc_first = (t * dirs_c[:, 2])[hit]
+
+    integ = mi.load_dict({"type": "path", "max_depth": 4})
+    res = trace_chain(scene, o, v, max_delta=max_delta, amp_spp=4, integrator=integ, seed=seed + 17)
+    zc_img_all = res.d * dirs_c[:, 2]
+    good = res.valid
+    behind = int(np.count_nonzero(good & (zc_img_all <= 0)))
+    zc_img = zc_img_all[good & (zc_img_all > 0)]
+    lum = res.radiance[res.valid].sum(axis=0) if res.valid.any() else np.zeros(3)
+    colors_lit = [bool(lum[channel_of(lam)] > 0) for lam in wavelengths_m]
+
+    theta_min = min(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
+    theta_max = max(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
+    margin = margin_px * pitch_m / math.tan(theta_min)
+    depths = np.concatenate([zc_first, zc_img])
+    depths = depths[np.isfinite(depths) & (depths > 0)]
+    if depths.size:
+        zc_min = float(depths.min())
+        zc_max = float(depths.max())
+        z_near = float(hmap.holo_depth_m(zc_min))
+        z_far = float(hmap.holo_depth_m(zc_max))
+        z_wrp = z_near + margin
+    else:  # nothing visible: a black scene; any plane will do
+        zc_min = zc_max = None
+        z_near = z_far = None
+        z_wrp = hmap.z_inf_m + margin
+    if z_wrp - hmap.z_inf_m > max_wrp_distance_m:
+        raise SceneDoesNotFit(
+            f"the nearest surface or image point is {zc_min:.4g} m from the eye, which maps to "
+            f"{(z_wrp - hmap.z_inf_m) * 1e3:.1f} mm in front of z_inf with the eyepiece f = "
+            f"{hmap.focal_length_m * 1e3:.2f} mm; the limit (max_wrp_distance_mm) is "
+            f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
+        )
+    radius_px = 0.0 if z_far is None else (z_wrp - z_far) * math.tan(min(theta_max, math.radians(89))) / pitch_m
+    return SceneAnalysis(
+        rays=R,
+        hit_fraction=float(hit.mean()) if R else 0.0,
+        zc_first_min_m=float(zc_first.min()) if zc_first.size else None,
+        zc_first_max_m=float(zc_first.max()) if zc_first.size else None,
+        zc_image_min_m=float(zc_img.min()) if zc_img.size else None,
+        zc_image_max_m=float(zc_img.max()) if zc_img.size else None,
+        image_points_behind_viewer=behind,
+        max_delta_seen=int(res.n_delta[res.valid].max()) if res.valid.any() else 0,
+        colors_lit=colors_lit,
+        z_wrp_m=float(z_wrp),
+        z_near_holo_m=z_near,
+        z_far_holo_m=z_far,
+        subhologram_radius_px=float(radius_px),
+        margin_m=float(margin),
+    )

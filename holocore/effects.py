@@ -1,0 +1,165 @@
+"""EffectPlan: simulate only what a scene calls for (DESIGN.md §8).
+
+From the scene's BSDFs, emitters and geometry the plan decides: whether the coherent delta loop runs and
+its depth cap, whether radiance is view-dependent (glossy), the global-illumination depth, whether the
+ambient cache is exact, which colors carry light, and whether a random-phase bank is needed. Every decision
+can be forced on (``force_all``) for comparison. The plan travels in every result, in plain words.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Optional
+
+from pydantic import BaseModel, Field
+
+from holocore.mitsuba_env import mitsuba
+
+__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "PRESETS"]
+
+MAX_DELTA_CAP = 16
+
+# Rays per WRP pixel, incoherent samples per image point, GI depth, cache use.
+PRESETS: dict[str, dict] = {
+    "fast": {"spp": 8, "amp_spp": 1, "gi_depth": 3, "cache": True},
+    "balanced": {"spp": 32, "amp_spp": 2, "gi_depth": 6, "cache": False},
+    "reference": {"spp": 128, "amp_spp": 8, "gi_depth": 12, "cache": False},
+}
+
+
+class SceneInventory(BaseModel):
+    """What the scene holds, read from Mitsuba's objects (no tracing)."""
+
+    shapes: int
+    primitives: int
+    mirrors: list[str] = Field(default_factory=list)  # shapes with a delta reflection-only BSDF
+    dielectrics: list[str] = Field(default_factory=list)  # shapes with delta transmission
+    glossy: list[str] = Field(default_factory=list)  # shapes with glossy lobes
+    mixed_delta: list[str] = Field(default_factory=list)  # delta and non-delta lobes together (plastic...)
+    emitters: list[str] = Field(default_factory=list)
+    environment: bool = False
+    bsdf_types: dict[str, int] = Field(default_factory=dict)
+
+
+class EffectPlan(BaseModel):
+    """Decisions for one render; ``summary`` says them in words."""
+
+    coherent_delta: bool
+    max_delta: int
+    view_dependent: bool
+    gi_depth: int
+    use_cache: bool
+    cache_exact: bool
+    colors_lit: list[bool]
+    random_phase: bool
+    spp: int
+    amp_spp: int
+    forced: bool = False
+    summary: list[str] = Field(default_factory=list)
+
+
+def _name(shape, i: int) -> str:
+    sid = shape.id()
+    return sid if sid else f"{shape.class_name().lower()}#{i}"
+
+
+def inventory(scene) -> SceneInventory:
+    mi = mitsuba()
+    F = mi.BSDFFlags
+    inv = SceneInventory(shapes=0, primitives=0)
+    types: Counter = Counter()
+    for i, sh in enumerate(scene.shapes()):
+        inv.shapes += 1
+        inv.primitives += int(sh.primitive_count())
+        name = _name(sh, i)
+        if sh.is_emitter():
+            inv.emitters.append(name)
+        b = sh.bsdf()
+        if b is None:
+            continue
+        types[b.class_name()] += 1
+        fl = b.flags()
+        has = lambda flag: mi.has_flag(fl, flag)  # noqa: E731
+        delta = has(F.Delta)
+        smooth = has(F.Smooth)
+        if has(F.DeltaTransmission):
+            inv.dielectrics.append(name)
+        elif has(F.DeltaReflection) and not smooth:
+            inv.mirrors.append(name)
+        if delta and smooth:
+            inv.mixed_delta.append(name)
+        if has(F.Glossy):
+            inv.glossy.append(name)
+    inv.environment = scene.environment() is not None
+    inv.bsdf_types = dict(types)
+    return inv
+
+
+def make_plan(
+    inv: SceneInventory,
+    *,
+    preset: str,
+    frames: int,
+    n_colors: int,
+    colors_lit: Optional[list[bool]] = None,
+    spp: Optional[int] = None,
+    force_all: bool = False,
+    max_delta_seen: Optional[int] = None,
+) -> EffectPlan:
+    """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    p = PRESETS[preset]
+    words: list[str] = []
+    n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta)
+    coherent = force_all or n_delta_shapes > 0
+    if force_all:
+        cap = MAX_DELTA_CAP
+    elif n_delta_shapes == 0:
+        cap = 0
+    else:
+        # Each dielectric: entry, exit and up to two internal reflections; each mirror: a couple of visits.
+        cap = 4 * len(inv.dielectrics) + 2 * (len(inv.mirrors) + len(inv.mixed_delta))
+        if max_delta_seen is not None:
+            cap = max(cap, max_delta_seen)
+        cap = min(MAX_DELTA_CAP, cap)
+    if inv.mirrors:
+        words.append(f"mirror reflection: {len(inv.mirrors)} surface(s) ({', '.join(inv.mirrors[:4])})")
+    if inv.dielectrics:
+        words.append(f"refraction: {', '.join(inv.dielectrics[:4])}, up to {cap} delta interfaces per path")
+    if inv.mixed_delta:
+        words.append(f"coated surfaces with a delta layer: {', '.join(inv.mixed_delta[:4])}")
+    if not coherent:
+        words.append("no mirror or glass: coherent delta loop off, the first hit is the image point")
+    elif force_all and n_delta_shapes == 0:
+        words.append(f"coherent delta loop forced on (cap {cap}) although the scene has no delta surface")
+
+    view_dep = force_all or bool(inv.glossy) or bool(inv.mixed_delta)
+    if inv.glossy:
+        words.append(f"glossy, view-dependent radiance traced per ray: {', '.join(inv.glossy[:4])}")
+    elif not view_dep:
+        words.append("all rough surfaces diffuse: radiance is view-independent")
+
+    gi = p["gi_depth"]
+    words.append(f"global illumination: up to {gi} bounces")
+    use_cache = bool(p["cache"]) and not force_all
+    cache_exact = not view_dep
+    if use_cache:
+        words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
+                                                    else "approximate on glossy surfaces"))
+    lit = list(colors_lit) if colors_lit is not None else [True] * n_colors
+    if force_all:
+        lit = [True] * n_colors
+    if not all(lit):
+        dark = [str(i) for i, v in enumerate(lit) if not v]
+        words.append(f"color channel(s) {', '.join(dark)} carry no light: skipped")
+    if not any(lit):
+        words.append("the scene is black: the fields are zero")
+    random_phase = force_all or frames > 1
+    words.append(f"{frames} frame(s): " + ("band-limited random-phase bank, paths shared by all frames"
+                                           if random_phase else "one frame, no random-phase bank (smooth phase)"))
+    n = spp if spp is not None else p["spp"]
+    words.append(f"{n} rays per WRP pixel, {p['amp_spp']} radiance sample(s) per image point")
+    return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
+                      use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
+                      spp=n, amp_spp=p["amp_spp"], forced=force_all, summary=words)
