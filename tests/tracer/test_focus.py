@@ -1,0 +1,98 @@
+"""Focus and brightness: traced fields reconstruct where T says (issue 3, DESIGN.md §3-4).
+
+Dot-textured emitting planes (each dot focuses like a point) with one frame and no random phase: the
+reconstruction is speckle-free and its sharpness (intensity concentration) peaks at the focus depth.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from holocore.config import OpticsConfig
+from holocore.pipeline import RenderOptions, render_loaded
+from tests.tracer.optics_probe import best_focus, depth_of_field, dot_texture, fov_deg, intensity
+from tests.tracer.scenes import T, camera, emitting_plane, scene
+
+LAM = 516.5e-9
+P = 4e-6
+F_M = 0.025
+H = W = 64
+
+
+def optics(frames=1, **kw):
+    return OpticsConfig(resolution_hw=(H, W), wavelengths_nm=(LAM * 1e9,), pitch_um=P * 1e6, frames=frames,
+                        focal_length_mm=F_M * 1e3, **kw)
+
+
+def cam():
+    return camera(fov=fov_deg(W, P, F_M))
+
+
+def z_holo(zc):
+    return 0.08 + F_M * F_M / zc
+
+
+def focus_of(res, z_expect, region=None):
+    m = res.meta
+    dof = depth_of_field(LAM, P)
+    z, _ = best_focus(res.wrp_field, z_wrp=m["z_wrp_m"], z_center=z_expect, span=3 * dof, n=25, region=region,
+                      wavelength_m=LAM, pitch_m=P, focal_length_m=F_M)
+    return z, dof
+
+
+@pytest.fixture(scope="module")
+def dots(tmp_path_factory):
+    return dot_texture(tmp_path_factory.mktemp("tex") / "dots.png")
+
+
+def test_plane_focuses_at_predicted_depth(dots):
+    zc = 0.5
+    res = render_loaded(scene(sensor=cam(), plane=emitting_plane(-zc, size=0.005, texture=dots)), optics(),
+                        RenderOptions(preset="fast", spp=96))
+    z, dof = focus_of(res, z_holo(zc))
+    assert abs(z - z_holo(zc)) < 0.5 * dof, (z, z_holo(zc), dof)
+
+
+def test_two_planes_focus_at_their_own_depths(dots):
+    near = emitting_plane(-0.4, size=0.004, texture=dots, x=-0.0032)
+    far = emitting_plane(-1.0, size=0.01, texture=dots, x=+0.008)
+    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(), RenderOptions(preset="fast", spp=96))
+    left = (slice(8, H - 8), slice(4, W // 2 - 4))
+    right = (slice(8, H - 8), slice(W // 2 + 4, W - 4))
+    z_near, dof = focus_of(res, z_holo(0.4), region=left)
+    z_far, _ = focus_of(res, z_holo(1.0), region=right)
+    assert abs(z_near - z_holo(0.4)) < 0.5 * dof
+    assert abs(z_far - z_holo(1.0)) < 0.5 * dof
+
+
+def _mean_in(res, region, z):
+    m = res.meta
+    img = intensity(res.wrp_field, z_wrp=m["z_wrp_m"], z_focus=z, wavelength_m=LAM, pitch_m=P, focal_length_m=F_M)
+    return float(img[region].mean())
+
+
+def test_equal_radiance_at_two_depths_is_equally_bright():
+    near = emitting_plane(-0.4, size=0.004, x=-0.0032)
+    far = emitting_plane(-1.0, size=0.01, x=+0.008)
+    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(frames=8),
+                        RenderOptions(preset="fast", spp=64))
+    left = (slice(10, H - 10), slice(8, W // 2 - 8))
+    right = (slice(10, H - 10), slice(W // 2 + 8, W - 8))
+    a = _mean_in(res, left, z_holo(0.4))
+    b = _mean_in(res, right, z_holo(1.0))
+    assert abs(a / b - 1) < 0.10, (a, b)
+
+
+def test_twice_the_radiance_gives_twice_the_intensity():
+    dim = emitting_plane(-0.5, size=0.004, x=-0.0032, radiance=1.0)
+    bright = emitting_plane(-0.5, size=0.004, x=+0.0032, radiance=2.0)
+    res = render_loaded(scene(sensor=cam(), dim=dim, bright=bright), optics(frames=8),
+                        RenderOptions(preset="fast", spp=64))
+    left = (slice(10, H - 10), slice(8, W // 2 - 8))
+    right = (slice(10, H - 10), slice(W // 2 + 8, W - 8))
+    a = _mean_in(res, left, z_holo(0.5))
+    b = _mean_in(res, right, z_holo(0.5))
+    assert abs(b / a - 2) < 0.2, (a, b)

@@ -1,0 +1,99 @@
+"""Never NaN: the tracer's hard cases give finite fields (issue 3, DESIGN.md §4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holocore.config import OpticsConfig
+from holocore.pipeline import RenderOptions, render_loaded
+from tests.tracer.scenes import T, camera, emitting_plane, scene
+
+OPTICS = OpticsConfig(resolution_hw=(24, 32), wavelengths_nm=(640.0, 455.4), frames=2, focal_length_mm=20.0)
+OPTS = RenderOptions(preset="fast", spp=4)
+
+
+def _render(loaded, optics=OPTICS, options=OPTS):
+    res = render_loaded(loaded, optics, options)
+    for name in ("slm_field", "wrp_field"):
+        arr = getattr(res, name)
+        assert arr.shape == (optics.frames, len(optics.wavelengths_nm), *optics.resolution_hw)
+        assert np.isfinite(arr).all(), f"{name} has NaN/Inf"
+    return res
+
+
+def _diffuse(value=0.7):
+    return {"type": "diffuse", "reflectance": {"type": "rgb", "value": value}}
+
+
+def _light_above():
+    return {"type": "rectangle", "to_world": T().translate([0, 3, -1]).rotate([1, 0, 0], 90).scale(2),
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 5.0}}}
+
+
+def test_grazing_floor():
+    floor = {"type": "rectangle", "to_world": T().translate([0, -0.05, -2]).rotate([1, 0, 0], -90).scale(10),
+             "bsdf": _diffuse()}
+    res = _render(scene(floor=floor, light=_light_above()))
+    assert np.abs(res.wrp_field).max() > 0
+
+
+def test_total_internal_reflection_in_glass_block():
+    # Looking obliquely into a thick glass block: rays refract in and meet the side walls beyond the
+    # critical angle.
+    block = {"type": "cube", "to_world": T().translate([0, 0, -1.5]).rotate([0, 1, 0], 40).scale([0.3, 0.3, 0.6]),
+             "bsdf": {"type": "dielectric", "int_ior": 1.8}}
+    res = _render(scene(sensor=camera(fov=30), block=block, back=emitting_plane(-4.0)))
+    assert res.meta["stats"]["delta_paths"] > 0
+
+
+def test_two_facing_mirrors_hit_the_cap():
+    m1 = {"type": "rectangle", "to_world": T().translate([0.2, 0, -1]).rotate([0, 1, 0], -90).scale(5),
+          "bsdf": {"type": "conductor"}}
+    m2 = {"type": "rectangle", "to_world": T().translate([-0.2, 0, -1]).rotate([0, 1, 0], 90).scale(5),
+          "bsdf": {"type": "conductor"}}
+    res = _render(scene(sensor=camera(fov=60), m1=m1, m2=m2, back=emitting_plane(-6.0, size=0.1)))
+    assert res.meta["stats"]["capped"] > 0
+    assert res.meta["plan"]["max_delta"] >= 1
+
+
+def test_camera_inside_glass():
+    ball = {"type": "sphere", "center": [0, 0, 0], "radius": 0.5, "bsdf": {"type": "dielectric"}}
+    _render(scene(ball=ball, back=emitting_plane(-3.0)))
+
+
+def test_rays_escape_and_emitter_seen_directly():
+    small = emitting_plane(-2.0, size=0.005)
+    res = _render(scene(sensor=camera(fov=30), small=small))
+    assert res.meta["stats"]["escaped"] > 0
+    assert np.abs(res.wrp_field).max() > 0
+
+
+def test_black_scene_gives_zero_field():
+    wall = {"type": "rectangle", "to_world": T().translate([0, 0, -2]).scale(5), "bsdf": _diffuse()}
+    res = _render(scene(wall=wall))
+    assert np.abs(res.wrp_field).max() == 0
+    assert "black" in " ".join(res.meta["plan"]["summary"])
+
+
+def test_surface_close_to_the_wrp_margin():
+    # A surface 5 cm from the eye maps far from z_inf; the WRP must still lie in front of it.
+    near = emitting_plane(-0.05, size=0.5)
+    res = _render(scene(near=near), OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(516.5,), frames=1,
+                                                  focal_length_mm=20.0))
+    m = res.meta
+    assert m["z_wrp_m"] > m["analysis"]["z_near_holo_m"]
+
+
+def test_sub_wavelength_pitch_hemisphere():
+    optics = OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(640.0,), pitch_um=0.25, frames=1,
+                          focal_length_mm=20.0)
+    _render(scene(back=emitting_plane(-1.0)), optics)
+
+
+def test_scene_that_cannot_fit_is_refused():
+    near = emitting_plane(-0.001, size=0.5)
+    optics = OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(516.5,), frames=1, focal_length_mm=50.0,
+                          max_wrp_distance_mm=10.0)
+    with pytest.raises(ValueError, match="max_wrp_distance_mm"):
+        render_loaded(scene(near=near), optics, OPTS)
