@@ -64,6 +64,7 @@ class TraceStats:
     seconds_trace: float = 0.0
     seconds_accumulate: float = 0.0
     max_delta_seen: int = 0
+    path_samples: int = 0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -192,6 +193,7 @@ def trace_field(
         stats.valid += int(np.count_nonzero(ok))
         stats.escaped += int(np.count_nonzero(res.escaped))
         stats.capped += int(np.count_nonzero(res.capped))
+        stats.path_samples += res.path_samples
         stats.delta_paths += int(np.count_nonzero(ok & (res.n_delta > 0)))
         stats.max_delta_seen = max(stats.max_delta_seen, int(res.n_delta[ok].max()) if ok.any() else 0)
         stats.seconds_trace += t1 - t0

@@ -52,6 +52,7 @@ class ChainResult:
     emission_p: np.ndarray  # float32 [R, 3] emitted radiance at P
     albedo_p: np.ndarray  # float32 [R, 3] diffuse reflectance at P
     normal_p: np.ndarray  # float32 [R, 3] shading normal at P
+    path_samples: int = 0  # incoherent path-tracing samples spent on the radiance
 
 
 def _dot(a, b):
@@ -243,6 +244,7 @@ def trace_chain(
     L_p = dr.select(need, L_int / max(1, amp_spp), L_p)
     L = L_p * thr
     n_p = si_p.sh_frame.n
+    n_need = int(dr.count(need)[0]) if dr.width(need) > 1 else (R if bool(need[0]) else 0)
     dr.eval(L, L_p, d_out, ok, emission, albedo, n_p)
 
     def _np1(x, dtype):
@@ -268,4 +270,5 @@ def trace_chain(
         emission_p=np.where(ok_np[:, None], _np3(emission), 0.0).astype(np.float32),
         albedo_p=np.where(ok_np[:, None], _np3(albedo), 0.0).astype(np.float32),
         normal_p=_np3(n_p),
+        path_samples=n_need * max(1, amp_spp),
     )
