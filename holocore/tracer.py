@@ -186,9 +186,12 @@ def trace_field(
             amp = np.sqrt(res.radiance[:, chans[c]].astype(np.float64)) * weight * inside
             phase = np.mod(sign * ks[c] * r, 2.0 * math.pi)  # wrapped in float64 before the cast
             base = torch.from_numpy((amp * np.exp(1j * phase)).astype(np.complex64))
-            for m in range(frames):
-                contrib = base if bank_phasors is None else base * bank_phasors[c][m].reshape(-1)[idx]
-                out[m, c, rows[0]:rows[-1] + 1, :] += contrib.view(len(rows), W, N).sum(dim=2)
+            sl = (slice(None), c, slice(int(rows[0]), int(rows[-1]) + 1), slice(None))
+            if bank_phasors is None:  # one smooth-phase field, the same for every frame
+                out[sl] += base.view(len(rows), W, N).sum(dim=2)[None]
+            else:  # path reuse: one gather of phi_m(Q) for all frames, then one reduction
+                contrib = bank_phasors[c].reshape(frames, -1)[:, idx] * base[None, :]
+                out[sl] += contrib.view(frames, len(rows), W, N).sum(dim=3)
         stats.rays += R
         stats.valid += int(np.count_nonzero(ok))
         stats.escaped += int(np.count_nonzero(res.escaped))
