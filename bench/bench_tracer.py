@@ -1,0 +1,264 @@
+"""Tracer benchmarks (issue 3): ratios measured in one run, written to bench/results/tracer.md (+ plots).
+
+    .venv/bin/python bench/bench_tracer.py [--quick]
+
+1. 24 frames vs 1 frame (path reuse)                         goal <= 1.15x
+2. our WRP rays/s vs Mitsuba's own `path` integrator samples/s  goal >= 0.8x  (same scene, depth, machine)
+3. two-stage (WRP) vs direct: rays to reach the same PSNR     goal >= 20x fewer
+4. fast (ambient cache) vs full on a diffuse-dominant scene   goal >= 5x faster at <= 1 dB loss
+
+Dr.Jit work is timed after dr.eval / dr.sync_thread, excluding the first (compiling) call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SHARED = ROOT.parent / "shared" / "scenes"
+RESULTS = ROOT / "bench" / "results"
+
+
+def _timed(fn, repeats=1):
+    import drjit as dr
+
+    fn()  # compile / warm up
+    best = math.inf
+    out = None
+    for _ in range(repeats):
+        dr.sync_thread()
+        t0 = time.perf_counter()
+        out = fn()
+        dr.sync_thread()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def _setup(scene_path, H, W, frames, f_mm=20.0, wavelengths=(640.0, 516.5, 455.4)):
+    from holocore.config import OpticsConfig
+    from holocore.pipeline import RenderOptions, plan_scene
+    from holocore.scene import load_scene
+
+    loaded = load_scene(scene_path)
+    optics = OpticsConfig(resolution_hw=(H, W), frames=frames, focal_length_mm=f_mm, wavelengths_nm=wavelengths)
+    pl = plan_scene(loaded, optics, RenderOptions(preset="balanced"))
+    return loaded, optics, pl
+
+
+def bench_frames(scene_path, H, W, spp):
+    """Whole trace (tracing + accumulation) for 1 and 24 frames, same rays."""
+    from holocore.mitsuba_env import mitsuba
+    from holocore.pipeline import _banks
+    from holocore.tracer import TraceSettings, trace_field
+
+    mi = mitsuba()
+    rows = {}
+    for F in (1, 24):
+        loaded, optics, pl = _setup(scene_path, H, W, F)
+        banks = _banks(optics, (H, W))
+        integ = mi.load_dict({"type": "path", "max_depth": 6})
+        z = pl["analysis"].z_wrp_m
+
+        def run():
+            return trace_field(loaded.scene, pl["hmap"], wavelengths_m=list(optics.wavelengths_m),
+                               pitch_m=optics.pitch_m, shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=F,
+                               settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl["plan"].max_delta),
+                               integrator=integ, seed=0, bank_phasors=banks)
+
+        rows[F], _ = _timed(run)
+    return {"t1_s": rows[1], "t24_s": rows[24], "ratio": rows[24] / rows[1]}
+
+
+def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
+    import drjit as dr
+
+    from holocore.mitsuba_env import mitsuba
+    from holocore.tracer import TraceSettings, trace_field
+
+    mi = mitsuba()
+    loaded, optics, pl = _setup(scene_path, H, W, 1)
+    integ = mi.load_dict({"type": "path", "max_depth": depth})
+    z = pl["analysis"].z_wrp_m
+
+    def ours():
+        return trace_field(loaded.scene, pl["hmap"], wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
+                           shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=1,
+                           settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl["plan"].max_delta),
+                           integrator=integ, seed=0)
+
+    t_ours, _ = _timed(ours)
+    rays = H * W * spp
+    scene = loaded.scene
+    sensor = mi.load_dict({"type": "perspective", "fov": loaded.fov_x_deg, "fov_axis": "x",
+                           "to_world": loaded.sensor.world_transform(),
+                           "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
+                           "sampler": {"type": "independent", "sample_count": spp}})
+
+    def theirs():
+        img = mi.render(scene, sensor=sensor, integrator=integ, spp=spp)
+        dr.eval(img)
+        return img
+
+    t_mi, _ = _timed(theirs)
+    return {"ours_rays_per_s": rays / t_ours, "mitsuba_samples_per_s": rays / t_mi,
+            "ratio": (rays / t_ours) / (rays / t_mi), "depth": depth, "rays": rays}
+
+
+def _view_img(field, meta, z_focus):
+    from holocore.preview import view_rgb
+
+    return view_rgb(field, meta, focus_z_m=z_focus, pupil_diameter_m=4e-3)
+
+
+def bench_wrp_vs_direct(scene_path, H, W, spps, ref_spp):
+    """PSNR (vs a high-spp two-stage reference) of the viewed image as a function of rays, both methods."""
+    from holocore.metrics import psnr
+    from holocore.pipeline import RenderOptions, render_loaded
+    from holocore.config import OpticsConfig
+    from holocore.scene import load_scene
+
+    loaded = load_scene(scene_path)
+    optics = OpticsConfig(resolution_hw=(H, W), frames=4, focal_length_mm=20.0, wavelengths_nm=(516.5,))
+    ref = render_loaded(loaded, optics, RenderOptions(preset="balanced", spp=ref_spp))
+    ana = ref.meta["analysis"]
+    z_focus = 0.5 * (ana["z_near_holo_m"] + ana["z_far_holo_m"])
+    ref_img = _view_img(ref.slm_field, ref.meta, z_focus)
+    rows = []
+    for method in ("wrp", "direct"):
+        for spp in spps:
+            t0 = time.perf_counter()
+            r = render_loaded(loaded, optics, RenderOptions(preset="balanced", spp=spp, method=method))
+            dt = time.perf_counter() - t0
+            img = _view_img(r.slm_field, r.meta, z_focus)
+            s = float((img * ref_img).sum() / max((img * img).sum(), 1e-300))
+            rows.append({"method": method, "spp": spp, "rays": r.meta["stats"]["rays"], "seconds": dt,
+                         "psnr_db": psnr(s * img, ref_img, data_range=float(ref_img.max()))})
+    return rows
+
+
+def rays_to_reach(rows, method, target):
+    pts = sorted((r["rays"], r["psnr_db"]) for r in rows if r["method"] == method)
+    for (r0, p0), (r1, p1) in zip(pts, pts[1:]):
+        if p0 <= target <= p1 and p1 > p0:
+            return math.exp(math.log(r0) + (target - p0) / (p1 - p0) * (math.log(r1) - math.log(r0)))
+    if pts and pts[0][1] >= target:
+        return pts[0][0]
+    return None  # never reached: report as a lower bound
+
+
+def bench_fast_vs_full(scene_path, H, W, ref_spp):
+    from holocore.config import OpticsConfig
+    from holocore.metrics import psnr
+    from holocore.pipeline import RenderOptions, render_loaded
+    from holocore.scene import load_scene
+
+    loaded = load_scene(scene_path)
+    optics = OpticsConfig(resolution_hw=(H, W), frames=4, focal_length_mm=20.0, wavelengths_nm=(640.0, 516.5, 455.4))
+    ref = render_loaded(loaded, optics, RenderOptions(preset="reference", spp=ref_spp))
+    ana = ref.meta["analysis"]
+    z_focus = 0.5 * (ana["z_near_holo_m"] + ana["z_far_holo_m"])
+    ref_img = _view_img(ref.slm_field, ref.meta, z_focus)
+    out = {}
+    for preset in ("fast", "balanced"):
+        render_loaded(loaded, optics, RenderOptions(preset=preset))  # warm-up (compile)
+        t0 = time.perf_counter()
+        r = render_loaded(loaded, optics, RenderOptions(preset=preset))
+        dt = time.perf_counter() - t0
+        img = _view_img(r.slm_field, r.meta, z_focus)
+        s = float((img * ref_img).sum() / max((img * img).sum(), 1e-300))
+        out[preset] = {"seconds": dt, "psnr_db": psnr(s * img, ref_img, data_range=float(ref_img.max()))}
+    out["speedup"] = out["balanced"]["seconds"] / out["fast"]["seconds"]
+    out["psnr_loss_db"] = out["balanced"]["psnr_db"] - out["fast"]["psnr_db"]
+    return out
+
+
+def _machine():
+    import drjit
+    import mitsuba
+    import torch
+
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+            f"torch {torch.__version__}, mitsuba {mitsuba.__version__}, drjit {drjit.__version__}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="smaller sizes (a few minutes)")
+    ap.add_argument("--only", choices=["frames", "mitsuba", "direct", "fast"], action="append")
+    args = ap.parse_args()
+    if not SHARED.is_dir():
+        sys.exit(f"shared scenes not found at {SHARED}: the benchmarks run on ../shared/scenes")
+    from holocore.mitsuba_env import variant
+
+    cbox = SHARED / "cbox-mirror-glass" / "cbox.xml"
+    only = set(args.only or ["frames", "mitsuba", "direct", "fast"])
+    n = 64 if args.quick else 128
+    res: dict = {"date": datetime.date.today().isoformat(), "machine": _machine(), "variant": variant()}
+    if "frames" in only:
+        res["frames"] = bench_frames(cbox, n, n, spp=16)
+        print("24 vs 1 frames:", json.dumps(res["frames"]))
+    if "mitsuba" in only:
+        res["mitsuba"] = bench_vs_mitsuba(cbox, n, n, spp=16)
+        print("vs mitsuba path:", json.dumps(res["mitsuba"]))
+    if "direct" in only:
+        rows = bench_wrp_vs_direct(cbox, 48, 48, spps=[4, 16, 64, 256] if not args.quick else [4, 16, 64],
+                                   ref_spp=512 if not args.quick else 256)
+        wrp_best = max(r["psnr_db"] for r in rows if r["method"] == "wrp")
+        direct_best = max(r["psnr_db"] for r in rows if r["method"] == "direct")
+        target = min(direct_best, wrp_best) - 0.01
+        nw, nd = rays_to_reach(rows, "wrp", target), rays_to_reach(rows, "direct", target)
+        res["direct"] = {"rows": rows, "target_psnr_db": target, "rays_wrp": nw, "rays_direct": nd,
+                         "ratio": (nd / nw) if (nw and nd) else None}
+        print("wrp vs direct:", json.dumps(res["direct"]))
+    if "fast" in only:
+        room = ROOT / "out" / "bench_scene"
+        from holocore.demo_scene import write_demo_scene
+
+        res["fast"] = bench_fast_vs_full(write_demo_scene(room), n, n, ref_spp=256 if not args.quick else 128)
+        print("fast vs full:", json.dumps(res["fast"]))
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "tracer.json").write_text(json.dumps(res, indent=2))
+    write_markdown(res)
+
+
+def write_markdown(res: dict) -> None:
+    lines = [f"# Tracer benchmarks\n", f"Machine: {res['machine']}; variant {res['variant']}; {res['date']}.",
+             "Regenerate: `.venv/bin/python bench/bench_tracer.py`.\n", "| benchmark | measured | goal |",
+             "|---|---|---|"]
+    if "frames" in res:
+        f = res["frames"]
+        lines.append(f"| 24 frames vs 1 (cbox, same rays) | {f['ratio']:.3f}x ({f['t24_s']:.2f} s vs {f['t1_s']:.2f} s) | <= 1.15x |")
+    if "mitsuba" in res:
+        m = res["mitsuba"]
+        lines.append(f"| WRP rays/s vs Mitsuba `path` samples/s (cbox, depth {m['depth']}) | {m['ratio']:.2f}x "
+                     f"({m['ours_rays_per_s']:.3g} vs {m['mitsuba_samples_per_s']:.3g}) | >= 0.8x |")
+    if "direct" in res:
+        d = res["direct"]
+        ratio = f"{d['ratio']:.1f}x" if d["ratio"] else "direct never reached the target"
+        lines.append(f"| two-stage vs direct: rays to {d['target_psnr_db']:.1f} dB | {ratio} | >= 20x fewer |")
+    if "fast" in res:
+        f = res["fast"]
+        lines.append(f"| fast vs balanced (demo scene) | {f['speedup']:.2f}x faster, {f['psnr_loss_db']:+.2f} dB loss "
+                     f"| >= 5x at <= 1 dB |")
+    if "direct" in res:
+        lines += ["", "## Two-stage vs direct, PSNR against a high-spp reference", "",
+                  "| method | spp | rays | seconds | PSNR dB |", "|---|---|---|---|---|"]
+        for r in res["direct"]["rows"]:
+            lines.append(f"| {r['method']} | {r['spp']} | {r['rays']:,} | {r['seconds']:.2f} | {r['psnr_db']:.2f} |")
+    (RESULTS / "tracer.md").write_text("\n".join(lines) + "\n")
+    print((RESULTS / "tracer.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
