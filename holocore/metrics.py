@@ -1,0 +1,128 @@
+"""Image quality metrics for reconstructions vs ground truth (DESIGN.md §7).
+
+Images are 2D [H, W] or channel-first 3D [C, H, W] (C <= 8, the project's colour layout), numpy or torch,
+real. ``data_range`` defaults to the reference's max - min (1 when the reference is flat).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Union
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+__all__ = ["psnr", "ssim", "fit_brightness", "speckle_contrast"]
+
+ArrayLike = Union[np.ndarray, "torch.Tensor"]  # noqa: F821 (torch is optional here)
+_MAX_CHANNELS = 8
+
+
+def _to_numpy(name: str, a: object) -> np.ndarray:
+    if hasattr(a, "detach") and hasattr(a, "cpu"):  # torch tensor, without importing torch
+        a = a.detach().cpu().numpy()
+    arr = np.asarray(a)
+    if np.iscomplexobj(arr):
+        raise ValueError(f"{name} must be real (an intensity image), got complex")
+    if arr.dtype == bool or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be a numeric array, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if arr.ndim not in (2, 3):
+        raise ValueError(f"{name} must be [H, W] or [C, H, W], got shape {arr.shape}")
+    if arr.ndim == 3 and arr.shape[0] > _MAX_CHANNELS:
+        raise ValueError(f"{name} must be channel-first [C, H, W] with C <= {_MAX_CHANNELS}, got shape {arr.shape}"
+                         " (channel-last? move the channel axis first)")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def _pair(pred: object, ref: object) -> tuple[np.ndarray, np.ndarray]:
+    p, r = _to_numpy("pred", pred), _to_numpy("ref", ref)
+    if p.shape != r.shape:
+        raise ValueError(f"pred and ref shapes differ: {p.shape} vs {r.shape}")
+    return p, r
+
+
+def _range(ref: np.ndarray, data_range: Optional[float]) -> float:
+    if data_range is None:
+        span = float(ref.max() - ref.min())
+        return span if span > 0 else 1.0
+    dr = float(data_range)
+    if not math.isfinite(dr) or dr <= 0:
+        raise ValueError(f"data_range must be finite and > 0, got {data_range!r}")
+    return dr
+
+
+def psnr(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None) -> float:
+    """Peak signal-to-noise ratio in dB, 10 log10(range^2 / MSE), MSE over all pixels and channels.
+
+    Identical images give ``inf``.
+    """
+    p, r = _pair(pred, ref)
+    dr = _range(r, data_range)
+    mse = float(np.mean((p - r) ** 2))
+    if mse == 0.0:
+        return math.inf
+    return 10.0 * math.log10(dr * dr / mse)
+
+
+def _ssim2d(x: np.ndarray, y: np.ndarray, dr: float) -> float:
+    """Mean SSIM of one channel: Gaussian window sigma 1.5 px (11 x 11), K1 0.01, K2 0.03 (Wang et al. 2004)."""
+    sigma, trunc = 1.5, 3.5  # radius int(3.5 * 1.5 + 0.5) = 5 px: the paper's 11 x 11 window
+    c1, c2 = (0.01 * dr) ** 2, (0.03 * dr) ** 2
+
+    def g(a: np.ndarray) -> np.ndarray:
+        return gaussian_filter(a, sigma=sigma, truncate=trunc, mode="reflect")
+
+    mx, my = g(x), g(y)
+    vxx = g(x * x) - mx * mx
+    vyy = g(y * y) - my * my
+    vxy = g(x * y) - mx * my
+    s = ((2 * mx * my + c1) * (2 * vxy + c2)) / ((mx * mx + my * my + c1) * (vxx + vyy + c2))
+    pad = 5  # drop the border where the window reaches past the image (as Wang's reference code does)
+    if s.shape[0] > 2 * pad and s.shape[1] > 2 * pad:
+        s = s[pad:-pad, pad:-pad]
+    return float(s.mean())
+
+
+def ssim(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None) -> float:
+    """Structural similarity (Wang et al. 2004, Gaussian window), averaged over channels; 1 when identical."""
+    p, r = _pair(pred, ref)
+    dr = _range(r, data_range)
+    if p.ndim == 2:
+        return _ssim2d(p, r, dr)
+    return float(np.mean([_ssim2d(p[c], r[c], dr) for c in range(p.shape[0])]))
+
+
+def fit_brightness(pred: ArrayLike, ref: ArrayLike) -> tuple[ArrayLike, float]:
+    """One least-squares scale s = <pred, ref> / <pred, pred> (DESIGN §7); returns (s * pred, s).
+
+    ``scaled_pred`` has the input's type (numpy or torch). An all-zero ``pred`` gives s = 1.
+    """
+    p, r = _pair(pred, ref)
+    den = float(np.sum(p * p))
+    s = float(np.sum(p * r)) / den if den > 0 else 1.0
+    return pred * s, s  # type: ignore[operator]
+
+
+def speckle_contrast(intensity: ArrayLike, *, mask: Optional[ArrayLike] = None) -> float:
+    """Speckle contrast std(I) / mean(I) of an intensity image (optionally over a boolean ``mask``)."""
+    if hasattr(intensity, "detach") and hasattr(intensity, "cpu"):
+        intensity = intensity.detach().cpu().numpy()
+    a = np.asarray(intensity, dtype=np.float64)
+    if a.size == 0 or not np.all(np.isfinite(a)):
+        raise ValueError("intensity must be a non-empty finite array")
+    if mask is not None:
+        m = np.asarray(mask.detach().cpu().numpy() if hasattr(mask, "detach") else mask, dtype=bool)
+        if m.shape != a.shape:
+            raise ValueError(f"mask shape {m.shape} differs from intensity shape {a.shape}")
+        a = a[m]
+        if a.size == 0:
+            raise ValueError("mask selects no pixels")
+    mean = float(a.mean())
+    if a.min() < 0:
+        raise ValueError("intensity must be >= 0")
+    if mean <= 0:
+        raise ValueError("intensity is zero everywhere: speckle contrast undefined")
+    return float(a.std() / mean)
