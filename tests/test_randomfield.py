@@ -1,0 +1,123 @@
+"""Band-limited random fields and phase banks (paper Eq. 4, DESIGN §4)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from holocore.randomfield import passband_mask, passband_radius, phase_bank, random_field
+
+LAM, P = 516.5e-9, 8e-6
+
+
+def test_passband_radius_and_mask():
+    assert passband_radius(LAM, P) == pytest.approx(1 / (2 * P))  # sin(theta_max)/lambda = 1/(2p)
+    assert passband_radius(455e-9, 0.2e-6) == pytest.approx(1 / 455e-9)  # lambda >= 2p: theta_max = pi/2
+    theta = math.asin(LAM / (2 * P))
+    assert passband_radius(LAM, P) == pytest.approx(math.sin(theta) / LAM, rel=1e-12)
+    m = passband_mask((64, 96), LAM, (8e-6, 6e-6))
+    assert m.shape == (64, 96) and m.dtype == bool
+    fx = np.fft.fftfreq(96, 6e-6)
+    fy = np.fft.fftfreq(64, 8e-6)
+    rho = 1 / (2 * 8e-6)  # the coarser axis sets the circle
+    f = np.hypot(fx[None, :], fy[:, None])
+    assert np.array_equal(m, f <= rho * (1 + 1e-12))
+    assert m[0, 0] and not m[32, 48]
+    # a circle: its area is close to pi rho^2 in frequency cells
+    assert m.sum() == pytest.approx(math.pi * rho**2 / ((fx[1]) * (fy[1])), rel=0.03)
+
+
+def test_spectrum_inside_passband():
+    shape = (96, 128)
+    for lam, p in ((LAM, P), (455e-9, 0.2e-6), (640e-9, (8e-6, 4e-6))):
+        r = random_field(3, shape, lam, p, seed=5).to(torch.complex128).numpy()
+        spec = np.abs(np.fft.fft2(r)) ** 2
+        m = passband_mask(shape, lam, p)
+        outside = spec[:, ~m].sum() / spec.sum()
+        assert outside < 1e-10
+        # ... and it fills the passband: every kept frequency carries the same power.
+        inside = spec[:, m]
+        assert inside.min() > 0.99 * inside.max()
+        assert abs(np.mean(np.abs(r) ** 2) - 1) < 1e-5  # unit mean intensity
+
+
+def test_phase_bank_is_arg_of_random_field_and_in_range():
+    ph = phase_bank(4, (64, 80), LAM, P, seed=11)
+    r = random_field(4, (64, 80), LAM, P, seed=11)
+    assert ph.dtype == torch.float32 and ph.shape == (4, 64, 80)
+    assert float(ph.min()) >= 0.0 and float(ph.max()) < 2 * math.pi
+    d = torch.remainder(ph.double() - torch.angle(r.to(torch.complex128)) + math.pi, 2 * math.pi) - math.pi
+    assert float(d.abs().max()) < 1e-5
+
+
+def test_phases_are_uniform():
+    """arg of a circular random field is exactly uniform on [0, 2pi). With the passband at Nyquist the
+    correlation length is ~1 px; subsampling every 3rd pixel gives near-independent samples for a KS test."""
+    ph = phase_bank(2, (384, 384), LAM, P, seed=2).numpy()
+    samples = ph[:, ::3, ::3].ravel() / (2 * np.pi)
+    res = stats.kstest(samples, "uniform")
+    assert res.pvalue > 1e-3
+    hist, _ = np.histogram(samples, bins=32, range=(0, 1))
+    chi2 = stats.chisquare(hist)
+    assert chi2.pvalue > 1e-3
+
+
+def test_frames_are_uncorrelated():
+    F, shape = 6, (256, 256)
+    ph = phase_bank(F, shape, LAM, P, seed=9).double()
+    e = torch.polar(torch.ones_like(ph), ph).reshape(F, -1)
+    n = e.shape[1]
+    c = (e @ e.conj().T).abs() / n
+    off = c[~torch.eye(F, dtype=torch.bool)]
+    assert float(off.max()) < 5 / math.sqrt(n)
+    assert torch.allclose(torch.diagonal(c), torch.ones(F, dtype=torch.float64))
+
+
+def test_determinism_and_independence():
+    a = phase_bank(3, (48, 64), LAM, P, seed=123)
+    b = phase_bank(3, (48, 64), LAM, P, seed=123)
+    assert torch.equal(a, b)
+    c = phase_bank(3, (48, 64), LAM, P, seed=124)
+    assert not torch.equal(a, c)
+    assert float((a - c).abs().mean()) > 1.0  # not a small perturbation: a different bank
+    # frame m does not depend on how many frames were asked for
+    d = phase_bank(5, (48, 64), LAM, P, seed=123)
+    assert torch.equal(d[:3], a)
+    # each wavelength gets its own stream, even at the same seed and grid
+    g = phase_bank(3, (48, 64), 640e-9, P, seed=123)
+    e1 = torch.polar(torch.ones_like(a.double()), a.double()).reshape(3, -1)
+    e2 = torch.polar(torch.ones_like(g.double()), g.double()).reshape(3, -1)
+    assert float(((e1 * e2.conj()).mean(dim=1)).abs().max()) < 5 / math.sqrt(e1.shape[1])
+
+
+def test_periodic_lookup_wraps_smoothly():
+    """The field is periodic on H x W: the step across the wrap behaves like any interior step."""
+    r = random_field(1, (128, 128), LAM, P, seed=4)[0].to(torch.complex128)
+    interior = (r[:, 1:] - r[:, :-1]).abs().square().mean()
+    wrap = (r[:, 0] - r[:, -1]).abs().square().mean()
+    assert 0.5 * float(interior) < float(wrap) < 2.0 * float(interior)
+    wrap_rows = (r[0, :] - r[-1, :]).abs().square().mean()
+    assert 0.5 * float(interior) < float(wrap_rows) < 2.0 * float(interior)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(frames=0), "frames"),
+        (dict(frames=2.5), "frames"),
+        (dict(seed=-1), "seed"),
+        (dict(shape_hw=(0, 4)), "shape_hw"),
+        (dict(wavelength_m=float("nan")), "wavelength_m"),
+        (dict(pitch_m=0.0), "pitch_m"),
+        (dict(pitch_m=(1e-6, 2e-6, 3e-6)), "pitch_m"),
+    ],
+)
+def test_invalid_inputs(kwargs, match):
+    args = dict(frames=2, shape_hw=(8, 8), wavelength_m=LAM, pitch_m=P, seed=0)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        phase_bank(args["frames"], args["shape_hw"], args["wavelength_m"], args["pitch_m"], seed=args["seed"])
