@@ -31,6 +31,7 @@ class SceneAnalysis(BaseModel):
     zc_image_max_m: Optional[float]
     image_points_behind_viewer: int
     max_delta_seen: int
+    prepass_capped: int  # pre-pass rays still in a delta chain at the probe cap (a mirror hall)
     colors_lit: list[bool]
     z_wrp_m: float
     z_near_holo_m: Optional[float]  # hologram depth of the nearest surface or image point
@@ -51,6 +52,19 @@ def _camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n
     gx, gy = np.meshgrid((np.arange(nx) + rng.random(nx)) / nx, (np.arange(ny) + rng.random(ny)) / ny)
     d = np.stack([(2 * gx.ravel() - 1) * tx, (2 * gy.ravel() - 1) * ty, np.ones(gx.size)], axis=1)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _emitted_rgb(scene, seed: int, n: int = 256) -> np.ndarray:
+    """Total RGB weight of rays sampled from every emitter: which channels carry any light at all."""
+    mi = mitsuba()
+    total = np.zeros(3)
+    sampler = mi.load_dict({"type": "independent"})
+    for em in scene.emitters():
+        sampler.seed(seed, n)
+        _ray, weight = em.sample_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
+        w = np.stack([np.asarray(weight[k], dtype=np.float64).reshape(-1) for k in range(3)], axis=1)
+        total += np.nan_to_num(w, nan=0.0, posinf=0.0).clip(min=0).sum(axis=0)
+    return total
 
 
 def analyze(
@@ -93,6 +107,7 @@ def analyze(
     behind = int(np.count_nonzero(good & (zc_img_all <= 0)))
     zc_img = zc_img_all[good & (zc_img_all > 0)]
     lum = res.radiance[res.valid].sum(axis=0) if res.valid.any() else np.zeros(3)
+    lum = lum + _emitted_rgb(scene, seed)
     colors_lit = [bool(lum[channel_of(lam)] > 0) for lam in wavelengths_m]
 
     theta_min = min(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
@@ -127,6 +142,7 @@ def analyze(
         zc_image_max_m=float(zc_img.max()) if zc_img.size else None,
         image_points_behind_viewer=behind,
         max_delta_seen=int(res.n_delta[res.valid].max()) if res.valid.any() else 0,
+        prepass_capped=int(np.count_nonzero(res.capped)),
         colors_lit=colors_lit,
         z_wrp_m=float(z_wrp),
         z_near_holo_m=z_near,

@@ -105,6 +105,7 @@ def make_plan(
     spp: Optional[int] = None,
     force_all: bool = False,
     max_delta_seen: Optional[int] = None,
+    prepass_capped: int = 0,
 ) -> EffectPlan:
     """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
     if preset not in PRESETS:
@@ -112,6 +113,7 @@ def make_plan(
     p = PRESETS[preset]
     words: list[str] = []
     n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta)
+    n_delta_shapes += int(bool(max_delta_seen))
     coherent = force_all or n_delta_shapes > 0
     if force_all:
         cap = MAX_DELTA_CAP
@@ -121,7 +123,10 @@ def make_plan(
         # Each dielectric: entry, exit and up to two internal reflections; each mirror: a couple of visits.
         cap = 4 * len(inv.dielectrics) + 2 * (len(inv.mirrors) + len(inv.mixed_delta))
         if max_delta_seen is not None:
-            cap = max(cap, max_delta_seen)
+            cap = max(cap, max_delta_seen + 1)  # Mitsuba merges meshes that share a BSDF: trust the pre-pass
+        if prepass_capped:
+            cap = MAX_DELTA_CAP
+            words.append(f"mirror hall: some paths exceed {MAX_DELTA_CAP} delta bounces; they are dropped")
         cap = min(MAX_DELTA_CAP, cap)
     if inv.mirrors:
         words.append(f"mirror reflection: {len(inv.mirrors)} surface(s) ({', '.join(inv.mirrors[:4])})")

@@ -57,7 +57,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                   max_wrp_distance_m=optics.max_wrp_distance_mm * 1e-3, seed=optics.seed)
     plan = make_plan(inv, preset=options.preset, frames=optics.frames, n_colors=len(optics.wavelengths_m),
                      colors_lit=ana.colors_lit, spp=options.spp, force_all=options.force_all_effects,
-                     max_delta_seen=ana.max_delta_seen)
+                     max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped)
     return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f}
 
 
