@@ -1,7 +1,9 @@
 """Image quality metrics for reconstructions vs ground truth (DESIGN.md §7).
 
-Images are 2D [H, W] or channel-first 3D [C, H, W] (C <= 8, the project's colour layout), numpy or torch,
-real. ``data_range`` defaults to the reference's max - min (1 when the reference is flat).
+Images are 2D [H, W] or 3D with a colour axis, numpy or torch, real. The colour axis is the first one
+([C, H, W], the project's layout) when it has <= 8 entries, else the last one ([H, W, C], e.g. an RGB preview);
+``channel_axis`` (0 or -1) overrides the guess. ``data_range`` defaults to the reference's max - min (1 when the
+reference is flat).
 """
 
 from __future__ import annotations
@@ -28,20 +30,34 @@ def _to_numpy(name: str, a: object) -> np.ndarray:
         raise ValueError(f"{name} must be a numeric array, got dtype {arr.dtype}")
     arr = arr.astype(np.float64)
     if arr.ndim not in (2, 3):
-        raise ValueError(f"{name} must be [H, W] or [C, H, W], got shape {arr.shape}")
-    if arr.ndim == 3 and arr.shape[0] > _MAX_CHANNELS:
-        raise ValueError(f"{name} must be channel-first [C, H, W] with C <= {_MAX_CHANNELS}, got shape {arr.shape}"
-                         " (channel-last? move the channel axis first)")
+        raise ValueError(f"{name} must be [H, W], [C, H, W] or [H, W, C], got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or infinite values")
     return arr
 
 
-def _pair(pred: object, ref: object) -> tuple[np.ndarray, np.ndarray]:
+def _channels_first(arr: np.ndarray, channel_axis: Optional[int]) -> np.ndarray:
+    """[C, H, W] view of a 3D image (2D passes through); see the module docstring for the axis rule."""
+    if arr.ndim == 2:
+        return arr
+    if channel_axis is None:
+        if arr.shape[0] <= _MAX_CHANNELS:
+            channel_axis = 0
+        elif arr.shape[-1] <= _MAX_CHANNELS:
+            channel_axis = -1
+        else:
+            raise ValueError(f"cannot tell the colour axis of shape {arr.shape}: neither the first nor the last "
+                             f"has <= {_MAX_CHANNELS} entries (pass channel_axis)")
+    if channel_axis not in (0, -1, 2):
+        raise ValueError(f"channel_axis must be 0 or -1, got {channel_axis!r}")
+    return arr if channel_axis == 0 else np.moveaxis(arr, -1, 0)
+
+
+def _pair(pred: object, ref: object, channel_axis: Optional[int] = None) -> tuple[np.ndarray, np.ndarray]:
     p, r = _to_numpy("pred", pred), _to_numpy("ref", ref)
     if p.shape != r.shape:
         raise ValueError(f"pred and ref shapes differ: {p.shape} vs {r.shape}")
-    return p, r
+    return _channels_first(p, channel_axis), _channels_first(r, channel_axis)
 
 
 def _range(ref: np.ndarray, data_range: Optional[float]) -> float:
@@ -54,12 +70,13 @@ def _range(ref: np.ndarray, data_range: Optional[float]) -> float:
     return dr
 
 
-def psnr(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None) -> float:
+def psnr(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None,
+         channel_axis: Optional[int] = None) -> float:
     """Peak signal-to-noise ratio in dB, 10 log10(range^2 / MSE), MSE over all pixels and channels.
 
     Identical images give ``inf``.
     """
-    p, r = _pair(pred, ref)
+    p, r = _pair(pred, ref, channel_axis)
     dr = _range(r, data_range)
     mse = float(np.mean((p - r) ** 2))
     if mse == 0.0:
@@ -86,9 +103,10 @@ def _ssim2d(x: np.ndarray, y: np.ndarray, dr: float) -> float:
     return float(s.mean())
 
 
-def ssim(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None) -> float:
+def ssim(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None,
+         channel_axis: Optional[int] = None) -> float:
     """Structural similarity (Wang et al. 2004, Gaussian window), averaged over channels; 1 when identical."""
-    p, r = _pair(pred, ref)
+    p, r = _pair(pred, ref, channel_axis)
     dr = _range(r, data_range)
     if p.ndim == 2:
         return _ssim2d(p, r, dr)
@@ -98,9 +116,17 @@ def ssim(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None)
 def fit_brightness(pred: ArrayLike, ref: ArrayLike) -> tuple[ArrayLike, float]:
     """One least-squares scale s = <pred, ref> / <pred, pred> (DESIGN §7); returns (s * pred, s).
 
-    ``scaled_pred`` has the input's type (numpy or torch). An all-zero ``pred`` gives s = 1.
+    Any shape (pred and ref alike); ``scaled_pred`` has the input's type (numpy or torch). An all-zero ``pred``
+    gives s = 1.
     """
-    p, r = _pair(pred, ref)
+    p, r = (np.asarray(a.detach().cpu().numpy() if hasattr(a, "detach") else a) for a in (pred, ref))
+    if np.iscomplexobj(p) or np.iscomplexobj(r):
+        raise ValueError("pred and ref must be real images")
+    p, r = p.astype(np.float64), r.astype(np.float64)
+    if p.shape != r.shape:
+        raise ValueError(f"pred and ref shapes differ: {p.shape} vs {r.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(r))):
+        raise ValueError("pred or ref contains NaN or infinite values")
     den = float(np.sum(p * p))
     s = float(np.sum(p * r)) / den if den > 0 else 1.0
     return pred * s, s  # type: ignore[operator]

@@ -13,7 +13,6 @@ row frequency -e_y / (f lambda).
 
 from __future__ import annotations
 
-import math
 from typing import Sequence, Union
 
 import numpy as np

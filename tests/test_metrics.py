@@ -68,6 +68,22 @@ def test_ssim_channels_are_averaged():
     assert ssim(torch.from_numpy(p), torch.from_numpy(r), data_range=1.0) == pytest.approx(np.mean(per), abs=1e-12)
 
 
+def test_channel_last_rgb_is_recognised():
+    """[H, W, 3] previews (channel-last) give the same values as their [3, H, W] transpose."""
+    r = np.stack([smooth_image(seed=s) for s in (3, 4, 5)])
+    rng = np.random.default_rng(8)
+    p = r + 0.05 * rng.normal(size=r.shape)
+    r_last, p_last = np.moveaxis(r, 0, -1), np.moveaxis(p, 0, -1)
+    assert ssim(p_last, r_last, data_range=1.0) == pytest.approx(ssim(p, r, data_range=1.0), abs=1e-12)
+    assert psnr(p_last, r_last, data_range=1.0) == pytest.approx(psnr(p, r, data_range=1.0), abs=1e-12)
+    # an explicit axis overrides the guess (a 4 x 4 x 3 image is ambiguous)
+    small = rng.uniform(size=(4, 40, 3))
+    assert ssim(small, small * 0.9, channel_axis=-1) == pytest.approx(
+        ssim(np.moveaxis(small, -1, 0), np.moveaxis(small, -1, 0) * 0.9), abs=1e-12)
+    with pytest.raises(ValueError, match="channel_axis"):
+        ssim(small, small, channel_axis=1)
+
+
 def test_fit_brightness_recovers_scale():
     ref = smooth_image()
     pred = ref / 3.7
@@ -82,6 +98,10 @@ def test_fit_brightness_recovers_scale():
         assert np.sum((s2 * noisy - ref) ** 2) < np.sum(((s2 + ds) * noisy - ref) ** 2)
     t_scaled, t_s = fit_brightness(torch.from_numpy(pred), torch.from_numpy(ref))
     assert isinstance(t_scaled, torch.Tensor) and t_s == pytest.approx(3.7, rel=1e-12)
+    _, s4 = fit_brightness(np.stack([pred] * 6).reshape(2, 3, *ref.shape), np.stack([ref] * 6).reshape(2, 3, *ref.shape))
+    assert s4 == pytest.approx(3.7, rel=1e-12)  # any shape, e.g. [F, C, H, W]
+    with pytest.raises(ValueError, match="shapes differ"):
+        fit_brightness(pred, ref[:-1])
     zeros_scaled, s0 = fit_brightness(np.zeros_like(ref), ref)  # no division by zero
     assert s0 == 1.0 and np.all(zeros_scaled == 0)
 
@@ -107,7 +127,7 @@ def test_speckle_contrast():
     [
         (np.ones((4, 4)), np.ones((4, 5)), "shapes differ"),
         (np.ones(4), np.ones(4), r"\[H, W\]"),
-        (np.ones((32, 32, 3)), np.ones((32, 32, 3)), "channel-first"),
+        (np.ones((32, 32, 16)), np.ones((32, 32, 16)), "colour axis"),
         (np.full((4, 4), np.nan), np.ones((4, 4)), "NaN"),
         (np.ones((4, 4), complex), np.ones((4, 4)), "real"),
     ],
