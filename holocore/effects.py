@@ -8,6 +8,7 @@ can be forced on (``force_all``) for comparison. The plan travels in every resul
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from typing import Optional
 
@@ -19,12 +20,28 @@ __all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "PRESETS"]
 
 MAX_DELTA_CAP = 16
 
-# Rays per WRP pixel, incoherent samples per image point, GI depth, cache use.
+# Rays per WRP pixel are chosen from the scene depth (DESIGN §4 "Convergence"): the Monte Carlo noise power
+# relative to the signal at an image point whose sub-hologram has radius rho pixels is about
+# k(theta) rho^2 / N with k = 2 pi (1 - cos theta) / tan^2 theta (~ pi), so N = k rho^2 / noise, clamped.
+# ``noise``: target noise-to-signal power at the farthest image point; amp_spp: incoherent samples per point.
 PRESETS: dict[str, dict] = {
-    "fast": {"spp": 8, "amp_spp": 1, "gi_depth": 3, "cache": True},
-    "balanced": {"spp": 32, "amp_spp": 2, "gi_depth": 6, "cache": False},
-    "reference": {"spp": 128, "amp_spp": 8, "gi_depth": 12, "cache": False},
+    "fast": {"noise": 4.0, "spp_min": 4, "spp_max": 64, "amp_spp": 1, "gi_depth": 3, "cache": True},
+    "balanced": {"noise": 1.0, "spp_min": 16, "spp_max": 512, "amp_spp": 2, "gi_depth": 6, "cache": False},
+    "reference": {"noise": 0.1, "spp_min": 64, "spp_max": 8192, "amp_spp": 8, "gi_depth": 12, "cache": False},
 }
+
+
+def noise_factor(theta_max: float) -> float:
+    """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
+    t = min(theta_max, math.radians(89.0))
+    return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
+
+
+def choose_spp(preset: str, subhologram_radius_px: float, theta_max: float) -> int:
+    """Rays per WRP pixel for a preset, from the farthest image point's sub-hologram radius."""
+    p = PRESETS[preset]
+    n = math.ceil(noise_factor(theta_max) * subhologram_radius_px ** 2 / p["noise"])
+    return int(min(p["spp_max"], max(p["spp_min"], n)))
 
 
 class SceneInventory(BaseModel):
@@ -54,6 +71,7 @@ class EffectPlan(BaseModel):
     random_phase: bool
     spp: int
     amp_spp: int
+    noise_to_signal: float = 0.0
     forced: bool = False
     summary: list[str] = Field(default_factory=list)
 
@@ -106,6 +124,8 @@ def make_plan(
     force_all: bool = False,
     max_delta_seen: Optional[int] = None,
     prepass_capped: int = 0,
+    subhologram_radius_px: float = 0.0,
+    theta_max: float = 0.05,
 ) -> EffectPlan:
     """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
     if preset not in PRESETS:
@@ -163,8 +183,12 @@ def make_plan(
     random_phase = force_all or frames > 1
     words.append(f"{frames} frame(s): " + ("band-limited random-phase bank, paths shared by all frames"
                                            if random_phase else "one frame, no random-phase bank (smooth phase)"))
-    n = spp if spp is not None else p["spp"]
-    words.append(f"{n} rays per WRP pixel, {p['amp_spp']} radiance sample(s) per image point")
+    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max)
+    ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
+    words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
+                 f"farthest image point's sub-hologram has a radius of {subhologram_radius_px:.1f} px, Monte Carlo "
+                 f"noise about {ratio:.2g}x its signal power; {p['amp_spp']} radiance sample(s) per image point")
     return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
                       use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
-                      spp=n, amp_spp=p["amp_spp"], forced=force_all, summary=words)
+                      spp=n, amp_spp=p["amp_spp"], noise_to_signal=ratio, forced=force_all,
+                      summary=words)

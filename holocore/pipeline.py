@@ -57,7 +57,9 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                   max_wrp_distance_m=optics.max_wrp_distance_mm * 1e-3, seed=optics.seed)
     plan = make_plan(inv, preset=options.preset, frames=optics.frames, n_colors=len(optics.wavelengths_m),
                      colors_lit=ana.colors_lit, spp=options.spp, force_all=options.force_all_effects,
-                     max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped)
+                     max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
+                     subhologram_radius_px=ana.subhologram_radius_px,
+                     theta_max=max(optics.theta_max(lam) for lam in optics.wavelengths_m))
     return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f}
 
 
