@@ -23,16 +23,16 @@ def _emitter(texture: str, to_world) -> dict:
 
 
 def test_flat_mirror_focuses_at_the_virtual_image(dots):
-    # Mirror 0.25 m ahead turned 45 deg: the view goes to +x, where a dot plane faces it 0.25 m away.
-    mirror = {"type": "rectangle", "to_world": T().translate([0, 0, -0.25]).rotate([0, 1, 0], 45).scale(0.05),
+    # Mirror 0.4 m ahead turned 45 deg: the view goes to +x, where a dot plane faces it 0.1 m away.
+    mirror = {"type": "rectangle", "to_world": T().translate([0, 0, -0.4]).rotate([0, 1, 0], 45).scale(0.05),
               "bsdf": {"type": "conductor"}}
-    plane = _emitter(dots, T().translate([0.25, 0, -0.25]).rotate([0, 1, 0], -90).scale(0.005))
+    plane = _emitter(dots, T().translate([0.1, 0, -0.4]).rotate([0, 1, 0], -90).scale(0.005))
     res = render_loaded(scene(sensor=cam(), mirror=mirror, plane=plane), optics(),
-                        RenderOptions(preset="fast", spp=128))
+                        RenderOptions(preset="fast", spp=256))
     assert res.meta["plan"]["coherent_delta"]
     z, dof = focus_of(res, z_holo(0.5))
     assert abs(z - z_holo(0.5)) < 0.5 * dof, (z, z_holo(0.5), dof)
-    assert abs(z - z_holo(0.25)) > 2 * dof  # not at the mirror
+    assert abs(z - z_holo(0.4)) > 1.5 * dof  # not at the mirror
 
 
 def test_convex_mirror_sphere_obeys_the_mirror_equation(dots):
@@ -55,8 +55,9 @@ def test_glass_slab_brings_the_image_closer(dots):
     slab = {"type": "cube", "to_world": T().translate([0, 0, -0.375]).scale([0.05, 0.05, t / 2]),
             "bsdf": {"type": "dielectric", "int_ior": n, "ext_ior": 1.0}}
     plane = emitting_plane(-zc, size=0.005, texture=dots)
-    res = render_loaded(scene(sensor=cam(), slab=slab, plane=plane), optics(), RenderOptions(preset="fast", spp=128))
+    res = render_loaded(scene(sensor=cam(), slab=slab, plane=plane), optics(), RenderOptions(preset="fast", spp=256))
     expect = z_holo(zc - t * (1 - 1 / n))
     z, dof = focus_of(res, expect)
     assert abs(z - expect) < 0.5 * dof, (z, expect, dof)
-    assert abs(z - z_holo(zc)) > 1.0 * dof  # clearly closer than without the slab
+    # the shift t(1 - 1/n) is 1.1 depths of field here: the image is measurably closer than without the slab
+    assert z - z_holo(zc) > 0.5 * dof

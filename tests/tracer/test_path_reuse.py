@@ -14,9 +14,11 @@ OPT = OpticsConfig(resolution_hw=(40, 40), wavelengths_nm=(516.5,), focal_length
 
 
 def _scene():
-    return scene(sensor=camera(fov=3), back=emitting_plane(-0.8, size=0.2),
-                 ball={"type": "sphere", "center": [0.004, 0, -0.5], "radius": 0.01,
-                       "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}})
+    light = {"type": "rectangle", "to_world": T().translate([0, 1, -0.5]).rotate([1, 0, 0], 90).scale(0.5),
+             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 5.0}}}
+    wall = {"type": "rectangle", "to_world": T().translate([0, 0, -0.6]).scale(0.5),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.8}}}
+    return scene(sensor=camera(fov=3), wall=wall, light=light)
 
 
 @pytest.fixture(scope="module")
