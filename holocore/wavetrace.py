@@ -55,6 +55,17 @@ class ChainResult:
     path_samples: int = 0  # incoherent path-tracing samples spent on the radiance
 
 
+def aligned(a: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """A 64-byte aligned contiguous copy. Dr.Jit wraps numpy memory without copying and bakes the pointer's
+    alignment into the kernel, so unaligned inputs would defeat its kernel cache (a recompile every call)."""
+    a = np.asarray(a, dtype=dtype)
+    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
+    off = (-buf.ctypes.data) % 64
+    out = buf[off:off + a.nbytes].view(dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
 def _dot(a, b):
     import drjit as dr
 
@@ -71,11 +82,16 @@ def trace_chain(
     integrator,
     seed: int,
     radiance_cache=None,
+    surface_info: bool = False,
 ) -> ChainResult:
     """Trace world rays through the delta chain and estimate the radiance at the image point.
 
     origins, directions: float64 [R, 3] world-space. ``integrator`` is a Mitsuba sampling integrator used
-    for the incoherent radiance leaving P (ignored where ``radiance_cache`` answers).
+    for the incoherent radiance leaving P (ignored where ``radiance_cache`` answers). ``surface_info``: also
+    return emission, albedo and normal at P (the cache's pre-pass needs them).
+
+    The first hit is handled for every ray at once; only the rays whose first lobe is a delta lobe (usually
+    a few percent) are compacted and carried through the chain with their float64 differentials.
     """
     mi = mitsuba()
     import drjit as dr
@@ -87,148 +103,72 @@ def trace_chain(
         return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool), z3, z3, z3,
                            z3, z3)
     F64, V3d = mi.Float64, mi.Vector3d
-
     o = np.ascontiguousarray(origins, dtype=np.float64)
     v = np.ascontiguousarray(directions, dtype=np.float64)
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(o[:, i].astype(np.float32)) for i in range(3)]),
-                   mi.Vector3f(*[mi.Float(v[:, i].astype(np.float32)) for i in range(3)]))
-    # Two unit vectors perpendicular to v: the angular perturbations of the differentials.
-    helper = np.where(np.abs(v[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    e1 = np.cross(v, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(v, e1)
-    D = V3d(*[F64(v[:, i]) for i in range(3)])
-    # Differentials 0, 1: lateral shifts of O along e1, e2; 2, 3: angular perturbations of v along e1, e2.
-    E = [V3d(*[F64(e[:, i]) for i in range(3)]) for e in (e1, e2)]
-    dP = [E[0], E[1], V3d(0.0), V3d(0.0)]
-    dD = [V3d(0.0), V3d(0.0), E[0], E[1]]
-    ND = 4
-    frame = [V3d(*[F64(e[:, i]) for i in range(3)]) for e in (e1, e2)]
-
+    ray0 = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
+                    mi.Vector3f(*[mi.Float(aligned(v[:, i])) for i in range(3)]))
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(seed, R)
     ctx = mi.BSDFContext()
+    flags = mi.RayFlags.All | mi.RayFlags.dNSdUV
 
-    active = mi.Bool(True)
-    done = mi.Bool(False)  # reached P
-    escaped = mi.Bool(False)
-    bad = mi.Bool(False)  # singular transfer / non-finite
-    n_delta = mi.UInt32(0)
-    n_cur = F64(1.0)
-    opl = F64(0.0)
-    thr = mi.Color3f(1.0)
-    d_out = F64(0.0)
-    p_world = mi.Point3f(0.0)
-    final_ray = mi.Ray3f(ray)
+    # ---- first hit, every ray: most paths end here (P = first hit, d = t) -----------------------------
+    si = scene.ray_intersect(ray0, flags, False, True)
+    hit = si.is_valid()
+    bs, w = si.bsdf(ray0).sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
+    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
+    stop = hit & (~is_delta | si.shape.is_emitter())
+    cont = hit & ~stop
+    d_out = dr.select(stop, F64(si.t), dr.zeros(F64, R))
+    p_world = dr.select(stop, si.p, dr.zeros(mi.Point3f, R))
+    fin_o, fin_d = mi.Point3f(ray0.o), mi.Vector3f(ray0.d)
+    # Scatter targets must have the full width R (a literal of width 1 would be written out of bounds).
+    thr = dr.full(mi.Color3f, 1.0, R)
+    n_delta = dr.zeros(mi.UInt32, R)
+    opl = dr.select(hit, F64(si.t), dr.zeros(F64, R))
+    escaped = mi.Bool(~hit)
+    done = mi.Bool(stop)
+    capped = dr.full(mi.Bool, False, R)
+    bad = dr.full(mi.Bool, False, R)
+    dr.eval(d_out, p_world, opl, done, cont, escaped, thr, n_delta, capped, bad, fin_o, fin_d)
 
-    for bounce in range(max_delta + 1):
-        si = scene.ray_intersect(ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, False, active)
-        miss = active & ~si.is_valid()
-        escaped |= miss
-        active &= si.is_valid()
-        t = F64(si.t)
-        N = V3d(si.sh_frame.n)
-        cosD = _dot(D, N)
-        dPt = [dP[i] + t * dD[i] for i in range(ND)]
-
-        bsdf = si.bsdf(ray)
-        bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
-        is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
-        # Emitters end the chain too: they are seen, not traversed.
-        stop = active & (~is_delta | si.shape.is_emitter())
-        # The image point: lateral displacement perpendicular to the last segment, along the carried frame.
-        lat = [dPt[i] - _dot(dPt[i], D) * D for i in range(ND)]
-        a11, a12 = _dot(lat[0], frame[0]), _dot(lat[1], frame[0])
-        a21, a22 = _dot(lat[0], frame[1]), _dot(lat[1], frame[1])
-        b11, b12 = _dot(lat[2], frame[0]), _dot(lat[3], frame[0])
-        b21, b22 = _dot(lat[2], frame[1]), _dot(lat[3], frame[1])
-        det_b = b11 * b22 - b12 * b21
-        # tr(B^-1 A) with B^-1 = adj(B) / det(B)
-        tr = (b22 * a11 - b12 * a21 - b21 * a12 + b11 * a22)
-        d_here = 2.0 * det_b / dr.select(dr.abs(tr) > 0, tr, 1e-300)
-        d_out = dr.select(stop, d_here, d_out)
-        opl = dr.select(active, opl + n_cur * t, opl)
-        p_world = dr.select(stop, si.p, p_world)
-        final_ray = dr.select(stop, ray, final_ray)
-        done |= stop
-        cont = active & ~stop
-        if bounce == max_delta:
-            active = cont  # still in the chain after the cap: dropped below
-            break
-
-        # ---- transfer the differentials through the delta vertex (float64) -------------------------
-        bad |= cont & (dr.abs(cosD) < _EPS_COS)
-        dtt = [-_dot(dPt[i], N) / dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD) for i in range(ND)]
-        dPh = [dPt[i] + dtt[i] * D for i in range(ND)]
-        dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
-        dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
-        a, b, c = _dot(dpdu, dpdu), _dot(dpdu, dpdv), _dot(dpdv, dpdv)
-        det = a * c - b * b
-        det_ok = det > 1e-30
-        inv_det = dr.select(det_ok, 1.0 / dr.select(det_ok, det, 1.0), 0.0)
-        dN = []
-        for i in range(ND):
-            r1, r2 = _dot(dPh[i], dpdu), _dot(dPh[i], dpdv)
-            du = (c * r1 - b * r2) * inv_det
-            dv = (a * r2 - b * r1) * inv_det
-            dN.append(dndu * du + dndv * dv)
-
-        wo = si.to_world(bs.wo)
-        D_new = V3d(wo)
-        D_new = D_new / dr.norm(D_new)
-        is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
-        # Reflection: D' = D - 2(D.N)N
-        dD_refl, fr_refl = [], []
-        for i in range(ND):
-            dDN = _dot(dD[i], N) + _dot(D, dN[i])
-            dD_refl.append(dD[i] - 2.0 * (cosD * dN[i] + dDN * N))
-        for i in range(2):
-            fr_refl.append(frame[i] - 2.0 * _dot(frame[i], N) * N)
-        # Refraction (Igehy): with N facing the incoming ray, D' = eta D + mu N, mu = eta c1 - c2.
-        sgn = dr.select(cosD < 0, 1.0, -1.0)
-        Nf = N * sgn
-        eta = 1.0 / F64(dr.select(bs.eta > 0, bs.eta, 1.0))  # n1 / n2
-        c1 = -_dot(D, Nf)
-        c2 = dr.maximum(-_dot(D_new, Nf), 1e-9)
-        mu = eta * c1 - c2
-        axis = dr.cross(D, D_new)
-        s_ax = dr.norm(axis)
-        rot_ok = s_ax > 1e-12
-        axis = axis / dr.select(rot_ok, s_ax, 1.0)
-        u_old, u_new = dr.cross(axis, D), dr.cross(axis, D_new)
-        dD_refr, fr_refr = [], []
-        for i in range(ND):
-            dNf = dN[i] * sgn
-            dc1 = -(_dot(dD[i], Nf) + _dot(D, dNf))
-            dc2 = eta * eta * c1 * dc1 / c2
-            dmu = eta * dc1 - dc2
-            dD_refr.append(eta * dD[i] + dmu * Nf + mu * dNf)
-        for i in range(2):
-            rotated = _dot(frame[i], axis) * axis + _dot(frame[i], u_old) * u_new
-            fr_refr.append(dr.select(rot_ok, rotated, frame[i]))
-
-        for i in range(ND):
-            dP[i] = dr.select(cont, dPh[i], dP[i])
-            dD[i] = dr.select(cont, dr.select(is_refl, dD_refl[i], dD_refr[i]), dD[i])
-        for i in range(2):
-            frame[i] = dr.select(cont, dr.select(is_refl, fr_refl[i], fr_refr[i]), frame[i])
-        n_cur = dr.select(cont & ~is_refl, n_cur * F64(bs.eta), n_cur)
-        thr = dr.select(cont, thr * w, thr)
-        n_delta = dr.select(cont, n_delta + 1, n_delta)
-        D = dr.select(cont, D_new, D)
-        ray = dr.select(cont, si.spawn_ray(wo), ray)
-        active = cont
-        dr.eval(dP, dD, frame, D, ray, active, done, escaped, bad, n_delta, n_cur, opl, thr, d_out, p_world,
-                final_ray)
-
-    capped = active  # still following delta lobes when the cap was reached
+    lanes = dr.compress(cont)
+    if dr.width(lanes) > 0 and max_delta > 0:
+        # Differentials 0, 1: lateral shifts of O along e1, e2; 2, 3: angular perturbations of v along e1, e2.
+        helper = np.where(np.abs(v[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+        e1 = np.cross(v, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(v, e1)
+        idx = np.asarray(lanes, dtype=np.int64)
+        sub = _DeltaChain(mi, scene, ctx, flags, idx, o, v, e1, e2, seed)
+        sub.run(max_delta)
+        L = mi.UInt32(aligned(idx, np.uint32))
+        dr.scatter(d_out, sub.d_out, L)
+        dr.scatter(p_world, sub.p_world, L)
+        dr.scatter(fin_o, sub.fin_o, L)
+        dr.scatter(fin_d, sub.fin_d, L)
+        dr.scatter(thr, sub.thr, L)
+        dr.scatter(n_delta, sub.n_delta, L)
+        dr.scatter(opl, sub.opl, L)
+        dr.scatter(escaped, sub.escaped, L)
+        dr.scatter(done, sub.done, L)
+        dr.scatter(capped, sub.capped, L)
+        dr.scatter(bad, sub.bad, L)
+    else:
+        capped = mi.Bool(cont)
+    final_ray = mi.Ray3f(fin_o, fin_d)
+    dr.eval(d_out, p_world, fin_o, fin_d, thr, n_delta, opl, escaped, done, capped, bad)
 
     # ---- radiance leaving P towards the previous vertex --------------------------------------------
     ok = done & ~bad & ~capped & (d_out > 0)
-    si_p = scene.ray_intersect(final_ray, mi.RayFlags.All, False, ok)
-    ok &= si_p.is_valid()
-    emission = si_p.emitter(scene).eval(si_p, ok)
-    albedo = si_p.bsdf().eval_diffuse_reflectance(si_p, ok)
+    if radiance_cache is not None or surface_info:
+        si_p = scene.ray_intersect(final_ray, mi.RayFlags.All, False, ok)
+        ok &= si_p.is_valid()
+        emission = si_p.emitter(scene).eval(si_p, ok)
+        albedo = si_p.bsdf().eval_diffuse_reflectance(si_p, ok)
+        n_p = si_p.sh_frame.n
+    else:
+        emission, albedo, n_p = mi.Color3f(0.0), mi.Color3f(0.0), mi.Vector3f(0.0)
     L_p = mi.Color3f(0.0)
     need = mi.Bool(ok)
     if radiance_cache is not None:
@@ -243,7 +183,6 @@ def trace_chain(
         dr.eval(L_int)
     L_p = dr.select(need, L_int / max(1, amp_spp), L_p)
     L = L_p * thr
-    n_p = si_p.sh_frame.n
     n_need = int(dr.count(need)[0]) if dr.width(need) > 1 else (R if bool(need[0]) else 0)
     dr.eval(L, L_p, d_out, ok, emission, albedo, n_p)
 
@@ -272,3 +211,147 @@ def trace_chain(
         normal_p=_np3(n_p),
         path_samples=n_need * max(1, amp_spp),
     )
+
+
+class _DeltaChain:
+    """The rays whose first lobe was a delta lobe, compacted, followed coherently bounce by bounce.
+
+    Restarts them at the first vertex (re-intersected; the lobe is sampled anew with its own random numbers)
+    and carries four analytic differentials in float64 (see the module docstring).
+    """
+
+    def __init__(self, mi, scene, ctx, flags, idx, o, v, e1, e2, seed):
+        import drjit as dr
+
+        F64, V3d = mi.Float64, mi.Vector3d
+        self.mi, self.scene, self.ctx, self.flags = mi, scene, ctx, flags
+        n = idx.size
+        oo, vv = o[idx], v[idx]
+        self.ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(oo[:, i])) for i in range(3)]),
+                            mi.Vector3f(*[mi.Float(aligned(vv[:, i])) for i in range(3)]))
+        self.D = V3d(*[F64(aligned(vv[:, i], np.float64)) for i in range(3)])
+        E = [V3d(*[F64(aligned(e[idx][:, i], np.float64)) for i in range(3)]) for e in (e1, e2)]
+        self.dP = [E[0], E[1], V3d(0.0), V3d(0.0)]
+        self.dD = [V3d(0.0), V3d(0.0), E[0], E[1]]
+        self.frame = [E[0], E[1]]
+        # Random numbers for lobe choices come from numpy (kernel inputs, so Dr.Jit's kernel cache still hits).
+        self.rng = np.random.default_rng([seed, 0x5EED, n])
+        self.active = dr.full(mi.Bool, True, n)
+        self.done = dr.full(mi.Bool, False, n)
+        self.escaped = dr.full(mi.Bool, False, n)
+        self.bad = dr.full(mi.Bool, False, n)
+        self.capped = dr.full(mi.Bool, False, n)
+        self.n_delta = dr.zeros(mi.UInt32, n)
+        self.n_cur = dr.full(F64, 1.0, n)
+        self.opl = dr.zeros(F64, n)
+        self.thr = dr.full(mi.Color3f, 1.0, n)
+        self.d_out = dr.zeros(F64, n)
+        self.p_world = dr.zeros(mi.Point3f, n)
+        self.fin_o = mi.Point3f(self.ray.o)
+        self.fin_d = mi.Vector3f(self.ray.d)
+
+    def run(self, max_delta: int) -> None:
+        import drjit as dr
+
+        mi = self.mi
+        F64, V3d = mi.Float64, mi.Vector3d
+        ND = 4
+        for bounce in range(max_delta + 1):
+            active = self.active
+            si = self.scene.ray_intersect(self.ray, self.flags, False, active)
+            self.escaped |= active & ~si.is_valid()
+            active &= si.is_valid()
+            t = F64(si.t)
+            N = V3d(si.sh_frame.n)
+            D = self.D
+            cosD = _dot(D, N)
+            dPt = [self.dP[i] + t * self.dD[i] for i in range(ND)]
+            bsdf = si.bsdf(self.ray)
+            u = self.rng.random((3, dr.width(active)), dtype=np.float32)
+            bs, w = bsdf.sample(self.ctx, si, mi.Float(aligned(u[0])), mi.Point2f(mi.Float(aligned(u[1])),
+                                                                             mi.Float(aligned(u[2]))), active)
+            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
+            stop = active & (~is_delta | si.shape.is_emitter())
+            # The image point: 2x2 transfer blocks A (shifts) and B (angles) read along the carried frame.
+            lat = [dPt[i] - _dot(dPt[i], D) * D for i in range(ND)]
+            a11, a12 = _dot(lat[0], self.frame[0]), _dot(lat[1], self.frame[0])
+            a21, a22 = _dot(lat[0], self.frame[1]), _dot(lat[1], self.frame[1])
+            b11, b12 = _dot(lat[2], self.frame[0]), _dot(lat[3], self.frame[0])
+            b21, b22 = _dot(lat[2], self.frame[1]), _dot(lat[3], self.frame[1])
+            det_b = b11 * b22 - b12 * b21
+            tr = b22 * a11 - b12 * a21 - b21 * a12 + b11 * a22  # tr(adj(B) A) = det(B) tr(B^-1 A)
+            d_here = 2.0 * det_b / dr.select(dr.abs(tr) > 0, tr, 1e-300)
+            self.d_out = dr.select(stop, d_here, self.d_out)
+            self.opl = dr.select(active, self.opl + self.n_cur * t, self.opl)
+            self.p_world = dr.select(stop, si.p, self.p_world)
+            self.fin_o = dr.select(stop, self.ray.o, self.fin_o)
+            self.fin_d = dr.select(stop, self.ray.d, self.fin_d)
+            self.done |= stop
+            cont = active & ~stop
+            if bounce == max_delta:
+                self.capped |= cont
+                break
+            self._transfer(si, bs, w, cont, t, N, cosD, dPt)
+            dr.eval(self.dP, self.dD, self.frame, self.D, self.ray, self.active, self.done, self.escaped, self.bad,
+                    self.n_delta, self.n_cur, self.opl, self.thr, self.d_out, self.p_world, self.fin_o, self.fin_d,
+                    self.capped)
+            if not dr.any(self.active):
+                break
+
+    def _transfer(self, si, bs, w, cont, t, N, cosD, dPt) -> None:
+        """Carry the differentials and the frame through the delta vertex (Igehy 1999), float64."""
+        import drjit as dr
+
+        mi = self.mi
+        F64, V3d = mi.Float64, mi.Vector3d
+        ND = 4
+        D = self.D
+        self.bad |= cont & (dr.abs(cosD) < _EPS_COS)
+        safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
+        dPh = [dPt[i] - (_dot(dPt[i], N) / safe_cos) * D for i in range(ND)]
+        dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
+        dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
+        a, b, c = _dot(dpdu, dpdu), _dot(dpdu, dpdv), _dot(dpdv, dpdv)
+        det = a * c - b * b
+        det_ok = det > 1e-30
+        inv_det = dr.select(det_ok, 1.0 / dr.select(det_ok, det, 1.0), 0.0)
+        dN = []
+        for i in range(ND):
+            r1, r2 = _dot(dPh[i], dpdu), _dot(dPh[i], dpdv)
+            dN.append(dndu * ((c * r1 - b * r2) * inv_det) + dndv * ((a * r2 - b * r1) * inv_det))
+        wo = si.to_world(bs.wo)
+        D_new = V3d(wo)
+        D_new = D_new / dr.norm(D_new)
+        is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
+        # Reflection: D' = D - 2 (D.N) N.  Refraction (N facing the ray): D' = eta D + mu N, mu = eta c1 - c2.
+        sgn = dr.select(cosD < 0, 1.0, -1.0)
+        Nf = N * sgn
+        eta = 1.0 / F64(dr.select(bs.eta > 0, bs.eta, 1.0))  # n1 / n2
+        c1 = -_dot(D, Nf)
+        c2 = dr.maximum(-_dot(D_new, Nf), 1e-9)
+        mu = eta * c1 - c2
+        axis = dr.cross(D, D_new)
+        s_ax = dr.norm(axis)
+        rot_ok = s_ax > 1e-12
+        axis = axis / dr.select(rot_ok, s_ax, 1.0)
+        u_old, u_new = dr.cross(axis, D), dr.cross(axis, D_new)
+        for i in range(ND):
+            dDN = _dot(self.dD[i], N) + _dot(D, dN[i])
+            refl = self.dD[i] - 2.0 * (cosD * dN[i] + dDN * N)
+            dNf = dN[i] * sgn
+            dc1 = -(_dot(self.dD[i], Nf) + _dot(D, dNf))
+            dmu = eta * dc1 - eta * eta * c1 * dc1 / c2
+            refr = eta * self.dD[i] + dmu * Nf + mu * dNf
+            self.dP[i] = dr.select(cont, dPh[i], self.dP[i])
+            self.dD[i] = dr.select(cont, dr.select(is_refl, refl, refr), self.dD[i])
+        for i in range(2):
+            f = self.frame[i]
+            refl = f - 2.0 * _dot(f, N) * N
+            rotated = dr.select(rot_ok, _dot(f, axis) * axis + _dot(f, u_old) * u_new, f)
+            self.frame[i] = dr.select(cont, dr.select(is_refl, refl, rotated), f)
+        self.n_cur = dr.select(cont & ~is_refl, self.n_cur * F64(bs.eta), self.n_cur)
+        self.thr = dr.select(cont, self.thr * w, self.thr)
+        self.n_delta = dr.select(cont, self.n_delta + 1, self.n_delta)
+        self.D = dr.select(cont, D_new, D)
+        self.ray = dr.select(cont, si.spawn_ray(wo), self.ray)
+        self.active = cont
