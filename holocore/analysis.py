@@ -13,7 +13,7 @@ from pydantic import BaseModel
 from holocore.mapping import HologramMap
 from holocore.mitsuba_env import mitsuba
 from holocore.tracer import channel_of
-from holocore.wavetrace import trace_chain
+from holocore.wavetrace import aligned, trace_chain
 
 __all__ = ["SceneAnalysis", "analyze", "SceneDoesNotFit"]
 
@@ -92,8 +92,8 @@ def analyze(
     # First surfaces (any BSDF): the WRP must stay in air, in front of them.
     import drjit as dr
 
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(o[:, i].astype(np.float32)) for i in range(3)]),
-                   mi.Vector3f(*[mi.Float(v[:, i].astype(np.float32)) for i in range(3)]))
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float(aligned(v[:, i])) for i in range(3)]))
     si = scene.ray_intersect(ray)
     dr.eval(si.t)
     hit = np.asarray(si.is_valid(), dtype=bool)

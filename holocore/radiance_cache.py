@@ -75,7 +75,7 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
     import drjit as dr
 
     from holocore.analysis import _camera_grid
-    from holocore.wavetrace import trace_chain
+    from holocore.wavetrace import aligned, trace_chain
 
     rng = np.random.default_rng([seed, 4242])
     dirs_c = _camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
@@ -83,7 +83,7 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
     o = np.repeat(hmap.camera_to_world(np.zeros((1, 3))), R, axis=0)
     v = hmap.camera_dir_to_world(dirs_c)
     res_chain = trace_chain(scene, o, v, max_delta=max_delta, amp_spp=samples, integrator=integrator,
-                            seed=seed + 99)
+                            seed=seed + 99, surface_info=True)
     bb = scene.bbox()
     lo = np.array([bb.min[k] for k in range(3)], dtype=np.float64)
     hi = np.array([bb.max[k] for k in range(3)], dtype=np.float64)
@@ -103,7 +103,7 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
             table_np[:, k] = np.where(den > 1e-12, num / np.maximum(den, 1e-12), 0.0)
         counts = np.bincount(idx, minlength=table_np.shape[0])
         table_np[:, 3] = (counts > 0).astype(np.float64)
-    table = mi.Float(table_np.astype(np.float32).ravel())
+    table = mi.Float(aligned(table_np.ravel()))
     dr.eval(table)
     return RadianceCache(bbox_min=lo, cell=cell, res=res, table=table, cells_filled=int(table_np[:, 3].sum()),
                          samples=int(R * samples))
