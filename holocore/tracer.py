@@ -172,9 +172,10 @@ def trace_field(
                           radiance_cache=radiance_cache)
         t1 = time.perf_counter()
         # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
-        p_virtual = o_w + res.d[:, None] * v_w
-        q = hmap.world_to_holo(p_virtual)
-        zc = hmap.world_to_camera(p_virtual)[:, 2]
+        c_virtual = hmap.world_to_camera(o_w + res.d[:, None] * v_w)
+        zc = c_virtual[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = hmap.camera_to_holo(c_virtual)
         ok = res.valid & (zc > 0) & np.isfinite(q).all(axis=1) & (q[:, 2] < z_wrp_m)
         stats.behind_plane += int(np.count_nonzero(res.valid & ~ok))
         r = np.linalg.norm(q - s, axis=1)
@@ -185,7 +186,7 @@ def trace_field(
             inside = ok & (cos_t >= cos_lim[c] - 1e-15)
             amp = np.sqrt(res.radiance[:, chans[c]].astype(np.float64)) * weight * inside
             phase = np.mod(sign * ks[c] * r, 2.0 * math.pi)  # wrapped in float64 before the cast
-            base = torch.from_numpy((amp * np.exp(1j * phase)).astype(np.complex64))
+            base = torch.polar(torch.from_numpy(amp.astype(np.float32)), torch.from_numpy(phase.astype(np.float32)))
             sl = (slice(None), c, slice(int(rows[0]), int(rows[-1]) + 1), slice(None))
             if bank_phasors is None:  # one smooth-phase field, the same for every frame
                 out[sl] += base.view(len(rows), W, N).sum(dim=2)[None]
