@@ -101,7 +101,8 @@ def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
     rays = H * W * spp
     scene = loaded.scene
     sensor = mi.load_dict({"type": "perspective", "fov": loaded.fov_x_deg, "fov_axis": "x",
-                           "to_world": loaded.sensor.world_transform(),
+                           "to_world": mi.ScalarTransform4f(
+                               np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)),
                            "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
                            "sampler": {"type": "independent", "sample_count": spp}})
 

@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
 
 def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Folder for the scene, RESULT.npz and pictures."),
-    resolution: str = typer.Option("192x256", help="SLM size HxW for the demo."),
+    resolution: str = typer.Option("384x512", help="SLM size HxW for the demo."),
     frames: int = typer.Option(4, help="Time-multiplexed frames."),
     preset: str = typer.Option("fast", help="fast | balanced | reference"),
 ) -> None:
@@ -25,7 +25,7 @@ def demo(
     from holocore.pipeline import RenderOptions, render
     from holocore.preview import focal_sweep_png
 
-    optics = optics_from_options(resolution=resolution, frames=frames, focal_length_mm=20.0)
+    optics = optics_from_options(resolution=resolution, frames=frames)  # f fills the SLM with the 10 deg view
     xml = write_demo_scene(out / "scene")
     t0 = time.perf_counter()
     result = render(xml, optics, RenderOptions(preset=preset))
