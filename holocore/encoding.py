@@ -80,7 +80,10 @@ class EncodeResult:
 
     ``phase``: float32 [F, C, H, W] in [0, 2pi) (rad). ``loss``/``loss_init``: float64 [F, C], the complex-field
     error E = 1 - rho^2 against the band-limited target at the end and at the start (module docstring).
-    ``black``: bool [F, C], targets with no light (their E is 1 by definition).
+    ``black``: bool [F, C], targets with no light (their E is 1 by definition). ``efficiency``: [F, C], the
+    fraction of the SLM's light in the passband at the WRP. ``illumination``: [F, C] in [0, 1], the relative
+    laser power per frame and color that restores the target's colour balance (see ``_illumination``); a
+    display shows frame f, color c with sqrt(P) exp(i phi).
     """
 
     phase: np.ndarray
@@ -88,6 +91,7 @@ class EncodeResult:
     loss_init: np.ndarray
     black: np.ndarray
     efficiency: np.ndarray
+    illumination: np.ndarray
     method: str
     iterations: int
     seconds: float
@@ -111,6 +115,7 @@ class EncodeResult:
             "loss_init_mean": mean0,
             "black": self.black.tolist(),
             "efficiency": self.efficiency.tolist(),
+            "illumination": self.illumination.tolist(),
             "loss_definition": "1 - |<U_b,U_p>|^2/(|U_b|^2 |U_p|^2) on the WRP, U_b band-limited target",
             "history": [float(v) for v in self.history],
             **self.options,
@@ -217,11 +222,12 @@ def passband_filter(field: ArrayLike, *, wavelengths_m: Sequence[float], pitch_m
 
 
 def _unit(u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """u / ||u|| per (frame, color) over H, W, and a bool [F, C] of the all-zero ones (left at zero)."""
-    n = torch.sqrt((u.real.square() + u.imag.square()).sum(dim=(-2, -1), dtype=torch.float64))
+    """u / ||u|| per (frame, color) over H, W (all-zero ones left at zero), and ||u||^2 (float64 [F, C])."""
+    n2 = (u.real.square() + u.imag.square()).sum(dim=(-2, -1), dtype=torch.float64)
+    n = torch.sqrt(n2)
     black = n == 0
     scale = torch.where(black, torch.zeros_like(n), 1.0 / torch.where(black, torch.ones_like(n), n))
-    return u * scale.to(torch.float32)[..., None, None], black
+    return u * scale.to(torch.float32)[..., None, None], n2
 
 
 def _rho2(t_unit: torch.Tensor, pred: torch.Tensor) -> torch.Tensor:
@@ -289,16 +295,35 @@ def wrap_phase(phase: ArrayLike) -> np.ndarray:
 
 
 # ---- encoders ----------------------------------------------------------------------------------------------
+def _illumination(target_energy: torch.Tensor, matched_energy: torch.Tensor, black: torch.Tensor) -> torch.Tensor:
+    """Relative laser power P [F, C] in [0, 1] that gives every (frame, color) the target's brightness.
+
+    A unit-amplitude SLM sends the same light in every frame and color, whatever the scene's colors: the
+    target's colour balance (and the balance between frames) is lost unless the illumination restores it. The
+    part of B U_p that matches the target, s U_b with |s|^2 = rho^2 ||BU_p||^2 / ||U_b||^2, scales with
+    sqrt(P); equal |s| sqrt(P) everywhere needs P ~ ||U_b||^2 / (rho^2 ||BU_p||^2), normalised to max 1.
+    Black targets (and ones nothing matches) get 0: the laser is off.
+    """
+    ok = (~black) & (matched_energy > 0)
+    p = torch.where(ok, target_energy / torch.where(ok, matched_energy, torch.ones_like(matched_energy)),
+                    torch.zeros_like(target_energy))
+    peak = p.max()
+    return p / peak if float(peak) > 0 else p
+
+
 def _finish(method: str, phi: torch.Tensor, pb: _Problem, t0: float, *, loss_init: Optional[np.ndarray] = None,
             iterations: int = 0, converged: bool = True, options: Optional[dict] = None,
             history: Sequence[float] = ()) -> EncodeResult:
     with torch.no_grad():
         pred = pb.forward(phi)
-        loss = (1.0 - _rho2(pb.t_band, pred)).clamp(0.0, 1.0).double().cpu().numpy()
+        rho2 = _rho2(pb.t_band, pred).double().clamp(0.0, 1.0)
+        loss = (1.0 - rho2).cpu().numpy()
         energy = (pred.real.square() + pred.imag.square()).sum(dim=(-2, -1), dtype=torch.float64)
         eff = (energy / (phi.shape[-2] * phi.shape[-1])).cpu().numpy()
+        illum = _illumination(pb.t_energy, rho2 * energy, pb.black).cpu().numpy()
     return EncodeResult(phase=wrap_phase(phi), loss=loss, loss_init=loss if loss_init is None else loss_init,
-                        black=pb.black.cpu().numpy(), efficiency=eff, method=method, iterations=int(iterations),
+                        black=pb.black.cpu().numpy(), efficiency=eff, illumination=illum, method=method,
+                        iterations=int(iterations),
                         seconds=time.perf_counter() - t0, converged=bool(converged), options=dict(options or {}),
                         history=tuple(float(v) for v in history))
 
@@ -307,6 +332,7 @@ def _finish(method: str, phi: torch.Tensor, pb: _Problem, t0: float, *, loss_ini
 class _Problem:
     u0: torch.Tensor  # ideal complex SLM field [F, C, H, W]
     t_band: torch.Tensor  # band-limited target U_b, unit norm per (frame, color)
+    t_energy: torch.Tensor  # ||U_b||^2 before normalising, float64 [F, C]
     black: torch.Tensor  # bool [F, C]
     masks: torch.Tensor  # bool [C, H, W] passbands
     z: float
@@ -323,9 +349,10 @@ def _prepare(target_wrp, z_wrp_m, wavelengths_m, pitch_m, device) -> _Problem:
     masks = _band_masks(tuple(t.shape[-2:]), lams, pitch_m, t.device)
     with torch.no_grad():
         u0 = _per_color(t, -z, lams, pitch_m)
-        t_band, black = _unit(_band(_per_color(u0, z, lams, pitch_m), masks))
-        black = black | (t_band.abs().amax(dim=(-2, -1)) == 0)
-    return _Problem(u0=u0, t_band=t_band, black=black, masks=masks, z=z, lams=lams, pitch_m=pitch_m)
+        t_band, t_energy = _unit(_band(_per_color(u0, z, lams, pitch_m), masks))
+        black = (t_energy == 0) | (t_band.abs().amax(dim=(-2, -1)) == 0)
+    return _Problem(u0=u0, t_band=t_band, t_energy=t_energy, black=black, masks=masks, z=z, lams=lams,
+                    pitch_m=pitch_m)
 
 
 def encode_naive(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,

@@ -1,0 +1,176 @@
+"""`holo view`: what an eye sees through the display (DESIGN.md §7), from a phase stack or a render.
+
+A STACK.npz is shown as the phase-only SLM field exp(i phase); a RESULT.npz as its complex SLM field. The eye
+(pupil D, lateral offset e) sits behind the eyepiece and focuses at hologram depth z (metres from the SLM):
+z = z_inf is optical infinity, z = z_inf + f^2 / d a scene distance d (DESIGN §3).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from holo.common import fail
+
+_LABEL_PX = 14  # strip above each sweep tile / GIF frame with its focus depth
+
+
+def register(app: typer.Typer) -> None:
+    app.command("view")(view)
+
+
+def _parse_xy(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        fail(f"--view-mm must look like X,Y in mm (e.g. 1.5,0), got {text!r}")
+    if not (math.isfinite(x) and math.isfinite(y)):
+        fail(f"--view-mm must be finite, got {text!r}")
+    return x, y
+
+
+def _load(path: Path, quantized: bool, equal_power: bool):
+    """(complex64 SLM field [F, C, H, W], meta, kind) from a STACK.npz or a RESULT.npz.
+
+    A stack's frame f, color c is lit with the relative laser power P[f, c] its encoder recorded
+    (``meta["encoder"]["illumination"]``: the scene's colour balance), unless ``equal_power``."""
+    import numpy as np
+
+    from holocore.io import load_result, load_stack, phase_to_u8
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = set(z.files)
+    except (OSError, ValueError) as exc:
+        fail(f"cannot read {path}: {exc}")
+    try:
+        if "phase" in keys:
+            phase, _, meta = load_stack(path)
+            if quantized:  # the 8-bit SLM levels of DESIGN §2, without a lookup table
+                phase = phase_to_u8(phase).astype(np.float32) * np.float32(2 * np.pi / 256)
+            field = np.exp(1j * phase.astype(np.float32)).astype(np.complex64)
+            power = (meta.get("encoder") or {}).get("illumination")
+            if power is not None and not equal_power:
+                p = np.asarray(power, dtype=np.float64)
+                if p.shape != field.shape[:2] or not np.all(np.isfinite(p)) or np.any(p < 0):
+                    fail(f"{path}: encoder illumination must be [F, C] powers >= 0, got shape {p.shape}")
+                field *= np.sqrt(p).astype(np.float32)[..., None, None]
+            return field, meta, "stack"
+        if "slm_field" in keys:
+            if quantized:
+                fail("--quantized applies to a STACK.npz only (a RESULT.npz holds a complex field)")
+            slm, _, meta = load_result(path)
+            return np.ascontiguousarray(slm, dtype=np.complex64), meta, "result"
+    except (ValueError, KeyError) as exc:
+        fail(f"cannot read {path}: {exc}")
+    fail(f"{path} is neither a STACK.npz (phase) nor a RESULT.npz (slm_field)")
+
+
+def _depth_words(z_m: float, meta: dict) -> str:
+    """Where a hologram depth lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
+    dz = z_m - float(meta["z_inf_m"])
+    if abs(dz) < 1e-12:
+        return "optical infinity"
+    if dz < 0:
+        return "beyond infinity"
+    return f"scene distance {float(meta['focal_length_m']) ** 2 / dz:.3g} m"
+
+
+def _warn_cone(meta: dict, pupil_m: float, offset_m: tuple[float, float]) -> None:
+    """Say when the pupil accepts directions outside a color's recording cone (sin theta_max = lambda / 2p)."""
+    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
+    reach = (pupil_m / 2 + math.hypot(*offset_m)) / f
+    wide = [f"{lam * 1e9:.0f} nm" for lam in meta["wavelengths_m"] if reach > min(1.0, lam / (2 * p))]
+    if wide:
+        typer.echo(f"  note: the pupil reaches sin = {reach:.3f}, past the recording cone of {', '.join(wide)}: "
+                   "light outside the cone (Monte Carlo noise, light an encoder put there) shows", err=True)
+
+
+def view(
+    source: Path = typer.Argument(..., help="STACK.npz (phase-only: exp(i phase)) or RESULT.npz (complex field)."),
+    out: Path = typer.Option(..., "--out", help="IMAGE.png for one view; with --sweep, SHEET.png (contact sheet) "
+                                                "or ANIM.gif."),
+    focus_mm: Optional[float] = typer.Option(
+        None, "--focus-mm",
+        help="Focus depth in hologram space, mm from the SLM: z_inf is optical infinity (80 mm in the paper's "
+             "setup), z_inf + f^2/d focuses a scene distance d (f: eyepiece focal length; both in the meta)."),
+    pupil_mm: float = typer.Option(4.0, "--pupil-mm", help="Eye pupil diameter, mm (> 0)."),
+    view_mm: str = typer.Option("0,0", "--view-mm", help="Eye offset X,Y at the pupil plane, mm (x right, y up)."),
+    sweep: Optional[int] = typer.Option(None, "--sweep", help="N views focused from far to near across the "
+                                                              "scene's image volume (from the meta's analysis)."),
+    quantized: bool = typer.Option(False, "--quantized", help="Show a stack through its 8-bit SLM levels."),
+    equal_power: bool = typer.Option(False, "--equal-power", help="Light every frame and color of a stack "
+                                                                  "equally (ignore the encoder's laser powers)."),
+    frame_ms: int = typer.Option(300, "--frame-ms", help="GIF frame duration, ms."),
+) -> None:
+    """Simulate what an eye sees (frame-averaged, pupil-filtered, focused) and write a PNG, sheet or GIF."""
+    if (focus_mm is None) == (sweep is None):
+        fail("give exactly one of --focus-mm (one view) or --sweep N (focal sweep)")
+    if sweep is not None and not 1 <= sweep <= 64:
+        fail(f"--sweep must be in 1..64 views, got {sweep}")
+    if focus_mm is not None and not math.isfinite(focus_mm):
+        fail(f"--focus-mm must be finite, got {focus_mm}")
+    if not (math.isfinite(pupil_mm) and 0 < pupil_mm <= 1000):
+        fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
+    if not 10 <= frame_ms <= 60_000:
+        fail(f"--frame-ms must be in 10..60000, got {frame_ms}")
+    suffix = out.suffix.lower()
+    if sweep is not None and suffix not in (".png", ".gif"):
+        fail(f"--out for --sweep must end in .png (contact sheet) or .gif (animation), got {out.name!r}")
+    if sweep is None and suffix not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"):
+        fail(f"--out must be an image file (.png, .jpg, ...), got {out.name!r}")
+    ex, ey = _parse_xy(view_mm)
+    if not source.is_file():
+        fail(f"input not found: {source}")
+
+    import numpy as np
+    from PIL import Image, ImageDraw
+
+    from holocore.preview import focus_depths, to_png8, view_rgb
+
+    t0 = time.perf_counter()
+    field, meta, kind = _load(source, quantized, equal_power)
+    missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
+    if missing:
+        fail(f"{source}: meta lacks {missing}")
+    pupil_m, offset_m = pupil_mm * 1e-3, (ex * 1e-3, ey * 1e-3)
+    depths = [focus_mm * 1e-3] if focus_mm is not None else [float(z) for z in focus_depths(meta, sweep)]
+
+    def one(z_m: float) -> np.ndarray:
+        try:
+            return view_rgb(field, meta, focus_z_m=z_m, pupil_diameter_m=pupil_m, view_offset_m=offset_m)
+        except ValueError as exc:
+            fail(str(exc))
+
+    views = [one(z) for z in depths]
+    white = float(np.percentile(np.stack(views), 99.5)) or 1.0  # one white level for all views
+    out.parent.mkdir(parents=True, exist_ok=True)
+    H, W = views[0].shape[:2]
+    if sweep is None:
+        Image.fromarray(to_png8(views[0], white=white)).save(out)
+    else:
+        tiles = []
+        for v, z in zip(views, depths):
+            tile = Image.new("RGB", (W, H + _LABEL_PX), (0, 0, 0))
+            tile.paste(Image.fromarray(to_png8(v, white=white)), (0, _LABEL_PX))
+            ImageDraw.Draw(tile).text((2, 1), f"{z * 1e3:.2f}mm", fill=(255, 255, 255))
+            tiles.append(tile)
+        if suffix == ".gif":
+            tiles[0].save(out, save_all=True, append_images=tiles[1:], duration=frame_ms, loop=0)
+        else:
+            cols = math.ceil(math.sqrt(len(tiles)))
+            rows = math.ceil(len(tiles) / cols)
+            sheet = Image.new("RGB", (cols * W, rows * (H + _LABEL_PX)), (0, 0, 0))
+            for i, tile in enumerate(tiles):
+                sheet.paste(tile, ((i % cols) * W, (i // cols) * (H + _LABEL_PX)))
+            sheet.save(out)
+    F = field.shape[0]
+    focus = [f"{z * 1e3:.3f} mm ({_depth_words(z, meta)})" for z in depths]
+    where = focus[0] if len(focus) == 1 else f"from {focus[0]} to {focus[-1]} in {len(focus)} views"
+    typer.echo(f"viewed {source.name} ({kind}, {F} frame(s) averaged) with a {pupil_mm:g} mm pupil at "
+               f"({ex:g}, {ey:g}) mm, focus {where}, in {time.perf_counter() - t0:.1f} s -> {out}", err=True)
+    _warn_cone(meta, pupil_m, offset_m)
