@@ -106,6 +106,9 @@ def view(
     equal_power: bool = typer.Option(False, "--equal-power", help="Light every frame and color of a stack "
                                                                   "equally (ignore the encoder's laser powers)."),
     frame_ms: int = typer.Option(300, "--frame-ms", help="GIF frame duration, ms."),
+    white_percentile: float = typer.Option(99.5, "--white-percentile",
+                                           help="Percentile of all views' intensities shown as white (50..100; "
+                                                "100: the brightest pixel, nothing clips)."),
 ) -> None:
     """Simulate what an eye sees (frame-averaged, pupil-filtered, focused) and write a PNG, sheet or GIF."""
     if (focus_mm is None) == (sweep is None):
@@ -116,6 +119,8 @@ def view(
         fail(f"--focus-mm must be finite, got {focus_mm}")
     if not (math.isfinite(pupil_mm) and 0 < pupil_mm <= 1000):
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
+    if not 50.0 <= white_percentile <= 100.0:
+        fail(f"--white-percentile must be in 50..100, got {white_percentile}")
     if not 10 <= frame_ms <= 60_000:
         fail(f"--frame-ms must be in 10..60000, got {frame_ms}")
     suffix = out.suffix.lower()
@@ -147,7 +152,7 @@ def view(
             fail(str(exc))
 
     views = [one(z) for z in depths]
-    white = float(np.percentile(np.stack(views), 99.5)) or 1.0  # one white level for all views
+    white = float(np.percentile(np.stack(views), white_percentile)) or 1.0  # one white level for all views
     out.parent.mkdir(parents=True, exist_ok=True)
     H, W = views[0].shape[:2]
     if sweep is None:
