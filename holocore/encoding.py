@@ -116,7 +116,8 @@ class EncodeResult:
             "black": self.black.tolist(),
             "efficiency": self.efficiency.tolist(),
             "illumination": self.illumination.tolist(),
-            "loss_definition": "1 - |<U_b,U_p>|^2/(|U_b|^2 |U_p|^2) on the WRP, U_b band-limited target",
+            "loss_definition": "E = 1 - |<U_b,BU_p>|^2/(|U_b|^2 |BU_p|^2) on the WRP; B: recording-cone passband, "
+                               "U_b = B ASM(ASM(U_t,-z_wrp),z_wrp), U_p = ASM(exp(i phase),z_wrp)",
             "history": [float(v) for v in self.history],
             **self.options,
         }
@@ -253,8 +254,8 @@ def field_error(pred: ArrayLike, target: ArrayLike, *, margin_px: int = 0) -> np
                          f"and {tuple(t.shape)}")
     h, w = p.shape[-2:]
     if 2 * margin_px >= min(h, w):
-        raise ValueError(f"margin_px must be < {min(h, w) // 2 + (min(h, w) % 2)} for a {h}x{w} field "
-                         f"(nothing left), got {margin_px}")
+        raise ValueError(f"margin_px must leave an interior (2 * margin_px < {min(h, w)} for a {h}x{w} field), "
+                         f"got {margin_px}")
     sl = (..., slice(margin_px, h - margin_px), slice(margin_px, w - margin_px))
     p = p[sl].to(torch.complex128)
     t = t[sl].to(torch.complex128)
@@ -346,6 +347,9 @@ class _Problem:
 
 def _prepare(target_wrp, z_wrp_m, wavelengths_m, pitch_m, device) -> _Problem:
     t, z, lams = _common(target_wrp, z_wrp_m, wavelengths_m, pitch_m, device)
+    peak = float(t.abs().max())
+    if peak > 0:  # one global scale (the loss is scale-free; ratios between frames and colors are kept)
+        t = t / peak
     masks = _band_masks(tuple(t.shape[-2:]), lams, pitch_m, t.device)
     with torch.no_grad():
         u0 = _per_color(t, -z, lams, pitch_m)

@@ -93,7 +93,7 @@ def test_complex_scale_of_the_target_only_shifts_the_phase():
     target *= np.linspace(0.2, 1.5, w)[None, None, None, :]
     kw = dict(z_wrp_m=1e-3, wavelengths_m=LAMS, pitch_m=P, iterations=80, tol=0.0)
     base = enc.encode_sgd(target, **kw)
-    for c in (1e3 * np.exp(1.3j), 1e-6 * np.exp(-2.9j)):
+    for c in (1e3 * np.exp(1.3j), 1e-6 * np.exp(-2.9j), 1e25 * np.exp(0.4j)):  # no overflow in float32 sums
         scaled = enc.encode_sgd((target * c).astype(np.complex64), **kw)
         d = np.angle(np.exp(1j * (scaled.phase.astype(np.float64) - base.phase)))  # wrapped difference
         offset = np.angle(np.exp(1j * d).mean(axis=(-2, -1), keepdims=True))
