@@ -1,0 +1,8 @@
+"""Phase-only SLM backends behind one interface: :class:`SLM` (load frames, ``show(frame, color)``).
+
+``open_slm(spec)``: ``sim:DIR`` (records what it shows), ``window[:MONITOR]`` (fullscreen pygame window),
+``null`` (shows nothing, counts frames)."""
+
+from display_agent.slm.base import SLM, SLMError, NullSLM, open_slm
+
+__all__ = ["SLM", "SLMError", "NullSLM", "open_slm"]

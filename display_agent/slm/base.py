@@ -1,0 +1,112 @@
+"""The abstract SLM and the backend factory."""
+
+from __future__ import annotations
+
+import abc
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["SLM", "SLMError", "NullSLM", "open_slm"]
+
+
+class SLMError(RuntimeError):
+    """The SLM cannot show what was asked (no stack loaded, index out of range, device gone)."""
+
+
+class SLM(abc.ABC):
+    """A phase-only SLM. ``load`` preloads one stack's gray levels uint8 [F, C, H, W]; ``show(frame, color)``
+    puts one preloaded frame on the panel and returns once it is presented (vsync for real displays)."""
+
+    def __init__(self) -> None:
+        self._levels: Optional[np.ndarray] = None
+        self.stack_id: Optional[str] = None
+        self.shown = 0  # frames presented since creation
+
+    def load(self, *, stack_id: str, levels: np.ndarray) -> None:
+        """Preload a stack (replaces the previous one)."""
+        lv = np.asarray(levels)
+        if lv.dtype != np.uint8 or lv.ndim != 4 or min(lv.shape) < 1:
+            raise ValueError(f"levels must be uint8 [F, C, H, W], got {lv.dtype} {lv.shape}")
+        if not stack_id or any(ch in stack_id for ch in "/\\\0") or stack_id.startswith("."):
+            raise ValueError(f"stack_id must be a plain name (no path separators), got {stack_id!r}")
+        self._prepare(lv, stack_id)
+        self._levels = np.ascontiguousarray(lv)
+        self.stack_id = stack_id
+
+    @property
+    def frame_count(self) -> int:
+        return 0 if self._levels is None else int(self._levels.shape[0])
+
+    @property
+    def color_count(self) -> int:
+        return 0 if self._levels is None else int(self._levels.shape[1])
+
+    def show(self, frame: int, color: int = 0) -> None:
+        """Present preloaded frame ``frame`` of colour ``color``."""
+        if self._levels is None or self.stack_id is None:
+            raise SLMError("no stack loaded")
+        if not (0 <= frame < self._levels.shape[0]):
+            raise ValueError(f"frame must be in [0, {self._levels.shape[0] - 1}], got {frame}")
+        if not (0 <= color < self._levels.shape[1]):
+            raise ValueError(f"color must be in [0, {self._levels.shape[1] - 1}], got {color}")
+        self._present(frame, color)
+        self.shown += 1
+
+    def blank(self) -> None:
+        """Show nothing (level 0 everywhere) and forget the stack."""
+        self._levels = None
+        self.stack_id = None
+        self._blank()
+
+    def close(self) -> None:
+        """Release the device."""
+
+    def __enter__(self) -> "SLM":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # backends
+    def _prepare(self, levels: np.ndarray, stack_id: str) -> None:
+        """Preload (e.g. build surfaces); called before ``levels`` becomes current."""
+
+    @abc.abstractmethod
+    def _present(self, frame: int, color: int) -> None: ...
+
+    def _blank(self) -> None:
+        """Clear the panel."""
+
+
+class NullSLM(SLM):
+    """Shows nothing; counts frames (for dry runs and timing)."""
+
+    def _present(self, frame: int, color: int) -> None:
+        pass
+
+
+def open_slm(spec: str) -> SLM:
+    """Backend from a spec: ``sim:DIR``, ``window[:MONITOR[:WxH]]``, or ``null``."""
+    kind, _, arg = spec.partition(":")
+    if kind == "sim":
+        if not arg:
+            raise ValueError("slm 'sim' needs a directory: sim:DIR")
+        from display_agent.slm.sim import SimSLM
+
+        return SimSLM(arg)
+    if kind == "window":
+        from display_agent.slm.window import WindowSLM
+
+        monitor, _, size = arg.partition(":")
+        try:
+            mon = int(monitor) if monitor else 0
+            wh = tuple(int(v) for v in size.lower().split("x")) if size else None
+        except ValueError:
+            raise ValueError(f"slm window spec must be window[:MONITOR[:WxH]], got {spec!r}") from None
+        if wh is not None and len(wh) != 2:
+            raise ValueError(f"slm window size must be WxH, got {size!r}")
+        return WindowSLM(monitor=mon, size=wh)  # type: ignore[arg-type]
+    if kind == "null":
+        return NullSLM()
+    raise ValueError(f"slm backend must be sim:DIR, window[:MONITOR[:WxH]] or null, got {spec!r}")

@@ -1,0 +1,110 @@
+"""Opening and checking a STACK.npz (the service's artifact, format of holocore/io.py) with numpy alone.
+
+A stack is accepted only if: the file opens as an npz without pickles, ``phase`` is float [F, C, H, W] with
+finite values in [0, 2pi], ``frames_u8`` is uint8 of the same shape, ``meta`` is JSON whose
+``wavelengths_m`` lists C positive wavelengths. Anything else raises :class:`StackError`: the agent never
+shows such a file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import numpy as np
+
+__all__ = ["StackError", "Stack", "open_stack", "sha256_file"]
+
+_MAX_BYTES_DEFAULT = 4 << 30
+
+
+class StackError(ValueError):
+    """A stack file that is unreadable, inconsistent, or not what was announced."""
+
+
+@dataclass(frozen=True)
+class Stack:
+    """A verified stack: phase float32 [F, C, H, W] (radians), the file's sha256 and its meta."""
+
+    path: Path
+    sha256: str
+    phase: np.ndarray
+    frames_u8: np.ndarray
+    meta: dict = field(repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        return tuple(self.phase.shape)  # type: ignore[return-value]
+
+    @property
+    def wavelengths_m(self) -> list[float]:
+        return [float(w) for w in self.meta["wavelengths_m"]]
+
+
+def sha256_file(path: Union[str, Path]) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
+               max_bytes: int = _MAX_BYTES_DEFAULT) -> Stack:
+    """Load and check a STACK.npz; ``expected_sha256`` (hex) must match the file if given."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise StackError(f"cannot read stack {path}: {exc}") from exc
+    if size > max_bytes:
+        raise StackError(f"stack {path} is {size} bytes, over the {max_bytes}-byte limit")
+    digest = sha256_file(path)
+    if expected_sha256 is not None and digest != expected_sha256.lower():
+        raise StackError(f"stack {path.name}: sha256 {digest[:16]}.. differs from the expected "
+                         f"{expected_sha256[:16]}..")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("phase", "frames_u8", "meta") if k not in z.files]
+            if missing:
+                raise StackError(f"stack {path.name} lacks {missing}")
+            phase = z["phase"]
+            frames = z["frames_u8"]
+            meta_raw = z["meta"]
+    except StackError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise StackError(f"stack {path.name} is not a readable npz: {type(exc).__name__}: {exc}") from exc
+    try:
+        meta: Any = json.loads(str(meta_raw))
+    except (json.JSONDecodeError, TypeError) as exc:
+        raise StackError(f"stack {path.name}: meta is not JSON: {exc}") from exc
+    _check(path.name, phase, frames, meta)
+    return Stack(path=path, sha256=digest, phase=phase.astype(np.float32, copy=False), frames_u8=frames, meta=meta)
+
+
+def _check(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> None:
+    if phase.ndim != 4 or min(phase.shape, default=0) < 1:
+        raise StackError(f"stack {name}: phase must be a non-empty [F, C, H, W], got shape {phase.shape}")
+    if not np.issubdtype(phase.dtype, np.floating):
+        raise StackError(f"stack {name}: phase must be floating point, got {phase.dtype}")
+    if frames.dtype != np.uint8 or frames.shape != phase.shape:
+        raise StackError(f"stack {name}: frames_u8 must be uint8 of shape {phase.shape}, "
+                         f"got {frames.dtype} {frames.shape}")
+    if not np.all(np.isfinite(phase)):
+        raise StackError(f"stack {name}: phase holds NaN or infinite values")
+    lo, hi = float(phase.min()), float(phase.max())
+    if lo < 0.0 or hi > 2 * np.pi + 1e-5:
+        raise StackError(f"stack {name}: phase must lie in [0, 2pi), got [{lo:.4g}, {hi:.4g}]")
+    if not isinstance(meta, dict):
+        raise StackError(f"stack {name}: meta must be a JSON object")
+    wl = meta.get("wavelengths_m")
+    if not isinstance(wl, list) or len(wl) != phase.shape[1]:
+        raise StackError(f"stack {name}: meta.wavelengths_m must list {phase.shape[1]} wavelengths, got {wl!r}")
+    if not all(isinstance(w, (int, float)) and np.isfinite(w) and 1e-7 < w < 1e-5 for w in wl):
+        raise StackError(f"stack {name}: meta.wavelengths_m must be metres in (100 nm, 10 um), got {wl}")
