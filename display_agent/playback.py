@@ -44,6 +44,7 @@ class Player:
         self._clock = clock
         self._sleep = sleep
         self._color: Optional[int] = None
+        self.last_frame: Optional[int] = None  # index of the frame last presented
         self.total = PlaybackStats()
 
     def play(self, *, passes: int = 1, stop_event: Optional[threading.Event] = None) -> PlaybackStats:
@@ -75,6 +76,7 @@ class Player:
                             self.laser_hook(c)
                         self._color = c
                     self.slm.show(f, c)
+                    self.last_frame = f
                     stats.frames_shown += 1
                     slot += 1
             stats.passes += 1
