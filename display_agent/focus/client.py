@@ -84,7 +84,8 @@ class FocusController:
         self._buf = b""
         self._ids = itertools.count(1)
         self.banner: Optional[str] = None
-        self.reconnects = 0
+        self.reconnects = 0  # successful connects after the first
+        self._connected_once = False
 
     # connection -----------------------------------------------------------------------------------------
     @property
@@ -122,7 +123,12 @@ class FocusController:
             rep = parse_reply(line)
             if rep is not None and rep.id == ping_id and rep.ok:
                 break
-        return self.request("VERSION")
+        version = self.request("VERSION")
+        if self._connected_once:
+            self.reconnects += 1
+            log.warning("focus controller %s reconnected (%s)", self.url, version)
+        self._connected_once = True
+        return version
 
     def close(self) -> None:
         if self._ser is not None:
@@ -278,5 +284,4 @@ class FocusController:
                 self.close()
                 if self._clock() >= deadline:
                     raise
-                self.reconnects += 1
                 log.warning("focus controller %s: %s; reconnecting and repeating the move", self.url, exc)

@@ -1,0 +1,114 @@
+"""SLM backends and time-multiplexed, colour-sequential playback."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from display_agent.playback import Player
+from display_agent.slm import NullSLM, SLMError, open_slm
+from display_agent.slm.sim import SimSLM, frame_png_name
+from tests.agent.helpers import slm_shows
+
+
+def _levels(shape=(3, 3, 16, 24), seed=0):
+    return np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8)
+
+
+def test_sim_slm_writes_exact_pngs_and_logs_every_presentation(tmp_path):
+    lv = _levels()
+    slm = open_slm(f"sim:{tmp_path}")
+    assert isinstance(slm, SimSLM)
+    slm.load(stack_id="job1", levels=lv)
+    p = Player(slm, rate_hz=0)
+    st = p.play(passes=2)
+    slm.close()
+    assert st.frames_shown == 2 * 3 * 3 and slm.shown == 18
+    for f in range(3):
+        for c in range(3):
+            img = Image.open(tmp_path / frame_png_name("job1", c, f))
+            assert img.mode == "L"
+            np.testing.assert_array_equal(np.asarray(img), lv[f, c])
+    shows = slm_shows(tmp_path)
+    assert len(shows) == 18
+    # colour-sequential order inside each frame: (f0,c0),(f0,c1),(f0,c2),(f1,c0),...
+    assert [(s["f"], s["c"]) for s in shows[:9]] == [(f, c) for f in range(3) for c in range(3)]
+    import hashlib
+    assert all(s["sha256"] == hashlib.sha256(lv[s["f"], s["c"]].tobytes()).hexdigest() for s in shows)
+
+
+def test_slm_refuses_bad_input(tmp_path):
+    slm = NullSLM()
+    with pytest.raises(SLMError, match="no stack loaded"):
+        slm.show(0)
+    with pytest.raises(ValueError, match="uint8"):
+        slm.load(stack_id="a", levels=np.zeros((1, 1, 2, 2), np.float32))
+    with pytest.raises(ValueError, match="plain name"):
+        slm.load(stack_id="../evil", levels=np.zeros((1, 1, 2, 2), np.uint8))
+    slm.load(stack_id="a", levels=np.zeros((2, 1, 2, 2), np.uint8))
+    with pytest.raises(ValueError, match=r"frame must be in \[0, 1\]"):
+        slm.show(2)
+    with pytest.raises(ValueError, match="backend must be"):
+        open_slm("projector:1")
+    with pytest.raises(ValueError, match="sim:DIR"):
+        open_slm("sim:")
+
+
+def test_playback_paces_at_the_rate_and_switches_lasers_per_colour():
+    slm = NullSLM()
+    slm.load(stack_id="a", levels=_levels((4, 3, 2, 2)))
+    colors: list[int] = []
+    p = Player(slm, rate_hz=240.0, laser_hook=colors.append)
+    t0 = time.monotonic()
+    st = p.play(passes=2)
+    dt = time.monotonic() - t0
+    n = 2 * 4 * 3
+    assert st.frames_shown == n and st.passes == 2
+    # slot k is due at k / rate: n slots take (n - 1) / rate at least
+    assert dt >= (n - 1) / 240.0 - 1e-3
+    assert dt < (n - 1) / 240.0 + 0.25
+    assert colors == [0, 1, 2] * 8  # one switch before each colour's frame
+    single = NullSLM()
+    single.load(stack_id="m", levels=_levels((5, 1, 2, 2)))
+    calls: list[int] = []
+    Player(single, rate_hz=0, laser_hook=calls.append).play(passes=3)
+    assert calls == [0]  # one colour: the laser is set once
+
+
+def test_playback_stops_on_request():
+    slm = NullSLM()
+    slm.load(stack_id="a", levels=_levels((24, 3, 2, 2)))
+    stop = threading.Event()
+    p = Player(slm, rate_hz=100.0)
+    threading.Timer(0.1, stop.set).start()
+    st = p.play(passes=10, stop_event=stop)
+    assert st.stopped and 3 <= st.frames_shown < 24 * 3 * 10
+    with pytest.raises(ValueError, match="rate_hz"):
+        Player(slm, rate_hz=-1)
+    with pytest.raises(ValueError, match="passes"):
+        p.play(passes=0)
+
+
+def test_window_slm_shows_the_levels_on_the_screen(monkeypatch):
+    pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    lv = _levels((2, 3, 20, 30), seed=4)
+    slm = open_slm("window:0:64x48")
+    try:
+        slm.load(stack_id="w", levels=lv)
+        w, h = slm.size
+        x0, y0 = (w - 30) // 2, (h - 20) // 2
+        for f in range(2):
+            for c in range(3):
+                slm.show(f, c)
+                screen = slm.screen_levels()
+                np.testing.assert_array_equal(screen[y0:y0 + 20, x0:x0 + 30], lv[f, c])
+                assert int(screen.sum()) == int(lv[f, c].astype(np.int64).sum())  # black around it
+        with pytest.raises(ValueError, match="larger than the SLM window"):
+            slm.load(stack_id="big", levels=np.zeros((1, 1, h + 1, 2), np.uint8))
+    finally:
+        slm.close()
