@@ -10,6 +10,11 @@ back focal point). So the view is shifted by -e (z_f - z_inf) / f before it is c
 to the SLM field's spectrum (exact, band-limited) on a grid padded by the shift. The centre view needs no
 shift, and then pixel x = f tan(angle) as in the ground truth.
 
+Only the part of the view the SLM lights fully is scored. The rays that reach the pupil through an image
+point x at depth z_f left the SLM (z = 0) within z_f (NA + |e| / f) of x (NA = D / 2f): nearer than that to
+the SLM's edge the view is vignetted by the SLM's aperture, a property of the display's size, not an error of
+the hologram. That border (:func:`lit_margin_px`) is left out of the scores (the images keep it).
+
 Score of a cell (one least-squares brightness scale, DESIGN §7): with w the 99th percentile of the ground
 truth G (the display's white; emitters above it saturate), the scale s minimises ||s R - G||^2 over the pixels
 where G < w; both images are then clipped to [0, w] and divided by w, and PSNR / SSIM use data range 1. One
@@ -28,7 +33,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 __all__ = ["CellScore", "Cell", "Evaluation", "load_slm_field", "focus_planes_m", "view_offsets_m",
-           "default_pupil_m", "eye_view", "compare", "evaluate", "write_outputs"]
+           "default_pupil_m", "lit_margin_px", "eye_view", "compare", "evaluate", "write_outputs"]
 
 MAX_FOCUS_PLANES = 64
 MAX_VIEWS = 15
@@ -49,6 +54,7 @@ class Cell:
     focus_z_m: float
     view_offset_m: tuple[float, float]
     score: CellScore
+    margin_px: int = 0  # border left out of the score (SLM-aperture vignetting)
     recon: Optional[np.ndarray] = None  # [C, H, W] linear (unscaled)
     truth: Optional[np.ndarray] = None  # [C, H, W] linear
 
@@ -75,7 +81,7 @@ class Evaluation:
         return [{"focus_index": c.focus_index, "view_col": c.view_index[0], "view_row": c.view_index[1],
                  "focus_mm": c.focus_z_m * 1e3, "view_x_mm": c.view_offset_m[0] * 1e3,
                  "view_y_mm": c.view_offset_m[1] * 1e3, "psnr_db": c.score.psnr_db, "ssim": c.score.ssim,
-                 "scale": c.score.scale, "white": c.score.white} for c in self.cells]
+                 "scale": c.score.scale, "white": c.score.white, "margin_px": c.margin_px} for c in self.cells]
 
 
 # ---- inputs -------------------------------------------------------------------------------------------------
@@ -170,6 +176,15 @@ def default_pupil_m(meta: dict, *, view_deg: float) -> float:
     return 2.0 * f * na
 
 
+def lit_margin_px(meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
+                  view_offset_m: tuple[float, float] = (0.0, 0.0)) -> int:
+    """Border (pixels) where the SLM's aperture vignettes the view: ceil(z_f (NA + max|e| / f) / p)."""
+    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
+    na = float(pupil_diameter_m) / (2.0 * f)
+    e = max(abs(float(view_offset_m[0])), abs(float(view_offset_m[1])))
+    return int(math.ceil(max(0.0, float(focus_z_m)) * (na + e / f) / p - 1e-9))
+
+
 # ---- one view -----------------------------------------------------------------------------------------------
 def eye_view(field_slm: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
              view_offset_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
@@ -247,14 +262,15 @@ def compare(recon: np.ndarray, truth: np.ndarray, *, white_percentile: float = 9
 # ---- the grid -----------------------------------------------------------------------------------------------
 def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int = 5, views: int = 7,
              view_deg: float = 0.5, pupil_diameter_m: Optional[float] = None,
-             focus_z_m: Optional[Sequence[float]] = None, keep_images: bool = False,
+             focus_z_m: Optional[Sequence[float]] = None, keep_images: bool = False, crop: bool = True,
              progress: Optional[Any] = None) -> Evaluation:
     """Score a hologram on a grid of focus planes x views against ground truth.
 
     ``truth``: a :class:`holocore.groundtruth.GroundTruth` (or anything with ``channels(focus_z_m=,
     pupil_diameter_m=, view_offset_m=)`` -> [C, H, W]). ``focus_planes`` (1..64) uniform over the image volume
     unless ``focus_z_m`` lists depths (m); ``views`` x ``views`` eye offsets spanning +-``view_deg`` degrees;
-    pupil ``pupil_diameter_m`` (m, default :func:`default_pupil_m`). ``keep_images`` keeps both images per cell.
+    pupil ``pupil_diameter_m`` (m, default :func:`default_pupil_m`). ``keep_images`` keeps both images per cell;
+    ``crop`` scores only the fully lit part (:func:`lit_margin_px`).
     """
     zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
     grid = view_offsets_m(meta, views, view_deg)
@@ -269,8 +285,16 @@ def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int
             gt = np.asarray(truth.channels(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e), dtype=np.float64)
             if gt.shape != rec.shape:
                 raise ValueError(f"ground truth {gt.shape} and reconstruction {rec.shape} differ in shape")
-            sc = compare(rec, gt)
-            cells.append(Cell(focus_index=fi, view_index=idx, focus_z_m=z, view_offset_m=e, score=sc,
+            m = lit_margin_px(meta, focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e) if crop else 0
+            H, W = rec.shape[-2:]
+            if min(H, W) - 2 * m < 16:
+                raise ValueError(
+                    f"the SLM ({H}x{W} px) is too small for this view: an image point {z * 1e3:.2f} mm from it "
+                    f"gathers light from {m} px around, so no part of the view is fully lit; put virtual "
+                    f"infinity closer (z_inf_mm, now {float(meta['z_inf_m']) * 1e3:g}), use a smaller pupil or "
+                    f"view angle, or a larger SLM")
+            sc = compare(rec[:, m:H - m, m:W - m], gt[:, m:H - m, m:W - m])
+            cells.append(Cell(focus_index=fi, view_index=idx, focus_z_m=z, view_offset_m=e, score=sc, margin_px=m,
                               recon=rec if keep_images else None, truth=gt if keep_images else None))
             if progress is not None:
                 progress("evaluate", fi * len(grid) + vi + 1, total)

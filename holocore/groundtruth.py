@@ -15,6 +15,13 @@ rows downwards, as our hologram grid does.
 
 Linear RGB radiance comes back as float32 [3, H, W]; a laser line's ground truth is the channel that holds
 it (:func:`holocore.tracer.channel_of`).
+
+Diffraction. A thin-lens render is geometric: its pupil blurs defocused points but never limits resolution.
+An eye whose pupil accepts direction sines up to NA = D / 2f resolves no better than lambda / 2NA in hologram
+space, whatever the display does; a frame-averaged random-phase hologram images incoherently, so the ideal
+view is the geometric image convolved with the pupil's incoherent PSF |h|^2 (h: the inverse Fourier transform
+of the pupil disc of radius NA / lambda). :func:`pupil_diffraction` applies it (on by default in
+:class:`GroundTruth`), so that an evaluation does not charge the hologram for the eye's own diffraction.
 """
 
 from __future__ import annotations
@@ -26,7 +33,8 @@ import numpy as np
 
 from holocore.mapping import HologramMap
 
-__all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths", "GroundTruth"]
+__all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths",
+           "pupil_diffraction", "GroundTruth"]
 
 MAX_GT_SPP = 1 << 16
 DEFAULT_MAX_DEPTH = 12  # path length of the ground truth when the scene names no integrator
@@ -140,6 +148,31 @@ def channels_for_wavelengths(rgb: np.ndarray, wavelengths_m: Sequence[float]) ->
     return np.stack([a[channel_of(lam)] for lam in lams], axis=0)
 
 
+def pupil_diffraction(img: np.ndarray, *, wavelengths_m: Sequence[float], pitch_m: float,
+                      numerical_aperture: float) -> np.ndarray:
+    """Each channel [C, H, W] convolved with the incoherent PSF of a pupil of ``numerical_aperture`` (sine)
+    at its wavelength (m), on the grid of ``pitch_m`` (m); float64, same sum. Edges are padded by reflection."""
+    a = np.asarray(img, dtype=np.float64)
+    lams = [_finite("wavelengths_m", v, positive=True) for v in wavelengths_m]
+    if a.ndim != 3 or a.shape[0] != len(lams):
+        raise ValueError(f"img must be [C, H, W] with one channel per wavelength, got {a.shape} for {len(lams)}")
+    p = _finite("pitch_m", pitch_m, positive=True)
+    na = _finite("numerical_aperture", numerical_aperture, positive=True)
+    C, H, W = a.shape
+    ph, pw = H // 2 + 1, W // 2 + 1
+    out = np.empty_like(a)
+    for c, lam in enumerate(lams):
+        big = np.pad(a[c], ((ph, ph), (pw, pw)), mode="reflect")
+        fy = np.fft.fftfreq(big.shape[0], d=p)
+        fx = np.fft.fftfreq(big.shape[1], d=p)
+        pupil = (fx[None, :] ** 2 + fy[:, None] ** 2) <= (na / lam) ** 2
+        psf = np.abs(np.fft.ifft2(pupil)) ** 2
+        otf = np.fft.fft2(psf / psf.sum())
+        blurred = np.fft.ifft2(np.fft.fft2(big) * otf).real
+        out[c] = blurred[ph:ph + H, pw:pw + W].clip(min=0.0)
+    return out
+
+
 class GroundTruth:
     """Thin-lens renders of one scene for one display, cached by (focus, pupil, view).
 
@@ -148,7 +181,7 @@ class GroundTruth:
     """
 
     def __init__(self, loaded: Any, meta: dict, *, shape_hw: tuple[int, int], spp: int = 256, seed: int = 0,
-                 integrator: Optional[Any] = None) -> None:
+                 integrator: Optional[Any] = None, diffraction: bool = True) -> None:
         missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
         if missing:
             raise ValueError(f"meta lacks {missing}: the ground truth needs the display's geometry")
@@ -164,6 +197,7 @@ class GroundTruth:
         self.spp = int(spp)
         self.seed = int(seed)
         self.integrator = integrator
+        self.diffraction = bool(diffraction)
         self.seconds = 0.0  # time spent rendering
         self._cache: dict[tuple, np.ndarray] = {}
 
@@ -186,6 +220,11 @@ class GroundTruth:
 
     def channels(self, *, focus_z_m: float, pupil_diameter_m: float,
                  view_offset_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-        """[C, H, W]: the channel of each laser line (DESIGN §4 colors)."""
-        return channels_for_wavelengths(self.rgb(focus_z_m=focus_z_m, pupil_diameter_m=pupil_diameter_m,
-                                                 view_offset_m=view_offset_m), self.wavelengths_m)
+        """[C, H, W]: the channel of each laser line (DESIGN §4 colors), diffraction-limited by the pupil
+        unless the instance was made with ``diffraction=False``."""
+        img = channels_for_wavelengths(self.rgb(focus_z_m=focus_z_m, pupil_diameter_m=pupil_diameter_m,
+                                                view_offset_m=view_offset_m), self.wavelengths_m)
+        if not self.diffraction:
+            return img
+        return pupil_diffraction(img, wavelengths_m=self.wavelengths_m, pitch_m=self.pitch_m,
+                                 numerical_aperture=float(pupil_diameter_m) / (2.0 * self.focal_length_m))
