@@ -24,7 +24,7 @@ from display_agent.focus.client import FocusController, FocusError
 from display_agent.hooks import HookError, make_hook
 from display_agent.phasemap import PhaseMapping
 from display_agent.playback import Player
-from display_agent.service_client import BadStack, ServiceClient, ServiceError, TransientError
+from display_agent.service_client import BadStack, CorruptDownload, ServiceClient, ServiceError, TransientError
 from display_agent.slm.base import SLM, open_slm
 from display_agent.stack import Stack
 
@@ -119,19 +119,22 @@ class Agent:
         backoff = Backoff(base_s=self.cfg.backoff_base_s, cap_s=self.cfg.backoff_cap_s, jitter=self.cfg.backoff_jitter)
         next_sync = next_hb = time.monotonic()
         outage_since: Optional[float] = None
+        unreachable = False  # an outage, rather than only damaged downloads
         while not stop.is_set():
             now = time.monotonic()
             if now >= next_sync:
                 try:
                     self._sync_once()
                     if outage_since is not None:
-                        log.info("service reachable again after %d failed attempts (%.1f s)", backoff.failures,
+                        log.info("%s after %d failed attempts (%.1f s)",
+                                 "service reachable again" if unreachable else "sync recovered", backoff.failures,
                                  time.monotonic() - outage_since)
-                        outage_since = None
+                        outage_since, unreachable = None, False
                     backoff.reset()
                     next_sync = time.monotonic() + self.cfg.poll_interval_s
                 except (TransientError, ServiceError) as exc:
                     outage_since = outage_since or time.monotonic()
+                    unreachable = unreachable or not isinstance(exc, CorruptDownload)
                     delay = backoff.next_delay()
                     if isinstance(exc, ServiceError):
                         delay = max(delay, self.cfg.poll_interval_s)
