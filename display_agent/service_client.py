@@ -205,4 +205,5 @@ class ServiceClient:
             raise BadStack(f"job {job_id}: {exc}") from exc
         part_etag.unlink(missing_ok=True)
         entry = cache.install(job_id, part, sha256=digest, etag=etag or f'"{digest}"')
-        return FetchResult(stack=dataclasses.replace(stack, path=entry.path), downloaded=True, resumed_from=resumed_from)
+        return FetchResult(stack=dataclasses.replace(stack, path=entry.path), downloaded=True,
+                           resumed_from=resumed_from)

@@ -182,7 +182,7 @@ def serve_tcp(sim: FocusSimulator, host: str, port: int, *, reset_delay_s: float
                 except OSError:
                     continue
 
-                def recv() -> Optional[bytes]:
+                def recv(conn: socket.socket = conn) -> Optional[bytes]:
                     try:
                         return conn.recv(4096)
                     except socket.timeout:

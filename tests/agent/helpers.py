@@ -100,7 +100,15 @@ class StackServer:
 
     def log(self) -> list[dict]:
         p = self.state / "server.log"
-        return [json.loads(l) for l in p.read_text().splitlines() if l.strip()] if p.is_file() else []
+        if not p.is_file():
+            return []
+        out = []
+        for line in p.read_text().splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:  # a line being written right now
+                pass
+        return out
 
 
 def job(job_id: str, display: str = "lab1", t: float = 0.0) -> dict:
@@ -121,9 +129,12 @@ def start_focus_sim(args: list[str], log: Path) -> tuple[subprocess.Popen, str]:
 
 def read_sim_log(log: Path) -> list[tuple[float, str, str]]:
     out = []
-    for l in log.read_text().splitlines():
-        t, d, rest = l.split(" ", 2)
-        out.append((float(t), d, rest))
+    for line in log.read_text().splitlines():
+        try:
+            t, d, rest = line.split(" ", 2)
+            out.append((float(t), d, rest))
+        except ValueError:  # a line being written right now
+            pass
     return out
 
 
@@ -133,10 +144,15 @@ def slm_shows(slm_dir: Path) -> list[dict]:
     out = []
     if not p.is_file():
         return out
-    for l in p.read_text().splitlines():
-        parts = l.split()
+    for line in p.read_text().splitlines():
+        parts = line.split()
         if len(parts) >= 3 and parts[1] == "show":
-            kv = dict(x.split("=", 1) for x in parts[3:])
-            out.append({"t": float(parts[0]), "stack": parts[2], "c": int(kv["c"]), "f": int(kv["f"]),
-                        "sha256": kv["sha256"]})
+            try:
+                kv = dict(x.split("=", 1) for x in parts[3:])
+                rec = {"t": float(parts[0]), "stack": parts[2], "c": int(kv["c"]), "f": int(kv["f"]),
+                       "sha256": kv["sha256"]}
+            except (ValueError, KeyError):  # a line being written right now
+                continue
+            if len(rec["sha256"]) == 64:
+                out.append(rec)
     return out

@@ -125,10 +125,10 @@ class Handler(BaseHTTPRequestHandler):
         digest = hashlib.sha256(data).hexdigest()
         etag = f'"{digest}"'
         if self.headers.get("If-None-Match") == etag:
+            self._log(method="GET", path=path, status=304)  # logged before the client can see the reply
             self.send_response(304)
             self.send_header("ETag", etag)
             self.end_headers()
-            self._log(method="GET", path=path, status=304)
             return
         ctl = self._control()
         mode = ctl.get("mode", "normal")
@@ -141,11 +141,11 @@ class Handler(BaseHTTPRequestHandler):
         if rng and (if_range is None or if_range == etag):
             m = re.fullmatch(r"bytes=(\d+)-", rng)
             if not m or int(m.group(1)) >= len(data):
+                self._log(method="GET", path=path, status=416, range=rng)
                 self.send_response(416)
                 self.send_header("Content-Range", f"bytes */{len(data)}")
                 self.send_header("Content-Length", "0")
                 self.end_headers()
-                self._log(method="GET", path=path, status=416, range=rng)
                 return
             start, status = int(m.group(1)), 206
         body = bytearray(data[start:])
@@ -159,8 +159,8 @@ class Handler(BaseHTTPRequestHandler):
         self.send_header("Accept-Ranges", "bytes")
         if status == 206:
             self.send_header("Content-Range", f"bytes {start}-{len(data) - 1}/{len(data)}")
-        self.end_headers()
         self._log(method="GET", path=path, status=status, mode=mode, range=rng, start=start)
+        self.end_headers()
         if mode == "truncate":
             self.wfile.write(bytes(body[: len(body) // 2]))
             self.wfile.flush()

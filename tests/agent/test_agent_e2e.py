@@ -13,7 +13,6 @@ import subprocess
 import time
 
 import numpy as np
-import pytest
 from PIL import Image
 
 from holocore.io import load_stack, phase_to_u8, save_stack

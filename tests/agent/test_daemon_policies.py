@@ -34,7 +34,8 @@ def _run(agent: Agent):
 
 
 def test_policy_once_plays_one_pass_then_blanks(server, tmp_path):
-    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=TOKEN, display="lab1", slm=f"sim:{tmp_path / 'slm'}",
+    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=TOKEN, display="lab1",
+                                             slm=f"sim:{tmp_path / 'slm'}",
                                              policy="once", rate_hz=200, cache_dir=tmp_path / "cache",
                                              poll_interval_s=0.1, heartbeat_interval_s=0.2))
     stop, th = _run(Agent(cfg))
@@ -54,7 +55,8 @@ def test_policy_capture_runs_the_sequence_for_a_new_stack(server, tmp_path):
     sim_log = tmp_path / "sim.log"
     sim, _ = start_focus_sim(["--listen", f"127.0.0.1:{port}", "--move-time-s", "0.1", "--settle-s", "0",
                               "--reset-delay-s", "0.1"], sim_log)
-    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=TOKEN, display="lab1", slm=f"sim:{tmp_path / 'slm'}",
+    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=TOKEN, display="lab1",
+                                             slm=f"sim:{tmp_path / 'slm'}",
                                              policy="capture", planes=3, passes_per_plane=2, rate_hz=300,
                                              focus_url=f"socket://127.0.0.1:{port}", cache_dir=tmp_path / "cache",
                                              poll_interval_s=0.1))
