@@ -1,0 +1,49 @@
+"""`holo serve`: the rendering service (HTTP API, SQLite job store, one worker process per job)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from holo.common import fail
+
+
+def register(app: typer.Typer) -> None:
+    app.command("serve")(serve)
+
+
+def serve(
+    data_dir: Path = typer.Option(..., "--data-dir", help="Folder for the database, scenes and job artifacts."),
+    host: str = typer.Option("127.0.0.1", help="Address to bind (default: this machine only)."),
+    port: int = typer.Option(8080, help="TCP port (0..65535)."),
+    workers: int = typer.Option(1, help="Jobs run at the same time (1..256)."),
+    engine: Optional[str] = typer.Option(None, help="local (subprocesses) | ray (default: ray when --ray-address "
+                                                    "or HOLO_RAY_ADDRESS is set)."),
+    ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address, e.g. ray://head:10001 "
+                                                                          "or auto; its workers must share --data-dir."),
+    ray_gpus: Optional[float] = typer.Option(None, "--ray-gpus", help="GPUs each job asks Ray for (0..64)."),
+    max_attempts: int = typer.Option(3, "--max-attempts", help="Runs of a job before a crash fails it (1..100)."),
+    log_level: str = typer.Option("info", "--log-level", help="debug | info | warning | error"),
+) -> None:
+    """Run the rendering service (REST API on /v1, OpenAPI at /docs)."""
+    from pydantic import ValidationError
+
+    from service.settings import ServiceSettings
+
+    if log_level not in ("debug", "info", "warning", "error"):
+        fail(f"--log-level must be debug, info, warning or error, got {log_level!r}")
+    try:
+        settings = ServiceSettings.from_env(data_dir=data_dir, host=host, port=port, workers=workers, engine=engine,
+                                            ray_address=ray_address, ray_gpus_per_job=ray_gpus,
+                                            max_attempts=max_attempts)
+    except ValidationError as exc:
+        fail("; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()))
+    from service.api.context import DataDirBusy
+    from service.server import serve as run
+
+    try:
+        run(settings, log_level=log_level)
+    except DataDirBusy as exc:
+        fail(str(exc), code=1)

@@ -1,0 +1,107 @@
+"""`holo submit`: upload a scene to a running service, submit a job, show its progress, download the stack."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from holo.common import fail
+
+
+def register(app: typer.Typer) -> None:
+    app.command("submit")(submit)
+
+
+def submit(
+    scene: Path = typer.Argument(..., help="Scene folder, .zip bundle, or the scene's .xml (its folder is sent)."),
+    server: str = typer.Option(..., "--server", help="Service URL, e.g. http://127.0.0.1:8080"),
+    token: Optional[str] = typer.Option(None, "--token", help="Bearer token (scopes submit); default $HOLO_TOKEN."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Where to write STACK.npz (omit: do not download)."),
+    entry: Optional[str] = typer.Option(None, "--entry", help="Scene XML inside the bundle, when it holds several."),
+    preset: str = typer.Option("balanced", help="fast | balanced | reference"),
+    frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames."),
+    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
+    resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
+    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
+    wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
+    seed: Optional[int] = typer.Option(None, help="Seed of rays and random-phase bank."),
+    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig as a JSON file."),
+    encoder: str = typer.Option("sgd", help="sgd | dpac"),
+    iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd)."),
+    method: str = typer.Option("wrp", help="wrp | direct"),
+    display: Optional[str] = typer.Option(None, help="Display the job is for (agents pick it up)."),
+    idempotency_key: Optional[str] = typer.Option(None, "--idempotency-key", help="Repeat a submit safely."),
+    no_wait: bool = typer.Option(False, "--no-wait", help="Print the job id and return at once."),
+) -> None:
+    """Upload SCENE, submit a render job, follow its progress and download the stack."""
+    from holo.common import optics_from_options
+
+    token = token or os.environ.get("HOLO_TOKEN")
+    if not token:
+        fail("give --token or set HOLO_TOKEN")
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+    optics = optics_from_options(optics_json=optics_json, resolution=resolution, pitch_um=pitch_um,
+                                 wavelengths_nm=wavelengths_nm, seed=seed)
+    body = {"optics": optics.model_dump(mode="json"), "preset": preset, "frames": frames, "spp": spp,
+            "encoder": encoder, "iterations": iterations, "method": method, "display": display}
+    body = {k: v for k, v in body.items() if v is not None}
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from service.client import ClientError, ServiceClient
+
+    console = Console(stderr=True)
+    try:
+        client = ServiceClient(server, token=token)
+    except ValueError as exc:
+        fail(str(exc))
+    try:
+        with client:
+            sc = client.upload_scene(scene, entry=entry)
+            console.print(f"scene {sc['id']} ({sc['report']['total_bytes']:,} bytes, {len(sc['report']['files'])} "
+                          f"files, sha256 {sc['sha256'][:12]}..)")
+            for w in sc["report"].get("warnings", []):
+                console.print(f"  warning: {w}")
+            job = client.submit({"scene_id": sc["id"], **body}, idempotency_key=idempotency_key)
+            est = (job.get("estimate") or {}).get("seconds")
+            console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est:.0f} s" if est else "")
+                          + (f" (reused {job['reused_from']})" if job.get("reused_from") else ""))
+            if no_wait:
+                print(job["id"])
+                return
+            with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                          TimeElapsedColumn(), console=console, transient=True,
+                          disable=not sys.stderr.isatty()) as bar:
+                task = bar.add_task(job["state"], total=1.0)
+
+                def on_event(event: str, data: dict) -> None:
+                    if event == "progress":
+                        bar.update(task, completed=float(data.get("fraction", 0.0)),
+                                   description=f"{data.get('step', '')}: {data.get('stage', '')}")
+                    elif event == "state":
+                        bar.update(task, description=data.get("state", ""))
+
+                final = client.follow(job["id"], on_event)
+            if final["state"] != "succeeded":
+                fail(f"job {final['id']} {final['state']}: {final.get('error') or 'no message'}", code=1)
+            t = final.get("timings") or {}
+            console.print(f"job {final['id']} succeeded" + (f" in {t['run_s']:.1f} s" if "run_s" in t else ""))
+            if out is not None:
+                digest = client.download_stack(final["id"], out)
+                console.print(f"stack -> {out} (sha256 {digest[:16]}..)")
+            print(json.dumps({"job_id": final["id"], "stack_sha256": final["stack_sha256"]}))
+    except ClientError as exc:
+        fail(str(exc), code=1)
+    except Exception as exc:  # noqa: BLE001 - transport errors: one line, not a traceback
+        import httpx
+
+        if isinstance(exc, httpx.HTTPError):
+            fail(f"{server}: {type(exc).__name__}: {exc}", code=1)
+        raise

@@ -1,0 +1,170 @@
+"""The FastAPI application: ``create_app(settings)``. Requests only read and write the database and files;
+rendering happens in worker processes (DESIGN.md §1: no Mitsuba, Dr.Jit or torch on this path)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.responses import JSONResponse, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from service.api import displays, jobs, scenes
+from service.api.context import ServiceContext
+from service.api.problems import install_handlers, problem
+from service.db import Database
+from service.metrics import Metrics
+from service.models import Problem
+from service.settings import ServiceSettings
+from service.version import SERVICE_VERSION, code_version
+
+__all__ = ["create_app"]
+
+log = logging.getLogger("holo.service")
+
+class _Guard:
+    """Pure ASGI middleware: refuses bodies over ``max_body`` bytes (413, from Content-Length or while streaming)
+    and records request counts and latency (time to the response start) per route template."""
+
+    def __init__(self, app, *, ctx: ServiceContext) -> None:
+        self.app = app
+        self.ctx = ctx
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        limit = self.ctx.settings.upload_limits.max_body_bytes
+        headers = dict(scope.get("headers") or [])
+        t0 = time.perf_counter()
+        status = {"code": 500}
+        try:
+            declared = int(headers.get(b"content-length", b"0") or 0)
+        except ValueError:
+            declared = 0
+        if declared > limit:
+            resp = problem(413, f"request body of {declared} bytes is larger than the limit of {limit} bytes")
+            await resp(scope, receive, send)
+            self._record(scope, 413, t0)
+            return
+        seen = 0
+
+        async def limited_receive():
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > limit:
+                    raise _TooLarge()
+            return message
+
+        async def recording_send(message):
+            if message["type"] == "http.response.start":
+                status["code"] = message["status"]
+                self._record(scope, message["status"], t0)
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, recording_send)
+        except _TooLarge:
+            resp = problem(413, f"request body is larger than the limit of {limit} bytes")
+            await resp(scope, receive, send)
+            self._record(scope, 413, t0)
+
+    def _record(self, scope, code: int, t0: float) -> None:
+        route = scope.get("route")
+        path = getattr(route, "path", None) or "unmatched"
+        m = self.ctx.metrics
+        m.requests.labels(method=scope.get("method", "?"), route=path, status=str(code)).inc()
+        m.latency.labels(route=path).observe(time.perf_counter() - t0)
+
+class _TooLarge(Exception):
+    pass
+
+def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=None) -> FastAPI:
+    """The service app. With ``start_workers`` its lifespan locks the data dir and runs the scheduler and the
+    planner in this process (what `holo serve` does)."""
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    for d in (settings.scenes_dir, settings.jobs_dir):
+        d.mkdir(parents=True, exist_ok=True)
+    db = Database(settings.db_path)
+    ctx = ServiceContext(settings=settings, db=db, metrics=Metrics(db.count_jobs), code_version=code_version())
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        if start_workers:
+            from service.workers.planner import Planner
+            from service.workers.scheduler import Scheduler
+
+            ctx.lock_data_dir()
+            eng = engine if engine is not None else _make_engine(settings)
+            ctx.scheduler = Scheduler(settings, db, eng, metrics=ctx.metrics)
+            ctx.planner = Planner(settings, db)
+            ctx.scheduler.start()
+            ctx.planner.start()
+            log.info("holo service %s (code %s) on data dir %s, %d worker(s), engine %s", SERVICE_VERSION,
+                     ctx.code_version, settings.data_dir, settings.workers, eng.name)
+        try:
+            yield
+        finally:
+            if ctx.planner is not None:
+                ctx.planner.stop()
+            if ctx.scheduler is not None:
+                ctx.scheduler.stop(requeue=True)
+            ctx.unlock_data_dir()
+
+    app = FastAPI(title="HoloPathTracer service", version=SERVICE_VERSION, lifespan=lifespan,
+                  description="Upload Mitsuba scene bundles, render them into phase-only hologram stacks, and "
+                              "serve the stacks to display agents. Errors are application/problem+json.")
+    app.state.ctx = ctx
+    install_handlers(app)
+    app.add_middleware(_Guard, ctx=ctx)
+    app.include_router(scenes.router)
+    app.include_router(jobs.router)
+    app.include_router(displays.router)
+
+    @app.get("/livez", tags=["health"])
+    def livez() -> dict:
+        """The process answers."""
+        return {"status": "ok"}
+
+    @app.get("/readyz", tags=["health"], responses={503: {"description": "Not ready"}})
+    def readyz():
+        """Database reachable, data dir writable, scheduler alive."""
+        checks = {"database": db.ping(), "data_dir_writable": os.access(settings.data_dir, os.W_OK),
+                  "scheduler": (ctx.scheduler.alive() if ctx.scheduler is not None else not start_workers)}
+        ok = all(checks.values())
+        return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
+
+    @app.get("/metrics", tags=["health"], response_class=Response)
+    def metrics() -> Response:
+        """Prometheus metrics."""
+        return Response(generate_latest(ctx.metrics.registry), media_type=CONTENT_TYPE_LATEST)
+
+    _add_problem_schema(app)
+    return app
+
+def _make_engine(settings: ServiceSettings):
+    if settings.engine == "ray":
+        from service.workers.ray_engine import RayEngine
+
+        return RayEngine(settings)
+    from service.workers.engine import LocalEngine
+
+    return LocalEngine()
+
+def _add_problem_schema(app: FastAPI) -> None:
+    original = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema:
+            return app.openapi_schema
+        schema = original()
+        schema.setdefault("components", {}).setdefault("schemas", {})["Problem"] = Problem.model_json_schema()
+        app.openapi_schema = schema
+        return schema
+
+    app.openapi = openapi
+

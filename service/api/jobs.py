@@ -1,0 +1,255 @@
+"""Job routes: submit (202, idempotent, content-addressed reuse), list, status, events (SSE), cancel, and the
+artifacts (stack with ETag/Range, 8-bit frames zip, preview PNG)."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import re
+import secrets
+import sqlite3
+import time
+from pathlib import Path
+from typing import Literal, Optional
+
+from fastapi import APIRouter, Depends, Header, Path as PathParam, Query, Request
+from fastapi.responses import JSONResponse, StreamingResponse
+from starlette.concurrency import run_in_threadpool
+
+from service.api.context import ServiceContext
+from service.api.deps import get_ctx, require
+from service.api.files import file_response
+from service.api.problems import PROBLEM_RESPONSES, ApiError
+from service.api.scenes import iso
+from service.auth import Principal
+from service.db import FINAL_STATES
+from service.models import (ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest, cache_key, effective_optics,
+                            estimate_cost, job_limit_errors)
+
+__all__ = ["router", "job_out"]
+
+router = APIRouter(tags=["jobs"])
+_IDEM = re.compile(r"^[\x21-\x7e]{1,200}$")
+_ARTIFACTS = {"stack": ("stack.npz", "application/octet-stream"), "frames": ("frames.zip", "application/zip"),
+              "preview": ("preview.png", "image/png")}
+
+
+def job_out(row: dict) -> dict:
+    jid = row["id"]
+    links = {"self": f"/v1/jobs/{jid}", "events": f"/v1/jobs/{jid}/events"}
+    if row["state"] == "succeeded":
+        links.update(stack=f"/v1/jobs/{jid}/stack", frames=f"/v1/jobs/{jid}/frames.zip",
+                     preview=f"/v1/jobs/{jid}/preview.png")
+    return {"id": jid, "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
+            "created_at": iso(row["created_at"]), "started_at": iso(row["started_at"]),
+            "finished_at": iso(row["finished_at"]), "stack_sha256": row["stack_sha256"],
+            "stack_bytes": row["stack_bytes"], "options": row["spec"], "progress": row["progress"],
+            "timings": row["timings"], "plan": row["plan"], "error": row["error"], "attempts": row["attempts"],
+            "worker_pid": row["worker_pid"] if row["state"] == "running" else None, "estimate": row["estimate"],
+            "reused_from": row["reused_from"], "cache_key": row["cache_key"], "links": links}
+
+
+def _get(ctx: ServiceContext, job_id: str) -> dict:
+    row = ctx.db.get_job(job_id)
+    if row is None:
+        raise ApiError(404, f"no job {job_id!r}")
+    return row
+
+
+def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
+    headers = {"Location": f"/v1/jobs/{row['id']}"}
+    if replayed:
+        headers["Idempotent-Replayed"] = "true"
+    return JSONResponse(job_out(row), status_code=202, headers=headers)
+
+
+def _reusable(ctx: ServiceContext, key: str) -> Optional[dict]:
+    for prev in ctx.db.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
+                             "ORDER BY finished_at DESC LIMIT 5", (key,)):
+        d = Path(prev["artifact_dir"] or "")
+        if prev["stack_sha256"] and (d / "stack.npz").is_file():
+            return prev
+    return None
+
+
+@router.post("/v1/jobs", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
+def submit_job(
+    req: JobRequest,
+    request: Request,
+    idempotency_key: Optional[str] = Header(default=None, alias="Idempotency-Key",
+                                            description="Repeat a submit safely: same key + same body = same job."),
+    principal: Principal = Depends(require("submit")),
+):
+    """Queue a render job (202 + Location). An identical earlier result (same scene content, optics, options
+    and code version) is reused at once; ``estimate`` gives the predicted seconds."""
+    ctx = get_ctx(request)
+    if idempotency_key is not None and not _IDEM.match(idempotency_key):
+        raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
+    errs = job_limit_errors(req, ctx.settings.job_limits)
+    if errs:
+        raise ApiError(422, "; ".join(errs))
+    scene = ctx.db.get_scene(req.scene_id)
+    if scene is None:
+        raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
+    body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
+    if idempotency_key is not None:
+        prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
+                           (principal.token_id, idempotency_key))
+        if prior is not None:
+            if prior["body_hash"] != body_hash:
+                raise ApiError(422, "Idempotency-Key was used before with a different request body")
+            return _accepted(_get(ctx, prior["job_id"]), replayed=True)
+    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
+    spec = {"optics": effective_optics(req).model_dump(mode="json"), "preset": req.preset, "frames": req.frames,
+            "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations, "method": req.method}
+    job_id = "j" + secrets.token_hex(10)
+    now = time.time()
+    row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id, "spec": spec,
+           "cache_key": key, "created_at": now, "estimate": estimate_cost(req), "token_id": principal.token_id,
+           "artifact_dir": str(ctx.settings.jobs_dir / job_id), "plan": {"summary": (scene["plan"] or {}).get(
+               "summary", []), "source": "scene plan at default optics" if scene["plan"] else "pending"}}
+    prev = _reusable(ctx, key)
+    if prev is not None:
+        row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
+                   stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],
+                   artifacts=prev["artifacts"], reused_from=prev["reused_from"] or prev["id"],
+                   timings={"reused": True}, progress={"step": "done", "stage": "reused", "done": 1, "total": 1,
+                                                       "fraction": 1.0})
+    try:
+        with ctx.db.tx() as conn:
+            ctx.db.insert_job(row, conn)
+            if idempotency_key is not None:
+                conn.execute("INSERT INTO idempotency (token_id, key, body_hash, job_id, created_at) "
+                             "VALUES (?, ?, ?, ?, ?)", (principal.token_id, idempotency_key, body_hash, job_id, now))
+    except sqlite3.IntegrityError:  # a concurrent request with the same key won
+        prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
+                           (principal.token_id, idempotency_key))
+        if prior is None or prior["body_hash"] != body_hash:
+            raise ApiError(422, "Idempotency-Key was used before with a different request body") from None
+        return _accepted(_get(ctx, prior["job_id"]), replayed=True)
+    ctx.metrics.jobs_submitted.labels(reused=str(prev is not None).lower()).inc()
+    ctx.wake_scheduler()
+    return _accepted(_get(ctx, job_id))
+
+
+@router.get("/v1/jobs", response_model=JobList, responses=PROBLEM_RESPONSES)
+def list_jobs(
+    request: Request,
+    state: Optional[Literal["queued", "running", "succeeded", "failed", "cancelled"]] = None,
+    display: Optional[str] = Query(default=None, pattern=NAME_PATTERN),
+    scene_id: Optional[str] = Query(default=None, pattern=ID_PATTERN),
+    limit: int = Query(default=50, ge=1, le=500),
+    principal: Principal = Depends(require("read")),
+):
+    """Jobs, newest first, filtered by state, display and scene."""
+    rows = get_ctx(request).db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit)
+    return {"jobs": [job_out(r) for r in rows]}
+
+
+@router.get("/v1/jobs/{job_id}", response_model=JobOut, responses=PROBLEM_RESPONSES)
+def get_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+            principal: Principal = Depends(require("read"))):
+    """A job's state, progress, timings, plan and error."""
+    return job_out(_get(get_ctx(request), job_id))
+
+
+@router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
+def cancel_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+               principal: Principal = Depends(require("submit"))):
+    """Cancel a queued or running job (a running render's process group is killed)."""
+    ctx = get_ctx(request)
+    row = _get(ctx, job_id)
+    if not ctx.db.update_job(job_id, where_state=("queued", "running"), state="cancelled", finished_at=time.time()):
+        raise ApiError(409, f"job {job_id} is already {_get(ctx, job_id)['state']}; only queued or running jobs "
+                            "can be cancelled")
+    ctx.metrics.jobs_finished.labels(state="cancelled").inc()
+    if row["state"] == "running":
+        ctx.wake_scheduler()
+    return JSONResponse(job_out(_get(ctx, job_id)), status_code=202)
+
+
+def _sse(event: str, data: dict) -> str:
+    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+@router.get("/v1/jobs/{job_id}/events", responses={200: {"content": {"text/event-stream": {}},
+                                                         "description": "Server-sent events"}, **PROBLEM_RESPONSES})
+async def job_events(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+                     principal: Principal = Depends(require("read"))):
+    """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
+    job reaches succeeded, failed or cancelled."""
+    ctx = get_ctx(request)
+    await run_in_threadpool(_get, ctx, job_id)
+
+    async def stream():
+        last_state, last_progress, last_sent = None, None, time.monotonic()
+        while True:
+            row = await run_in_threadpool(ctx.db.get_job, job_id)
+            if row is None:
+                return
+            out = []
+            final = row["state"] in FINAL_STATES
+            state_changed = row["state"] != last_state
+            if state_changed and not final:
+                out.append(_sse("state", job_out(row)))
+            if row["progress"] != last_progress and row["state"] in ("running", "succeeded"):
+                out.append(_sse("progress", {"id": job_id, "state": row["state"], **(row["progress"] or {})}))
+            if state_changed and final:
+                out.append(_sse("state", job_out(row)))
+            last_state, last_progress = row["state"], row["progress"]
+            if out:
+                last_sent = time.monotonic()
+                yield "".join(out)
+            elif time.monotonic() - last_sent > 15:
+                last_sent = time.monotonic()
+                yield ": keep-alive\n\n"
+            if final or await request.is_disconnected():
+                return
+            await asyncio.sleep(0.25)
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+def _artifact(request: Request, job_id: str, kind: str):
+    ctx = get_ctx(request)
+    row = _get(ctx, job_id)
+    if row["state"] != "succeeded":
+        raise ApiError(409, f"job {job_id} is {row['state']}; its artifacts exist once it has succeeded")
+    name, media = _ARTIFACTS[kind]
+    path = Path(row["artifact_dir"]) / name
+    info = (row["artifacts"] or {}).get(name) or {}
+    sha = row["stack_sha256"] if kind == "stack" else info.get("sha256")
+    if not path.is_file() or not sha:
+        raise ApiError(404, f"job {job_id} has no {name}" + (" (the worker could not make it)" if kind == "preview"
+                                                            else ""))
+    return file_response(request, path, sha256=sha, media_type=media, filename=f"{job_id}-{name}")
+
+
+_FILE_RESPONSES = {206: {"description": "Partial content (Range)"}, 304: {"description": "Not modified"},
+                   416: {"description": "Range not satisfiable"}, **PROBLEM_RESPONSES}
+
+
+@router.get("/v1/jobs/{job_id}/stack", responses={200: {"content": {"application/octet-stream": {}}},
+                                                   **_FILE_RESPONSES})
+def get_stack(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+              principal: Principal = Depends(require("read"))):
+    """STACK.npz: ``ETag`` is the sha256 of the file (also in ``X-Content-SHA256``); honours ``If-None-Match``,
+    ``Range`` and ``If-Range``."""
+    return _artifact(request, job_id, "stack")
+
+
+@router.get("/v1/jobs/{job_id}/frames.zip", responses={200: {"content": {"application/zip": {}}},
+                                                        **_FILE_RESPONSES})
+def get_frames(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+               principal: Principal = Depends(require("read"))):
+    """The 8-bit SLM frames as PNGs ``f{frame:03d}_c{color}.png`` in a zip."""
+    return _artifact(request, job_id, "frames")
+
+
+@router.get("/v1/jobs/{job_id}/preview.png", responses={200: {"content": {"image/png": {}}}, **_FILE_RESPONSES})
+def get_preview(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+                principal: Principal = Depends(require("read"))):
+    """What an eye sees (`holo view`, 4 mm pupil, focused mid-volume, frames averaged), made by the worker."""
+    return _artifact(request, job_id, "preview")

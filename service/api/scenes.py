@@ -1,0 +1,120 @@
+"""``POST /v1/scenes`` (upload a bundle) and ``GET /v1/scenes/{id}`` (its report and effect plan).
+
+An upload is unpacked into a staging folder (zip-bomb guard, no path leaves it), checked with
+``holocore.bundle.validate_bundle`` before Mitsuba ever sees it, and stored content-addressed under
+``scenes/<id>/bundle``: the same files with the same entry give the same id. The effect plan is computed
+later by a worker subprocess (``holo plan --json``); the scene shows ``plan_state`` pending until then.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Optional
+
+from fastapi import APIRouter, Depends, File, Form, Path as PathParam, Request, UploadFile
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+
+from holocore.bundle import BundleError, BundleLimits, validate_bundle
+from service.api.context import ServiceContext
+from service.api.deps import get_ctx, require
+from service.api.problems import PROBLEM_RESPONSES, ApiError
+from service.models import ID_PATTERN, SceneOut
+from service.uploads import UploadError, bundle_root, unpack_zip, write_files
+
+__all__ = ["router", "scene_out", "iso"]
+
+router = APIRouter(tags=["scenes"])
+
+
+def iso(t: Optional[float]) -> Optional[str]:
+    return None if t is None else datetime.fromtimestamp(t, tz=timezone.utc).isoformat().replace("+00:00", "Z")
+
+
+def scene_out(row: dict) -> dict:
+    return {"id": row["id"], "sha256": row["sha256"], "entry": row["entry"], "created_at": iso(row["created_at"]),
+            "report": row["report"], "plan_state": row["plan_state"], "plan": row["plan"],
+            "plan_error": row["plan_error"]}
+
+
+def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[UploadFile], entry: Optional[str]
+            ) -> tuple[dict, bool]:
+    lim = ctx.settings.upload_limits
+    staging_parent = ctx.settings.scenes_dir / ".staging"
+    staging_parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=staging_parent))
+    try:
+        if bundle is not None:
+            bundle.file.seek(0)
+            unpack_zip(bundle.file, staging, limits=lim)
+        else:
+            write_files(((f.filename or "", f.file) for f in files), staging, limits=lim)
+        root = bundle_root(staging)
+        limits = BundleLimits(max_total_bytes=lim.max_total_bytes, max_files=lim.max_files,
+                              max_mesh_faces=lim.max_mesh_faces, max_image_pixels=lim.max_image_pixels)
+        report = validate_bundle(root, entry=entry, limits=limits)
+        entry_rel = report.entry.relative_to(root.resolve()).as_posix()
+        scene_id = "s" + hashlib.sha256(f"{report.sha256}\0{entry_rel}".encode()).hexdigest()[:24]
+        final = ctx.settings.scenes_dir / scene_id
+        created = False
+        if not (final / "bundle").is_dir():
+            final.mkdir(parents=True, exist_ok=True)
+            try:
+                os.rename(root, final / "bundle")
+            except OSError:
+                if not (final / "bundle").is_dir():  # not a concurrent twin upload: a real error
+                    raise
+        summary = {"files": report.files, "total_bytes": report.total_bytes, "plugins": report.plugins,
+                   "warnings": report.warnings, "mesh_faces": report.mesh_faces, "image_pixels": report.image_pixels}
+        created = ctx.db.insert_scene({"id": scene_id, "sha256": report.sha256, "entry": entry_rel, "report": summary,
+                                       "plan_state": "pending", "created_at": time.time()})
+        return ctx.db.get_scene(scene_id), created
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+@router.post("/v1/scenes", status_code=201, response_model=SceneOut,
+             responses={200: {"model": SceneOut, "description": "The same bundle was uploaded before"},
+                        **PROBLEM_RESPONSES})
+async def upload_scene(
+    request: Request,
+    bundle: Optional[UploadFile] = File(default=None, description="The whole bundle as one zip."),
+    files: Optional[list[UploadFile]] = File(default=None, description="Files; each filename is its path "
+                                                                       "relative to the bundle root."),
+    entry: Optional[str] = Form(default=None, max_length=1024, description="The scene XML, relative to the root "
+                                                                          "(needed when there are several)."),
+    principal=Depends(require("submit")),
+) -> JSONResponse:
+    """Upload a scene bundle; answers its id, content hash, validation report and (later) effect plan."""
+    ctx = get_ctx(request)
+    if bundle is not None and files:
+        raise ApiError(422, "send either 'bundle' (one zip) or 'files', not both")
+    if bundle is None and not files:
+        raise ApiError(422, "no scene: send a 'bundle' zip or one or more 'files' fields")
+    if isinstance(bundle, str) or any(isinstance(f, str) for f in files or []):
+        raise ApiError(422, "'bundle' and 'files' must be file parts (with a filename)")
+    try:
+        row, created = await run_in_threadpool(_ingest, ctx, bundle, files or [], entry)
+    except (UploadError, BundleError) as exc:
+        ctx.metrics.uploads.labels(outcome="refused").inc()
+        raise ApiError(getattr(exc, "status", 422), f"scene refused: {exc}") from None
+    ctx.metrics.uploads.labels(outcome="created" if created else "existing").inc()
+    if created:
+        ctx.wake_planner()
+    return JSONResponse(scene_out(row), status_code=201 if created else 200,
+                        headers={"Location": f"/v1/scenes/{row['id']}"})
+
+
+@router.get("/v1/scenes/{scene_id}", response_model=SceneOut, responses=PROBLEM_RESPONSES)
+def get_scene(request: Request, scene_id: str = PathParam(pattern=ID_PATTERN), principal=Depends(require("read"))):
+    """A scene's validation report and its effect plan (``plan_state``: pending, running, ready, failed)."""
+    row = get_ctx(request).db.get_scene(scene_id)
+    if row is None:
+        raise ApiError(404, f"no scene {scene_id!r}")
+    return scene_out(row)

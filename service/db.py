@@ -1,0 +1,179 @@
+"""SQLite store of scenes, jobs, tokens, idempotency keys and displays (WAL; one connection per thread).
+
+Times are Unix seconds (REAL); JSON columns hold text. State changes of a job are single ``UPDATE ... WHERE
+state = ...`` statements, so the scheduler's claim and the API's cancel can never both win.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Optional
+
+__all__ = ["Database", "JOB_STATES", "FINAL_STATES"]
+
+JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+FINAL_STATES = ("succeeded", "failed", "cancelled")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS tokens (
+    id TEXT PRIMARY KEY, hash TEXT NOT NULL UNIQUE, name TEXT NOT NULL, scopes TEXT NOT NULL,
+    created_at REAL NOT NULL, revoked INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS scenes (
+    id TEXT PRIMARY KEY, sha256 TEXT NOT NULL, entry TEXT NOT NULL, report TEXT NOT NULL,
+    plan_state TEXT NOT NULL, plan TEXT, plan_error TEXT, created_at REAL NOT NULL, plan_updated_at REAL);
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY, state TEXT NOT NULL, display TEXT, scene_id TEXT NOT NULL, spec TEXT NOT NULL,
+    cache_key TEXT NOT NULL, created_at REAL NOT NULL, started_at REAL, finished_at REAL,
+    progress TEXT, timings TEXT, plan TEXT, error TEXT, attempts INTEGER NOT NULL DEFAULT 0,
+    worker_pid INTEGER, stack_sha256 TEXT, stack_bytes INTEGER, artifact_dir TEXT, reused_from TEXT,
+    estimate TEXT, artifacts TEXT, token_id TEXT, updated_at REAL NOT NULL);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, created_at);
+CREATE INDEX IF NOT EXISTS jobs_display ON jobs(display, created_at);
+CREATE INDEX IF NOT EXISTS jobs_key ON jobs(cache_key, state);
+CREATE TABLE IF NOT EXISTS idempotency (
+    token_id TEXT NOT NULL, key TEXT NOT NULL, body_hash TEXT NOT NULL, job_id TEXT NOT NULL,
+    created_at REAL NOT NULL, PRIMARY KEY (token_id, key));
+CREATE TABLE IF NOT EXISTS displays (
+    name TEXT PRIMARY KEY, last_seen REAL NOT NULL, agent_version TEXT, showing TEXT, state TEXT,
+    message TEXT, token_id TEXT);
+"""
+
+_JSON_COLS = {"report", "plan", "spec", "progress", "timings", "estimate", "scopes", "showing", "artifacts"}
+
+
+def _row(cur: sqlite3.Cursor, values: tuple) -> dict:
+    out = {}
+    for (name, *_), v in zip(cur.description, values):
+        out[name] = json.loads(v) if name in _JSON_COLS and isinstance(v, str) else v
+    return out
+
+
+class Database:
+    """Thread-safe access to ``service.db``: each thread gets its own connection."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._conn().executescript(_SCHEMA)
+
+    def _conn(self) -> sqlite3.Connection:
+        conn = getattr(self._local, "conn", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+            conn.row_factory = _row
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.execute("PRAGMA busy_timeout=30000")
+            self._local.conn = conn
+        return conn
+
+    @contextmanager
+    def tx(self) -> Iterator[sqlite3.Connection]:
+        """A write transaction (BEGIN IMMEDIATE ... COMMIT, rolled back on error)."""
+        conn = self._conn()
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield conn
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("COMMIT")
+
+    def query(self, sql: str, params: tuple | dict = ()) -> list[dict]:
+        return self._conn().execute(sql, params).fetchall()
+
+    def one(self, sql: str, params: tuple | dict = ()) -> Optional[dict]:
+        rows = self._conn().execute(sql, params).fetchall()  # fetchall: an UPDATE ... RETURNING must finish
+        return rows[0] if rows else None
+
+    def execute(self, sql: str, params: tuple | dict = ()) -> int:
+        """Run one statement (autocommit); returns the number of rows changed."""
+        return self._conn().execute(sql, params).rowcount
+
+    def ping(self) -> bool:
+        try:
+            return self.one("SELECT 1 AS ok")["ok"] == 1
+        except sqlite3.Error:
+            return False
+
+    # ---- jobs ------------------------------------------------------------------------------------------
+    def get_job(self, job_id: str) -> Optional[dict]:
+        return self.one("SELECT * FROM jobs WHERE id = ?", (job_id,))
+
+    def insert_job(self, job: dict[str, Any], conn: Optional[sqlite3.Connection] = None) -> None:
+        row = {k: (json.dumps(v) if k in _JSON_COLS and v is not None else v) for k, v in job.items()}
+        row.setdefault("updated_at", time.time())
+        cols = ", ".join(row)
+        marks = ", ".join(f":{k}" for k in row)
+        (conn or self._conn()).execute(f"INSERT INTO jobs ({cols}) VALUES ({marks})", row)
+
+    def update_job(self, job_id: str, *, where_state: Optional[tuple[str, ...]] = None, **fields: Any) -> bool:
+        """Set fields of a job (JSON columns encoded); with ``where_state`` only if its state is one of them.
+        Returns whether a row changed."""
+        fields["updated_at"] = time.time()
+        sets = ", ".join(f"{k} = :{k}" for k in fields)
+        params = {k: (json.dumps(v) if k in _JSON_COLS and v is not None else v) for k, v in fields.items()}
+        params["_id"] = job_id
+        sql = f"UPDATE jobs SET {sets} WHERE id = :_id"
+        if where_state:
+            marks = ", ".join(f":_s{i}" for i in range(len(where_state)))
+            sql += f" AND state IN ({marks})"
+            params.update({f"_s{i}": s for i, s in enumerate(where_state)})
+        return self.execute(sql, params) > 0
+
+    def claim_next_job(self) -> Optional[dict]:
+        """Atomically move the oldest queued job to running (attempts + 1) and return it, or None."""
+        now = time.time()
+        return self.one(
+            "UPDATE jobs SET state = 'running', attempts = attempts + 1, started_at = ?, updated_at = ?, "
+            "worker_pid = NULL, error = NULL WHERE id = (SELECT id FROM jobs WHERE state = 'queued' "
+            "ORDER BY created_at, rowid LIMIT 1) AND state = 'queued' RETURNING *", (now, now))
+
+    def list_jobs(self, *, state: Optional[str] = None, display: Optional[str] = None,
+                  scene_id: Optional[str] = None, limit: int = 50) -> list[dict]:
+        where, params = [], []
+        for col, value in (("state", state), ("display", display), ("scene_id", scene_id)):
+            if value is not None:
+                where.append(f"{col} = ?")
+                params.append(value)
+        sql = "SELECT * FROM jobs" + (" WHERE " + " AND ".join(where) if where else "")
+        sql += " ORDER BY created_at DESC, rowid DESC LIMIT ?"
+        return self.query(sql, (*params, int(limit)))
+
+    def count_jobs(self) -> dict[str, int]:
+        counts = {s: 0 for s in JOB_STATES}
+        for r in self.query("SELECT state, COUNT(*) AS n FROM jobs GROUP BY state"):
+            counts[r["state"]] = r["n"]
+        return counts
+
+    # ---- scenes ----------------------------------------------------------------------------------------
+    def get_scene(self, scene_id: str) -> Optional[dict]:
+        return self.one("SELECT * FROM scenes WHERE id = ?", (scene_id,))
+
+    def insert_scene(self, scene: dict[str, Any]) -> bool:
+        """Insert a scene; False when the id exists already (same content uploaded before)."""
+        row = {k: (json.dumps(v) if k in _JSON_COLS and v is not None else v) for k, v in scene.items()}
+        cols = ", ".join(row)
+        marks = ", ".join(f":{k}" for k in row)
+        return self.execute(f"INSERT OR IGNORE INTO scenes ({cols}) VALUES ({marks})", row) > 0
+
+    def update_scene(self, scene_id: str, *, where_plan_state: Optional[str] = None, **fields: Any) -> bool:
+        sets = ", ".join(f"{k} = :{k}" for k in fields)
+        params = {k: (json.dumps(v) if k in _JSON_COLS and v is not None else v) for k, v in fields.items()}
+        params["_id"] = scene_id
+        sql = f"UPDATE scenes SET {sets} WHERE id = :_id"
+        if where_plan_state is not None:
+            sql += " AND plan_state = :_ps"
+            params["_ps"] = where_plan_state
+        return self.execute(sql, params) > 0
+
+    def claim_next_plan(self) -> Optional[dict]:
+        return self.one("UPDATE scenes SET plan_state = 'running', plan_updated_at = ? WHERE id = (SELECT id FROM "
+                        "scenes WHERE plan_state = 'pending' ORDER BY created_at LIMIT 1) AND plan_state = 'pending' "
+                        "RETURNING *", (time.time(),))

@@ -1,0 +1,184 @@
+"""Request and response bodies of the HTTP API (pydantic; these make the OpenAPI schema at /docs).
+
+Only light imports here: ``holocore.config`` is pydantic and math, nothing heavy (DESIGN.md §1).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Any, Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from holocore.config import OpticsConfig
+from service.settings import JobLimits
+
+__all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
+           "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "cache_key", "effective_optics",
+           "estimate_cost"]
+
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
+
+
+class JobRequest(BaseModel):
+    """A render job: scene, optics, quality, encoder, and the display it is for."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene_id: str = Field(pattern=ID_PATTERN, description="Id from POST /v1/scenes.")
+    optics: OpticsConfig = Field(default_factory=OpticsConfig, description="The display's optics (OpticsConfig).")
+    preset: Literal["fast", "balanced", "reference"] = "balanced"
+    frames: Optional[int] = Field(default=None, ge=1, le=256, description="Frames; overrides optics.frames.")
+    spp: Optional[int] = Field(default=None, ge=1, le=1_000_000, description="Rays per WRP pixel (default: "
+                                                                             "chosen by the preset).")
+    encoder: Literal["sgd", "dpac"] = "sgd"
+    iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
+    method: Literal["wrp", "direct"] = "wrp"
+    display: Optional[str] = Field(default=None, pattern=NAME_PATTERN, description="Display the job is for.")
+
+
+class Showing(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    job_id: str = Field(max_length=128)
+    frame: int = Field(ge=0, le=1_000_000)
+
+
+class Heartbeat(BaseModel):
+    """What a display agent reports every few seconds."""
+
+    model_config = ConfigDict(extra="forbid")
+    agent_version: str = Field(max_length=64)
+    showing: Optional[Showing] = None
+    state: str = Field(max_length=64)
+    message: str = Field(default="", max_length=2000)
+
+
+class JobOut(BaseModel):
+    id: str
+    state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    display: Optional[str] = None
+    scene_id: str
+    created_at: str
+    started_at: Optional[str] = None
+    finished_at: Optional[str] = None
+    stack_sha256: Optional[str] = None
+    stack_bytes: Optional[int] = None
+    options: dict[str, Any]
+    progress: Optional[dict[str, Any]] = None
+    timings: Optional[dict[str, Any]] = None
+    plan: Optional[dict[str, Any]] = None
+    error: Optional[str] = None
+    attempts: int = 0
+    worker_pid: Optional[int] = None
+    estimate: Optional[dict[str, Any]] = None
+    reused_from: Optional[str] = None
+    cache_key: str
+    links: dict[str, str]
+
+
+class JobList(BaseModel):
+    jobs: list[JobOut]
+
+
+class SceneOut(BaseModel):
+    id: str
+    sha256: str
+    entry: str
+    created_at: str
+    report: dict[str, Any]
+    plan_state: Literal["pending", "running", "ready", "failed"]
+    plan: Optional[dict[str, Any]] = None
+    plan_error: Optional[str] = None
+
+
+class DisplayOut(BaseModel):
+    name: str
+    last_seen: str
+    age_s: float
+    agent_version: Optional[str] = None
+    showing: Optional[dict[str, Any]] = None
+    state: Optional[str] = None
+    message: Optional[str] = None
+
+
+class DisplayList(BaseModel):
+    displays: list[DisplayOut]
+
+
+class Problem(BaseModel):
+    """RFC 9457 problem details (media type application/problem+json)."""
+
+    type: str = "about:blank"
+    title: str
+    status: int
+    detail: str
+    instance: Optional[str] = None
+
+
+def effective_optics(req: JobRequest) -> OpticsConfig:
+    """The optics the job renders with (``frames`` applied)."""
+    if req.frames is None:
+        return req.optics
+    return req.optics.model_copy(update={"frames": req.frames})
+
+
+def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
+    """Why a job asks for too much (empty when it is within the service's limits)."""
+    o = effective_optics(req)
+    h, w = o.resolution_hw
+    c = len(o.wavelengths_nm)
+    errs = []
+    if max(h, w) > limits.max_side_px:
+        errs.append(f"optics.resolution_hw: each side must be at most {limits.max_side_px} px, got {h}x{w}")
+    if h * w > limits.max_pixels:
+        errs.append(f"optics.resolution_hw: at most {limits.max_pixels} pixels, got {h * w}")
+    if o.frames > limits.max_frames:
+        errs.append(f"frames: must be in 1..{limits.max_frames}, got {o.frames}")
+    if c > limits.max_wavelengths:
+        errs.append(f"optics.wavelengths_nm: at most {limits.max_wavelengths} colors, got {c}")
+    if req.spp is not None and req.spp > limits.max_spp:
+        errs.append(f"spp: must be in 1..{limits.max_spp}, got {req.spp}")
+    if req.iterations is not None and req.iterations > limits.max_iterations:
+        errs.append(f"iterations: must be in 0..{limits.max_iterations}, got {req.iterations}")
+    rays = h * w * c * _spp(req)
+    if rays > limits.max_ray_budget:
+        errs.append(f"job traces {rays:.3g} rays (H*W*colors*spp), more than the limit {limits.max_ray_budget:.3g}")
+    return errs
+
+
+# Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
+# between the preset's bounds; see holocore/effects.py PRESETS).
+_TYPICAL_SPP = {"fast": 16, "balanced": 128, "reference": 1024}
+
+
+def _spp(req: JobRequest) -> int:
+    return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
+
+
+def estimate_cost(req: JobRequest) -> dict[str, Any]:
+    """A simple cost model (documented in docs/service.md), fitted on a 2-core CPU machine:
+
+    seconds = 8 (three process starts) + 1.5e-6 * rays + 4e-7 * H*W*C*F (random-phase bank, ASM, saving)
+              + encoder (dpac: 1e-7 * H*W*C*F; sgd: 2.5e-7 * H*W*C*F * iterations) + 2e-7 * H*W*C (preview).
+    Until `holo render --estimate` is calibrated per machine, this is the submit-time estimate."""
+    o = effective_optics(req)
+    h, w = o.resolution_hw
+    c = len(o.wavelengths_nm)
+    f = o.frames
+    spp = _spp(req)
+    rays = h * w * c * spp
+    pix = h * w * c * f
+    iters = req.iterations if req.iterations is not None else 500
+    enc = 1e-7 * pix if req.encoder == "dpac" else 2.5e-7 * pix * iters
+    seconds = 8.0 + 1.5e-6 * rays + 4e-7 * pix + enc + 2e-7 * h * w * c
+    return {"seconds": round(seconds, 1), "rays": rays, "spp_assumed": spp, "model": "cpu-linear-v1"}
+
+
+def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str) -> str:
+    """Content address of a job's result: scene content + optics + options + code version (not the display)."""
+    doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
+           "preset": req.preset, "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations,
+           "method": req.method, "code": code_version}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

@@ -1,0 +1,97 @@
+"""Service settings: one validated model, filled from `holo serve` options and ``HOLO_*`` environment variables.
+
+Everything lives under ``data_dir``: ``service.db`` (SQLite, WAL), ``scenes/<id>/bundle/``, ``jobs/<id>/``
+(one folder per job: its inputs, logs and artifacts) and ``server.lock`` (one server per data dir).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+__all__ = ["JobLimits", "UploadLimits", "ServiceSettings"]
+
+
+class JobLimits(BaseModel):
+    """Caps on what one job may ask for (requests beyond them get 422)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_side_px: int = Field(default=4096, ge=1, description="Largest SLM side, pixels.")
+    max_pixels: int = Field(default=4096 * 2304, ge=1, description="Largest SLM area H*W, pixels.")
+    max_frames: int = Field(default=64, ge=1, description="Most time-multiplexed frames.")
+    max_spp: int = Field(default=4096, ge=1, description="Most rays per WRP pixel.")
+    max_wavelengths: int = Field(default=3, ge=1, description="Most colors.")
+    max_iterations: int = Field(default=5000, ge=0, description="Most encoder iterations.")
+    max_ray_budget: float = Field(default=4e10, gt=0, description="Most rays in a job: H*W*C*spp.")
+
+
+class UploadLimits(BaseModel):
+    """Caps on scene uploads (bytes are checked while streaming, before anything is unpacked)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_body_bytes: int = Field(default=256 * 1024 * 1024, ge=1, description="Largest request body.")
+    max_total_bytes: int = Field(default=256 * 1024 * 1024, ge=1, description="Largest unpacked bundle.")
+    max_files: int = Field(default=2000, ge=1, description="Most files in a bundle.")
+    max_ratio: float = Field(default=200.0, gt=1, description="Largest zip compression ratio of one member.")
+    max_mesh_faces: int = Field(default=20_000_000, ge=1)
+    max_image_pixels: int = Field(default=64 * 1024 * 1024, ge=1)
+
+
+class ServiceSettings(BaseModel):
+    """How `holo serve` runs. Environment: ``HOLO_DATA_DIR``, ``HOLO_HOST``, ``HOLO_PORT``, ``HOLO_WORKERS``,
+    ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    data_dir: Path
+    host: str = "127.0.0.1"
+    port: int = Field(default=8080, ge=0, le=65535)
+    workers: int = Field(default=1, ge=1, le=256, description="Jobs run at the same time.")
+    engine: Literal["local", "ray"] = "local"
+    ray_address: Optional[str] = None
+    ray_gpus_per_job: float = Field(default=0.0, ge=0.0, le=64.0)
+    max_attempts: int = Field(default=3, ge=1, le=100, description="Runs of a job before a crash fails it.")
+    job_timeout_s: float = Field(default=6 * 3600.0, gt=0, description="Wall-clock cap of one job run.")
+    plan_timeout_s: float = Field(default=300.0, gt=0, description="Wall-clock cap of `holo plan` on upload.")
+    kill_grace_s: float = Field(default=3.0, ge=0, description="SIGTERM to SIGKILL delay when stopping a job.")
+    tick_s: float = Field(default=0.2, gt=0, le=5, description="Scheduler poll period.")
+    keep_result: bool = Field(default=True, description="Keep RESULT.npz (complex fields) after encoding.")
+    job_limits: JobLimits = JobLimits()
+    upload_limits: UploadLimits = UploadLimits()
+
+    @field_validator("data_dir")
+    @classmethod
+    def _absolute(cls, v: Path) -> Path:
+        return Path(v).expanduser().resolve()
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "service.db"
+
+    @property
+    def scenes_dir(self) -> Path:
+        return self.data_dir / "scenes"
+
+    @property
+    def jobs_dir(self) -> Path:
+        return self.data_dir / "jobs"
+
+    @classmethod
+    def from_env(cls, **overrides) -> "ServiceSettings":
+        """Settings from ``HOLO_*`` variables, then explicit overrides (None = keep)."""
+        env = os.environ
+        data: dict = {}
+        for key, var in (("data_dir", "HOLO_DATA_DIR"), ("host", "HOLO_HOST"), ("port", "HOLO_PORT"),
+                         ("workers", "HOLO_WORKERS"), ("engine", "HOLO_ENGINE"), ("ray_address", "HOLO_RAY_ADDRESS"),
+                         ("ray_gpus_per_job", "HOLO_RAY_GPUS"), ("max_attempts", "HOLO_MAX_ATTEMPTS")):
+            if env.get(var):
+                data[key] = env[var]
+        data.update({k: v for k, v in overrides.items() if v is not None})
+        if data.get("ray_address") and "engine" not in data:
+            data["engine"] = "ray"
+        return cls(**data)

@@ -1,0 +1,182 @@
+"""One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, `holo view`.
+
+Run as ``python -m service.workers.driver JOB_DIR [--parent-pid PID]``. ``JOB_DIR/job.json`` says what to do;
+the driver writes ``step.json`` as each step starts, each CLI appends ``progress-<step>.jsonl``, and at the end
+``status.json`` (atomically) says how it went. Exit codes: 0 done, 3 failed for good (bad input, the scene
+refused; ``status.json`` holds the message), anything else (a crash, a signal) may be retried.
+
+The driver leads its process group (the scheduler starts it with ``start_new_session``); the CLIs inherit the
+group, so one ``killpg`` stops the whole job. It asks the kernel for SIGTERM when its parent dies
+(``PR_SET_PDEATHSIG``) and then kills its group, so no render outlives the server that started it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+from typing import Any, Optional
+
+__all__ = ["main", "STEPS", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm"]
+
+STEPS = ("render", "encode", "package", "preview")
+EXIT_FAILED = 3
+EXIT_RETRY = 75
+
+
+def write_json_atomic(path: Path, doc: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(doc, indent=1))
+    os.replace(tmp, path)
+
+
+def _die_with_parent(parent_pid: Optional[int]) -> None:
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+    if parent_pid is not None and os.getppid() != parent_pid:
+        sys.exit(EXIT_RETRY)  # the parent died before prctl took effect
+
+
+def _on_term(signum, frame) -> None:  # noqa: ARG001
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+    finally:
+        os._exit(128 + signum)
+
+
+class StepFailed(Exception):
+    def __init__(self, message: str, retryable: bool) -> None:
+        super().__init__(message)
+        self.retryable = retryable
+
+
+def _run(step: str, args: list[str], job_dir: Path) -> float:
+    """Run ``python -m holo ARGS`` as a child (same process group); returns seconds taken."""
+    write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
+    t0 = time.monotonic()
+    with open(job_dir / f"{step}.log", "wb") as log:
+        proc = subprocess.run([sys.executable, "-m", "holo", *args], stdout=log, stderr=subprocess.STDOUT,
+                              stdin=subprocess.DEVNULL, cwd=job_dir)
+    if proc.returncode != 0:
+        lines = (job_dir / f"{step}.log").read_text(errors="replace").strip().splitlines()
+        errs = [ln for ln in lines if ln.startswith("error:")]
+        last = (errs[-1] if errs else (lines[-1] if lines else "")).removeprefix("error: ").strip()
+        if proc.returncode < 0:
+            raise StepFailed(f"holo {step} was killed by signal {-proc.returncode}", retryable=True)
+        raise StepFailed(f"holo {step} failed (exit {proc.returncode}): {last[:500] or 'no message'}",
+                         retryable=False)
+    return time.monotonic() - t0
+
+
+def frames_zip(stack_path: Path, out: Path) -> int:
+    """Write the stack's 8-bit frames as PNGs ``f{frame:03d}_c{color}.png`` into a zip; returns the count."""
+    import numpy as np
+    from PIL import Image
+
+    from holocore.io import load_stack
+
+    _, u8, _ = load_stack(stack_path)
+    tmp = out.with_name(f".{out.name}.tmp")
+    n = 0
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as zf:
+        for f in range(u8.shape[0]):
+            for c in range(u8.shape[1]):
+                import io
+
+                buf = io.BytesIO()
+                Image.fromarray(np.ascontiguousarray(u8[f, c]), mode="L").save(buf, format="PNG")
+                zf.writestr(f"f{f:03d}_c{c}.png", buf.getvalue())
+                n += 1
+    os.replace(tmp, out)
+    return n
+
+
+def preview_focus_mm(meta: dict) -> float:
+    """Focus of the preview: the middle of the image volume in hologram space (linear in dioptres), mm."""
+    a = meta.get("analysis") or {}
+    near, far = a.get("z_near_holo_m"), a.get("z_far_holo_m")
+    if isinstance(near, (int, float)) and isinstance(far, (int, float)):
+        return 0.5 * (near + far) * 1e3
+    return float(meta["z_inf_m"]) * 1e3
+
+
+def run_job(job_dir: Path) -> dict:
+    spec = json.loads((job_dir / "job.json").read_text())
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
+    render = ["render", spec["scene_path"], "--out", "result.npz", "--optics-json", "optics.json",
+              "--preset", spec["preset"], "--method", spec["method"], "--progress-jsonl", prog["render"]]
+    if spec.get("spp") is not None:
+        render += ["--spp", str(spec["spp"])]
+    timings["render_s"] = _run("render", render, job_dir)
+    encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec["encoder"],
+              "--progress-jsonl", prog["encode"]]
+    if spec.get("iterations") is not None:
+        encode += ["--iterations", str(spec["iterations"])]
+    timings["encode_s"] = _run("encode", encode, job_dir)
+
+    write_json_atomic(job_dir / "step.json", {"step": "package", "index": 2, "t": time.time()})
+    t0 = time.monotonic()
+    from holocore.io import file_sha256, load_stack
+
+    phase, _, meta = load_stack(job_dir / "stack.npz")
+    n = frames_zip(job_dir / "stack.npz", job_dir / "frames.zip")
+    with open(prog["package"], "a") as fh:
+        fh.write(json.dumps({"stage": "frames", "done": n, "total": n, "t": time.time()}) + "\n")
+    timings["package_s"] = time.monotonic() - t0
+    try:
+        timings["preview_s"] = _run("preview", ["view", "stack.npz", "--focus-mm", f"{preview_focus_mm(meta):.6f}",
+                                                "--pupil-mm", "4", "--out", "preview.png"], job_dir)
+    except StepFailed as exc:
+        if exc.retryable:
+            raise
+        warnings.append(f"no preview: {exc}")
+    if not spec.get("keep_result", True):
+        (job_dir / "result.npz").unlink(missing_ok=True)
+    plan = meta.get("plan") or {}
+    artifacts = {name: {"sha256": file_sha256(job_dir / name), "bytes": (job_dir / name).stat().st_size}
+                 for name in ("stack.npz", "frames.zip", "preview.png") if (job_dir / name).is_file()}
+    return {"ok": True, "stack_sha256": artifacts["stack.npz"]["sha256"],
+            "stack_bytes": artifacts["stack.npz"]["bytes"], "shape_fchw": list(phase.shape), "artifacts": artifacts,
+            "timings": timings, "plan": {"summary": plan.get("summary", []), "plan": plan,
+                                         "render_timings": meta.get("timings")},
+            "warnings": warnings}
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("job_dir", type=Path)
+    ap.add_argument("--parent-pid", type=int, default=None)
+    args = ap.parse_args(argv)
+    signal.signal(signal.SIGTERM, _on_term)
+    _die_with_parent(args.parent_pid)
+    job_dir = args.job_dir.resolve()
+    t0 = time.time()
+    try:
+        status = run_job(job_dir)
+        code = 0
+    except StepFailed as exc:
+        status = {"ok": False, "error": str(exc), "retryable": exc.retryable}
+        code = EXIT_RETRY if exc.retryable else EXIT_FAILED
+    except Exception as exc:  # noqa: BLE001 - report anything else as a failure of this run
+        status = {"ok": False, "error": f"worker error: {type(exc).__name__}: {exc}"[:1000], "retryable": False}
+        code = EXIT_FAILED
+    status["total_s"] = time.time() - t0
+    write_json_atomic(job_dir / "status.json", status)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+"""Where job drivers run. ``LocalEngine``: a subprocess per job on this machine, each in a new process group
+(session), so cancelling kills the driver and every CLI it started in one ``killpg``."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Protocol
+
+__all__ = ["Handle", "Engine", "LocalEngine", "group_alive", "kill_group", "driver_env"]
+
+_REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class Handle:
+    """A launched job run: its process (local) or task (Ray), and the process group to kill."""
+
+    job_id: str
+    attempt: int
+    job_dir: Path
+    pid: Optional[int] = None
+    started: float = field(default_factory=time.monotonic)
+    obj: Any = None  # Popen (local) or an ObjectRef (ray)
+
+
+class Engine(Protocol):
+    name: str
+
+    def launch(self, job_id: str, attempt: int, job_dir: Path) -> Handle: ...
+
+    def poll(self, handle: Handle) -> Optional[int]: ...
+
+    def kill(self, handle: Handle, *, grace_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def driver_env() -> dict[str, str]:
+    """The environment of a job driver: ours, with the repository importable."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO), env.get("PYTHONPATH", "")) if p)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def group_alive(pgid: int) -> bool:
+    """Whether any process of group ``pgid`` is still alive (zombies count as gone)."""
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat", "rb") as fh:
+                raw = fh.read()
+        except OSError:
+            continue
+        rest = raw[raw.rfind(b")") + 2:].split()
+        if len(rest) > 2 and int(rest[2]) == pgid and rest[0] != b"Z":
+            return True
+    return False
+
+
+def kill_group(pgid: int, *, grace_s: float = 3.0, proc: Optional[subprocess.Popen] = None) -> None:
+    """SIGTERM the group, wait up to ``grace_s`` for it to go, then SIGKILL it; reaps ``proc``."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(pgid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+        deadline = time.monotonic() + (grace_s if sig == signal.SIGTERM else 5.0)
+        while time.monotonic() < deadline:
+            if proc is not None and proc.poll() is None:
+                time.sleep(0.05)
+                continue
+            if not group_alive(pgid):
+                return
+            time.sleep(0.05)
+    if proc is not None:
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            pass
+
+
+class LocalEngine:
+    """Job drivers as local subprocesses (``python -m service.workers.driver JOB_DIR``)."""
+
+    name = "local"
+
+    def launch(self, job_id: str, attempt: int, job_dir: Path) -> Handle:
+        log = open(job_dir / "driver.log", "ab")
+        try:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "service.workers.driver", str(job_dir), "--parent-pid", str(os.getpid())],
+                stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=job_dir,
+                env=driver_env(), start_new_session=True)
+        finally:
+            log.close()
+        return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=proc.pid, obj=proc)
+
+    def poll(self, handle: Handle) -> Optional[int]:
+        return handle.obj.poll()
+
+    def kill(self, handle: Handle, *, grace_s: float) -> None:
+        """Stop the run's whole process group (in a helper thread: the scheduler never blocks on it)."""
+        threading.Thread(target=kill_group, args=(handle.pid,), kwargs={"grace_s": grace_s, "proc": handle.obj},
+                         name=f"kill-{handle.job_id}", daemon=True).start()
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,94 @@
+"""Effect plans of uploaded scenes: a thread that runs ``holo plan SCENE --json`` in a subprocess (its own
+process group, with a timeout) for each scene whose plan is pending, and stores the JSON or the error."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+import threading
+from typing import Optional
+
+from service.db import Database
+from service.settings import ServiceSettings
+from service.workers.engine import driver_env, kill_group
+
+__all__ = ["Planner"]
+
+log = logging.getLogger("holo.service.planner")
+
+
+class Planner:
+    def __init__(self, settings: ServiceSettings, db: Database) -> None:
+        self.settings = settings
+        self.db = db
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._proc: Optional[subprocess.Popen] = None
+        self._thread: Optional[threading.Thread] = None
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._loop, name="holo-planner", daemon=True)
+        self._thread.start()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
+            kill_group(proc.pid, grace_s=0.5, proc=proc)
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                scene = self.db.claim_next_plan()
+                if scene is not None:
+                    self._plan(scene)
+                    continue
+            except Exception:  # noqa: BLE001
+                log.exception("planner failed")
+            self._wake.wait(1.0)
+            self._wake.clear()
+
+    def _plan(self, scene: dict) -> None:
+        bundle = self.settings.scenes_dir / scene["id"] / "bundle"
+        cmd = [sys.executable, "-m", "holo", "plan", str(bundle / scene["entry"]), "--json"]
+        try:
+            self._proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                          stdin=subprocess.DEVNULL, cwd=bundle, env=driver_env(),
+                                          start_new_session=True)
+            try:
+                out, err = self._proc.communicate(timeout=self.settings.plan_timeout_s)
+            except subprocess.TimeoutExpired:
+                kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
+                self._store(scene["id"], None, f"holo plan timed out after {self.settings.plan_timeout_s:.0f} s")
+                return
+            rc = self._proc.returncode
+        finally:
+            self._proc = None
+        if self._stop.is_set():
+            return  # stopped mid-plan: the scene stays 'running' and is planned again on the next start
+        if rc != 0:
+            lines = [ln for ln in err.decode(errors="replace").strip().splitlines() if ln.strip()]
+            msg = next((ln for ln in reversed(lines) if ln.startswith("error:")), lines[-1] if lines else "")
+            self._store(scene["id"], None, f"holo plan failed (exit {rc}): {msg.removeprefix('error: ')[:500]}")
+            return
+        try:
+            doc = json.loads(out)
+        except ValueError:
+            self._store(scene["id"], None, "holo plan printed no JSON")
+            return
+        self._store(scene["id"], doc, None)
+
+    def _store(self, scene_id: str, plan: Optional[dict], error: Optional[str]) -> None:
+        import time
+
+        self.db.update_scene(scene_id, where_plan_state="running", plan_state="ready" if plan else "failed",
+                             plan=plan, plan_error=error, plan_updated_at=time.time())
+        log.info("scene %s: plan %s", scene_id, "ready" if plan else f"failed: {error}")

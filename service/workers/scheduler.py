@@ -1,0 +1,286 @@
+"""The scheduler: a thread in the server that claims queued jobs atomically (``UPDATE ... WHERE
+state='queued'``), launches one driver per job on the engine, follows progress files, stops cancelled or
+timed-out runs, and records how each run ended. Crashed runs are requeued until ``max_attempts``.
+
+On start it recovers from a crash: jobs left ``running`` (their drivers are gone or are killed now) are
+finished from their ``status.json`` if it says done, else requeued, or failed after ``max_attempts`` runs.
+None stays running.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Optional
+
+from service.db import Database
+from service.settings import ServiceSettings
+from service.workers.driver import EXIT_FAILED, STEPS, write_json_atomic
+from service.workers.engine import Engine, Handle, group_alive, kill_group
+
+__all__ = ["Scheduler", "read_progress", "STEP_WEIGHTS"]
+
+log = logging.getLogger("holo.service.scheduler")
+
+STEP_WEIGHTS = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
+# Where each stage of `holo render` ends, as a fraction of the render step (stages it reports, in order).
+_RENDER_STAGE_END = {"analysis": 0.1, "bank": 0.15, "cache": 0.3, "trace": 0.9, "propagate": 1.0}
+_RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
+              *(f"{s}.log" for s in STEPS))
+
+
+def _last_json_line(path: Path) -> Optional[dict]:
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            size = fh.tell()
+            fh.seek(max(0, size - 4096))
+            lines = fh.read().strip().splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        try:
+            doc = json.loads(line)
+            if isinstance(doc, dict):
+                return doc
+        except ValueError:
+            continue
+    return None
+
+
+def read_progress(job_dir: Path) -> Optional[dict]:
+    """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
+    try:
+        step = json.loads((job_dir / "step.json").read_text())["step"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if step not in STEP_WEIGHTS:
+        return None
+    line = _last_json_line(job_dir / f"progress-{step}.jsonl") or {}
+    done, total = line.get("done", 0), line.get("total", 0)
+    within = min(1.0, done / total) if isinstance(done, int) and isinstance(total, int) and total > 0 else 0.0
+    stage = line.get("stage")
+    if step == "render" and stage in _RENDER_STAGE_END:
+        ends = list(_RENDER_STAGE_END.values())
+        i = list(_RENDER_STAGE_END).index(stage)
+        start = ends[i - 1] if i else 0.0
+        within = start + (ends[i] - start) * within
+    base = sum(STEP_WEIGHTS[s] for s in STEPS[:STEPS.index(step)])
+    return {"step": step, "stage": str(line.get("stage", step)), "done": done if isinstance(done, int) else 0,
+            "total": total if isinstance(total, int) else 0,
+            "fraction": round(min(0.999, base + STEP_WEIGHTS[step] * within), 4)}
+
+
+def _read_status(job_dir: Path) -> Optional[dict]:
+    try:
+        doc = json.loads((job_dir / "status.json").read_text())
+        return doc if isinstance(doc, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return False
+    return b"service.workers.driver" in cmd and str(job_dir).encode() in cmd
+
+
+class Scheduler:
+    """Runs queued jobs on ``engine``, at most ``settings.workers`` at a time."""
+
+    def __init__(self, settings: ServiceSettings, db: Database, engine: Engine, *, metrics=None) -> None:
+        self.settings = settings
+        self.db = db
+        self.engine = engine
+        self.metrics = metrics
+        self.running: dict[str, Handle] = {}
+        self._progress: dict[str, dict] = {}
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self.last_tick = 0.0
+
+    # ---- lifecycle -------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.recover()
+        self._thread = threading.Thread(target=self._loop, name="holo-scheduler", daemon=True)
+        self._thread.start()
+
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive() and time.time() - self.last_tick < 30
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def stop(self, *, requeue: bool = True) -> None:
+        """Stop claiming, kill running jobs and put them back in the queue (this run does not count)."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        for job_id, h in list(self.running.items()):
+            if h.pid is not None:
+                kill_group(h.pid, grace_s=min(1.0, self.settings.kill_grace_s), proc=h.obj)
+            else:
+                self.engine.kill(h, grace_s=0)
+            if requeue:
+                self.db.update_job(job_id, where_state=("running",), state="queued", attempts=max(0, h.attempt - 1),
+                                   started_at=None, worker_pid=None, progress=None)
+        self.running.clear()
+        self.engine.close()
+
+    def recover(self) -> None:
+        """Finish, requeue or fail the jobs a previous server left running."""
+        for row in self.db.query("SELECT * FROM jobs WHERE state = 'running'"):
+            job_dir = Path(row["artifact_dir"] or self.settings.jobs_dir / row["id"])
+            pid = row["worker_pid"]
+            if pid and _pid_is_our_driver(pid, job_dir):
+                log.warning("job %s: killing the driver (pid %d) a previous server left behind", row["id"], pid)
+                kill_group(pid, grace_s=1.0)
+            status = _read_status(job_dir)
+            if status and status.get("ok"):
+                self._succeed(row["id"], row["attempts"], status, job_dir)
+            elif row["attempts"] >= self.settings.max_attempts:
+                self._fail(row["id"], row["attempts"], f"interrupted (server restart or worker crash) on each of "
+                                                       f"{row['attempts']} attempts")
+            else:
+                log.warning("job %s: requeued after a server restart", row["id"])
+                self.db.update_job(row["id"], where_state=("running",), state="queued", started_at=None,
+                                   worker_pid=None, progress=None)
+        self.db.execute("UPDATE scenes SET plan_state = 'pending' WHERE plan_state = 'running'")
+
+    # ---- the loop --------------------------------------------------------------------------------------
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.tick()
+            except Exception:  # noqa: BLE001 - keep scheduling; the error is logged
+                log.exception("scheduler tick failed")
+            self.last_tick = time.time()
+            self._wake.wait(self.settings.tick_s)
+            self._wake.clear()
+
+    def tick(self) -> None:
+        for job_id, h in list(self.running.items()):
+            self._watch(job_id, h)
+        while len(self.running) < self.settings.workers and not self._stop.is_set():
+            row = self.db.claim_next_job()
+            if row is None:
+                break
+            self._launch(row)
+        if self.metrics is not None:
+            self.metrics.workers_busy.set(len(self.running))
+
+    def _launch(self, row: dict) -> None:
+        job_id, attempt = row["id"], row["attempts"]
+        job_dir = Path(row["artifact_dir"])
+        try:
+            job_dir.mkdir(parents=True, exist_ok=True)
+            for name in _RUN_FILES:  # a fresh run: nothing of a previous attempt may look like this one's
+                (job_dir / name).unlink(missing_ok=True)
+            spec = row["spec"]
+            scene = self.db.get_scene(row["scene_id"])
+            if scene is None:
+                raise FileNotFoundError(f"scene {row['scene_id']} is gone")
+            write_json_atomic(job_dir / "optics.json", spec["optics"])
+            scene_path = self.settings.scenes_dir / scene["id"] / "bundle" / scene["entry"]
+            write_json_atomic(job_dir / "job.json", {**{k: v for k, v in spec.items() if k != "optics"},
+                                                     "job_id": job_id, "scene_path": str(scene_path),
+                                                     "keep_result": self.settings.keep_result})
+            handle = self.engine.launch(job_id, attempt, job_dir)
+        except Exception as exc:  # noqa: BLE001
+            log.exception("job %s: launch failed", job_id)
+            self._fail(job_id, attempt, f"could not start the worker: {exc}")
+            return
+        self.running[job_id] = handle
+        self.db.update_job(job_id, where_state=("running",), worker_pid=handle.pid,
+                           progress={"step": "starting", "stage": "starting", "done": 0, "total": 0,
+                                     "fraction": 0.0})
+        log.info("job %s: attempt %d started (pid %s, %s)", job_id, attempt, handle.pid, self.engine.name)
+
+    def _watch(self, job_id: str, h: Handle) -> None:
+        row = self.db.get_job(job_id)
+        if row is None or row["state"] != "running" or row["attempts"] != h.attempt:
+            log.info("job %s: %s, stopping its run", job_id, row["state"] if row else "deleted")
+            self.engine.kill(h, grace_s=self.settings.kill_grace_s)
+            del self.running[job_id]
+            self._progress.pop(job_id, None)
+            self._cleanup_cancelled(h.job_dir)
+            return
+        rc = self.engine.poll(h)
+        if rc is None:
+            prog = read_progress(h.job_dir)
+            if prog is not None and prog != self._progress.get(job_id):
+                self._progress[job_id] = prog
+                self.db.update_job(job_id, where_state=("running",), progress=prog)
+            if time.monotonic() - h.started > self.settings.job_timeout_s:
+                self.engine.kill(h, grace_s=self.settings.kill_grace_s)
+                del self.running[job_id]
+                self._fail(job_id, h.attempt, f"timed out after {self.settings.job_timeout_s:.0f} s")
+            return
+        del self.running[job_id]
+        self._progress.pop(job_id, None)
+        status = _read_status(h.job_dir)
+        if rc == 0 and status and status.get("ok"):
+            self._succeed(job_id, h.attempt, status, h.job_dir)
+        elif rc == EXIT_FAILED or (status is not None and status.get("retryable") is False):
+            self._fail(job_id, h.attempt, (status or {}).get("error") or f"worker exited with code {rc}")
+        else:
+            if h.pid is not None:  # leftovers of a killed driver (its CLIs share the group)
+                self.engine.kill(h, grace_s=0)
+            why = (status or {}).get("error") or (f"worker killed by signal {-rc}" if rc < 0
+                                                   else f"worker exited with code {rc}")
+            if h.attempt >= self.settings.max_attempts:
+                self._fail(job_id, h.attempt, f"{why} (gave up after {h.attempt} attempts)")
+            else:
+                log.warning("job %s: %s; requeued (attempt %d of %d)", job_id, why, h.attempt,
+                            self.settings.max_attempts)
+                self.db.update_job(job_id, where_state=("running",), state="queued", started_at=None,
+                                   worker_pid=None, progress=None, error=f"previous attempt: {why}")
+                self.wake()
+
+    # ---- outcomes --------------------------------------------------------------------------------------
+    def _succeed(self, job_id: str, attempt: int, status: dict, job_dir: Path) -> None:
+        row = self.db.get_job(job_id)
+        timings = dict((row or {}).get("timings") or {})
+        timings.update(status.get("timings") or {})
+        now = time.time()
+        if row and row.get("started_at"):
+            timings["run_s"] = round(now - row["started_at"], 3)
+            timings["queued_s"] = round(row["started_at"] - row["created_at"], 3)
+        plan = status.get("plan")
+        if status.get("warnings"):
+            plan = {**(plan or {}), "warnings": status["warnings"]}
+        changed = self.db.update_job(
+            job_id, where_state=("running",), state="succeeded", finished_at=now, stack_sha256=status["stack_sha256"],
+            stack_bytes=status.get("stack_bytes"), timings=timings, plan=plan, error=None,
+            artifacts=status.get("artifacts"),
+            progress={"step": "done", "stage": "done", "done": 1, "total": 1, "fraction": 1.0})
+        if changed:
+            log.info("job %s: succeeded (attempt %d)", job_id, attempt)
+            if self.metrics is not None:
+                self.metrics.jobs_finished.labels(state="succeeded").inc()
+
+    def _fail(self, job_id: str, attempt: int, error: str) -> None:
+        changed = self.db.update_job(job_id, where_state=("running", "queued"), state="failed",
+                                     finished_at=time.time(), error=error[:2000])
+        if changed:
+            log.warning("job %s: failed (attempt %d): %s", job_id, attempt, error)
+            if self.metrics is not None:
+                self.metrics.jobs_finished.labels(state="failed").inc()
+
+    @staticmethod
+    def _cleanup_cancelled(job_dir: Path) -> None:
+        """A cancelled run's partial fields are of no use; its logs stay."""
+        def later() -> None:
+            time.sleep(2.0)
+            for name in ("result.npz", "stack.npz", "frames.zip", "preview.png"):
+                (job_dir / name).unlink(missing_ok=True)
+
+        threading.Thread(target=later, daemon=True).start()
