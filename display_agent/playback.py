@@ -3,7 +3,8 @@
 One pass shows, for each frame f, each colour c in order (colour-sequential illumination): the laser hook is
 called when the colour changes, then the SLM shows (f, c). Slots are paced at ``rate_hz`` (SLM refreshes per
 second; 0 = as fast as the SLM presents, e.g. locked to vsync). Late slots are counted, never skipped, so
-every frame of a pass is shown exactly once.
+every frame of a pass is shown exactly once. The schedule carries over between calls, so looping pass after
+pass keeps the rate (a pass of N slots takes N periods).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ class Player:
         self._sleep = sleep
         self._color: Optional[int] = None
         self.last_frame: Optional[int] = None  # index of the frame last presented
+        self._next_due: Optional[float] = None  # clock time of the next slot
         self.total = PlaybackStats()
 
     def play(self, *, passes: int = 1, stop_event: Optional[threading.Event] = None) -> PlaybackStats:
@@ -57,7 +59,8 @@ class Player:
         stats = PlaybackStats()
         period = 1.0 / self.rate_hz if self.rate_hz > 0 else 0.0
         t0 = self._clock()
-        slot = 0
+        # the slot schedule runs on across calls (continuous looping keeps the rate); after a pause it restarts
+        due = self._next_due if (self._next_due is not None and t0 - self._next_due < period) else t0
         for _ in range(passes):
             for f in range(frames):
                 for c in range(colors):
@@ -65,12 +68,12 @@ class Player:
                         stats.stopped = True
                         return self._finish(stats, t0)
                     if period:
-                        due = t0 + slot * period
                         wait = due - self._clock()
                         if wait > 0:
                             self._sleep(wait)
                         elif wait < -period:
                             stats.late += 1
+                        due += period
                     if c != self._color:
                         if self.laser_hook is not None:
                             self.laser_hook(c)
@@ -78,7 +81,7 @@ class Player:
                     self.slm.show(f, c)
                     self.last_frame = f
                     stats.frames_shown += 1
-                    slot += 1
+                    self._next_due = due
             stats.passes += 1
         return self._finish(stats, t0)
 

@@ -112,3 +112,20 @@ def test_window_slm_shows_the_levels_on_the_screen(monkeypatch):
             slm.load(stack_id="big", levels=np.zeros((1, 1, h + 1, 2), np.uint8))
     finally:
         slm.close()
+
+
+def test_rate_holds_across_consecutive_passes():
+    # looping one pass at a time (as the daemon does) must not squeeze the pass boundary
+    slm = NullSLM()
+    slm.load(stack_id="a", levels=_levels((1, 3, 2, 2)))
+    p = Player(slm, rate_hz=200.0)
+    t0 = time.monotonic()
+    for _ in range(20):
+        p.play(passes=1)
+    dt = time.monotonic() - t0
+    assert p.total.frames_shown == 60
+    assert dt >= 59 / 200.0 - 1e-3 and dt < 60 / 200.0 + 0.2  # 60 slots at 200 Hz, not 40 periods
+    time.sleep(0.1)  # after a pause the schedule restarts instead of bursting to catch up
+    t1 = time.monotonic()
+    p.play(passes=1)
+    assert time.monotonic() - t1 >= 2 / 200.0 - 1e-3
