@@ -91,3 +91,16 @@ def test_python_hook(monkeypatch):
         make_hook("py:fake_camera:missing")
     with pytest.raises(ValueError, match="py:module:function"):
         make_hook("py:nocolon")
+
+
+def test_agent_imports_nothing_heavy():
+    # DESIGN §1: the agent runs on a lab PC without torch, Mitsuba or Dr.Jit (and without holocore's numerics)
+    import subprocess
+
+    code = ("import sys, holo.app, display_agent.daemon, display_agent.slm.sim, display_agent.focus.sim; "
+            "bad = [m for m in ('torch', 'mitsuba', 'drjit', 'scipy', 'holocore') if m in sys.modules]; "
+            "print(bad); sys.exit(1 if bad else 0)")
+    from tests.agent.helpers import env
+
+    r = subprocess.run([sys.executable, "-c", code], env=env(), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
