@@ -25,6 +25,8 @@ def serve(
                                                                           "or auto; its workers must share --data-dir."),
     ray_gpus: Optional[float] = typer.Option(None, "--ray-gpus", help="GPUs each job asks Ray for (0..64)."),
     max_attempts: int = typer.Option(3, "--max-attempts", help="Runs of a job before a crash fails it (1..100)."),
+    max_upload_mb: Optional[float] = typer.Option(None, "--max-upload-mb", help="Largest upload and unpacked "
+                                                                                "bundle, MiB (default 256)."),
     log_level: str = typer.Option("info", "--log-level", help="debug | info | warning | error"),
 ) -> None:
     """Run the rendering service (REST API on /v1, OpenAPI at /docs)."""
@@ -32,12 +34,14 @@ def serve(
 
     from service.settings import ServiceSettings
 
+    if max_upload_mb is not None and not 0 < max_upload_mb <= 1 << 20:
+        fail(f"--max-upload-mb must be in (0, 1048576], got {max_upload_mb}")
     if log_level not in ("debug", "info", "warning", "error"):
         fail(f"--log-level must be debug, info, warning or error, got {log_level!r}")
     try:
         settings = ServiceSettings.from_env(data_dir=data_dir, host=host, port=port, workers=workers, engine=engine,
                                             ray_address=ray_address, ray_gpus_per_job=ray_gpus,
-                                            max_attempts=max_attempts)
+                                            max_attempts=max_attempts, max_upload_mb=max_upload_mb)
     except ValidationError as exc:
         fail("; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()))
     from service.api.context import DataDirBusy

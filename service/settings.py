@@ -44,7 +44,8 @@ class UploadLimits(BaseModel):
 
 class ServiceSettings(BaseModel):
     """How `holo serve` runs. Environment: ``HOLO_DATA_DIR``, ``HOLO_HOST``, ``HOLO_PORT``, ``HOLO_WORKERS``,
-    ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray)."""
+    ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray),
+    ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -91,6 +92,10 @@ class ServiceSettings(BaseModel):
                          ("ray_gpus_per_job", "HOLO_RAY_GPUS"), ("max_attempts", "HOLO_MAX_ATTEMPTS")):
             if env.get(var):
                 data[key] = env[var]
+        upload_mb = overrides.pop("max_upload_mb", None) or env.get("HOLO_MAX_UPLOAD_MB")
+        if upload_mb:
+            n = int(float(upload_mb) * 1024 * 1024)
+            data["upload_limits"] = UploadLimits(max_body_bytes=n, max_total_bytes=n)
         data.update({k: v for k, v in overrides.items() if v is not None})
         if data.get("ray_address") and "engine" not in data:
             data["engine"] = "ray"
