@@ -56,18 +56,20 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
     sensor = mi.load_dict({
         "type": "perspective", "fov": 2.0 * math.degrees(math.atan(W * p / (2.0 * f))), "fov_axis": "x",
         "near_clip": 1e-3, "to_world": mi.ScalarTransform4f(np.asarray(hmap.cam_to_world).tolist()),
-        "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+        "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}, "pixel_format": "rgba"},
         "sampler": {"type": "independent", "sample_count": spp},
     })
     integ = mi.load_dict({"type": "aov", "aovs": "dd.y:depth",
                           "integrator": {"type": "path", "max_depth": int(max_depth)}})
     img = np.array(mi.render(scene, sensor=sensor, integrator=integ, spp=spp, seed=int(seed)), dtype=np.float64)
-    if img.ndim != 3 or img.shape[-1] != 4:
-        raise RuntimeError(f"expected R, G, B and depth from Mitsuba's aov integrator, got shape {img.shape}")
-    # Channels of an rgb film with one AOV: the inner integrator's R, G, B, then the AOV (ray distance t).
-    rgb = np.nan_to_num(img[..., :3], nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0)
-    t = img[..., 3]
-    t = np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0)
+    if img.ndim != 3 or img.shape[-1] != 5:
+        raise RuntimeError(f"expected R, G, B, A and depth from Mitsuba's aov integrator, got shape {img.shape}")
+    # Channels of an rgba film with one AOV: R, G, B, alpha (the fraction of samples that hit), then the AOV:
+    # the ray distance t averaged over all samples, misses counting 0; t / alpha averages the hits only.
+    img = np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0)
+    rgb = img[..., :3].clip(min=0.0)
+    alpha = img[..., 3]
+    t = np.where(alpha > 1e-6, img[..., 4].clip(min=0.0) / np.maximum(alpha, 1e-6), 0.0)
     cols = (np.arange(W) - (W - 1) / 2.0) * p / f
     rows = ((H - 1) / 2.0 - np.arange(H)) * p / f
     zc = t / np.sqrt(1.0 + cols[None, :] ** 2 + rows[:, None] ** 2)
@@ -87,11 +89,13 @@ def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
 
 def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_inf_m: float, z_wrp_m: float,
                  pitch_m: float, wavelengths_m: Sequence[float], frames: int, planes: int = 8,
-                 seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 seed: int = 0, z_range_m: Optional[tuple[float, float]] = None,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(SLM field, WRP field) complex64 [F, C, H, W], plane depths (m) and pixels per plane, from RGB-D.
 
     ``rgb`` [3, H, W] linear radiance, ``zc`` [H, W] eye-camera depth (m; <= 0 or non-finite: nothing hit,
-    put on the farthest plane). Planes must lie below the WRP (z_k < ``z_wrp_m``).
+    put on the farthest plane). ``z_range_m`` (far, near): hologram depths outside it (pixels that mix a
+    surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``).
     """
     import torch
 
@@ -114,6 +118,9 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     if not hit.any():
         z_holo[:] = zi  # nothing seen: everything at infinity
         hit[:] = True
+    if z_range_m is not None:
+        lo, hi = sorted(float(v) for v in z_range_m)
+        z_holo = np.where(hit, np.clip(z_holo, lo, hi), z_holo)
     zs = plane_depths(z_holo[hit], planes)
     if zs.max() >= zw:
         raise ValueError(f"a layer at {zs.max() * 1e3:.4f} mm lies at or beyond the WRP ({zw * 1e3:.4f} mm)")
@@ -163,7 +170,9 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     slm, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=pl["focal_length_m"], z_inf_m=optics.z_inf_m,
                                         z_wrp_m=ana.z_wrp_m, pitch_m=optics.pitch_m,
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
-                                        seed=optics.seed)
+                                        seed=optics.seed,
+                                        z_range_m=None if ana.z_far_holo_m is None else (ana.z_far_holo_m,
+                                                                                          ana.z_near_holo_m))
     timings["propagate_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
     if progress:

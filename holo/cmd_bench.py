@@ -1,0 +1,85 @@
+"""`holo bench calibrate` (measure this machine's rates for the cost estimate) and `holo bench accuracy`
+(the accuracy-versus-time report, bench/accuracy_report.py)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from holo.common import fail
+
+bench_app = typer.Typer(help="Benchmarks: calibrate the cost estimate, accuracy versus time.", no_args_is_help=True)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("calibrate")
+def calibrate(
+    scene: Optional[Path] = typer.Option(None, "--scene", help="Scene to time (default: the built-in demo "
+                                                                 "scene, which has a mirror and glass)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Where to write the JSON (default: the user cache, "
+                                                            "which `holo render --estimate` reads)."),
+    quick: bool = typer.Option(False, "--quick", help="Half the runs (about half the time)."),
+    repeats: int = typer.Option(2, "--repeats", help="Runs per configuration; the fastest counts (1..10)."),
+) -> None:
+    """Time small renders, encodings and layer baselines and fit the cost model's rates (about a minute)."""
+    if scene is not None and not scene.exists():
+        fail(f"scene not found: {scene}")
+    if not 1 <= repeats <= 10:
+        fail(f"--repeats must be in 1..10, got {repeats}")
+    from holocore.estimate import calibrate as run, save_calibration
+
+    t0 = time.perf_counter()
+
+    def progress(stage: str, done: int, total: int) -> None:
+        typer.echo(f"\r{stage} {done}/{total}", err=True, nl=done == total)
+
+    try:
+        cal = run(scene=scene, quick=quick, repeats=repeats, progress=progress)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    path = save_calibration(cal, out)
+    r = cal["rates"]
+    rays = ", ".join(f"{k} {v * 1e6:.2f} µs" for k, v in sorted(r["ray"].items()))
+    typer.echo(f"per ray: {rays}; per ray-frame-color of accumulation {r['acc_frame'] * 1e9:.1f} ns; "
+               f"ambient cache {r['cache']:.2f} s")
+    typer.echo(f"calibrated on {cal['scene']} in {time.perf_counter() - t0:.0f} s -> {path}", err=True)
+
+
+@bench_app.command("accuracy", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def accuracy(ctx: typer.Context) -> None:
+    """Run bench/accuracy_report.py (options pass through: --scene, --resolution, --out, --repeats, --quick)."""
+    script = Path(__file__).resolve().parents[1] / "bench" / "accuracy_report.py"
+    if not script.is_file():
+        fail(f"{script} not found: the accuracy report runs from a source checkout of the project")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("holo_accuracy_report", script)
+    mod = importlib.util.module_from_spec(spec)
+    assert spec.loader is not None
+    sys.modules[spec.name] = mod  # dataclasses look their module up by name
+    spec.loader.exec_module(mod)
+    code = mod.main(list(ctx.args))
+    if code:
+        raise typer.Exit(code)
+
+
+@bench_app.command("show-calibration")
+def show_calibration(path: Optional[Path] = typer.Option(None, "--path", help="A calibration JSON file.")) -> None:
+    """Print the calibration the estimate uses (the user's, else the committed default)."""
+    from holocore.estimate import DEFAULT_CALIBRATION, load_calibration, user_calibration_path
+
+    try:
+        cal = load_calibration(path)
+    except (ValueError, OSError, json.JSONDecodeError) as exc:
+        fail(str(exc))
+    src = path or (user_calibration_path() if user_calibration_path().is_file() else DEFAULT_CALIBRATION)
+    typer.echo(json.dumps({"source": str(src), "scene": cal.get("scene"), "machine": cal.get("machine"),
+                           "rates": cal["rates"]}, indent=1))
