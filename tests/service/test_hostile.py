@@ -1,0 +1,238 @@
+"""A hostile-input corpus against a real `holo serve`: every request is refused with a 4xx problem+json and a
+clear message, the server keeps serving, nothing refused is stored, and no file outside the bundle is read
+(the escape targets are FIFOs: opening one would block the request until the client times out)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+import zipfile
+import zlib
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service.auth import revoke_token
+from service.db import Database
+from tests.service.helpers import Server, make_token
+
+SCENE = '<scene version="3.0.0"><sensor type="perspective"/>{body}</scene>'
+
+
+def zbytes(members: dict[str, bytes], *, method=zipfile.ZIP_DEFLATED) -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", method) as zf:
+        for name, data in members.items():
+            zf.writestr(zipfile.ZipInfo(name), data, compress_type=method)
+    return buf.getvalue()
+
+
+def scene_zip(body: str, extra: dict[str, bytes] | None = None) -> bytes:
+    return zbytes({"scene.xml": SCENE.format(body=body).encode(), **(extra or {})})
+
+
+def symlink_zip() -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("scene.xml", SCENE.format(body=""))
+        info = zipfile.ZipInfo("mesh.obj")
+        info.external_attr = (0o120777 << 16)
+        zf.writestr(info, "/etc/passwd")
+    return buf.getvalue()
+
+
+def lying_zip() -> bytes:
+    """A member whose headers declare 100 bytes but whose data inflates to 2 MiB."""
+    raw = bytearray(zbytes({"scene.xml": SCENE.format(body="").encode(), "big.bin": b"\0" * (2 << 20)}))
+    for sig, off in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):
+        i = 0
+        while (i := raw.find(sig, i)) >= 0:
+            name_len = struct.unpack_from("<H", raw, i + (26 if sig == b"PK\x03\x04" else 28))[0]
+            name_at = i + (30 if sig == b"PK\x03\x04" else 46)
+            if raw[name_at:name_at + name_len] == b"big.bin":
+                struct.pack_into("<I", raw, i + off, 100)
+            i += 4
+    return bytes(raw)
+
+
+def png_header(w: int, h: int) -> bytes:
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hostile")
+    for name in ("canary.fifo", "canary.xml"):
+        os.mkfifo(root / name)  # anything that opens these blocks
+    srv = Server(root / "data", extra=("--max-upload-mb", "8")).start()
+    yield srv, root
+    srv.stop()
+
+
+def uploads(root: Path) -> list[tuple[str, dict, int, str]]:
+    fifo = str(root / "canary.fifo")
+    up = "../../../../canary.fifo"  # data/scenes/.staging/<tmp>/ -> root: the relative escape hits the FIFO
+    ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n" \
+          b"property float z\nelement face 1000000000\nproperty list uchar int vertex_indices\nend_header\n" + b"\0" * 64
+    shape = '<shape type="{k}"><string name="filename" value="{v}"/></shape>'
+    bitmap = '<bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="{v}"/>' \
+             '</texture></bsdf>'
+    B = lambda data: {"files": {"bundle": ("b.zip", data, "application/zip")}}  # noqa: E731
+    return [
+        ("zip member with ..", B(zbytes({"../evil.xml": b"<scene/>"})), 422, "'..' would leave the bundle"),
+        ("zip member absolute", B(zbytes({"/etc/cron.d/x": b"x"})), 422, "absolute paths are not allowed"),
+        ("zip member drive letter", B(zbytes({"C:\\Windows\\x.xml": b"x"})), 422, "absolute paths"),
+        ("zip symlink member", B(symlink_zip()), 422, "symbolic link"),
+        ("zip bomb (ratio)", B(zbytes({"scene.xml": b"<scene/>", "z.bin": b"\0" * (4 << 20)})), 413, "zip bomb"),
+        ("zip declares too much", B(zbytes({f"z{i}.bin": b"\0" * 1_000_000 for i in range(9)})), 413,
+         "declares more than"),
+        # zipfile stops at the declared size and the CRC no longer matches (our byte count would stop it too)
+        ("zip lies about sizes", B(lying_zip()), 422, "cannot unpack 'big.bin'"),
+        ("zip with too many files", B(zbytes({f"f{i}": b"" for i in range(2001)})), 413, "more than 2000"),
+        ("not a zip", B(b"hello, not a zip"), 422, "not a zip file"),
+        ("entity bomb", B(zbytes({"scene.xml": b'<?xml version="1.0"?><!DOCTYPE s [<!ENTITY a "aaaaaaaaaa">'
+                                                b'<!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;"><!ENTITY c "&b;&b;&b;'
+                                                b'&b;&b;&b;&b;&b;&b;&b;">]><scene>&c;</scene>'})), 422, "DTDs"),
+        ("external entity", B(zbytes({"scene.xml": f'<?xml version="1.0"?><!DOCTYPE s [<!ENTITY x SYSTEM '
+                                                   f'"file://{fifo}">]><scene>&x;</scene>'.encode()})), 422,
+         "DTDs, entities and external references are not allowed"),
+        ("include leaving the bundle", B(scene_zip(f'<include filename="{up[:-4]}xml"/>')), 422,
+         "leaves the scene bundle"),
+        ("include absolute", B(scene_zip(f'<include filename="{root / "canary.xml"}"/>')), 422, "absolute path"),
+        ("path element", B(scene_zip('<path value="/"/>')), 422, "<path> elements"),
+        ("mesh absolute", B(scene_zip(shape.format(k="obj", v=fifo))), 422, "absolute path"),
+        ("mesh relative escape", B(scene_zip(shape.format(k="obj", v=up))), 422, "leaves the scene bundle"),
+        ("mesh via $default escape", B(scene_zip('<default name="d" value="../../../.."/>'
+                                                 + shape.format(k="obj", v="$d/canary.fifo"))), 422, "leaves"),
+        ("unknown plugin", B(scene_zip('<bsdf type="evil"/>')), 422, "disallowed bsdf plugin 'evil'"),
+        ("unknown element", B(scene_zip('<exec cmd="rm -rf /"/>')), 422, "unknown XML element <exec>"),
+        ("huge declared mesh", B(scene_zip(shape.format(k="ply", v="m.ply"), {"m.ply": ply})), 422,
+         "declares"),
+        ("huge image header", B(scene_zip(bitmap.format(v="t.png"), {"t.png": png_header(60000, 60000)})), 422,
+         "pixels"),
+        ("no scene xml", B(zbytes({"readme.txt": b"hi"})), 422, "0 XML files"),
+        ("two xml, no entry", B(zbytes({"a.xml": SCENE.format(body="").encode(),
+                                        "b.xml": SCENE.format(body="").encode()})), 422, "name the scene file"),
+        ("entry outside", {**B(scene_zip("")), "data": {"entry": "../canary.xml"}}, 422, "leaves the scene bundle"),
+        ("files name with ..", {"files": [("files", ("../../x.xml", SCENE.format(body=""), "text/xml"))]}, 422,
+         "'..' would leave the bundle"),
+        ("files name absolute", {"files": [("files", ("/tmp/x.xml", SCENE.format(body=""), "text/xml"))]}, 422,
+         "absolute paths"),
+        ("bundle and files", {"files": [("bundle", ("b.zip", scene_zip(""), "application/zip")),
+                                        ("files", ("a.xml", b"<scene/>", "text/xml"))]}, 422, "not both"),
+        ("empty form", {"data": {"entry": "scene.xml"}}, 422, "no scene"),
+        ("body over the cap", B(os.urandom(9 << 20)), 413, "larger than the limit"),
+    ]
+
+
+def test_hostile_uploads_are_refused_and_nothing_is_stored(hostile):
+    srv, root = hostile
+    with srv.client("submit", timeout=20.0) as c:
+        for name, kw, status, words in uploads(root):
+            r = c.post("/v1/scenes", **kw)
+            assert r.status_code == status, (name, r.status_code, r.text[:300])
+            assert r.headers["content-type"].startswith("application/problem+json"), name
+            body = r.json()
+            assert body["status"] == status and words in body["detail"], (name, body["detail"])
+            assert httpx.get(f"{srv.url}/livez", timeout=5).status_code == 200, f"server down after {name}"
+    scenes = [p.name for p in (srv.data_dir / "scenes").iterdir() if p.name != ".staging"]
+    assert scenes == [] and list((srv.data_dir / "scenes" / ".staging").iterdir()) == []
+
+
+def raw_job(c: httpx.Client, text: str) -> httpx.Response:
+    return c.post("/v1/jobs", content=text.encode(), headers={"content-type": "application/json"})
+
+
+def test_hostile_jobs_are_refused(hostile, shared_scenes):
+    srv, _ = hostile
+    with srv.client("submit") as c:
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as zf:
+            for p in (shared_scenes / "cbox-mirror-glass").rglob("*"):
+                if p.is_file():
+                    zf.write(p, p.relative_to(shared_scenes / "cbox-mirror-glass").as_posix())
+        sid = c.post("/v1/scenes", files={"bundle": ("b.zip", buf.getvalue())}).json()["id"]
+        good = {"scene_id": sid, "optics": {"resolution_hw": [64, 64]}, "preset": "fast", "spp": 4}
+        cases = [
+            ('{"scene_id": "%s", "optics": {"pitch_um": NaN}}' % sid, "optics.pitch_um: Input should be a finite"),
+            ('{"scene_id": "%s", "optics": {"wavelengths_nm": [Infinity]}}' % sid, "finite number"),
+            ('{"scene_id": "%s", "optics": {"pitch_um": -8}}' % sid, "greater than 0"),
+            ('{"scene_id": "%s", "optics": {"z_inf_mm": -1e308}}' % sid, "greater than 0"),
+            (json.dumps({**good, "optics": {"resolution_hw": [100000, 5]}}), "must be in 1..16384"),
+            (json.dumps({**good, "optics": {"resolution_hw": [4097, 16]}}), "at most 4096 px"),
+            (json.dumps({**good, "frames": 0}), "greater than or equal to 1"),
+            (json.dumps({**good, "frames": 100}), "frames: must be in 1..64"),
+            (json.dumps({**good, "spp": 10**9}), "less than or equal to 1000000"),
+            (json.dumps({**good, "spp": 5000}), "spp: must be in 1..4096"),
+            (json.dumps({**good, "optics": {"resolution_hw": [4096, 2304]}, "spp": 4096}), "rays"),
+            (json.dumps({**good, "encoder": "rm -rf"}), "encoder"),
+            (json.dumps({**good, "evil": 1}), "Extra inputs are not permitted"),
+            (json.dumps({**good, "display": "../../etc"}), "display"),
+            (json.dumps({**good, "scene_id": "snope"}), "no scene 'snope'"),
+            (json.dumps({**good, "scene_id": "../../x"}), "scene_id"),
+            ("{not json", "JSON decode error"),
+            ("[]", "Input should be a valid dictionary"),
+        ]
+        for text, words in cases:
+            r = raw_job(c, text)
+            assert r.status_code == 422, (text, r.status_code, r.text[:300])
+            assert r.headers["content-type"].startswith("application/problem+json")
+            assert words in r.json()["detail"], (text, r.json()["detail"])
+        assert c.get("/v1/jobs").json()["jobs"] == []  # none of them was queued
+        r = c.post("/v1/jobs", json=good, headers={"Idempotency-Key": "a" * 300})
+        assert r.status_code == 422 and "Idempotency-Key" in r.json()["detail"]
+    assert httpx.get(f"{srv.url}/livez").status_code == 200
+
+
+def test_auth_failures(hostile):
+    srv, _ = hostile
+    url = srv.url
+    r = httpx.get(f"{url}/v1/jobs")
+    assert r.status_code == 401 and r.headers["www-authenticate"].startswith("Bearer")
+    assert "authentication required" in r.json()["detail"]
+    for header, words in (("Bearer hpt_0000_wrong", "invalid or revoked token"), ("Bearer nonsense", "invalid"),
+                          ("Basic dXNlcjpwYXNz", "malformed Authorization header"), ("Bearer " + "x" * 5000, "invalid")):
+        r = httpx.get(f"{url}/v1/jobs", headers={"Authorization": header})
+        assert r.status_code == 401 and words in r.json()["detail"], (header, r.text)
+    with srv.client("reader") as c:
+        r = c.post("/v1/jobs", json={"scene_id": "sx"})
+        assert r.status_code == 403 and "lacks the 'submit' scope" in r.json()["detail"]
+        assert c.delete("/v1/jobs/jx").status_code == 403
+    with srv.client("agent") as c:
+        assert c.post("/v1/scenes", files={"bundle": ("b.zip", b"x")}).status_code == 403
+        assert c.get("/v1/jobs").status_code == 200
+    with srv.client("submit") as c:
+        r = c.post("/v1/displays/lab/heartbeat", json={"agent_version": "1", "state": "idle", "message": ""})
+        assert r.status_code == 403 and "'agent' scope" in r.json()["detail"]
+    tok = make_token(srv.data_dir, "read")
+    with srv.client(tok) as c:
+        assert c.get("/v1/jobs").status_code == 200
+        revoke_token(Database(srv.data_dir / "service.db"), tok.split("_")[1])
+        assert c.get("/v1/jobs").status_code == 401
+
+
+def test_odd_paths_and_methods(hostile):
+    srv, _ = hostile
+    with srv.client("admin") as c:
+        for path in ("/v1/jobs/..%2F..%2Fetc%2Fpasswd", "/v1/jobs/%00", "/v1/scenes/" + "a" * 100):
+            r = c.get(path)
+            assert r.status_code in (404, 422) and r.json()["detail"], path
+        r = c.get("/v1/jobs/jdoesnotexist")
+        assert r.status_code == 404 and "no job 'jdoesnotexist'" in r.json()["detail"]
+        assert c.get("/v1/jobs/jdoesnotexist/stack").status_code == 404
+        r = c.put("/v1/jobs")
+        assert r.status_code == 405 and "not allowed" in r.json()["detail"]
+        r = c.get("/v1/nothing-here")
+        assert r.status_code == 404 and r.headers["content-type"].startswith("application/problem+json")
+        r = c.get("/v1/jobs", params={"limit": 100000, "state": "exploded"})
+        assert r.status_code == 422 and "limit" in r.json()["detail"]
+        r = c.post("/v1/displays/lab/heartbeat", json={"agent_version": "1", "state": "x" * 100, "message": ""})
+        assert r.status_code == 422
+    assert httpx.get(f"{srv.url}/readyz").status_code == 200
