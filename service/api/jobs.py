@@ -134,7 +134,7 @@ def submit_job(
 
 
 @router.get("/v1/jobs", response_model=JobList, responses=PROBLEM_RESPONSES)
-def list_jobs(
+async def list_jobs(
     request: Request,
     state: Optional[Literal["queued", "running", "succeeded", "failed", "cancelled"]] = None,
     display: Optional[str] = Query(default=None, pattern=NAME_PATTERN),
@@ -144,14 +144,16 @@ def list_jobs(
 ):
     """Jobs, newest first, filtered by state, display and scene."""
     rows = get_ctx(request).db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit)
-    return {"jobs": [job_out(r) for r in rows]}
+    return JSONResponse({"jobs": [job_out(r) for r in rows]})
 
 
 @router.get("/v1/jobs/{job_id}", response_model=JobOut, responses=PROBLEM_RESPONSES)
-def get_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-            principal: Principal = Depends(require("read"))):
+async def get_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+                  principal: Principal = Depends(require("read"))):
     """A job's state, progress, timings, plan and error."""
-    return job_out(_get(get_ctx(request), job_id))
+    # Polled by clients and agents: answered on the event loop (one indexed read) without re-validating the
+    # body against JobOut (job_out builds exactly that shape; the schema tests check it).
+    return JSONResponse(job_out(_get(get_ctx(request), job_id)))
 
 
 @router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
