@@ -5,8 +5,12 @@
    the eye-camera depth is zc = t / sqrt(1 + tan_x^2 + tan_y^2) at each pixel centre.
 2. N planes uniform in hologram depth z = z_inf + f^2 / zc (uniform in dioptres) from the nearest to the
    farthest pixel; every pixel goes to the nearest plane (no occlusion handling, as in plain layer methods).
-3. Plane k, color c, frame m: U = sqrt(I_c) on its pixels, times the frame's band-limited random phase
-   (the renderer's own bank, :func:`holocore.randomfield.phase_bank`: the same recording cone).
+3. Plane k, color c, frame m: U = sqrt(I_c) s_c / s_max on its pixels, times the frame's band-limited random
+   phase (the renderer's own bank, :func:`holocore.randomfield.phase_bank`: the same recording cone). The
+   random phase spreads color c's light evenly over its cone of direction sines s_c = sin theta_max =
+   lambda / 2p; an eye whose pupil lies inside the cone takes the fraction (NA / s_c)^2 of it, so the power
+   must grow like s_c^2 for every color to look as bright as its radiance (otherwise red, with the widest
+   cone, looks (s_R / s_B)^2 = 2x too dim against blue).
 4. Each plane is propagated by band-limited ASM from its depth z_k to the WRP (z_wrp > z_k, towards the
    viewer), summed there, and the sum goes to the SLM by ASM over -z_wrp, as the two-stage renderer does.
 
@@ -130,8 +134,9 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     C = len(wavelengths_m)
     wrp = torch.zeros((frames, C, H, W), dtype=torch.complex64)
     slm = torch.zeros_like(wrp)
+    cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]  # s_c, the sine of theta_max
     for c, lam in enumerate(wavelengths_m):
-        amp = torch.from_numpy(np.sqrt(img[channel_of(float(lam))]).astype(np.float32))
+        amp = torch.from_numpy((np.sqrt(img[channel_of(float(lam))]) * cone[c] / max(cone)).astype(np.float32))
         ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed))
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
         for i, z in enumerate(zs):
