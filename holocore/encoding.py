@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from holocore.io import phase_to_u8, save_stack
-from holocore.propagation import PitchLike, _pitch_pair, asm
+from holocore.propagation import PitchLike, _pitch_pair, asm, ifft2
 from holocore.randomfield import passband_mask
 
 __all__ = [
@@ -210,7 +210,7 @@ def _band_masks(shape_hw: tuple[int, int], lams: list[float], pitch_m: PitchLike
 
 def _band(u: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
     """Project [F, C, H, W] onto the passband (periodic H x W grid; an orthogonal projection)."""
-    return torch.fft.ifft2(torch.fft.fft2(u) * masks.to(u.real.dtype))
+    return ifft2(torch.fft.fft2(u) * masks.to(u.real.dtype))
 
 
 def passband_filter(field: ArrayLike, *, wavelengths_m: Sequence[float], pitch_m: PitchLike) -> torch.Tensor:

@@ -195,6 +195,7 @@ def eye_view(field_slm: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diame
     """
     import torch
 
+    from holocore.propagation import ifft2
     from holocore.viewing import simulate_view
 
     u = np.asarray(field_slm)
@@ -220,7 +221,7 @@ def eye_view(field_slm: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diame
         kx = torch.fft.fftfreq(W + 2 * m, dtype=torch.float64)
         ramp = torch.polar(torch.ones(H + 2 * m, W + 2 * m, dtype=torch.float64),
                            2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)).to(torch.complex64)
-        t = torch.fft.ifft2(torch.fft.fft2(big) * ramp)
+        t = ifft2(torch.fft.fft2(big) * ramp)
     out = simulate_view(t, wavelengths_m=[float(v) for v in meta["wavelengths_m"]], pitch_m=p, focal_length_m=f,
                         pupil_diameter_m=float(pupil_diameter_m), distance_m=z_f, view_offset_m=(ex, ey))
     out = out.numpy().astype(np.float64)

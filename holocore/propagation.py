@@ -22,7 +22,7 @@ from typing import Sequence, Union
 
 import torch
 
-__all__ = ["asm", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
+__all__ = ["asm", "ifft2", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
 
 PitchLike = Union[float, Sequence[float]]
 """A pixel pitch in metres: one float (square pixels) or a ``(pitch_y, pitch_x)`` pair."""
@@ -133,14 +133,18 @@ def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float
 
 
 def _cached_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
-               device: torch.device, dtype: torch.dtype) -> torch.Tensor:
-    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype)
+               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False) -> torch.Tensor:
+    """The cached H; with ``conj_scaled`` the cached conj(H) / (Hp Wp) that :func:`ifft2`'s identity needs."""
+    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled)
     with _tf_lock:
         tf = _tf_cache.get(key)
         if tf is not None:
             _tf_cache.move_to_end(key)
             return tf
-    tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype)
+    if conj_scaled:
+        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype).conj_physical().div_(shape[0] * shape[1])
+    else:
+        tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype)
     nbytes = tf.numel() * tf.element_size()
     if nbytes <= _TF_CACHE_MAX_BYTES:
         with _tf_lock:
@@ -184,6 +188,16 @@ def transfer_function(shape_hw_padded: tuple[int, int], distance_m: float, wavel
 
 
 # ---- propagation -----------------------------------------------------------------------------------------
+def ifft2(spec: torch.Tensor) -> torch.Tensor:
+    """Inverse 2-D DFT over the last two axes (numpy's normalisation), as conj(fft2(conj(X))) / N.
+
+    torch 2.13's CPU ``ifft2`` returns garbage for an unbatched 2048 x 2048 complex64 input on more than one
+    thread (the grid of a 1024 x 1024 SLM padded 2x; ``ifftn`` too, while ``fft2`` and batched calls are right:
+    tests/test_propagation.py checks both at production sizes), so the project never calls it.
+    """
+    return torch.fft.fft2(spec.conj()).conj_physical_().div_(spec.shape[-2] * spec.shape[-1])
+
+
 def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
     """A per-thread zero-padded CPU buffer; only its top-left [..., :H, :W] block is ever written.
 
@@ -225,15 +239,16 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
     hp, wp = padded_shape((h, w), pad_factor)
     if z == 0.0:
         return field.clone()
-    tf = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype)
+    # The inverse transform is a forward one: IFFT(S H) = conj(FFT(conj(S) conj(H) / N)) (see :func:`ifft2`).
+    tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True)
     needs_graph = torch.is_grad_enabled() and field.requires_grad
     if needs_graph or field.device.type != "cpu":
         spec = torch.fft.fft2(field, s=(hp, wp))  # pads with zeros at the end of each axis
-        spec = spec * tf if needs_graph else spec.mul_(tf)
-        return torch.fft.ifft2(spec)[..., :h, :w].contiguous()
+        spec = spec.conj() * tfc if needs_graph else spec.conj_physical_().mul_(tfc)
+        return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])
     # CPU fast path: reuse a zero-padded workspace, multiply in place, one crop copy.
     buf = _workspace(tuple(field.shape[:-2]) + (hp, wp), field.dtype)
     buf[..., :h, :w].copy_(field)
     spec = torch.fft.fft2(buf)
-    spec.mul_(tf)
-    return torch.fft.ifft2(spec)[..., :h, :w].contiguous()
+    spec.conj_physical_().mul_(tfc)
+    return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])

@@ -18,7 +18,7 @@ from typing import Sequence, Union
 import numpy as np
 import torch
 
-from holocore.propagation import PitchLike, _pitch_pair, _positive, _real, padded_shape, transfer_function
+from holocore.propagation import PitchLike, _pitch_pair, _positive, _real, ifft2, padded_shape, transfer_function
 
 __all__ = ["simulate_view", "pupil_mask", "stack_to_field", "depth_of_field_m"]
 
@@ -103,7 +103,7 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
         for f0 in range(0, n_frames, chunk):
             spec = torch.fft.fft2(field[f0:f0 + chunk, c], s=(hp, wp))
             spec.mul_(filt)
-            u = torch.fft.ifft2(spec)[..., :h, :w]
+            u = ifft2(spec)[..., :h, :w]
             acc += (u.real.square() + u.imag.square()).sum(dim=0).to(torch.float64)
         out[c] = (acc / n_frames).to(torch.float32)
     return out

@@ -34,6 +34,15 @@ def group_members(pgid: int) -> list[tuple[int, str]]:
     return out
 
 
+def process_alive(pid: int) -> bool:
+    """Whether ``pid`` exists and is not a zombie (a zombie has stopped running; only its reaping is left)."""
+    try:
+        raw = Path(f"/proc/{pid}/stat").read_bytes()
+    except OSError:
+        return False
+    return raw[raw.rfind(b")") + 2:].split()[0] != b"Z"
+
+
 def running_render(c, job_id: str, timeout: float = 60.0) -> tuple[int, int]:
     """Wait until the job's `holo render` child runs; returns (driver pid = pgid, render pid)."""
     def check():
@@ -67,8 +76,8 @@ def test_cancel_running_and_queued_jobs(server_factory, shared_scenes):
         r = c.delete(f"/v1/jobs/{slow['id']}")
         assert r.status_code == 202 and r.json()["state"] == "cancelled"
         wait_for(lambda: not group_alive(pgid), timeout=10, what="the cancelled job's process group to exit")
-        with pytest.raises(ProcessLookupError):
-            os.kill(render_pid, 0)
+        # the render CLI is gone too: reaped, or a zombie whose new parent (an init that may not reap) has it
+        assert not process_alive(render_pid), f"render {render_pid} outlived its cancelled job"
         # the next job in the queue runs; cancelling a queued job means it never starts
         queued = c.post("/v1/jobs", json=job_body(sid, 12)).json()
         r2 = c.delete(f"/v1/jobs/{queued['id']}")
