@@ -7,7 +7,8 @@ refused; ``status.json`` holds the message), anything else (a crash, a signal) m
 
 The driver leads its process group (the scheduler starts it with ``start_new_session``); the CLIs inherit the
 group, so one ``killpg`` stops the whole job. It asks the kernel for SIGTERM when its parent dies
-(``PR_SET_PDEATHSIG``) and then kills its group, so no render outlives the server that started it.
+(``PR_SET_PDEATHSIG``) and then kills its group, and each CLI gets SIGKILL when the driver dies, so no render
+outlives the server (or Ray worker) that started it.
 """
 
 from __future__ import annotations
@@ -37,14 +38,22 @@ def write_json_atomic(path: Path, doc: Any) -> None:
     os.replace(tmp, path)
 
 
-def _die_with_parent(parent_pid: Optional[int]) -> None:
+def _set_pdeathsig(sig: int) -> None:
+    """Ask Linux to send ``sig`` to this process when its parent dies (PR_SET_PDEATHSIG; no-op elsewhere)."""
     try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except OSError:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(sig), 0, 0, 0)
+    except (OSError, AttributeError):
         pass
+
+
+def _die_with_parent(parent_pid: Optional[int]) -> None:
+    _set_pdeathsig(signal.SIGTERM)
     if parent_pid is not None and os.getppid() != parent_pid:
         sys.exit(EXIT_RETRY)  # the parent died before prctl took effect
+
+
+def _child_dies_with_driver() -> None:  # preexec_fn of the CLIs (the driver is single-threaded)
+    _set_pdeathsig(signal.SIGKILL)
 
 
 def _on_term(signum, frame) -> None:  # noqa: ARG001
@@ -66,8 +75,9 @@ def _run(step: str, args: list[str], job_dir: Path) -> float:
     write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
     t0 = time.monotonic()
     with open(job_dir / f"{step}.log", "wb") as log:
+        # the CLI dies with the driver, however the driver dies (even SIGKILL, which no handler sees)
         proc = subprocess.run([sys.executable, "-m", "holo", *args], stdout=log, stderr=subprocess.STDOUT,
-                              stdin=subprocess.DEVNULL, cwd=job_dir)
+                              stdin=subprocess.DEVNULL, cwd=job_dir, preexec_fn=_child_dies_with_driver)
     if proc.returncode != 0:
         lines = (job_dir / f"{step}.log").read_text(errors="replace").strip().splitlines()
         errs = [ln for ln in lines if ln.startswith("error:")]
@@ -174,6 +184,10 @@ def main(argv: Optional[list[str]] = None) -> int:
         status = {"ok": False, "error": f"worker error: {type(exc).__name__}: {exc}"[:1000], "retryable": False}
         code = EXIT_FAILED
     status["total_s"] = time.time() - t0
+    try:  # which run this is: a stale run (after a restart) must not pass for the current one
+        status["attempt"] = json.loads((job_dir / "job.json").read_text()).get("attempt")
+    except (OSError, ValueError):
+        status["attempt"] = None
     write_json_atomic(job_dir / "status.json", status)
     return code
 

@@ -75,12 +75,13 @@ def read_progress(job_dir: Path) -> Optional[dict]:
             "fraction": round(min(0.999, base + STEP_WEIGHTS[step] * within), 4)}
 
 
-def _read_status(job_dir: Path) -> Optional[dict]:
+def _read_status(job_dir: Path, attempt: int) -> Optional[dict]:
+    """The run's status.json, if it was written by run ``attempt`` (not by a stale earlier run)."""
     try:
         doc = json.loads((job_dir / "status.json").read_text())
-        return doc if isinstance(doc, dict) else None
     except (OSError, ValueError):
         return None
+    return doc if isinstance(doc, dict) and doc.get("attempt") == attempt else None
 
 
 def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
@@ -143,7 +144,7 @@ class Scheduler:
             if pid and _pid_is_our_driver(pid, job_dir):
                 log.warning("job %s: killing the driver (pid %d) a previous server left behind", row["id"], pid)
                 kill_group(pid, grace_s=1.0)
-            status = _read_status(job_dir)
+            status = _read_status(job_dir, row["attempts"])
             if status and status.get("ok"):
                 self._succeed(row["id"], row["attempts"], status, job_dir)
             elif row["attempts"] >= self.settings.max_attempts:
@@ -191,7 +192,8 @@ class Scheduler:
             write_json_atomic(job_dir / "optics.json", spec["optics"])
             scene_path = self.settings.scenes_dir / scene["id"] / "bundle" / scene["entry"]
             write_json_atomic(job_dir / "job.json", {**{k: v for k, v in spec.items() if k != "optics"},
-                                                     "job_id": job_id, "scene_path": str(scene_path),
+                                                     "job_id": job_id, "attempt": attempt,
+                                                     "scene_path": str(scene_path),
                                                      "keep_result": self.settings.keep_result})
             handle = self.engine.launch(job_id, attempt, job_dir)
         except Exception as exc:  # noqa: BLE001
@@ -226,7 +228,7 @@ class Scheduler:
             return
         del self.running[job_id]
         self._progress.pop(job_id, None)
-        status = _read_status(h.job_dir)
+        status = _read_status(h.job_dir, h.attempt)
         if rc == 0 and status and status.get("ok"):
             self._succeed(job_id, h.attempt, status, h.job_dir)
         elif rc == EXIT_FAILED or (status is not None and status.get("retryable") is False):
@@ -250,6 +252,7 @@ class Scheduler:
         row = self.db.get_job(job_id)
         timings = dict((row or {}).get("timings") or {})
         timings.update(status.get("timings") or {})
+        timings["engine"] = self.engine.name
         now = time.time()
         if row and row.get("started_at"):
             timings["run_s"] = round(now - row["started_at"], 3)
