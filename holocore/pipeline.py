@@ -71,7 +71,9 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu"):
     banks = []
     for lam in optics.wavelengths_m:
         ph = phase_bank(optics.frames, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device)
-        banks.append(torch.polar(torch.ones_like(ph), ph).to(torch.complex64))
+        # stored cell-major ([H, W, F] in memory, seen as [F, H, W]): the tracer gathers all frames of a cell at once
+        cells = torch.polar(torch.ones_like(ph), ph).to(torch.complex64).permute(1, 2, 0).contiguous()
+        banks.append(cells.permute(2, 0, 1))
     return banks
 
 

@@ -29,7 +29,7 @@ import torch
 from holocore.mapping import HologramMap
 from holocore.wavetrace import trace_chain
 
-__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cone_directions"]
+__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cone_directions", "cell_major"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -100,6 +100,32 @@ def _bank_index(qx: np.ndarray, qy: np.ndarray, H: int, W: int, pitch: float) ->
     return i * W + j
 
 
+def cell_major(bank: torch.Tensor) -> torch.Tensor:
+    """A bank [F, H, W] as [H*W, F]: the F phasors of a cell side by side. Free (a view) when the bank was
+    built that way (``pipeline._banks`` does); a copy otherwise."""
+    return bank.permute(1, 2, 0).reshape(-1, bank.shape[0]).contiguous()
+
+
+_CHUNK_RAYS = 1 << 14  # rays per gather: the [rays, F] block stays in cache
+
+
+def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tensor, n: int) -> torch.Tensor:
+    """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all frames m at once; complex64 [P, F].
+
+    ``cells``: [H*W, F] (see :func:`cell_major`), ``idx``: bank cell of each ray, ``base``: complex64 [P*n]
+    (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, F], then a batched [1, n] x [n, F] product.
+    """
+    P, F = base.numel() // n, cells.shape[1]
+    out = torch.empty((P, 1, F), dtype=torch.complex64)
+    step = max(1, _CHUNK_RAYS // n)
+    b = base.view(P, 1, n)
+    for p0 in range(0, P, step):
+        p1 = min(P, p0 + step)
+        rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, F)
+        torch.bmm(b[p0:p1], rows, out=out[p0:p1])
+    return out.view(P, F)
+
+
 def trace_field(
     scene,
     hmap: HologramMap,
@@ -145,6 +171,7 @@ def trace_field(
     ks = [2.0 * math.pi / lam for lam in wavelengths_m]
     cos_lim = [math.cos(t) for t in thetas]
 
+    cells = None if bank_phasors is None else [cell_major(b) for b in bank_phasors]
     tiles = [np.arange(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
     for ti, rows in enumerate(tiles):
         t0 = time.perf_counter()
@@ -190,9 +217,8 @@ def trace_field(
             sl = (slice(None), c, slice(int(rows[0]), int(rows[-1]) + 1), slice(None))
             if bank_phasors is None:  # one smooth-phase field, the same for every frame
                 out[sl] += base.view(len(rows), W, N).sum(dim=2)[None]
-            else:  # path reuse: one gather of phi_m(Q) for all frames, then one reduction
-                contrib = bank_phasors[c].reshape(frames, -1)[:, idx] * base[None, :]
-                out[sl] += contrib.view(frames, len(rows), W, N).sum(dim=3)
+            else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows, one matmul)
+                out[sl] += _accumulate_frames(cells[c], idx, base, N).t().view(frames, len(rows), W)
         stats.rays += R
         stats.valid += int(np.count_nonzero(ok))
         stats.escaped += int(np.count_nonzero(res.escaped))

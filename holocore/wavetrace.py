@@ -135,12 +135,13 @@ def trace_chain(
     lanes = dr.compress(cont)
     if dr.width(lanes) > 0 and max_delta > 0:
         # Differentials 0, 1: lateral shifts of O along e1, e2; 2, 3: angular perturbations of v along e1, e2.
-        helper = np.where(np.abs(v[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-        e1 = np.cross(v, helper)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(v, e1)
         idx = np.asarray(lanes, dtype=np.int64)
-        sub = _DeltaChain(mi, scene, ctx, flags, idx, o, v, e1, e2, seed)
+        oo, vv = o[idx], v[idx]
+        helper = np.where(np.abs(vv[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+        e1 = np.cross(vv, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(vv, e1)
+        sub = _DeltaChain(mi, scene, ctx, flags, oo, vv, e1, e2, seed)
         sub.run(max_delta)
         L = mi.UInt32(aligned(idx, np.uint32))
         dr.scatter(d_out, sub.d_out, L)
@@ -217,38 +218,76 @@ class _DeltaChain:
     """The rays whose first lobe was a delta lobe, compacted, followed coherently bounce by bounce.
 
     Restarts them at the first vertex (re-intersected; the lobe is sampled anew with its own random numbers)
-    and carries four analytic differentials in float64 (see the module docstring).
+    and carries four analytic differentials in float64 (see the module docstring). After every bounce the
+    lanes that ended (image point found, escaped, singular, capped) write their outputs and leave: the next
+    bounce traces only the lanes still in the chain (most paths leave after one or two delta vertices).
     """
 
-    def __init__(self, mi, scene, ctx, flags, idx, o, v, e1, e2, seed):
+    def __init__(self, mi, scene, ctx, flags, oo, vv, e1, e2, seed):
+        """oo, vv: float64 [n, 3] origins and unit directions of the lanes; e1, e2: unit vectors with (vv, e1, e2)
+        orthonormal."""
         import drjit as dr
 
         F64, V3d = mi.Float64, mi.Vector3d
         self.mi, self.scene, self.ctx, self.flags = mi, scene, ctx, flags
-        n = idx.size
-        oo, vv = o[idx], v[idx]
+        n = oo.shape[0]
+        # Working state of the lanes still in the chain (compacted after every bounce); lane: their output slot.
+        self.lane = dr.arange(mi.UInt32, n)
         self.ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(oo[:, i])) for i in range(3)]),
                             mi.Vector3f(*[mi.Float(aligned(vv[:, i])) for i in range(3)]))
         self.D = V3d(*[F64(aligned(vv[:, i], np.float64)) for i in range(3)])
-        E = [V3d(*[F64(aligned(e[idx][:, i], np.float64)) for i in range(3)]) for e in (e1, e2)]
-        self.dP = [E[0], E[1], V3d(0.0), V3d(0.0)]
-        self.dD = [V3d(0.0), V3d(0.0), E[0], E[1]]
+        E = [V3d(*[F64(aligned(e[:, i], np.float64)) for i in range(3)]) for e in (e1, e2)]
+        self.dP = [E[0], E[1], dr.zeros(V3d, n), dr.zeros(V3d, n)]
+        self.dD = [dr.zeros(V3d, n), dr.zeros(V3d, n), E[0], E[1]]
         self.frame = [E[0], E[1]]
+        self.n_cur = dr.full(F64, 1.0, n)
+        self.opl_w = dr.zeros(F64, n)
+        self.thr_w = dr.full(mi.Color3f, 1.0, n)
+        self.nd_w = dr.zeros(mi.UInt32, n)
         # Random numbers for lobe choices come from numpy (kernel inputs, so Dr.Jit's kernel cache still hits).
         self.rng = np.random.default_rng([seed, 0x5EED, n])
-        self.active = dr.full(mi.Bool, True, n)
+        # Outputs, one slot per lane.
         self.done = dr.full(mi.Bool, False, n)
         self.escaped = dr.full(mi.Bool, False, n)
         self.bad = dr.full(mi.Bool, False, n)
         self.capped = dr.full(mi.Bool, False, n)
         self.n_delta = dr.zeros(mi.UInt32, n)
-        self.n_cur = dr.full(F64, 1.0, n)
         self.opl = dr.zeros(F64, n)
         self.thr = dr.full(mi.Color3f, 1.0, n)
         self.d_out = dr.zeros(F64, n)
         self.p_world = dr.zeros(mi.Point3f, n)
         self.fin_o = mi.Point3f(self.ray.o)
         self.fin_d = mi.Vector3f(self.ray.d)
+
+    def _put(self, name: str, value, mask) -> None:
+        """Write ``value`` into output ``name`` at the slots of the lanes in ``mask``."""
+        import drjit as dr
+
+        dr.scatter(getattr(self, name), value, self.lane, mask)
+
+    def _leave(self, mask) -> None:
+        """Lanes in ``mask`` end here: record the path so far (throughput, bounces, optical path)."""
+        self._put("thr", self.thr_w, mask)
+        self._put("n_delta", self.nd_w, mask)
+        self._put("opl", self.opl_w, mask)
+
+    def _compact(self, keep) -> bool:
+        """Keep only the lanes in ``keep``; False when none is left."""
+        import drjit as dr
+
+        ids = dr.compress(keep)
+        if dr.width(ids) == 0:
+            return False
+        mi = self.mi
+
+        def take(x):
+            return dr.gather(type(x), x, ids)
+
+        self.lane, self.D, self.n_cur = take(self.lane), take(self.D), take(self.n_cur)
+        self.opl_w, self.thr_w, self.nd_w = take(self.opl_w), take(self.thr_w), take(self.nd_w)
+        self.dP, self.dD, self.frame = [take(x) for x in self.dP], [take(x) for x in self.dD], [take(x) for x in self.frame]
+        self.ray = mi.Ray3f(take(self.ray.o), take(self.ray.d))
+        return True
 
     def run(self, max_delta: int) -> None:
         import drjit as dr
@@ -257,10 +296,9 @@ class _DeltaChain:
         F64, V3d = mi.Float64, mi.Vector3d
         ND = 4
         for bounce in range(max_delta + 1):
-            active = self.active
-            si = self.scene.ray_intersect(self.ray, self.flags, False, active)
-            self.escaped |= active & ~si.is_valid()
-            active &= si.is_valid()
+            si = self.scene.ray_intersect(self.ray, self.flags, False, True)
+            active = si.is_valid()
+            self._put("escaped", True, ~active)
             t = F64(si.t)
             N = V3d(si.sh_frame.n)
             D = self.D
@@ -281,32 +319,39 @@ class _DeltaChain:
             det_b = b11 * b22 - b12 * b21
             tr = b22 * a11 - b12 * a21 - b21 * a12 + b11 * a22  # tr(adj(B) A) = det(B) tr(B^-1 A)
             d_here = 2.0 * det_b / dr.select(dr.abs(tr) > 0, tr, 1e-300)
-            self.d_out = dr.select(stop, d_here, self.d_out)
-            self.opl = dr.select(active, self.opl + self.n_cur * t, self.opl)
-            self.p_world = dr.select(stop, si.p, self.p_world)
-            self.fin_o = dr.select(stop, self.ray.o, self.fin_o)
-            self.fin_d = dr.select(stop, self.ray.d, self.fin_d)
-            self.done |= stop
+            self.opl_w = dr.select(active, self.opl_w + self.n_cur * t, self.opl_w)
+            self._put("d_out", d_here, stop)
+            self._put("p_world", si.p, stop)
+            self._put("fin_o", self.ray.o, stop)
+            self._put("fin_d", self.ray.d, stop)
+            self._put("done", True, stop)
             cont = active & ~stop
             if bounce == max_delta:
-                self.capped |= cont
+                self._put("capped", True, cont)
+                self._leave(mi.Bool(True))
                 break
-            self._transfer(si, bs, w, cont, t, N, cosD, dPt)
-            dr.eval(self.dP, self.dD, self.frame, self.D, self.ray, self.active, self.done, self.escaped, self.bad,
-                    self.n_delta, self.n_cur, self.opl, self.thr, self.d_out, self.p_world, self.fin_o, self.fin_d,
-                    self.capped)
-            if not dr.any(self.active):
+            singular = self._transfer(si, bs, w, cont, t, N, cosD, dPt)
+            self._put("bad", True, singular)
+            keep = cont & ~singular
+            self._leave(~keep)
+            dr.eval(self.dP, self.dD, self.frame, self.D, self.ray, self.n_cur, self.opl_w, self.thr_w, self.nd_w,
+                    self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
+                    self.p_world, self.fin_o, self.fin_d)
+            if not self._compact(keep):
                 break
+        dr.eval(self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
+                self.p_world, self.fin_o, self.fin_d)
 
-    def _transfer(self, si, bs, w, cont, t, N, cosD, dPt) -> None:
-        """Carry the differentials and the frame through the delta vertex (Igehy 1999), float64."""
+    def _transfer(self, si, bs, w, cont, t, N, cosD, dPt):
+        """Carry the differentials and the frame through the delta vertex (Igehy 1999), float64. Returns the
+        lanes of ``cont`` whose transfer is singular (the ray grazes the surface)."""
         import drjit as dr
 
         mi = self.mi
         F64, V3d = mi.Float64, mi.Vector3d
         ND = 4
         D = self.D
-        self.bad |= cont & (dr.abs(cosD) < _EPS_COS)
+        singular = cont & (dr.abs(cosD) < _EPS_COS)
         safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
         dPh = [dPt[i] - (_dot(dPt[i], N) / safe_cos) * D for i in range(ND)]
         dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
@@ -350,8 +395,8 @@ class _DeltaChain:
             rotated = dr.select(rot_ok, _dot(f, axis) * axis + _dot(f, u_old) * u_new, f)
             self.frame[i] = dr.select(cont, dr.select(is_refl, refl, rotated), f)
         self.n_cur = dr.select(cont & ~is_refl, self.n_cur * F64(bs.eta), self.n_cur)
-        self.thr = dr.select(cont, self.thr * w, self.thr)
-        self.n_delta = dr.select(cont, self.n_delta + 1, self.n_delta)
+        self.thr_w = dr.select(cont, self.thr_w * w, self.thr_w)
+        self.nd_w = dr.select(cont, self.nd_w + 1, self.nd_w)
         self.D = dr.select(cont, D_new, D)
         self.ray = dr.select(cont, si.spawn_ray(wo), self.ray)
-        self.active = cont
+        return singular
