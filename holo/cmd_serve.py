@@ -16,15 +16,19 @@ def register(app: typer.Typer) -> None:
 
 def serve(
     data_dir: Path = typer.Option(..., "--data-dir", help="Folder for the database, scenes and job artifacts."),
-    host: str = typer.Option("127.0.0.1", help="Address to bind (default: this machine only)."),
-    port: int = typer.Option(8080, help="TCP port (0..65535)."),
-    workers: int = typer.Option(1, help="Jobs run at the same time (1..256)."),
+    host: Optional[str] = typer.Option(None, help="Address to bind (default: HOLO_HOST, else 127.0.0.1: this "
+                                                  "machine only)."),
+    port: Optional[int] = typer.Option(None, help="TCP port (0..65535; default: HOLO_PORT, else 8080)."),
+    workers: Optional[int] = typer.Option(None, help="Jobs run at the same time (1..256; default: HOLO_WORKERS, "
+                                                     "else 1)."),
     engine: Optional[str] = typer.Option(None, help="local (subprocesses) | ray (default: ray when --ray-address "
                                                     "or HOLO_RAY_ADDRESS is set)."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address, e.g. ray://head:10001 "
                                                                           "or auto; its workers must share --data-dir."),
     ray_gpus: Optional[float] = typer.Option(None, "--ray-gpus", help="GPUs each job asks Ray for (0..64)."),
-    max_attempts: int = typer.Option(3, "--max-attempts", help="Runs of a job before a crash fails it (1..100)."),
+    max_attempts: Optional[int] = typer.Option(None, "--max-attempts", help="Runs of a job before a crash fails it "
+                                                                            "(1..100; default: HOLO_MAX_ATTEMPTS, "
+                                                                            "else 3)."),
     max_upload_mb: Optional[float] = typer.Option(None, "--max-upload-mb", help="Largest upload and unpacked "
                                                                                 "bundle, MiB (default 256)."),
     log_level: str = typer.Option("info", "--log-level", help="debug | info | warning | error"),
