@@ -72,6 +72,7 @@ class RayEngine:
 
         self._ray = ray
         address = settings.ray_address or "auto"
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report leaves the lab unless asked for
         if not ray.is_initialized():
             # ray.init installs a SIGTERM handler that just exits (no graceful shutdown: running jobs would not
             # be requeued nor the data dir unlocked); keep the server's own handlers
