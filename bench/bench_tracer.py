@@ -215,7 +215,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller sizes (a few minutes)")
     ap.add_argument("--only", choices=["frames", "mitsuba", "direct", "fast"], action="append")
+    ap.add_argument("--plot-only", action="store_true", help="redraw tracer.png from tracer.json, measure nothing")
     args = ap.parse_args()
+    if args.plot_only:
+        plot(json.loads((RESULTS / "tracer.json").read_text()))
+        return
     if not SHARED.is_dir():
         sys.exit(f"shared scenes not found at {SHARED}: the benchmarks run on ../shared/scenes")
     from holocore.mitsuba_env import variant
@@ -245,6 +249,49 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "tracer.json").write_text(json.dumps(res, indent=2))
     write_markdown(res)
+    plot(res)
+
+
+def plot(res: dict) -> None:
+    """tracer.png: field PSNR vs rays (two-stage vs direct) and the time of each run in the other benchmarks."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    if "direct" in res:
+        for method, style in (("wrp", "o-"), ("direct", "s--")):
+            pts = sorted((r["rays"], r["field_psnr_db"]) for r in res["direct"]["rows"] if r["method"] == method)
+            ax.semilogx([p[0] for p in pts], [p[1] for p in pts], style,
+                        label="two-stage (WRP + ASM)" if method == "wrp" else "direct (rays from the SLM)")
+        ax.set_xlabel("rays")
+        ax.set_ylabel("SLM-field PSNR (dB, signal / Monte Carlo noise)")
+        ax.set_title(f"cbox: two-stage needs {res['direct']['ratio']:.3g}x fewer rays")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    ax = axes[1]
+    bars = []
+    if "frames" in res:
+        bars += [("cbox: 1 frame", res["frames"]["t1_s"]), ("cbox: 24 frames", res["frames"]["t24_s"])]
+    if "mitsuba" in res:
+        m = res["mitsuba"]
+        bars += [("cbox: ours, 1 frame", m["rays"] / m["ours_rays_per_s"]),
+                 ("cbox: Mitsuba path", m["rays"] / m["mitsuba_samples_per_s"])]
+    if "fast" in res:
+        sh = res["fast"].get("shape", "")
+        bars += [(f"demo {sh}: fast", res["fast"]["fast"]["seconds"]),
+                 (f"demo {sh}: balanced", res["fast"]["balanced"]["seconds"])]
+    if bars:
+        ax.barh([b[0] for b in bars][::-1], [b[1] for b in bars][::-1], color="tab:blue")
+        ax.set_xscale("log")
+        ax.set_xlabel("seconds (log)")
+        ax.set_title("time per run, " + res.get("date", ""))
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(RESULTS / "tracer.png", dpi=110)
+    plt.close(fig)
 
 
 def write_markdown(res: dict) -> None:
