@@ -200,7 +200,7 @@ class SceneRun:
         self.base = dict(resolution_hw=shape_hw, **spec.optics)
         self.OpticsConfig = OpticsConfig
         t0 = time.perf_counter()
-        self.cal_scene = calibrate(scene=spec.path, quick=True, repeats=repeats)
+        self.cal_scene = calibrate(scene=spec.path, quick=True, repeats=repeats, optics=spec.optics)
         self.cal_seconds = time.perf_counter() - t0
         self.cal_default = load_calibration(ROOT / "holocore" / "data" / "calibration_default.json")
         log(f"[{spec.name}] calibrated on the scene in {self.cal_seconds:.0f} s")

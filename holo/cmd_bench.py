@@ -28,10 +28,21 @@ def calibrate(
                                                             "which `holo render --estimate` reads)."),
     quick: bool = typer.Option(False, "--quick", help="Half the runs (about half the time)."),
     repeats: int = typer.Option(2, "--repeats", help="Runs per configuration; the fastest counts (1..10)."),
+    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig fields (JSON) every run "
+                                                                           "uses, e.g. {\"z_inf_mm\": 4}: calibrate "
+                                                                           "with the optics you will render with."),
 ) -> None:
     """Time small renders, encodings and layer baselines and fit the cost model's rates (about a minute)."""
     if scene is not None and not scene.exists():
         fail(f"scene not found: {scene}")
+    optics = None
+    if optics_json is not None:
+        try:
+            optics = json.loads(optics_json.read_text())
+        except (OSError, ValueError) as exc:
+            fail(f"--optics-json {optics_json}: {exc}")
+        if not isinstance(optics, dict):
+            fail(f"--optics-json {optics_json}: expected a JSON object of OpticsConfig fields")
     if not 1 <= repeats <= 10:
         fail(f"--repeats must be in 1..10, got {repeats}")
     from holocore.estimate import calibrate as run, save_calibration
@@ -42,7 +53,7 @@ def calibrate(
         typer.echo(f"\r{stage} {done}/{total}", err=True, nl=done == total)
 
     try:
-        cal = run(scene=scene, quick=quick, repeats=repeats, progress=progress)
+        cal = run(scene=scene, quick=quick, repeats=repeats, optics=optics, progress=progress)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     path = save_calibration(cal, out)

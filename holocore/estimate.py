@@ -246,12 +246,21 @@ def _best_of(repeats: int, fn: Callable[[], Any], seconds: Callable[[Any], float
 
 
 def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeats: int = 2,
-              progress: Optional[Callable[[str, int, int], None]] = None) -> dict:
+              optics: Optional[dict] = None, progress: Optional[Callable[[str, int, int], None]] = None) -> dict:
     """Time small renders, encodings and layer baselines on ``scene`` (default: the demo scene) and fit the
     rates of the cost model; each run is repeated ``repeats`` times and the fastest kept. Returns a
-    calibration dict (save it with :func:`save_calibration`)."""
+    calibration dict (save it with :func:`save_calibration`).
+
+    ``optics``: OpticsConfig fields every calibration run uses (z_inf_mm, focal_length_mm, pitch_um, ...; the
+    runs set resolution, frames and seed). The cost of a ray depends on where it goes (a direct ray from an SLM
+    80 mm away mostly leaves the field of view; from 4 mm it hits the scene), so calibrate with the optics the
+    estimates are for."""
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= 10:
         raise ValueError(f"repeats must be an integer in 1..10, got {repeats!r}")
+    base = dict(optics or {})
+    for k in ("resolution_hw", "frames", "seed"):
+        base.pop(k, None)
+    OpticsConfig(**base)  # refuse bad optics before anything runs
     import tempfile
 
     import torch
@@ -274,12 +283,12 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         total = len(runs) + 4
         # Warm-up: compile every kernel once (the first render of a process pays for it).
         for preset, method in {(r[2], r[3]) for r in runs}:
-            render_loaded(loaded, OpticsConfig(resolution_hw=(24, 32), frames=2, seed=1),
+            render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
                           RenderOptions(preset=preset, method=method, spp=4))
-        render_layers(loaded, OpticsConfig(resolution_hw=(24, 32), frames=2), planes=2, spp=4)
+        render_layers(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2), planes=2, spp=4)
         samples = []
         for i, (H, W, preset, method, spp, F) in enumerate(runs):
-            optics = OpticsConfig(resolution_hw=(H, W), frames=F, seed=i)
+            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F, seed=i)
             options = RenderOptions(preset=preset, method=method, spp=spp)
             res = _best_of(repeats, lambda o=optics, op=options: render_loaded(loaded, o, op),
                            lambda r: r.meta["timings"]["total_s"])
@@ -307,7 +316,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
                 progress("calibrate", len(runs) + j + 1, total)
         lay_samples = []
         for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 64, 4), (96, 128, 8, 32, 8))):
-            optics = OpticsConfig(resolution_hw=(H, W), frames=F)
+            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
             res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
                            lambda r: r.meta["timings"]["total_s"])
             P = 4 * H * W
@@ -343,7 +352,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         s["t"]["total_s"] - s["t"]["analysis_s"] - s["t"]["rgbd_s"] - s["t"]["propagate_s"] for s in lay_samples])))
     import torch as _torch
 
-    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label,
+    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
             "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                         "cpus": os.cpu_count(), "torch_threads": _torch.get_num_threads()},
             "repeats": repeats, "rates": rates, "samples": samples}
