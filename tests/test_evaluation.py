@@ -315,6 +315,10 @@ def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
         load_calibration(broken)
     with pytest.raises(ValueError, match="encode_iterations"):
         estimate_seconds(o, RenderOptions(), encode_iterations=-1, calibration=cal)
+    from holocore.estimate import calibrate
+
+    with pytest.raises(ValueError, match="z_inf_mm"):  # refused before anything is rendered
+        calibrate(optics={"z_inf_mm": -4.0})
 
 
 def test_estimate_is_near_the_measured_time(dot):
