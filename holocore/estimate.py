@@ -42,7 +42,7 @@ __all__ = ["estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", 
 
 DEFAULT_CALIBRATION = Path(__file__).resolve().parent / "data" / "calibration_default.json"
 CALIBRATION_VERSION = 1
-REFERENCE_PRIMITIVES = 1000  # primitives of the calibration scenes (BVH depth ~ log2 of this)
+REFERENCE_PRIMITIVES = 1000  # primitives of a calibration that does not record its scene's (BVH depth ~ log2)
 
 RATE_KEYS = ("analysis", "bank", "cache", "tile", "acc", "acc_frame", "fft", "overhead", "enc", "rgbd",
              "layers_overhead")
@@ -142,14 +142,14 @@ def features(optics: OpticsConfig, options: Any, *, subhologram_radius_px: Optio
     }
 
 
-def _prim_factor(scene_primitives: Optional[int]) -> float:
-    """BVH traversal grows like log2 of the primitive count; relative to the calibration scenes'."""
+def _prim_factor(scene_primitives: Optional[int], calibration_primitives: int = REFERENCE_PRIMITIVES) -> float:
+    """BVH traversal grows like log2 of the primitive count; relative to the calibration scene's."""
     if scene_primitives is None:
         return 1.0
     n = int(scene_primitives)
     if n < 0:
         raise ValueError(f"scene_primitives must be >= 0, got {scene_primitives!r}")
-    return max(0.5, math.log2(n + 16) / math.log2(REFERENCE_PRIMITIVES + 16))
+    return max(0.5, math.log2(n + 16) / math.log2(max(0, int(calibration_primitives)) + 16))
 
 
 def _ray_rate(rates: dict, key: str) -> float:
@@ -179,7 +179,8 @@ def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: 
         "analysis": r["analysis"],
         "bank": r["bank"] * x["bank"],
         "cache": r["cache"] * x["cache"],
-        "trace": (r["tile"] * x["tiles"] + _ray_rate(r, x["key"]) * x["rays"]) * _prim_factor(scene_primitives),
+        "trace": (r["tile"] * x["tiles"] + _ray_rate(r, x["key"]) * x["rays"])
+        * _prim_factor(scene_primitives, cal.get("primitives", REFERENCE_PRIMITIVES)),
         "accumulate": r["acc"] * x["acc"] + r["acc_frame"] * x["acc_frame"],
         "propagate": r["fft"] * x["fft"],
         "overhead": r["overhead"],
@@ -279,6 +280,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         else:
             label = str(scene)
         loaded = load_scene(scene)
+        primitives = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
         runs = _RUNS[::2] if quick else _RUNS
         total = len(runs) + 4
         # Warm-up: compile every kernel once (the first render of a process pays for it).
@@ -353,6 +355,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
     import torch as _torch
 
     return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
+            "primitives": primitives,
             "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                         "cpus": os.cpu_count(), "torch_threads": _torch.get_num_threads()},
             "repeats": repeats, "rates": rates, "samples": samples}
