@@ -21,19 +21,21 @@ Times are for warm runs: the first Mitsuba render of a process also compiles its
 When ``options.spp`` is None the preset's rays per pixel depend on the scene's depth (its farthest image
 point's sub-hologram radius); the estimate then assumes a shallow scene (radius = WRP margin + 2 px) unless
 ``subhologram_radius_px`` is given.
+
+The cost model itself needs no numpy (the service's API process estimates a job with it); calibration does.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import numbers
 import os
 import platform
+import statistics
 import time
 from pathlib import Path
 from typing import Any, Callable, Optional
-
-import numpy as np
 
 from holocore.config import OpticsConfig
 
@@ -117,10 +119,10 @@ def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Opt
             raise ValueError(f"subhologram_radius_px must be finite and >= 0, got {subhologram_radius_px!r}")
         n = choose_spp(options.preset, radius, theta)
     H, W = optics.resolution_hw
-    rows_per_tile = max(1, int(options.tile_rays) // max(1, n * W))
+    rows_per_tile = max(1, int(getattr(options, "tile_rays", 1 << 19)) // max(1, n * W))
     return {"spp": n, "rays": H * W * n, "tiles": math.ceil(H / rows_per_tile),
-            "cache": bool(PRESETS[options.preset]["cache"]) and not options.force_all_effects,
-            "random_phase": optics.frames > 1 or options.force_all_effects}
+            "cache": bool(PRESETS[options.preset]["cache"]) and not getattr(options, "force_all_effects", False),
+            "random_phase": optics.frames > 1 or getattr(options, "force_all_effects", False)}
 
 
 def features(optics: OpticsConfig, options: Any, *, subhologram_radius_px: Optional[float] = None) -> dict:
@@ -160,7 +162,7 @@ def _ray_rate(rates: dict, key: str) -> float:
     for k, v in table.items():  # same preset, other method; else the mean
         if k.endswith("/" + preset):
             return float(v)
-    return float(np.mean(list(table.values())))
+    return float(statistics.fmean(table.values()))
 
 
 def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
@@ -169,7 +171,7 @@ def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: 
     """Predicted seconds per stage (see the module docstring) and ``total``."""
     if not isinstance(optics, OpticsConfig):
         raise ValueError(f"optics must be an OpticsConfig, got {type(optics).__name__}")
-    if isinstance(encode_iterations, bool) or not isinstance(encode_iterations, (int, np.integer)) \
+    if isinstance(encode_iterations, bool) or not isinstance(encode_iterations, numbers.Integral) \
             or not 0 <= encode_iterations <= 10**6:
         raise ValueError(f"encode_iterations must be an integer in 0..1000000, got {encode_iterations!r}")
     cal = calibration if calibration is not None else load_calibration()
@@ -226,7 +228,8 @@ _RUNS = (  # (H, W, preset, method, spp, frames)
 )
 
 
-def _fit(rows: list[list[float]], y: list[float]) -> np.ndarray:
+def _fit(rows: list[list[float]], y: list[float]):
+    import numpy as np
     from scipy.optimize import nnls
 
     A = np.asarray(rows, dtype=np.float64)
@@ -264,6 +267,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
     OpticsConfig(**base)  # refuse bad optics before anything runs
     import tempfile
 
+    import numpy as np
     import torch
 
     from holocore.baseline_layers import render_layers

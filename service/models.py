@@ -157,12 +157,16 @@ def _spp(req: JobRequest) -> int:
     return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
 
 
-def estimate_cost(req: JobRequest) -> dict[str, Any]:
-    """A simple cost model (documented in docs/service.md), fitted on a 2-core CPU machine:
+def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict[str, Any]:
+    """Predicted seconds of a job, shown at submit time.
 
-    seconds = 8 (three process starts) + 1.5e-6 * rays + 4e-7 * H*W*C*F (random-phase bank, ASM, saving)
-              + encoder (dpac: 1e-7 * H*W*C*F; sgd: 2.5e-7 * H*W*C*F * iterations) + 2e-7 * H*W*C (preview).
-    Until `holo render --estimate` is calibrated per machine, this is the submit-time estimate."""
+    The render and the SGD encoder come from ``holocore.estimate`` (rates calibrated on this machine by
+    `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
+    sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
+    8 s for starting the job's three processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
+    preview (2e-7 s per pixel-color). Without a usable calibration: a linear model fitted on a 2-core CPU."""
+    from types import SimpleNamespace
+
     o = effective_optics(req)
     h, w = o.resolution_hw
     c = len(o.wavelengths_nm)
@@ -171,9 +175,23 @@ def estimate_cost(req: JobRequest) -> dict[str, Any]:
     rays = h * w * c * spp
     pix = h * w * c * f
     iters = req.iterations if req.iterations is not None else 500
-    enc = 1e-7 * pix if req.encoder == "dpac" else 2.5e-7 * pix * iters
-    seconds = 8.0 + 1.5e-6 * rays + 4e-7 * pix + enc + 2e-7 * h * w * c
-    return {"seconds": round(seconds, 1), "rays": rays, "spp_assumed": spp, "model": "cpu-linear-v1"}
+    fixed = 8.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
+    ana = (scene_plan or {}).get("analysis") or {}
+    inv = (scene_plan or {}).get("inventory") or {}
+    try:
+        from holocore.estimate import estimate_seconds, features
+
+        options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method)
+        radius = ana.get("subhologram_radius_px")
+        work = estimate_seconds(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
+                                encode_iterations=iters if req.encoder == "sgd" else 0)
+        spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
+        return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
+                "model": "calibrated" + (" + scene plan" if ana else "")}
+    except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
+        enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
+        return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
+                "model": "cpu-linear-v1"}
 
 
 def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str) -> str:

@@ -106,7 +106,8 @@ def submit_job(
     job_id = "j" + secrets.token_hex(10)
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id, "spec": spec,
-           "cache_key": key, "created_at": now, "estimate": estimate_cost(req), "token_id": principal.token_id,
+           "cache_key": key, "created_at": now, "estimate": estimate_cost(req, scene_plan=scene["plan"]),
+           "token_id": principal.token_id,
            "artifact_dir": str(ctx.settings.jobs_dir / job_id), "plan": {"summary": (scene["plan"] or {}).get(
                "summary", []), "source": "scene plan at default optics" if scene["plan"] else "pending"}}
     prev = _reusable(ctx, key)
