@@ -320,8 +320,8 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
             enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * F * 3 * P * math.log2(P)})
             if progress:
                 progress("calibrate", len(runs) + j + 1, total)
-        lay_samples = []
-        for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 64, 4), (96, 128, 8, 32, 8))):
+        lay_samples = []  # RGB-D renders of 0.05 to 0.2 s: well above the timing noise
+        for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 128, 4), (96, 128, 8, 128, 8))):
             optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
             res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
                            lambda r: r.meta["timings"]["total_s"])
