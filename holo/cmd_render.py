@@ -58,10 +58,22 @@ def render(
         fail(str(exc))
     console = Console(stderr=True)
     if estimate:
-        from holocore.estimate import estimate_seconds
+        from holocore.estimate import estimate_seconds, load_calibration, user_calibration_path
+        from holocore.pipeline import plan_scene
+        from holocore.scene import load_scene
 
-        secs = estimate_seconds(optics, options)
-        console.print(f"estimated render time: {secs:.1f} s (calibrated on this machine)")
+        try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
+            loaded = load_scene(scene)
+            ana = plan_scene(loaded, optics, options)["analysis"]
+        except (ValueError, FileNotFoundError) as exc:
+            fail(str(exc))
+        prims = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
+        cal = load_calibration()
+        secs = estimate_seconds(optics, options, scene_primitives=prims,
+                                subhologram_radius_px=ana.subhologram_radius_px, calibration=cal)
+        source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
+            "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
+        console.print(f"estimated render time: {secs:.1f} s ({source})")
         return
     write_progress = progress_writer(progress_jsonl)
     t0 = time.perf_counter()
