@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 from pathlib import Path
 from typing import Optional
 
@@ -15,7 +17,8 @@ def register(app: typer.Typer) -> None:
 
 
 def serve(
-    data_dir: Path = typer.Option(..., "--data-dir", help="Folder for the database, scenes and job artifacts."),
+    data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="Folder for the database, scenes and job "
+                                                                     "artifacts (default: HOLO_DATA_DIR)."),
     host: Optional[str] = typer.Option(None, help="Address to bind (default: HOLO_HOST, else 127.0.0.1: this "
                                                   "machine only)."),
     port: Optional[int] = typer.Option(None, help="TCP port (0..65535; default: HOLO_PORT, else 8080)."),
@@ -42,6 +45,8 @@ def serve(
         fail(f"--max-upload-mb must be in (0, 1048576], got {max_upload_mb}")
     if log_level not in ("debug", "info", "warning", "error"):
         fail(f"--log-level must be debug, info, warning or error, got {log_level!r}")
+    if data_dir is None and not os.environ.get("HOLO_DATA_DIR"):
+        fail("give the service's data folder: --data-dir DIR or HOLO_DATA_DIR")
     try:
         settings = ServiceSettings.from_env(data_dir=data_dir, host=host, port=port, workers=workers, engine=engine,
                                             ray_address=ray_address, ray_gpus_per_job=ray_gpus,

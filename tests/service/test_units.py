@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -189,6 +190,13 @@ def test_serve_and_token_cli_errors(tmp_path):
     r = subprocess.run([sys.executable, "-m", "holo", "serve", "--data-dir", str(tmp_path), "--workers", "0"],
                        capture_output=True, text=True, cwd=REPO, timeout=60)
     assert r.returncode == 2 and "workers" in r.stderr
+    env = {k: v for k, v in os.environ.items() if k != "HOLO_DATA_DIR"}
+    r = subprocess.run([sys.executable, "-m", "holo", "serve"], capture_output=True, text=True, cwd=REPO, timeout=60,
+                       env=env)
+    assert r.returncode == 2 and "--data-dir DIR or HOLO_DATA_DIR" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "holo", "serve", "--workers", "0"], capture_output=True, text=True,
+                       cwd=REPO, timeout=60, env={**env, "HOLO_DATA_DIR": str(tmp_path)})
+    assert r.returncode == 2 and "workers" in r.stderr  # got past the data dir: HOLO_DATA_DIR was read
     ok = subprocess.run([sys.executable, "-m", "holo", "token", "create", "--data-dir", str(tmp_path), "--scope",
                          "agent", "--scope", "read", "--name", "lab"], capture_output=True, text=True, cwd=REPO,
                         timeout=60)
