@@ -63,14 +63,12 @@ def render(
         from holocore.scene import load_scene
 
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
-            loaded = load_scene(scene)
-            ana = plan_scene(loaded, optics, options)["analysis"]
+            pl = plan_scene(load_scene(scene), optics, options)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
-        prims = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
         cal = load_calibration()
-        secs = estimate_seconds(optics, options, scene_primitives=prims,
-                                subhologram_radius_px=ana.subhologram_radius_px, calibration=cal)
+        secs = estimate_seconds(optics, options, scene_primitives=pl["inventory"].primitives,
+                                subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
         source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
             "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
         console.print(f"estimated render time: {secs:.1f} s ({source})")
