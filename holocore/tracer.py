@@ -2,8 +2,10 @@
 complex field for every frame and color (paper Sec. 4.2-4.4, Eq. 5; DESIGN.md §4).
 
 For each pixel of the recording plane, N rays leave the pixel centre with directions uniform in solid
-angle in the widest color's cone; they are mapped to world rays through T^-1 and traced by
-:func:`holocore.wavetrace.trace_chain`, which returns the virtual image point P' and the radiance. With
+angle in the widest color's cone; they are mapped to world rays through T^-1 and traced as wave paths
+(:func:`holocore.wavekernel.trace_wave_paths`), which return the virtual image point P' and the radiance.
+Ray generation, T, the wave paths and each ray's complex contribution run in one Dr.Jit kernel per tile;
+only the F-frame accumulation (a gather of random-phase rows and a matmul) runs in torch. With
 Q = T P' (float64), r = |Q - x| and theta the ray's angle to the axis,
 
     U_m(x) = (Omega / N) sum_rays A (r / cos theta) exp(i (s k r + phi_m(Q)))          (DESIGN §4)
@@ -20,16 +22,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import numpy as np
 import torch
 
 from holocore.mapping import HologramMap
-from holocore.wavetrace import trace_chain
+from holocore.mitsuba_env import mitsuba
 
-__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cone_directions", "cell_major"]
+__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cell_major"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -41,6 +43,7 @@ class TraceSettings:
     spp: int = 16
     amp_spp: int = 1
     max_delta: int = 8
+    max_depth: int = 6  # incoherent path depth from the image point P (Mitsuba's convention)
     tile_rays: int = 1 << 19
     random_phase: bool = True
 
@@ -51,6 +54,8 @@ class TraceSettings:
             raise ValueError(f"amp_spp must be in 1..4096, got {self.amp_spp}")
         if not 0 <= self.max_delta <= 64:
             raise ValueError(f"max_delta must be in 0..64, got {self.max_delta}")
+        if not 1 <= self.max_depth <= 1024:
+            raise ValueError(f"max_depth must be in 1..1024, got {self.max_depth}")
 
 
 @dataclass
@@ -76,30 +81,6 @@ def channel_of(wavelength_m: float) -> int:
     return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
 
-def cone_directions(n: int, theta_max: float, rng: np.random.Generator) -> np.ndarray:
-    """n unit vectors uniform in solid angle in the cone of half-angle theta_max around -z; float64 [n, 3]."""
-    cos_max = math.cos(theta_max)
-    cos_t = 1.0 - rng.random(n) * (1.0 - cos_max)
-    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
-    phi = 2.0 * math.pi * rng.random(n)
-    return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), -cos_t], axis=1)
-
-
-def _pixel_centres(rows: np.ndarray, W: int, H: int, pitch: float) -> tuple[np.ndarray, np.ndarray]:
-    """x, y (m) of pixel centres for the given rows, all columns (DESIGN §3), row-major."""
-    cols = np.arange(W, dtype=np.float64)
-    x = (cols - (W - 1) / 2.0) * pitch
-    y = ((H - 1) / 2.0 - rows.astype(np.float64)) * pitch
-    return np.tile(x, len(rows)), np.repeat(y, W)
-
-
-def _bank_index(qx: np.ndarray, qy: np.ndarray, H: int, W: int, pitch: float) -> np.ndarray:
-    """Flat index of the bank cell under (qx, qy), periodic wrap (DESIGN §4)."""
-    j = np.rint(qx / pitch + (W - 1) / 2.0).astype(np.int64) % W
-    i = np.rint((H - 1) / 2.0 - qy / pitch).astype(np.int64) % H
-    return i * W + j
-
-
 def cell_major(bank: torch.Tensor) -> torch.Tensor:
     """A bank [F, H, W] as [H*W, F]: the F phasors of a cell side by side. Free (a view) when the bank was
     built that way (``pipeline._banks`` does); a copy otherwise."""
@@ -113,17 +94,18 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all frames m at once; complex64 [P, F].
 
     ``cells``: [H*W, F] (see :func:`cell_major`), ``idx``: bank cell of each ray, ``base``: complex64 [P*n]
-    (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, F], then a batched [1, n] x [n, F] product.
+    (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, F], scale them by base and sum over n
+    (faster here than a batched [1, n] x [n, F] product, whose per-matrix overhead dominates at n ~ 16).
     """
     P, F = base.numel() // n, cells.shape[1]
-    out = torch.empty((P, 1, F), dtype=torch.complex64)
+    out = torch.empty((P, F), dtype=torch.complex64)
     step = max(1, _CHUNK_RAYS // n)
-    b = base.view(P, 1, n)
+    b = base.view(P, n, 1)
     for p0 in range(0, P, step):
         p1 = min(P, p0 + step)
         rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, F)
-        torch.bmm(b[p0:p1], rows, out=out[p0:p1])
-    return out.view(P, F)
+        torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
+    return out
 
 
 def trace_field(
@@ -148,6 +130,8 @@ def trace_field(
 
     ``plane_z_m == z_wrp_m``: the two-stage method's WRP. ``plane_z_m == 0``: the direct method on the SLM.
     ``bank_phasors``: per color a complex64 tensor [F, H, W] of exp(i phi_m) (None: no random phase).
+    ``integrator``: Mitsuba's ``path`` with ``settings.max_depth``, for the radiance samples beyond the
+    first (``settings.amp_spp`` > 1); the first one is traced with the wave path itself.
     """
     H, W = shape_hw
     C = len(wavelengths_m)
@@ -155,79 +139,162 @@ def trace_field(
         raise ValueError(f"frames must be >= 1, got {frames}")
     if bank_phasors is not None and len(bank_phasors) != C:
         raise ValueError("bank_phasors needs one bank per wavelength")
-    direct = plane_z_m < z_wrp_m
     stats = stats if stats is not None else TraceStats()
-    thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
-    # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
-    thetas = [min(t, math.radians(89.0)) for t in thetas]
-    th_max = max(thetas)
-    omega = 2.0 * math.pi * (1.0 - math.cos(th_max))
-    N = settings.spp
-    rows_per_tile = max(1, settings.tile_rays // (N * W))
+    geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
+                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp)
+    rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
     out = torch.zeros((frames, C, H, W), dtype=torch.complex64)
-    sign = -1.0 if direct else 1.0
-    z_mid = hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m)
-    chans = [channel_of(lam) for lam in wavelengths_m]
-    ks = [2.0 * math.pi / lam for lam in wavelengths_m]
-    cos_lim = [math.cos(t) for t in thetas]
-
     cells = None if bank_phasors is None else [cell_major(b) for b in bank_phasors]
-    tiles = [np.arange(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
-    for ti, rows in enumerate(tiles):
+    tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
+    for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
-        rng = np.random.default_rng([seed, 7919, ti])
-        px, py = _pixel_centres(rows, W, H, pitch_m)
-        npix = px.size
-        R = npix * N
-        dirs = cone_directions(R, th_max, rng)  # around -z
-        sx = np.repeat(px, N)
-        sy = np.repeat(py, N)
-        if direct:
-            # Rays leave the SLM towards +z (u = -dirs); the world ray is the same line, traced from where it
-            # crosses the WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
-            s = np.stack([sx, sy, np.full(R, plane_z_m)], axis=1)
-            u = -dirs
-            x = s + ((z_wrp_m - plane_z_m) / u[:, 2])[:, None] * u
-        else:
-            s = np.stack([sx, sy, np.full(R, z_wrp_m)], axis=1)
-            x = s
-        c0, vc = hmap.holo_rays_to_camera(x, dirs, z_mid=z_mid)
-        o_w = hmap.camera_to_world(c0)
-        v_w = hmap.camera_dir_to_world(vc)
-        res = trace_chain(scene, o_w, v_w, max_delta=settings.max_delta, amp_spp=settings.amp_spp,
-                          integrator=integrator, seed=int((seed * 1_000_003 + ti) % (2**31)),
-                          radiance_cache=radiance_cache)
+        tile = _trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
+                           seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats)
         t1 = time.perf_counter()
-        # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
-        c_virtual = hmap.world_to_camera(o_w + res.d[:, None] * v_w)
-        zc = c_virtual[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = hmap.camera_to_holo(c_virtual)
-        ok = res.valid & (zc > 0) & np.isfinite(q).all(axis=1) & (q[:, 2] < z_wrp_m)
-        stats.behind_plane += int(np.count_nonzero(res.valid & ~ok))
-        r = np.linalg.norm(q - s, axis=1)
-        cos_t = -dirs[:, 2]
-        weight = np.where(ok, (omega / N) * r / cos_t, 0.0)
-        idx = torch.from_numpy(_bank_index(q[:, 0], q[:, 1], H, W, pitch_m)) if bank_phasors is not None else None
         for c in range(C):
-            inside = ok & (cos_t >= cos_lim[c] - 1e-15)
-            amp = np.sqrt(res.radiance[:, chans[c]].astype(np.float64)) * weight * inside
-            phase = np.mod(sign * ks[c] * r, 2.0 * math.pi)  # wrapped in float64 before the cast
-            base = torch.polar(torch.from_numpy(amp.astype(np.float32)), torch.from_numpy(phase.astype(np.float32)))
-            sl = (slice(None), c, slice(int(rows[0]), int(rows[-1]) + 1), slice(None))
-            if bank_phasors is None:  # one smooth-phase field, the same for every frame
-                out[sl] += base.view(len(rows), W, N).sum(dim=2)[None]
+            sl = (slice(None), c, slice(r0, r1), slice(None))
+            if cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
+                out[sl] += tile[c].view(r1 - r0, W)[None]
             else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows, one matmul)
-                out[sl] += _accumulate_frames(cells[c], idx, base, N).t().view(frames, len(rows), W)
-        stats.rays += R
-        stats.valid += int(np.count_nonzero(ok))
-        stats.escaped += int(np.count_nonzero(res.escaped))
-        stats.capped += int(np.count_nonzero(res.capped))
-        stats.path_samples += res.path_samples
-        stats.delta_paths += int(np.count_nonzero(ok & (res.n_delta > 0)))
-        stats.max_delta_seen = max(stats.max_delta_seen, int(res.n_delta[ok].max()) if ok.any() else 0)
+                out[sl] += _accumulate_frames(cells[c], tile["idx"], tile[c], settings.spp).t().view(frames, r1 - r0, W)
         stats.seconds_trace += t1 - t0
         stats.seconds_accumulate += time.perf_counter() - t1
         if progress is not None:
             progress("trace", ti + 1, len(tiles))
     return out.numpy()
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """What every tile shares: the plane, the cones, T and its inverse as plain numbers."""
+
+    H: int
+    W: int
+    pitch: float
+    plane_z: float
+    z_wrp: float
+    z_mid: float
+    direct: bool
+    f: float
+    z_inf: float
+    rot: tuple  # eye-camera -> world, 3x3 row-major
+    rot_inv: tuple
+    origin: tuple
+    cos_max: float
+    omega: float
+    spp: int
+    ks: tuple
+    cos_lim: tuple
+    chans: tuple
+
+    @classmethod
+    def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp) -> "_Geometry":
+        thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
+        # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
+        thetas = [min(t, math.radians(89.0)) for t in thetas]
+        th_max = max(thetas)
+        return cls(H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
+                   z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
+                   f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
+                   rot=tuple(map(float, hmap._rot.ravel())), rot_inv=tuple(map(float, hmap._rot_inv.ravel())),
+                   origin=tuple(map(float, hmap._origin)), cos_max=math.cos(th_max),
+                   omega=2.0 * math.pi * (1.0 - math.cos(th_max)), spp=spp,
+                   ks=tuple(2.0 * math.pi / lam for lam in wavelengths_m),
+                   cos_lim=tuple(math.cos(t) for t in thetas), chans=tuple(channel_of(lam) for lam in wavelengths_m))
+
+
+def _mat(mi, m: tuple, v):
+    return mi.Vector3d(m[0] * v.x + m[1] * v.y + m[2] * v.z, m[3] * v.x + m[4] * v.y + m[5] * v.z,
+                       m[6] * v.x + m[7] * v.y + m[8] * v.z)
+
+
+def _holo_to_camera(mi, g: _Geometry, q):
+    zc = g.f * g.f / (q.z - g.z_inf)
+    return mi.Vector3d(q.x * zc / g.f, q.y * zc / g.f, zc)
+
+
+def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
+                want_cells: bool, *, seed: int, stats: TraceStats) -> dict:
+    """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
+    ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
+    major) and, with ``want_cells``, the bank cell of every ray's image point ("idx")."""
+    mi = mitsuba()
+    import drjit as dr
+
+    from holocore.wavekernel import trace_wave_paths
+
+    F64, V3d, N = mi.Float64, mi.Vector3d, settings.spp
+    W = g.W
+    R = (r1 - r0) * W * N
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, R)
+    pix = dr.arange(mi.UInt32, R) // N + r0 * W
+    s = V3d((F64(pix % W) - (W - 1) / 2.0) * g.pitch, ((g.H - 1) / 2.0 - F64(pix // W)) * g.pitch, g.plane_z)
+    # Directions uniform in solid angle in the widest cone around -z.
+    u = sampler.next_2d()
+    cos_t = 1.0 - F64(u.x) * (1.0 - g.cos_max)
+    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+    sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
+    dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
+    if g.direct:
+        # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
+        # WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
+        x = s - ((g.z_wrp - g.plane_z) / cos_t) * dirs
+    else:
+        x = s
+    # T^-1 of the hologram ray (DESIGN §3): through x and the point where it reaches z_mid.
+    c0 = _holo_to_camera(mi, g, x)
+    c1 = _holo_to_camera(mi, g, x + ((g.z_mid - x.z) / dirs.z) * dirs)
+    vc = dr.normalize(c1 - c0)
+    o_w = _mat(mi, g.rot, c0) + V3d(*g.origin)
+    v_w = dr.normalize(_mat(mi, g.rot, vc))
+    wp = trace_wave_paths(scene, mi.Point3d(o_w), v_w, sampler, max_delta=settings.max_delta,
+                          max_depth=settings.max_depth, amp_spp=settings.amp_spp, integrator=integrator,
+                          radiance_cache=radiance_cache)
+    # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
+    cv = c0 + wp.d * _mat(mi, g.rot_inv, v_w)
+    q = V3d(g.f * cv.x / cv.z, g.f * cv.y / cv.z, g.z_inf + g.f * g.f / cv.z)
+    ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < g.z_wrp)
+    q = dr.select(ok, q, s)
+    r = dr.norm(q - s)
+    weight = dr.select(ok, (g.omega / N) * r / cos_t, 0.0)
+    sign = -1.0 if g.direct else 1.0
+    parts = []
+    for c in range(len(g.ks)):
+        inside = cos_t >= g.cos_lim[c] - 1e-15
+        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
+        kr = sign * g.ks[c] * r
+        phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
+        sn, cs = dr.sincos(phase)
+        parts += [amp * cs, amp * sn]
+    idx = None
+    if want_cells:
+        j = dr.round(q.x / g.pitch + (W - 1) / 2.0)
+        i = dr.round((g.H - 1) / 2.0 - q.y / g.pitch)
+        j, i = j - W * dr.floor(j / W), i - g.H * dr.floor(i / g.H)  # periodic wrap (DESIGN §4)
+        idx = mi.UInt32(i) * W + mi.UInt32(j)
+    # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
+    # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
+    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
+              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
+    dr.eval(parts, idx, status)  # the one kernel: rays, wave paths, contributions
+    if not want_cells:  # sum each pixel's N rays (the rays are pixel-major)
+        parts = [dr.block_sum(x, N) for x in parts]
+        dr.eval(parts)
+    out = {c: torch.complex(torch.from_numpy(np.asarray(parts[2 * c])), torch.from_numpy(np.asarray(parts[2 * c + 1])))
+           for c in range(len(g.ks))}
+    if want_cells:
+        out["idx"] = torch.from_numpy(np.asarray(idx).astype(np.int64))
+    st = np.asarray(status)
+    bits = [int(np.count_nonzero(st & (1 << b))) for b in range(5)]
+    nd = st >> 8
+    ok_np = (st & 1).astype(bool)
+    stats.rays += R
+    stats.valid += bits[0]
+    stats.behind_plane += bits[1]
+    stats.escaped += bits[2]
+    stats.capped += bits[3]
+    stats.path_samples += bits[4] * settings.amp_spp
+    stats.delta_paths += int(np.count_nonzero(ok_np & (nd > 0)))
+    stats.max_delta_seen = max(stats.max_delta_seen, int(nd[ok_np].max()) if ok_np.any() else 0)
+    return out

@@ -59,7 +59,7 @@ def test_plane_focuses_at_predicted_depth(dots):
 def test_two_planes_focus_at_their_own_depths(dots):
     near = emitting_plane(-0.4, size=0.004, texture=dots, x=-0.004)
     far = emitting_plane(-1.0, size=0.01, texture=dots, x=+0.01)
-    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(), RenderOptions(preset="fast", spp=96))
+    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(), RenderOptions(preset="fast", spp=256))
     left = (slice(8, H - 8), slice(4, W // 2 - 4))
     right = (slice(8, H - 8), slice(W // 2 + 4, W - 4))
     z_near, dof = focus_of(res, z_holo(0.4), region=left)
