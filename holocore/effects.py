@@ -25,7 +25,7 @@ MAX_DELTA_CAP = 16
 # k(theta) rho^2 / N with k = 2 pi (1 - cos theta) / tan^2 theta (~ pi), so N = k rho^2 / noise, clamped.
 # ``noise``: target noise-to-signal power at the farthest image point; amp_spp: incoherent samples per point.
 PRESETS: dict[str, dict] = {
-    "fast": {"noise": 4.0, "spp_min": 4, "spp_max": 64, "amp_spp": 1, "gi_depth": 3, "cache": True},
+    "fast": {"noise": 2.0, "spp_min": 4, "spp_max": 128, "amp_spp": 1, "gi_depth": 3, "cache": True},
     "balanced": {"noise": 1.0, "spp_min": 16, "spp_max": 512, "amp_spp": 2, "gi_depth": 6, "cache": False},
     "reference": {"noise": 0.1, "spp_min": 64, "spp_max": 8192, "amp_spp": 8, "gi_depth": 12, "cache": False},
 }

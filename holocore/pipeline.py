@@ -107,8 +107,8 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
     cache = None
     if plan.use_cache:
         t2 = time.perf_counter()
-        cache = build_cache(loaded.scene, hmap, shape_hw=(H, W), pitch_m=optics.pitch_m, integrator=integrator,
-                            seed=optics.seed)
+        cache = build_cache(loaded.scene, hmap, shape_hw=(H, W), pitch_m=optics.pitch_m,
+                            max_depth=max(1, plan.gi_depth), seed=optics.seed)
         timings["cache_s"] = time.perf_counter() - t2
     settings = TraceSettings(spp=plan.spp, amp_spp=plan.amp_spp, max_depth=max(1, plan.gi_depth),
                              max_delta=plan.max_delta if plan.coherent_delta else 0,

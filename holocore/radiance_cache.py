@@ -48,8 +48,10 @@ class RadianceCache:
         mi = mitsuba()
         import drjit as dr
 
-        res = self.res
-        rel = (si.p - mi.Point3f(*[float(v) for v in self.bbox_min])) / self.cell
+        # Kernel parameters, not constants: the tracer's kernel is compiled once for every cache.
+        res = dr.opaque(mi.Int32, self.res)
+        lo = mi.Point3f(*[dr.opaque(mi.Float, float(v)) for v in self.bbox_min])
+        rel = (si.p - lo) / dr.opaque(mi.Float, float(self.cell))
         ijk = [dr.clip(mi.Int32(dr.floor(rel[k])), 0, res - 1) for k in range(3)]
         n = si.sh_frame.n
         an = [dr.abs(n[k]) for k in range(3)]
@@ -68,42 +70,62 @@ def _index_np(p: np.ndarray, n: np.ndarray, lo: np.ndarray, cell: float, res: in
     return ((ijk[:, 0] * res + ijk[:, 1]) * res + ijk[:, 2]) * _BINS + b
 
 
-def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: float, integrator, seed: int,
-                n_side: int = 160, samples: int = 16, res: int = 96, max_delta: int = 8) -> RadianceCache:
-    """Pre-pass: eye rays over the hologram's field of view, ``samples`` radiance samples per image point."""
+def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: float, seed: int,
+                n_side: int = 160, samples: int = 16, res: int = 96, max_delta: int = 8,
+                max_depth: int = 6) -> RadianceCache:
+    """Pre-pass: eye rays over the hologram's field of view, ``samples`` radiance samples per direction.
+
+    Each sample is its own wave path (:func:`holocore.wavekernel.trace_wave_paths`, one kernel for all of
+    them): the cache bins every (P, reflected radiance) pair by P's cell, so a direction's samples need not
+    share one P. ``max_depth``: incoherent path depth from P (the pipeline passes the plan's).
+    """
     mi = mitsuba()
     import drjit as dr
 
     from holocore.analysis import _camera_grid
-    from holocore.wavetrace import aligned, trace_chain
+    from holocore.wavekernel import trace_wave_paths
 
     rng = np.random.default_rng([seed, 4242])
     dirs_c = _camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
-    R = dirs_c.shape[0]
-    o = np.repeat(hmap.camera_to_world(np.zeros((1, 3))), R, axis=0)
-    v = hmap.camera_dir_to_world(dirs_c)
-    res_chain = trace_chain(scene, o, v, max_delta=max_delta, amp_spp=samples, integrator=integrator,
-                            seed=seed + 99, surface_info=True)
+    v = np.repeat(hmap.camera_dir_to_world(dirs_c), samples, axis=0)
+    R = v.shape[0]
+    o = hmap.camera_to_world(np.zeros((1, 3)))[0]
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed + 99, R)
+    v64 = mi.Vector3d(*[mi.Float64(np.ascontiguousarray(v[:, i])) for i in range(3)])
+    o64 = mi.Point3d(*[dr.full(mi.Float64, float(o[i]), R) for i in range(3)])
+    wp = trace_wave_paths(scene, o64, v64, sampler, max_delta=max_delta, max_depth=max_depth, surface=True)
+    sf = wp.surface
+    thr = sf["thr"]
+    ok = wp.valid & (dr.min(thr) > 0)
+    # Radiance leaving P (the chain's throughput divided out), minus what P emits: reflected radiance.
+    reflected = dr.maximum(wp.radiance / dr.select(ok, thr, 1.0) - sf["emission"], 0.0)
+    dr.eval(ok, reflected, sf)
+    ok_np = np.asarray(ok).astype(bool)
+
+    def col3(x, dtype=np.float64):
+        return np.stack([np.asarray(x[k], dtype=dtype)[ok_np] for k in range(3)], axis=1)
+
     bb = scene.bbox()
     lo = np.array([bb.min[k] for k in range(3)], dtype=np.float64)
     hi = np.array([bb.max[k] for k in range(3)], dtype=np.float64)
     ext = float(np.max(hi - lo)) if np.all(np.isfinite(hi - lo)) else 1.0
     cell = max(ext, 1e-6) / res * 1.0001
     lo = lo - 1e-4 * ext
-    ok = res_chain.valid
-    table_np = np.zeros((res ** 3 * _BINS, 4), dtype=np.float64)
-    if ok.any():
-        idx = _index_np(res_chain.p_world[ok].astype(np.float64), res_chain.normal_p[ok].astype(np.float64),
-                        lo, cell, res)
-        reflected = np.maximum(res_chain.radiance_p[ok] - res_chain.emission_p[ok], 0.0).astype(np.float64)
-        alb = res_chain.albedo_p[ok].astype(np.float64)
+    table = dr.zeros(mi.Float, res ** 3 * _BINS * 4)
+    filled = 0
+    if ok_np.any():
+        idx = _index_np(col3(sf["p"]), col3(sf["normal"]), lo, cell, res)
+        keys, inv = np.unique(idx, return_inverse=True)  # the cells reached (thousands of ~5e6)
+        refl, alb = col3(reflected), col3(sf["albedo"])
+        vals = np.empty((keys.size, 4), dtype=np.float32)
         for k in range(3):
-            num = np.bincount(idx, weights=reflected[:, k], minlength=table_np.shape[0])
-            den = np.bincount(idx, weights=alb[:, k], minlength=table_np.shape[0])
-            table_np[:, k] = np.where(den > 1e-12, num / np.maximum(den, 1e-12), 0.0)
-        counts = np.bincount(idx, minlength=table_np.shape[0])
-        table_np[:, 3] = (counts > 0).astype(np.float64)
-    table = mi.Float(aligned(table_np.ravel()))
+            num = np.bincount(inv, weights=refl[:, k], minlength=keys.size)
+            den = np.bincount(inv, weights=alb[:, k], minlength=keys.size)
+            vals[:, k] = np.where(den > 1e-12, num / np.maximum(den, 1e-12), 0.0)
+        vals[:, 3] = 1.0
+        filled = int(keys.size)
+        slots = (keys[:, None] * 4 + np.arange(4)[None, :]).ravel().astype(np.uint32)
+        dr.scatter(table, mi.Float(vals.ravel()), mi.UInt32(slots))
     dr.eval(table)
-    return RadianceCache(bbox_min=lo, cell=cell, res=res, table=table, cells_filled=int(table_np[:, 3].sum()),
-                         samples=int(R * samples))
+    return RadianceCache(bbox_min=lo, cell=cell, res=res, table=table, cells_filled=filled, samples=int(R))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -208,9 +209,25 @@ def _mat(mi, m: tuple, v):
                        m[6] * v.x + m[7] * v.y + m[8] * v.z)
 
 
-def _holo_to_camera(mi, g: _Geometry, q):
+def _holo_to_camera(mi, g, q):
     zc = g.f * g.f / (q.z - g.z_inf)
     return mi.Vector3d(q.x * zc / g.f, q.y * zc / g.f, zc)
+
+
+def _opaque(mi, g: _Geometry) -> SimpleNamespace:
+    """The geometry as kernel parameters rather than constants: one compiled kernel serves every resolution,
+    pitch, focal length, spp and tile (a megakernel takes seconds to compile)."""
+    import drjit as dr
+
+    def f64(v):
+        return dr.opaque(mi.Float64, float(v))
+
+    o = SimpleNamespace(**{k: f64(getattr(g, k)) for k in ("pitch", "plane_z", "z_wrp", "z_mid", "f", "z_inf",
+                                                            "cos_max", "omega")})
+    o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
+    o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
+    o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))
+    return o
 
 
 def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
@@ -224,55 +241,56 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     from holocore.wavekernel import trace_wave_paths
 
     F64, V3d, N = mi.Float64, mi.Vector3d, settings.spp
-    W = g.W
-    R = (r1 - r0) * W * N
+    R = (r1 - r0) * g.W * N
+    o = _opaque(mi, g)
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(seed, R)
-    pix = dr.arange(mi.UInt32, R) // N + r0 * W
-    s = V3d((F64(pix % W) - (W - 1) / 2.0) * g.pitch, ((g.H - 1) / 2.0 - F64(pix // W)) * g.pitch, g.plane_z)
+    pix = dr.arange(mi.UInt32, R) // o.N + dr.opaque(mi.UInt32, r0 * g.W)
+    s = V3d((F64(pix % o.W) - (o.Wf - 1.0) * 0.5) * o.pitch, ((o.Hf - 1.0) * 0.5 - F64(pix // o.W)) * o.pitch,
+            o.plane_z)
     # Directions uniform in solid angle in the widest cone around -z.
     u = sampler.next_2d()
-    cos_t = 1.0 - F64(u.x) * (1.0 - g.cos_max)
+    cos_t = 1.0 - F64(u.x) * (1.0 - o.cos_max)
     sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
     sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
     dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
     if g.direct:
         # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
         # WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
-        x = s - ((g.z_wrp - g.plane_z) / cos_t) * dirs
+        x = s - ((o.z_wrp - o.plane_z) / cos_t) * dirs
     else:
         x = s
     # T^-1 of the hologram ray (DESIGN §3): through x and the point where it reaches z_mid.
-    c0 = _holo_to_camera(mi, g, x)
-    c1 = _holo_to_camera(mi, g, x + ((g.z_mid - x.z) / dirs.z) * dirs)
+    c0 = _holo_to_camera(mi, o, x)
+    c1 = _holo_to_camera(mi, o, x + ((o.z_mid - x.z) / dirs.z) * dirs)
     vc = dr.normalize(c1 - c0)
-    o_w = _mat(mi, g.rot, c0) + V3d(*g.origin)
-    v_w = dr.normalize(_mat(mi, g.rot, vc))
+    o_w = _mat(mi, o.rot, c0) + V3d(*o.origin)
+    v_w = dr.normalize(_mat(mi, o.rot, vc))
     wp = trace_wave_paths(scene, mi.Point3d(o_w), v_w, sampler, max_delta=settings.max_delta,
                           max_depth=settings.max_depth, amp_spp=settings.amp_spp, integrator=integrator,
                           radiance_cache=radiance_cache)
     # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
-    cv = c0 + wp.d * _mat(mi, g.rot_inv, v_w)
-    q = V3d(g.f * cv.x / cv.z, g.f * cv.y / cv.z, g.z_inf + g.f * g.f / cv.z)
-    ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < g.z_wrp)
+    cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
+    q = V3d(o.f * cv.x / cv.z, o.f * cv.y / cv.z, o.z_inf + o.f * o.f / cv.z)
+    ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
     q = dr.select(ok, q, s)
     r = dr.norm(q - s)
-    weight = dr.select(ok, (g.omega / N) * r / cos_t, 0.0)
+    weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
     sign = -1.0 if g.direct else 1.0
     parts = []
     for c in range(len(g.ks)):
-        inside = cos_t >= g.cos_lim[c] - 1e-15
+        inside = cos_t >= o.cos_lim[c] - 1e-15
         amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
-        kr = sign * g.ks[c] * r
+        kr = sign * o.ks[c] * r
         phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
         sn, cs = dr.sincos(phase)
         parts += [amp * cs, amp * sn]
     idx = None
     if want_cells:
-        j = dr.round(q.x / g.pitch + (W - 1) / 2.0)
-        i = dr.round((g.H - 1) / 2.0 - q.y / g.pitch)
-        j, i = j - W * dr.floor(j / W), i - g.H * dr.floor(i / g.H)  # periodic wrap (DESIGN §4)
-        idx = mi.UInt32(i) * W + mi.UInt32(j)
+        j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
+        i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
+        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
+        idx = mi.UInt32(i) * o.W + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
     # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
     status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)

@@ -42,6 +42,8 @@ class WavePaths:
     escaped: object  # Bool: left the scene before any image point
     capped: object  # Bool: still on delta lobes after max_delta bounces
     sampled: object  # Bool: P's radiance came from path tracing (``amp_spp`` samples), not from the cache
+    surface: Optional[dict] = None  # with ``surface=True``: p, normal (shading), emission, albedo at P and the
+    # chain's throughput ``thr`` (radiance leaving P = radiance / thr)
 
 
 def _mis(a, b):
@@ -63,12 +65,14 @@ def trace_wave_paths(
     amp_spp: int = 1,
     integrator=None,
     radiance_cache=None,
+    surface: bool = False,
 ) -> WavePaths:
     """Trace world rays (``o64``, ``v64``: mi.Point3d / unit mi.Vector3d of one width) as wave paths.
 
     ``max_depth``: path depth counted from P (Mitsuba's convention: 1 = emission at P only). ``amp_spp`` > 1
     adds ``amp_spp - 1`` samples of ``integrator`` from the ray that reached P. ``radiance_cache``: the fast
     variant's ambient cache; where it holds the cell of P, P's radiance is one lookup and the path ends.
+    ``surface``: also record what the cache's pre-pass needs of P (see :class:`WavePaths`).
     """
     mi = mitsuba()
     import drjit as dr
@@ -78,10 +82,11 @@ def trace_wave_paths(
     F64, V3d = mi.Float64, mi.Vector3d
     R = dr.width(o64)
     ctx = mi.BSDFContext()
-    flags = mi.RayFlags.All | mi.RayFlags.dNSdUV
     Delta, Smooth = mi.BSDFFlags.Delta, mi.BSDFFlags.Smooth
 
     any_mixed = _has_mixed_bsdf(mi, scene)
+    # Kernel parameters, not constants: one compiled kernel for every depth setting.
+    op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
     helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
     e1 = dr.normalize(dr.cross(v64, helper))
     e2 = dr.cross(v64, e1)
@@ -110,10 +115,16 @@ def trace_wave_paths(
         "bad": dr.full(mi.Bool, False, R),
         "capped": dr.full(mi.Bool, False, R),
         "escaped": dr.full(mi.Bool, False, R),
-        "thr": dr.full(mi.Color3f, 1.0, R),
-        "fin": mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64)),
         "cached": dr.full(mi.Bool, False, R),
     }
+    extra = amp_spp > 1 and integrator is not None
+    if extra or surface:  # the chain's throughput at P
+        st["thr"] = dr.full(mi.Color3f, 1.0, R)
+    if extra:  # more radiance samples from P start from the ray that reached P
+        st["fin"] = mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64))
+    if surface:
+        st["surf"] = {"p": dr.zeros(mi.Point3f, R), "normal": dr.zeros(mi.Vector3f, R),
+                      "emission": dr.zeros(mi.Color3f, R), "albedo": dr.zeros(mi.Color3f, R)}
 
     def cond(st, sampler):
         return st["active"]
@@ -121,7 +132,8 @@ def trace_wave_paths(
     def body(st, sampler):
         st = dict(st)
         active, ray, chain0 = st["active"], st["ray"], st["chain"]
-        si = scene.ray_intersect(ray, flags, False, active)
+        pi = scene.ray_intersect_preliminary(ray, False, active)
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
         hit = active & si.is_valid()
         bsdf = si.bsdf(ray)
 
@@ -147,7 +159,7 @@ def trace_wave_paths(
 
         # Emitter sampling and one BSDF sample in one call (as Mitsuba's path does). The lobe sample also
         # decides whether the coherent chain goes on; a lane that goes on discards its emitter sample.
-        em_on = hit & ~has & (st["depth"] + 1 < max_depth) & mi.has_flag(bflags, Smooth)
+        em_on = hit & ~has & (st["depth"] + 1 < op_depth) & mi.has_flag(bflags, Smooth)
         ds_e, em_w = scene.sample_emitter_direction(si, sampler.next_2d(em_on), True, em_on)
         em_on &= ds_e.pdf != 0.0
         smp = hit & ~has
@@ -160,13 +172,15 @@ def trace_wave_paths(
         Lr = dr.select(em_on & ~go_on, st["beta"] * mis_em * val * em_w, 0.0)
 
         # ---- the coherent part (float64), only in the lanes that need it (a real branch per packet) ----
-        capped = go_on & (st["nd"] >= max_delta)
+        capped = go_on & (st["nd"] >= op_delta)
         st["capped"] = st["capped"] | capped
         go_on = go_on & ~capped
         deep = at_p & (st["nd"] > 0)  # an image point behind delta vertices: d from the differentials
 
         def coherent(D, dP, dD, frame, n_cur, nd):
-            return _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd)
+            # The shading normal's derivatives (curved mirrors and lenses), only where a chain goes on.
+            si_d = pi.compute_surface_interaction(ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, go_on | deep)
+            return _coherent(mi, si_d, bs, go_on, D, dP, dD, frame, n_cur, nd)
 
         def plain(D, dP, dD, frame, n_cur, nd):
             return F64(0.0), mi.Bool(False), D, dP, dD, frame, n_cur, nd
@@ -178,8 +192,14 @@ def trace_wave_paths(
         # With no delta vertex before P, A = I and B = t I: d is the hit distance itself.
         st["d"] = dr.select(at_p, dr.select(deep, d_deep, F64(si.t)), st["d"])
         st["done"] = st["done"] | at_p
-        st["thr"] = dr.select(at_p, st["beta"], st["thr"])
-        st["fin"] = dr.select(at_p, ray, st["fin"])
+        if extra or surface:
+            st["thr"] = dr.select(at_p, st["beta"], st["thr"])
+        if extra:
+            st["fin"] = dr.select(at_p, ray, st["fin"])
+        if surface:
+            here = {"p": si.p, "normal": si.sh_frame.n, "emission": si.emitter(scene).eval(si, at_p),
+                    "albedo": bsdf.eval_diffuse_reflectance(si, at_p)}
+            st["surf"] = {k: dr.select(at_p, here[k], st["surf"][k]) for k in here}
         st["bad"] = st["bad"] | singular
         go_on = go_on & ~singular
         st["chain"] = go_on
@@ -188,7 +208,7 @@ def trace_wave_paths(
         # Nothing counts before P: delta vertices neither emit (the chain stops at emitters) nor sample lights.
         counts = (active & ~chain0) | at_p  # past P (escaping to an environment included) or at P
         past = ((hit & ~chain0) | at_p) & ~has
-        more = past & (st["depth"] + 1 < max_depth)
+        more = past & (st["depth"] + 1 < op_depth)
         # A BSDF with delta and smooth lobes: P's radiance includes all of them, so sample afresh at P.
         if any_mixed:
             mixed = at_p & more & mi.has_flag(bflags, Delta) & mi.has_flag(bflags, Smooth)
@@ -205,7 +225,7 @@ def trace_wave_paths(
         st["pdf_prev"] = dr.select(step, bs.pdf, st["pdf_prev"])
         st["delta_prev"] = dr.select(step, mi.has_flag(bs.sampled_type, Delta), st["delta_prev"])
         b_max = dr.max(st["beta"])
-        rr = more & (st["depth"] + 1 >= rr_depth)  # Mitsuba's path: depth counted after this vertex
+        rr = more & (st["depth"] + 1 >= op_rr)  # Mitsuba's path: depth counted after this vertex
         rr_prob = dr.minimum(b_max * st["eta"] * st["eta"], 0.95)
         st["beta"] = dr.select(rr, st["beta"] / rr_prob, st["beta"])
         survive = ~rr | (sampler.next_1d(rr) < rr_prob)
@@ -213,25 +233,27 @@ def trace_wave_paths(
         st["active"] = go_on | (more & survive & (b_max != 0))
         return st, sampler
 
-    st, sampler = dr.while_loop((st, sampler), cond, body, max_iterations=max_delta + max_depth + 1,
-                                label="wave paths")
+    st, sampler = dr.while_loop((st, sampler), cond, body, label="wave paths")
 
     ok = st["done"] & ~st["bad"] & ~st["capped"] & (st["d"] > 0) & dr.isfinite(st["d"])
     L = st["L"]
-    if amp_spp > 1 and integrator is not None:
+    if extra:
         need = ok & ~st["cached"]
         rd = mi.RayDifferential3f(st["fin"])
-        extra = dr.zeros(mi.Color3f, R)
+        L_more = dr.zeros(mi.Color3f, R)
         for _ in range(amp_spp - 1):
             spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
-            extra += dr.select(valid & need, spec, 0.0)
-        L = dr.select(need, (L + st["thr"] * extra) / amp_spp, L)
+            L_more += dr.select(valid & need, spec, 0.0)
+        L = dr.select(need, (L + st["thr"] * L_more) / amp_spp, L)
     finite = dr.isfinite(L[0]) & dr.isfinite(L[1]) & dr.isfinite(L[2])
     ok &= finite
     L = dr.select(ok, dr.maximum(L, 0.0), 0.0)
     d = dr.select(ok, st["d"], 0.0)
+    surf = None
+    if surface:
+        surf = dict(st["surf"], thr=st["thr"])
     return WavePaths(valid=ok, d=d, radiance=L, n_delta=st["nd"], escaped=st["escaped"], capped=st["capped"],
-                     sampled=ok & ~st["cached"])
+                     sampled=ok & ~st["cached"], surface=surf)
 
 
 def _has_mixed_bsdf(mi, scene) -> bool:
