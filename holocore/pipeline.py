@@ -68,13 +68,15 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu"):
 
     from holocore.randomfield import phase_bank
 
-    banks = []
-    for lam in optics.wavelengths_m:
-        ph = phase_bank(optics.frames, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device)
-        # stored cell-major ([H, W, F] in memory, seen as [F, H, W]): the tracer gathers all frames of a cell at once
-        cells = torch.polar(torch.ones_like(ph), ph).to(torch.complex64).permute(1, 2, 0).contiguous()
-        banks.append(cells.permute(2, 0, 1))
-    return banks
+    # Stored cell-major, all colors together ([H, W, C, F] in memory, each color seen as [F, H, W]): the tracer
+    # gathers every frame of every color of a cell at once (tracer.combined_cells).
+    H, W = shape_hw
+    F, C = optics.frames, len(optics.wavelengths_m)
+    cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
+    for c, lam in enumerate(optics.wavelengths_m):
+        ph = phase_bank(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device)
+        cells[:, :, c, :] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64).permute(1, 2, 0)
+    return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 
 
 def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,

@@ -32,7 +32,7 @@ import torch
 from holocore.mapping import HologramMap
 from holocore.mitsuba_env import mitsuba
 
-__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cell_major"]
+__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cell_major", "combined_cells"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -83,28 +83,41 @@ def channel_of(wavelength_m: float) -> int:
 
 
 def cell_major(bank: torch.Tensor) -> torch.Tensor:
-    """A bank [F, H, W] as [H*W, F]: the F phasors of a cell side by side. Free (a view) when the bank was
-    built that way (``pipeline._banks`` does); a copy otherwise."""
+    """A bank [F, H, W] as [H*W, F]: the F phasors of a cell side by side (a copy unless already so stored)."""
     return bank.permute(1, 2, 0).reshape(-1, bank.shape[0]).contiguous()
 
 
-_CHUNK_RAYS = 1 << 14  # rays per gather: the [rays, F] block stays in cache
+def combined_cells(banks: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Per-color banks [F, H, W] as one table [H*W, C, F]: a view when they are color slices of one cell-major
+    [H, W, C, F] tensor (``pipeline._banks`` builds them so), a copy otherwise."""
+    b0 = banks[0]
+    F, H, W = b0.shape
+    C = len(banks)
+    step = F * b0.element_size()
+    if all(b.shape == b0.shape and b.dtype == b0.dtype and b.stride() == (1, W * C * F, C * F)
+           and b.data_ptr() == b0.data_ptr() + c * step for c, b in enumerate(banks)):
+        return torch.as_strided(b0, (H * W, C, F), (C * F, F, 1))
+    return torch.stack([cell_major(b) for b in banks], dim=1)
+
+
+_CHUNK_RAYS = 1 << 12  # rays per gather: the [rays, C, F] block stays in cache
 
 
 def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tensor, n: int) -> torch.Tensor:
-    """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all frames m at once; complex64 [P, F].
+    """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all colors and frames m at once; complex64
+    [P, C, F].
 
-    ``cells``: [H*W, F] (see :func:`cell_major`), ``idx``: bank cell of each ray, ``base``: complex64 [P*n]
-    (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, F], scale them by base and sum over n
-    (faster here than a batched [1, n] x [n, F] product, whose per-matrix overhead dominates at n ~ 16).
+    ``cells``: [H*W, C, F] (see :func:`combined_cells`), ``idx``: bank cell of each ray, ``base``: complex64
+    [P*n, C] (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, C, F], scale them by base and sum
+    over n (one gather serves every color: the image point, hence the cell, is the same for all).
     """
-    P, F = base.numel() // n, cells.shape[1]
-    out = torch.empty((P, F), dtype=torch.complex64)
+    P, (C, F) = base.shape[0] // n, cells.shape[1:]
+    out = torch.empty((P, C, F), dtype=torch.complex64)
     step = max(1, _CHUNK_RAYS // n)
-    b = base.view(P, n, 1)
+    b = base.view(P, n, C, 1)
     for p0 in range(0, P, step):
         p1 = min(P, p0 + step)
-        rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, F)
+        rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, C, F)
         torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
     return out
 
@@ -145,24 +158,37 @@ def trace_field(
                          plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp)
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
     out = torch.zeros((frames, C, H, W), dtype=torch.complex64)
-    cells = None if bank_phasors is None else [cell_major(b) for b in bank_phasors]
+    cells = None if bank_phasors is None else combined_cells(bank_phasors)
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
         tile = _trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
                            seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats)
+        _park_drjit_workers()
         t1 = time.perf_counter()
-        for c in range(C):
-            sl = (slice(None), c, slice(r0, r1), slice(None))
-            if cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
-                out[sl] += tile[c].view(r1 - r0, W)[None]
-            else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows, one matmul)
-                out[sl] += _accumulate_frames(cells[c], tile["idx"], tile[c], settings.spp).t().view(frames, r1 - r0, W)
+        if cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
+            for c in range(C):
+                out[:, c, r0:r1] += tile[c].view(r1 - r0, W)[None]
+        else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
+            base = torch.stack([tile[c] for c in range(C)], dim=1)
+            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp)  # [P, C, F]
+            out[:, :, r0:r1] += acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
         stats.seconds_trace += t1 - t0
         stats.seconds_accumulate += time.perf_counter() - t1
         if progress is not None:
             progress("trace", ti + 1, len(tiles))
     return out.numpy()
+
+
+def _park_drjit_workers() -> None:
+    """Let Dr.Jit's idle workers sleep now. After a kernel they spin for ~20 ms (measured: 21 ms of CPU during a
+    50 ms sleep on 2 cores), which halves the speed of the torch work that follows; resizing the pool parks
+    them at once (0.2 ms)."""
+    import drjit as dr
+
+    n = dr.thread_count()
+    dr.set_thread_count(1)
+    dr.set_thread_count(n)
 
 
 @dataclass(frozen=True)
