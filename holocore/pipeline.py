@@ -4,7 +4,6 @@ propagate. This is what `holo render` and the service's workers call."""
 from __future__ import annotations
 
 import json
-import math
 import platform
 import time
 from dataclasses import dataclass

@@ -33,7 +33,6 @@ from holocore.mitsuba_env import mitsuba
 
 __all__ = ["ChainResult", "trace_chain"]
 
-_EPS_COS = 1e-7  # |cos| below this at a delta vertex: the differential transfer is singular, drop the ray
 
 
 @dataclass
@@ -66,12 +65,6 @@ def aligned(a: np.ndarray, dtype=np.float32) -> np.ndarray:
     return out
 
 
-def _dot(a, b):
-    import drjit as dr
-
-    return dr.dot(a, b)
-
-
 def trace_chain(
     scene,
     origins: np.ndarray,
@@ -102,7 +95,7 @@ def trace_chain(
         z3 = np.zeros((0, 3), np.float32)
         return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool), z3, z3, z3,
                            z3, z3)
-    F64, V3d = mi.Float64, mi.Vector3d
+    F64 = mi.Float64
     o = np.ascontiguousarray(origins, dtype=np.float64)
     v = np.ascontiguousarray(directions, dtype=np.float64)
     ray0 = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
@@ -292,47 +285,44 @@ class _DeltaChain:
     def run(self, max_delta: int) -> None:
         import drjit as dr
 
+        from holocore.wavekernel import _coherent
+
         mi = self.mi
-        F64, V3d = mi.Float64, mi.Vector3d
-        ND = 4
         for bounce in range(max_delta + 1):
             si = self.scene.ray_intersect(self.ray, self.flags, False, True)
             active = si.is_valid()
             self._put("escaped", True, ~active)
-            t = F64(si.t)
-            N = V3d(si.sh_frame.n)
-            D = self.D
-            cosD = _dot(D, N)
-            dPt = [self.dP[i] + t * self.dD[i] for i in range(ND)]
             bsdf = si.bsdf(self.ray)
             u = self.rng.random((3, dr.width(active)), dtype=np.float32)
             bs, w = bsdf.sample(self.ctx, si, mi.Float(aligned(u[0])), mi.Point2f(mi.Float(aligned(u[1])),
                                                                              mi.Float(aligned(u[2]))), active)
             is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
             stop = active & (~is_delta | si.shape.is_emitter())
-            # The image point: 2x2 transfer blocks A (shifts) and B (angles) read along the carried frame.
-            lat = [dPt[i] - _dot(dPt[i], D) * D for i in range(ND)]
-            a11, a12 = _dot(lat[0], self.frame[0]), _dot(lat[1], self.frame[0])
-            a21, a22 = _dot(lat[0], self.frame[1]), _dot(lat[1], self.frame[1])
-            b11, b12 = _dot(lat[2], self.frame[0]), _dot(lat[3], self.frame[0])
-            b21, b22 = _dot(lat[2], self.frame[1]), _dot(lat[3], self.frame[1])
-            det_b = b11 * b22 - b12 * b21
-            tr = b22 * a11 - b12 * a21 - b21 * a12 + b11 * a22  # tr(adj(B) A) = det(B) tr(B^-1 A)
-            d_here = 2.0 * det_b / dr.select(dr.abs(tr) > 0, tr, 1e-300)
-            self.opl_w = dr.select(active, self.opl_w + self.n_cur * t, self.opl_w)
+            cont = active & ~stop
+            if bounce == max_delta:
+                cont_here = mi.Bool(False)
+            else:
+                cont_here = cont
+            # The image point (where the chain stops) and the transfer through the vertex (where it goes on):
+            # the same code as the fused kernel's.
+            d_here, singular, D, dP, dD, frame, n_cur, _nd = _coherent(
+                mi, si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w)
+            self.opl_w = dr.select(active, self.opl_w + self.n_cur * mi.Float64(si.t), self.opl_w)
             self._put("d_out", d_here, stop)
             self._put("p_world", si.p, stop)
             self._put("fin_o", self.ray.o, stop)
             self._put("fin_d", self.ray.d, stop)
             self._put("done", True, stop)
-            cont = active & ~stop
             if bounce == max_delta:
                 self._put("capped", True, cont)
                 self._leave(mi.Bool(True))
                 break
-            singular = self._transfer(si, bs, w, cont, t, N, cosD, dPt)
             self._put("bad", True, singular)
             keep = cont & ~singular
+            self.D, self.dP, self.dD, self.frame, self.n_cur = D, dP, dD, frame, n_cur
+            self.thr_w = dr.select(keep, self.thr_w * w, self.thr_w)
+            self.nd_w = dr.select(keep, self.nd_w + 1, self.nd_w)
+            self.ray = dr.select(keep, si.spawn_ray(si.to_world(bs.wo)), self.ray)
             self._leave(~keep)
             dr.eval(self.dP, self.dD, self.frame, self.D, self.ray, self.n_cur, self.opl_w, self.thr_w, self.nd_w,
                     self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
@@ -341,62 +331,3 @@ class _DeltaChain:
                 break
         dr.eval(self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
                 self.p_world, self.fin_o, self.fin_d)
-
-    def _transfer(self, si, bs, w, cont, t, N, cosD, dPt):
-        """Carry the differentials and the frame through the delta vertex (Igehy 1999), float64. Returns the
-        lanes of ``cont`` whose transfer is singular (the ray grazes the surface)."""
-        import drjit as dr
-
-        mi = self.mi
-        F64, V3d = mi.Float64, mi.Vector3d
-        ND = 4
-        D = self.D
-        singular = cont & (dr.abs(cosD) < _EPS_COS)
-        safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
-        dPh = [dPt[i] - (_dot(dPt[i], N) / safe_cos) * D for i in range(ND)]
-        dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
-        dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
-        a, b, c = _dot(dpdu, dpdu), _dot(dpdu, dpdv), _dot(dpdv, dpdv)
-        det = a * c - b * b
-        det_ok = det > 1e-30
-        inv_det = dr.select(det_ok, 1.0 / dr.select(det_ok, det, 1.0), 0.0)
-        dN = []
-        for i in range(ND):
-            r1, r2 = _dot(dPh[i], dpdu), _dot(dPh[i], dpdv)
-            dN.append(dndu * ((c * r1 - b * r2) * inv_det) + dndv * ((a * r2 - b * r1) * inv_det))
-        wo = si.to_world(bs.wo)
-        D_new = V3d(wo)
-        D_new = D_new / dr.norm(D_new)
-        is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
-        # Reflection: D' = D - 2 (D.N) N.  Refraction (N facing the ray): D' = eta D + mu N, mu = eta c1 - c2.
-        sgn = dr.select(cosD < 0, 1.0, -1.0)
-        Nf = N * sgn
-        eta = 1.0 / F64(dr.select(bs.eta > 0, bs.eta, 1.0))  # n1 / n2
-        c1 = -_dot(D, Nf)
-        c2 = dr.maximum(-_dot(D_new, Nf), 1e-9)
-        mu = eta * c1 - c2
-        axis = dr.cross(D, D_new)
-        s_ax = dr.norm(axis)
-        rot_ok = s_ax > 1e-12
-        axis = axis / dr.select(rot_ok, s_ax, 1.0)
-        u_old, u_new = dr.cross(axis, D), dr.cross(axis, D_new)
-        for i in range(ND):
-            dDN = _dot(self.dD[i], N) + _dot(D, dN[i])
-            refl = self.dD[i] - 2.0 * (cosD * dN[i] + dDN * N)
-            dNf = dN[i] * sgn
-            dc1 = -(_dot(self.dD[i], Nf) + _dot(D, dNf))
-            dmu = eta * dc1 - eta * eta * c1 * dc1 / c2
-            refr = eta * self.dD[i] + dmu * Nf + mu * dNf
-            self.dP[i] = dr.select(cont, dPh[i], self.dP[i])
-            self.dD[i] = dr.select(cont, dr.select(is_refl, refl, refr), self.dD[i])
-        for i in range(2):
-            f = self.frame[i]
-            refl = f - 2.0 * _dot(f, N) * N
-            rotated = dr.select(rot_ok, _dot(f, axis) * axis + _dot(f, u_old) * u_new, f)
-            self.frame[i] = dr.select(cont, dr.select(is_refl, refl, rotated), f)
-        self.n_cur = dr.select(cont & ~is_refl, self.n_cur * F64(bs.eta), self.n_cur)
-        self.thr_w = dr.select(cont, self.thr_w * w, self.thr_w)
-        self.nd_w = dr.select(cont, self.nd_w + 1, self.nd_w)
-        self.D = dr.select(cont, D_new, D)
-        self.ray = dr.select(cont, si.spawn_ray(wo), self.ray)
-        return singular

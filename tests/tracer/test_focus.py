@@ -6,9 +6,6 @@ reconstruction is speckle-free and its sharpness (intensity concentration) peaks
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
 import pytest
 
 from holocore.config import OpticsConfig
