@@ -141,7 +141,7 @@ def default_specs(shape_hw: tuple[int, int], work: Path, quick: bool) -> list[Sc
                   {"wrp/balanced": 64, "wrp/fast": 64, "direct/balanced": 256}, ref_spp=1024),
         SceneSpec("mirror-cards", cards, {"z_inf_mm": 4.0, "focal_length_mm": f_mm}, 0.25,
                   {"wrp/balanced": [128, 512, 2048], "wrp/fast": [128, 512], "direct/balanced": [512, 2048]},
-                  {"wrp/balanced": 512, "wrp/fast": 128, "direct/balanced": 512}, ref_spp=4096,
+                  {"wrp/balanced": 2048, "wrp/fast": 128, "direct/balanced": 512}, ref_spp=4096,
                   depth_regions=True),
     ]
     if quick:
