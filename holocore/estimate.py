@@ -214,8 +214,11 @@ def estimate_layers_seconds(optics: OpticsConfig, *, planes: int = 8, spp: int =
     F, C = optics.frames, len(optics.wavelengths_m)
     P = 4 * H * W
     bank = F * C * H * W * math.log2(max(2, H * W))
+    # Per plane a masked copy of the frames and an ASM: its own rate where the calibration measured one
+    # (calibrations before it had only the tracer's ASM rate, which leaves the masks out).
+    fft = r.get("layer_fft", r["fft"])
     return float(r["analysis"] + r["layers_overhead"] + r["rgbd"] * H * W * spp + r["bank"] * bank
-                 + r["fft"] * (int(planes) + 1) * F * C * P * math.log2(P))
+                 + fft * (int(planes) + 1) * F * C * P * math.log2(P))
 
 
 # ---- calibration ------------------------------------------------------------------------------------------
@@ -354,6 +357,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         for s in samples])))
     rates["enc"] = float(_fit([[e["x"]] for e in enc_samples], [e["seconds"] for e in enc_samples])[0])
     rates["rgbd"] = float(_fit([[s["pix_spp"]] for s in lay_samples], [s["t"]["rgbd_s"] for s in lay_samples])[0])
+    rates["layer_fft"] = float(_fit([[s["fft"]] for s in lay_samples], [s["t"]["propagate_s"] for s in lay_samples])[0])
     rates["layers_overhead"] = float(max(0.0, np.median([
         s["t"]["total_s"] - s["t"]["analysis_s"] - s["t"]["rgbd_s"] - s["t"]["propagate_s"] for s in lay_samples])))
     import torch as _torch
