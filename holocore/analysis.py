@@ -67,6 +67,35 @@ def _emitted_rgb(scene, seed: int, n: int = 256) -> np.ndarray:
     return total
 
 
+def _small_shape_depths(scene, hmap: HologramMap, dirs_c: np.ndarray, n_side: int) -> np.ndarray:
+    """Nearest eye-camera depth of every shape that the sparse grid could miss: its bounding box lies in front
+    of the eye, spans less than two grid steps and is seen inside the grid's field of view. (A point-like
+    emitter between the grid's rays would otherwise leave the WRP behind it, and its light would be dropped.)"""
+    x = dirs_c[:, 0] / dirs_c[:, 2]
+    y = dirs_c[:, 1] / dirs_c[:, 2]
+    tx, ty = float(np.abs(x).max()), float(np.abs(y).max())
+    step = 2.0 * tx / max(1, n_side)
+    out = []
+    for shape in scene.shapes():
+        bb = shape.bbox()
+        lo = np.array([bb.min[k] for k in range(3)], dtype=np.float64)
+        hi = np.array([bb.max[k] for k in range(3)], dtype=np.float64)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            continue
+        corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
+                            for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        c = hmap.world_to_camera(corners)
+        if np.any(c[:, 2] <= 0):
+            continue
+        u, v = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+        if max(u.max() - u.min(), v.max() - v.min()) >= 2.0 * step:
+            continue  # big enough for the grid to hit
+        if u.max() < -tx or u.min() > tx or v.max() < -ty or v.min() > ty:
+            continue  # outside the view
+        out.append(float(c[:, 2].min()))
+    return np.asarray(out, dtype=np.float64)
+
+
 def analyze(
     scene,
     hmap: HologramMap,
@@ -113,7 +142,7 @@ def analyze(
     theta_min = min(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
     theta_max = max(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
     margin = margin_px * pitch_m / math.tan(theta_min)
-    depths = np.concatenate([zc_first, zc_img])
+    depths = np.concatenate([zc_first, zc_img, _small_shape_depths(scene, hmap, dirs_c, n_side)])
     depths = depths[np.isfinite(depths) & (depths > 0)]
     if depths.size:
         zc_min = float(depths.min())

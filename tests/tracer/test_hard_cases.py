@@ -86,6 +86,24 @@ def test_surface_close_to_the_wrp_margin():
     assert m["z_wrp_m"] > m["analysis"]["z_near_holo_m"]
 
 
+def test_point_like_emitter_between_the_prepass_rays_keeps_the_wrp_in_front():
+    """A 0.1 mm glowing square 0.5 m away falls between the analysis grid's rays (0.16 mm apart there). Without
+    its bounding box the WRP lands behind it: the rays then start beyond the dot and its light is lost."""
+    import math
+
+    W, H, P, F = 64, 48, 8e-6, 0.025
+    fov = 2 * math.degrees(math.atan(W * P / (2 * F)))
+    dot = {"type": "rectangle", "to_world": T().translate([0.0021, 0.0011, -0.5]).scale(0.00005),
+           "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1.0}}}
+    optics = OpticsConfig(resolution_hw=(H, W), wavelengths_nm=(516.5,), frames=1, focal_length_mm=F * 1e3,
+                          z_inf_mm=4.0)
+    res = _render(scene(sensor=camera(fov=fov), dot=dot), optics, RenderOptions(preset="balanced", spp=512))
+    z_dot = 0.004 + F * F / 0.5
+    assert res.meta["z_wrp_m"] > z_dot
+    assert res.meta["stats"]["valid"] > 50
+    assert np.abs(res.wrp_field).max() > 0
+
+
 def test_sub_wavelength_pitch_hemisphere():
     optics = OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(640.0,), pitch_um=0.25, frames=1,
                           focal_length_mm=20.0)
