@@ -5,7 +5,7 @@ For each pixel of the recording plane, N rays leave the pixel centre with direct
 angle in the widest color's cone; they are mapped to world rays through T^-1 and traced as wave paths
 (:func:`holocore.wavekernel.trace_wave_paths`), which return the virtual image point P' and the radiance.
 Ray generation, T, the wave paths and each ray's complex contribution run in one Dr.Jit kernel per tile;
-only the F-frame accumulation (a gather of random-phase rows and a matmul) runs in torch. With
+only the F-frame accumulation (a gather of random-phase rows, scaled and summed) runs in torch. With
 Q = T P' (float64), r = |Q - x| and theta the ray's angle to the axis,
 
     U_m(x) = (Omega / N) sum_rays A (r / cos theta) exp(i (s k r + phi_m(Q)))          (DESIGN §4)

@@ -16,8 +16,10 @@ returns per ray:
   it is the mirror equation's image distance. (DESIGN.md §4 names B alone; B alone is right only where
   A = I, i.e. without curved surfaces: see docs/physics.md.)
 * ``radiance``: the RGB radiance reaching O along the ray: delta-chain throughput times the radiance leaving P
-  towards the previous vertex, from incoherent path tracing (Mitsuba's own integrator, ``amp_spp`` samples)
-  or from an ambient cache.
+  towards the previous vertex, from incoherent path tracing (Mitsuba's own integrator, ``amp_spp`` samples).
+
+The tracer itself runs :mod:`holocore.wavekernel` (one fused kernel, the same vertex code); this is its
+reference implementation, used by the scene analysis and by the tests that compare the two.
 * ``n_delta``, ``opl_m`` (world optical path, for diagnostics) and status flags.
 
 Python loops run over bounces only (a handful); every ray of the batch moves together.
@@ -34,7 +36,6 @@ from holocore.mitsuba_env import mitsuba
 __all__ = ["ChainResult", "trace_chain"]
 
 
-
 @dataclass
 class ChainResult:
     """Per-ray outcome of :func:`trace_chain` (numpy arrays, length R)."""
@@ -46,11 +47,6 @@ class ChainResult:
     opl_m: np.ndarray  # float64 world optical path length O -> P (sum n_i L_i)
     escaped: np.ndarray  # bool: left the scene (no image point)
     capped: np.ndarray  # bool: exceeded the delta-bounce cap
-    p_world: np.ndarray  # float32 [R, 3] the real image point P (world)
-    radiance_p: np.ndarray  # float32 [R, 3] radiance leaving P (before the delta-chain throughput)
-    emission_p: np.ndarray  # float32 [R, 3] emitted radiance at P
-    albedo_p: np.ndarray  # float32 [R, 3] diffuse reflectance at P
-    normal_p: np.ndarray  # float32 [R, 3] shading normal at P
     path_samples: int = 0  # incoherent path-tracing samples spent on the radiance
 
 
@@ -74,14 +70,11 @@ def trace_chain(
     amp_spp: int,
     integrator,
     seed: int,
-    radiance_cache=None,
-    surface_info: bool = False,
 ) -> ChainResult:
     """Trace world rays through the delta chain and estimate the radiance at the image point.
 
     origins, directions: float64 [R, 3] world-space. ``integrator`` is a Mitsuba sampling integrator used
-    for the incoherent radiance leaving P (ignored where ``radiance_cache`` answers). ``surface_info``: also
-    return emission, albedo and normal at P (the cache's pre-pass needs them).
+    for the incoherent radiance leaving P.
 
     The first hit is handled for every ray at once; only the rays whose first lobe is a delta lobe (usually
     a few percent) are compacted and carried through the chain with their float64 differentials.
@@ -93,8 +86,7 @@ def trace_chain(
     if R == 0:
         z = np.zeros(0)
         z3 = np.zeros((0, 3), np.float32)
-        return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool), z3, z3, z3,
-                           z3, z3)
+        return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool))
     F64 = mi.Float64
     o = np.ascontiguousarray(origins, dtype=np.float64)
     v = np.ascontiguousarray(directions, dtype=np.float64)
@@ -113,7 +105,6 @@ def trace_chain(
     stop = hit & (~is_delta | si.shape.is_emitter())
     cont = hit & ~stop
     d_out = dr.select(stop, F64(si.t), dr.zeros(F64, R))
-    p_world = dr.select(stop, si.p, dr.zeros(mi.Point3f, R))
     fin_o, fin_d = mi.Point3f(ray0.o), mi.Vector3f(ray0.d)
     # Scatter targets must have the full width R (a literal of width 1 would be written out of bounds).
     thr = dr.full(mi.Color3f, 1.0, R)
@@ -123,7 +114,7 @@ def trace_chain(
     done = mi.Bool(stop)
     capped = dr.full(mi.Bool, False, R)
     bad = dr.full(mi.Bool, False, R)
-    dr.eval(d_out, p_world, opl, done, cont, escaped, thr, n_delta, capped, bad, fin_o, fin_d)
+    dr.eval(d_out, opl, done, cont, escaped, thr, n_delta, capped, bad, fin_o, fin_d)
 
     lanes = dr.compress(cont)
     if dr.width(lanes) > 0 and max_delta > 0:
@@ -138,7 +129,6 @@ def trace_chain(
         sub.run(max_delta)
         L = mi.UInt32(aligned(idx, np.uint32))
         dr.scatter(d_out, sub.d_out, L)
-        dr.scatter(p_world, sub.p_world, L)
         dr.scatter(fin_o, sub.fin_o, L)
         dr.scatter(fin_d, sub.fin_d, L)
         dr.scatter(thr, sub.thr, L)
@@ -151,34 +141,20 @@ def trace_chain(
     else:
         capped = mi.Bool(cont)
     final_ray = mi.Ray3f(fin_o, fin_d)
-    dr.eval(d_out, p_world, fin_o, fin_d, thr, n_delta, opl, escaped, done, capped, bad)
+    dr.eval(d_out, fin_o, fin_d, thr, n_delta, opl, escaped, done, capped, bad)
 
     # ---- radiance leaving P towards the previous vertex --------------------------------------------
     ok = done & ~bad & ~capped & (d_out > 0)
-    if radiance_cache is not None or surface_info:
-        si_p = scene.ray_intersect(final_ray, mi.RayFlags.All, False, ok)
-        ok &= si_p.is_valid()
-        emission = si_p.emitter(scene).eval(si_p, ok)
-        albedo = si_p.bsdf().eval_diffuse_reflectance(si_p, ok)
-        n_p = si_p.sh_frame.n
-    else:
-        emission, albedo, n_p = mi.Color3f(0.0), mi.Color3f(0.0), mi.Vector3f(0.0)
-    L_p = mi.Color3f(0.0)
     need = mi.Bool(ok)
-    if radiance_cache is not None:
-        L_c, has = radiance_cache.lookup(si_p, albedo, emission, ok)
-        L_p = dr.select(has, L_c, L_p)
-        need = ok & ~has
     L_int = mi.Color3f(0.0)
     rd = mi.RayDifferential3f(final_ray)
     for _ in range(max(1, amp_spp)):
         spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
         L_int += dr.select(valid & need, spec, 0.0)
         dr.eval(L_int)
-    L_p = dr.select(need, L_int / max(1, amp_spp), L_p)
-    L = L_p * thr
+    L = dr.select(need, L_int / max(1, amp_spp), 0.0) * thr
     n_need = int(dr.count(need)[0]) if dr.width(need) > 1 else (R if bool(need[0]) else 0)
-    dr.eval(L, L_p, d_out, ok, emission, albedo, n_p)
+    dr.eval(L, d_out, ok)
 
     def _np1(x, dtype):
         return np.broadcast_to(np.asarray(x, dtype=dtype).reshape(-1), (R,)).copy()
@@ -198,11 +174,6 @@ def trace_chain(
         opl_m=_np1(opl, np.float64),
         escaped=_np1(escaped, bool),
         capped=_np1(capped, bool),
-        p_world=_np3(p_world),
-        radiance_p=np.where(ok_np[:, None], _np3(L_p), 0.0).astype(np.float32),
-        emission_p=np.where(ok_np[:, None], _np3(emission), 0.0).astype(np.float32),
-        albedo_p=np.where(ok_np[:, None], _np3(albedo), 0.0).astype(np.float32),
-        normal_p=_np3(n_p),
         path_samples=n_need * max(1, amp_spp),
     )
 
@@ -248,7 +219,6 @@ class _DeltaChain:
         self.opl = dr.zeros(F64, n)
         self.thr = dr.full(mi.Color3f, 1.0, n)
         self.d_out = dr.zeros(F64, n)
-        self.p_world = dr.zeros(mi.Point3f, n)
         self.fin_o = mi.Point3f(self.ray.o)
         self.fin_d = mi.Vector3f(self.ray.d)
 
@@ -309,7 +279,6 @@ class _DeltaChain:
                 mi, si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w)
             self.opl_w = dr.select(active, self.opl_w + self.n_cur * mi.Float64(si.t), self.opl_w)
             self._put("d_out", d_here, stop)
-            self._put("p_world", si.p, stop)
             self._put("fin_o", self.ray.o, stop)
             self._put("fin_d", self.ray.d, stop)
             self._put("done", True, stop)
@@ -326,8 +295,8 @@ class _DeltaChain:
             self._leave(~keep)
             dr.eval(self.dP, self.dD, self.frame, self.D, self.ray, self.n_cur, self.opl_w, self.thr_w, self.nd_w,
                     self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
-                    self.p_world, self.fin_o, self.fin_d)
+                    self.fin_o, self.fin_d)
             if not self._compact(keep):
                 break
         dr.eval(self.done, self.escaped, self.bad, self.capped, self.n_delta, self.opl, self.thr, self.d_out,
-                self.p_world, self.fin_o, self.fin_d)
+                self.fin_o, self.fin_d)
