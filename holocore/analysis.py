@@ -55,15 +55,62 @@ def _camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n
 
 
 def _emitted_rgb(scene, seed: int, n: int = 256) -> np.ndarray:
-    """Total RGB weight of rays sampled from every emitter: which channels carry any light at all."""
+    """Total RGB weight of light sampled from every emitter: which channels carry any light at all.
+
+    Mitsuba's ``sample_ray`` needs the emitter's spectrum to be sampleable, which spatially varying radiance
+    (a checkerboard or bitmap on an area light, a spot's or projector's texture) is not in every variant
+    ("Texture::sample_spectrum(): not implemented"). What the path integrator uses of an emitter is
+    ``eval`` (seen directly) and ``sample_direction`` (emitter sampling), so where ``sample_ray`` is not
+    implemented the same quantities are measured with those two: emitted radiance at points sampled on the
+    emitter's shape, and direct light arriving at points sampled on the scene's shapes. A surface that emits
+    in one direction only (``directionalarea``) is measured that way too: a path tracer never connects to it
+    (Mitsuba renders it with a particle tracer only), so it lights neither Mitsuba's ``path`` nor the hologram.
+    """
     mi = mitsuba()
     total = np.zeros(3)
     sampler = mi.load_dict({"type": "independent"})
     for em in scene.emitters():
         sampler.seed(seed, n)
-        _ray, weight = em.sample_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
-        w = np.stack([np.asarray(weight[k], dtype=np.float64).reshape(-1) for k in range(3)], axis=1)
-        total += np.nan_to_num(w, nan=0.0, posinf=0.0).clip(min=0).sum(axis=0)
+        if em.get_shape() is not None and mi.has_flag(em.flags(), mi.EmitterFlags.DeltaDirection):
+            total += _emitter_rgb_by_eval(mi, scene, em, sampler, seed, n)
+            continue
+        try:
+            _ray, weight = em.sample_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
+            total += _positive_rgb_sum(weight)
+        except RuntimeError:  # the spectrum cannot be sampled: measure it as the path integrator sees it
+            total += _emitter_rgb_by_eval(mi, scene, em, sampler, seed, n)
+    return total
+
+
+def _positive_rgb_sum(color) -> np.ndarray:
+    """Per-channel sum of a Color3f's finite, positive lanes."""
+    w = np.stack([np.asarray(color[k], dtype=np.float64).reshape(-1) for k in range(3)], axis=1)
+    return np.nan_to_num(w, nan=0.0, posinf=0.0, neginf=0.0).clip(min=0).sum(axis=0)
+
+
+def _emitter_rgb_by_eval(mi, scene, em, sampler, seed: int, n: int) -> np.ndarray:
+    """An emitter's RGB weight from ``eval`` on its own shape (if any) and from ``sample_direction`` towards
+    points sampled on every shape of the scene (both sides, just off the surface)."""
+    import drjit as dr
+
+    total = np.zeros(3)
+    shape = em.get_shape()
+    if shape is not None:
+        sampler.seed(seed + 1, n)
+        ps = shape.sample_position(0.0, sampler.next_2d())
+        si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+        si.wi = mi.Vector3f(0.0, 0.0, 1.0)  # leaving along the normal: the side an area light emits from
+        total += _positive_rgb_sum(em.eval(si))
+    for k, ref_shape in enumerate(scene.shapes()):
+        for side in (1.0, -1.0):
+            sampler.seed(seed + 2 + 2 * k + (side < 0), n)
+            ps = ref_shape.sample_position(0.0, sampler.next_2d())
+            scale = 1e-4 * max(1e-3, float(dr.norm(ref_shape.bbox().extents())))
+            it = dr.zeros(mi.Interaction3f, n)
+            it.p = ps.p + ps.n * (side * scale)
+            it.n = ps.n * side
+            _ds, weight = em.sample_direction(it, sampler.next_2d(), True)
+            total += _positive_rgb_sum(weight)
     return total
 
 
