@@ -9,7 +9,7 @@ from typing import Optional
 
 import typer
 
-from holo.common import fail, optics_from_options
+from holo.common import OpticsOptions, fail, with_optics_options
 
 baseline_app = typer.Typer(help="Baseline holograms to compare against (same RESULT.npz format).",
                            no_args_is_help=True)
@@ -20,24 +20,16 @@ def register(app: typer.Typer) -> None:
 
 
 @baseline_app.command("layers")
+@with_optics_options
 def layers(
     scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
     out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
     planes: int = typer.Option(8, "--planes", help="Depth layers, uniform in dioptres (1..256)."),
     spp: int = typer.Option(64, "--spp", help="Mitsuba samples per pixel of the RGB-D image (1..65536)."),
-    frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames (default: optics, 8)."),
-    resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
-    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
-    wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
-    seed: Optional[int] = typer.Option(None, help="Seed of the RGB-D render and random phases."),
-    z_inf_mm: Optional[float] = typer.Option(None, "--z-inf-mm", help="Virtual-infinity plane distance, mm."),
-    focal_length_mm: Optional[float] = typer.Option(None, "--focal-length-mm", help="Eyepiece f in mm."),
-    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig as a JSON file."),
+    optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """RGB-D layers: sqrt(image) per depth bin with random phase per frame, ASM to the WRP and the SLM."""
-    optics = optics_from_options(optics_json=optics_json, frames=frames, resolution=resolution, pitch_um=pitch_um,
-                                 wavelengths_nm=wavelengths_nm, seed=seed, z_inf_mm=z_inf_mm,
-                                 focal_length_mm=focal_length_mm)
+    profile, optics_cfg = optics.resolve()
     if not 1 <= planes <= 256:
         fail(f"--planes must be in 1..256, got {planes}")
     if not 1 <= spp <= 65536:
@@ -50,14 +42,14 @@ def layers(
 
     t0 = time.perf_counter()
     try:
-        result = render_layers(load_scene(scene), optics, planes=planes, spp=spp)
+        result = render_layers(load_scene(scene), optics_cfg, planes=planes, spp=spp, display=profile)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
     m = result.meta
     F, C, H, W = m["shape_fchw"]
     used = sum(1 for n in m["layers"]["pixels_per_plane"] if n)
-    typer.echo(f"layer baseline {Path(scene).name}: {F} frame(s) x {C} color(s) x {H}x{W}, {planes} planes "
+    typer.echo(f"layer baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x {H}x{W}, {planes} planes "
                f"({used} hold pixels) from {m['layers']['plane_z_m'][0] * 1e3:.4f} to "
                f"{m['layers']['plane_z_m'][-1] * 1e3:.4f} mm, z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
                f"in {time.perf_counter() - t0:.1f} s -> {out}", err=True)

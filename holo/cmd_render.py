@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from holo.common import fail, optics_from_options, progress_writer
+from holo.common import OpticsOptions, fail, progress_writer, with_optics_options
 
 
 def register(app: typer.Typer) -> None:
@@ -18,28 +18,20 @@ def register(app: typer.Typer) -> None:
     app.command("plan")(plan)
 
 
+@with_optics_options
 def render(
     scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
     out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
-    frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames (default: optics, 8)."),
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
-    resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
-    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
-    wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
-    seed: Optional[int] = typer.Option(None, help="Seed of rays and random-phase bank."),
     method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
-    z_inf_mm: Optional[float] = typer.Option(None, "--z-inf-mm", help="Virtual-infinity plane distance, mm."),
-    focal_length_mm: Optional[float] = typer.Option(None, "--focal-length-mm", help="Eyepiece f in mm."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
-    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig as a JSON file."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
+    optics: OpticsOptions = OpticsOptions(),
 ) -> None:
-    """Render a scene into WRP and SLM wave fields (RESULT.npz)."""
-    optics = optics_from_options(optics_json=optics_json, frames=frames, resolution=resolution, pitch_um=pitch_um,
-                                 wavelengths_nm=wavelengths_nm, seed=seed, z_inf_mm=z_inf_mm,
-                                 focal_length_mm=focal_length_mm)
+    """Render a scene into WRP and SLM wave fields (RESULT.npz) for a display (default: the paper's)."""
+    profile, optics_cfg = optics.resolve()
     if preset not in ("fast", "balanced", "reference"):
         fail(f"--preset must be fast, balanced or reference, got {preset!r}")
     if method not in ("wrp", "direct"):
@@ -63,11 +55,11 @@ def render(
         from holocore.scene import load_scene
 
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
-            pl = plan_scene(load_scene(scene), optics, options)
+            pl = plan_scene(load_scene(scene), optics_cfg, options)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
         cal = load_calibration()
-        secs = estimate_seconds(optics, options, scene_primitives=pl["inventory"].primitives,
+        secs = estimate_seconds(optics_cfg, options, scene_primitives=pl["inventory"].primitives,
                                 subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
         source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
             "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
@@ -86,7 +78,7 @@ def render(
             write_progress(stage, done, total)
 
         try:
-            result = do_render(scene, optics, options, progress=progress)
+            result = do_render(scene, optics_cfg, options, progress=progress, display=profile)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
     from holocore.io import save_result
@@ -96,7 +88,8 @@ def render(
     F, C, H, W = m["shape_fchw"]
     st = m["stats"]
     console.print(
-        f"rendered {Path(scene).name}: {F} frame(s) x {C} color(s) x {H}x{W}, {st['rays']:,} rays "
+        f"rendered {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x {H}x{W}, "
+        f"f = {m['focal_length_m'] * 1e3:.4g} mm, {st['rays']:,} rays "
         f"({st['valid'] / max(1, st['rays']):.0%} with an image point), z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
         f"in {time.perf_counter() - t0:.1f} s -> {out}"
     )
@@ -104,17 +97,17 @@ def render(
         console.print(f"  - {line}")
 
 
+@with_optics_options
 def plan(
     scene: Path = typer.Argument(..., help="Scene folder or XML."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
-    frames: Optional[int] = typer.Option(None, help="Frames."),
-    resolution: Optional[str] = typer.Option(None, help="HxW."),
-    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig JSON file."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects"),
+    optics: OpticsOptions = OpticsOptions(),
 ) -> None:
-    """Analyse a scene and print what the renderer would simulate (the EffectPlan)."""
-    optics = optics_from_options(optics_json=optics_json, frames=frames, resolution=resolution)
+    """Analyse a scene and print what the renderer would simulate (the EffectPlan), for the same display and
+    optics options as `holo render`."""
+    profile, optics_cfg = optics.resolve()
     if not scene.exists():
         fail(f"scene not found: {scene}")
     from holocore.pipeline import RenderOptions, plan_scene
@@ -122,15 +115,24 @@ def plan(
 
     try:
         loaded = load_scene(scene)
-        pl = plan_scene(loaded, optics, RenderOptions(preset=preset, force_all_effects=force_all_effects))
+        pl = plan_scene(loaded, optics_cfg, RenderOptions(preset=preset, force_all_effects=force_all_effects))
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
+    from holocore.display import display_meta
+
     doc = {"plan": json.loads(pl["plan"].model_dump_json()), "summary": pl["plan"].summary,
            "analysis": json.loads(pl["analysis"].model_dump_json()),
-           "inventory": json.loads(pl["inventory"].model_dump_json()), "focal_length_m": pl["focal_length_m"]}
+           "inventory": json.loads(pl["inventory"].model_dump_json()), "focal_length_m": pl["focal_length_m"],
+           "field_of_view": pl["field_of_view"], "optics": json.loads(optics_cfg.model_dump_json()),
+           **display_meta(profile, optics_cfg)}
     if as_json:
         print(json.dumps(doc, indent=2))
     else:
+        over = doc["display"]["overridden"]
+        print(f"- display {profile.name}" + (f" (overridden: {', '.join(over)})" if over else "")
+              + f": {optics_cfg.height}x{optics_cfg.width} px at {optics_cfg.pitch_um:g} µm, "
+              f"f = {pl['focal_length_m'] * 1e3:.4g} mm, virtual infinity at {optics_cfg.z_inf_mm:g} mm, "
+              f"{optics_cfg.frames} frame(s)")
         for line in pl["plan"].summary:
             print(f"- {line}")
         a = pl["analysis"]

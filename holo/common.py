@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, NoReturn, Optional
+from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional
 
 import typer
 
-__all__ = ["fail", "optics_from_options", "progress_writer", "parse_hw"]
+if TYPE_CHECKING:
+    from holocore.config import OpticsConfig
+    from holocore.display import DisplayProfile
+
+__all__ = ["fail", "optics_from_options", "progress_writer", "parse_hw", "OpticsOptions", "with_optics_options",
+           "OPTICS_OPTIONS"]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -27,37 +35,122 @@ def parse_hw(text: str) -> tuple[int, int]:
     return h, w
 
 
-def optics_from_options(*, optics_json: Optional[Path] = None, **overrides) -> "object":
-    """OpticsConfig from an optional JSON file plus CLI overrides (None = keep). Errors exit with code 2."""
-    from pydantic import ValidationError
+@dataclass(frozen=True)
+class OpticsOptions:
+    """The optics options every rendering command shares (:func:`with_optics_options`), as the user gave them
+    (None: not given). :meth:`resolve` turns them into the display profile and the OpticsConfig."""
 
-    from holocore.config import OpticsConfig
+    display: Optional[str] = None
+    resolution: Optional[str] = None
+    pitch_um: Optional[float] = None
+    wavelengths_nm: Optional[str] = None
+    z_inf_mm: Optional[float] = None
+    focal_length_mm: Optional[float] = None
+    frames: Optional[int] = None
+    fit_camera_fov: bool = False
+    seed: Optional[int] = None
+    optics_json: Optional[Path] = None
 
-    data: dict = {}
-    if optics_json is not None:
+    def resolve(self, **command_defaults: Any) -> tuple["DisplayProfile", "OpticsConfig"]:
+        """(profile, optics): the display profile (default ``paper``), then ``command_defaults`` (a command's
+        own defaults, e.g. the demo's small SLM, used where the user gave nothing), then --optics-json, then
+        the explicit options. Bad input exits with one line (code 2)."""
+        from holocore.display import DisplayError, display_optics, load_display
+
+        if self.fit_camera_fov and self.focal_length_mm is not None:
+            fail("give --focal-length-mm or --fit-camera-fov, not both (each determines the eyepiece f)")
         try:
-            data = json.loads(Path(optics_json).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            fail(f"cannot read --optics-json {optics_json}: {exc}")
-        if not isinstance(data, dict):
-            fail("--optics-json must hold a JSON object")
-    if overrides.get("resolution"):
-        data["resolution_hw"] = parse_hw(overrides.pop("resolution"))
-    overrides.pop("resolution", None)
-    wl = overrides.pop("wavelengths_nm", None)
-    if wl:
+            profile = load_display(self.display)
+        except DisplayError as exc:
+            fail(str(exc))
+        given = {"resolution_hw": parse_hw(self.resolution) if self.resolution else None,
+                 "pitch_um": self.pitch_um, "wavelengths_nm": _parse_wavelengths(self.wavelengths_nm),
+                 "z_inf_mm": self.z_inf_mm, "focal_length_mm": self.focal_length_mm, "frames": self.frames,
+                 "fit_camera_fov": True if self.fit_camera_fov else None, "seed": self.seed}
+        defaults = {k: v for k, v in command_defaults.items() if given.get(k) is None}
+        if "resolution_hw" in defaults and isinstance(defaults["resolution_hw"], str):
+            defaults["resolution_hw"] = parse_hw(defaults["resolution_hw"])
+        fields = {**defaults, **_read_optics_json(self.optics_json)}
         try:
-            data["wavelengths_nm"] = [float(v) for v in wl.split(",")]
-        except ValueError:
-            fail(f"--wavelengths-nm must be numbers separated by commas, got {wl!r}")
-    for key, value in overrides.items():
-        if value is not None:
-            data[key] = value
+            return profile, display_optics(profile, optics_fields=fields, overrides=given)
+        except DisplayError as exc:
+            fail(str(exc))
+
+
+def _parse_wavelengths(text: Optional[str]) -> Optional[list[float]]:
+    if not text:
+        return None
     try:
-        return OpticsConfig(**data)
-    except ValidationError as exc:
-        msgs = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'optics'}: {e['msg']}" for e in exc.errors())
-        fail(f"invalid optics: {msgs}")
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        fail(f"--wavelengths-nm must be numbers separated by commas, got {text!r}")
+
+
+def _read_optics_json(path: Optional[Path]) -> dict:
+    if path is None:
+        return {}
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        fail(f"cannot read --optics-json {path}: {exc}")
+    if not isinstance(data, dict):
+        fail("--optics-json must hold a JSON object of OpticsConfig fields")
+    return data
+
+
+# The shared option set: (name, type, typer.Option). `holo render`, `plan`, `demo` and `baseline` take exactly
+# these, through with_optics_options, so they cannot drift apart.
+OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
+    ("display", Optional[str], typer.Option(
+        None, "--display", help="Display profile: a built-in name (default: paper: 1080x1920, 8 µm, "
+                                "f = 50 mm, 24 frames) or a .json/.toml profile file (docs/display_profiles.md).")),
+    ("resolution", Optional[str], typer.Option(None, "--resolution", help="SLM size HxW in pixels, e.g. 1080x1920.")),
+    ("pitch_um", Optional[float], typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm.")),
+    ("wavelengths_nm", Optional[str], typer.Option(None, "--wavelengths-nm", help="Laser lines in nm, e.g. "
+                                                                                     "640,516.5,455.4")),
+    ("z_inf_mm", Optional[float], typer.Option(None, "--z-inf-mm", help="SLM to virtual infinity (the "
+                                                                          "eyepiece's front focal plane), mm.")),
+    ("focal_length_mm", Optional[float], typer.Option(None, "--focal-length-mm", help="Eyepiece f in mm "
+                                                                                        "(default: the display's).")),
+    ("frames", Optional[int], typer.Option(None, "--frames", help="Time-multiplexed frames (default: the "
+                                                                    "display's).")),
+    ("fit_camera_fov", bool, typer.Option(False, "--fit-camera-fov", help="Derive f from the scene camera's "
+                                          "field of view filling the SLM width, instead of the display's f.")),
+    ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
+    ("optics_json", Optional[Path], typer.Option(None, "--optics-json", help="OpticsConfig fields as a JSON "
+                                                 "file (over the profile, under the options above).")),
+)
+
+
+def with_optics_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Give a typer command the shared optics options; it receives them as ``optics: OpticsOptions``."""
+    sig = inspect.signature(func, eval_str=True)
+    if "optics" not in sig.parameters:
+        raise TypeError(f"{func.__name__} needs a parameter 'optics: OpticsOptions'")
+    own = [p for p in sig.parameters.values() if p.name != "optics"]
+    clash = {p.name for p in own} & {name for name, _, _ in OPTICS_OPTIONS}
+    if clash:
+        raise TypeError(f"{func.__name__} defines shared optics options itself: {sorted(clash)}")
+    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=opt, annotation=tp)
+             for name, tp, opt in OPTICS_OPTIONS]
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        opts = OpticsOptions(**{name: kwargs.pop(name) for name, _, _ in OPTICS_OPTIONS if name in kwargs})
+        return func(*args, optics=opts, **kwargs)
+
+    params = own + added
+    wrapper.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params}
+    del wrapper.__wrapped__  # typer reads the signature above, not the wrapped function's
+    return wrapper
+
+
+def optics_from_options(*, optics_json: Optional[Path] = None, display: Optional[str] = None,
+                        **overrides: Any) -> "OpticsConfig":
+    """OpticsConfig from the display profile (default ``paper``), an optional OpticsConfig JSON file and CLI
+    overrides (None = keep; ``resolution`` as HxW, ``wavelengths_nm`` as a comma list). Errors exit with code 2."""
+    return OpticsOptions(display=display, optics_json=optics_json, **overrides).resolve()[1]
 
 
 def progress_writer(path: Optional[Path]) -> Callable[[str, int, int], None]:

@@ -149,13 +149,14 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
 
 
 def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: int = 64,
-                  progress: Optional[Any] = None) -> Any:
+                  progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
     """The layer baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT.npz format).
 
     ``planes`` (1..256) uniform in hologram depth, ``spp`` (1..65536) Mitsuba samples per RGB-D pixel; frames,
-    colors, pitch, seed and the WRP come from ``optics`` and the renderer's own scene analysis.
+    colors, pitch, seed and the WRP come from ``optics`` and the renderer's own scene analysis; ``display`` (a
+    :class:`holocore.display.DisplayProfile`) is recorded in the meta as the renderer does.
     """
-    from holocore.pipeline import RenderOptions, RenderResult, _versions, plan_scene
+    from holocore.pipeline import RenderOptions, RenderResult, _display_meta, _versions, plan_scene
     from holocore.mitsuba_env import variant
 
     planes = _check_int("planes", planes, 1, MAX_PLANES)
@@ -193,7 +194,9 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
         "layers": {"planes": planes, "spp": spp, "plane_z_m": [float(z) for z in zs],
                    "pixels_per_plane": [int(n) for n in counts]},
         "plan": {"summary": [f"layer baseline: {planes} planes uniform in dioptres, RGB-D at {spp} spp, random "
-                             f"phase per frame, ASM plane -> WRP -> SLM, no occlusion handling"]},
+                             f"phase per frame, ASM plane -> WRP -> SLM, no occlusion handling",
+                             pl["field_of_view"]["summary"]]},
+        "field_of_view": pl["field_of_view"], **_display_meta(display, optics),
         "stats": {}, "timings": timings, "versions": _versions(variant()),
     }
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)

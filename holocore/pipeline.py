@@ -14,6 +14,7 @@ import numpy as np
 
 from holocore import __version__
 from holocore.config import OpticsConfig
+from holocore.display import DisplayProfile
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "plan_scene"]
 
@@ -43,12 +44,15 @@ class RenderResult:
 
 
 def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> dict:
-    """The effect plan and the analysis of a loaded scene, without tracing the hologram."""
+    """The effect plan and the analysis of a loaded scene, without tracing the hologram. ``field_of_view``
+    compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it."""
     from holocore.analysis import analyze
+    from holocore.display import field_of_view_report
     from holocore.effects import inventory, make_plan
     from holocore.mapping import HologramMap
 
     f = optics.focal_length_m(loaded.fov_x_deg)
+    fov = field_of_view_report(optics, loaded.fov_x_deg)
     hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m)
     inv = inventory(loaded.scene)
     ana = analyze(loaded.scene, hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
@@ -59,7 +63,9 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
                      subhologram_radius_px=ana.subhologram_radius_px,
                      theta_max=max(optics.theta_max(lam) for lam in optics.wavelengths_m))
-    return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f}
+    plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"]]})
+    return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f,
+            "field_of_view": fov}
 
 
 def _banks(optics: OpticsConfig, shape_hw, device="cpu"):
@@ -79,8 +85,9 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu"):
 
 
 def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
-                  progress: Optional[ProgressFn] = None) -> RenderResult:
-    """Render a loaded scene: WRP field (two-stage) or SLM field (direct), then ASM to the other plane."""
+                  progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None) -> RenderResult:
+    """Render a loaded scene: WRP field (two-stage) or SLM field (direct), then ASM to the other plane.
+    ``display``: the profile ``optics`` came from, recorded in the meta (``display_profile``, ``display``)."""
     import torch
 
     from holocore.mitsuba_env import mitsuba, variant
@@ -156,6 +163,8 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
         "plan": json.loads(plan.model_dump_json()),
         "analysis": json.loads(ana.model_dump_json()),
         "inventory": json.loads(pl["inventory"].model_dump_json()),
+        "field_of_view": pl["field_of_view"],
+        **_display_meta(display, optics),
         "stats": stats.as_dict(),
         "timings": timings,
         "versions": _versions(variant()),
@@ -164,11 +173,20 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
 
 
 def render(scene_path: str | Path, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
-           progress: Optional[ProgressFn] = None) -> RenderResult:
+           progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None) -> RenderResult:
     """Check and load a scene bundle, then :func:`render_loaded`."""
     from holocore.scene import load_scene
 
-    return render_loaded(load_scene(scene_path), optics, options, progress=progress)
+    return render_loaded(load_scene(scene_path), optics, options, progress=progress, display=display)
+
+
+def _display_meta(display: Optional[DisplayProfile], optics: OpticsConfig) -> dict:
+    """``display_profile`` (None: optics given directly, no profile) and ``display`` for a result's meta."""
+    if display is None:
+        return {"display_profile": None, "display": None}
+    from holocore.display import display_meta
+
+    return display_meta(display, optics)
 
 
 def _versions(mi_variant: str) -> dict:

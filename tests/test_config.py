@@ -18,13 +18,15 @@ def test_paper_defaults_and_si_views():
     assert c.theta_max(516.5e-9) == pytest.approx(math.asin(516.5e-9 / 16e-6))
 
 
-def test_focal_length_from_fov_fills_the_slm_width():
-    c = OpticsConfig(resolution_hw=(1080, 1920))
+def test_focal_length_is_the_displays_unless_fitting_to_the_camera_is_asked_for():
+    assert OpticsConfig().focal_length_m(40.0) == pytest.approx(0.05)  # the paper display's f (DESIGN §3)
+    c = OpticsConfig(resolution_hw=(1080, 1920), fit_camera_fov=True)
     f = c.focal_length_m(40.0)
     assert f == pytest.approx((1920 * 8e-6 / 2) / math.tan(math.radians(20.0)))
+    assert c.field_of_view_x_deg(40.0) == pytest.approx(40.0)
     assert OpticsConfig(focal_length_mm=25.0).focal_length_m(40.0) == pytest.approx(0.025)
     with pytest.raises(ValueError, match="focal length unknown"):
-        OpticsConfig().focal_length_m(None)
+        OpticsConfig(fit_camera_fov=True).focal_length_m(None)
 
 
 def test_sub_wavelength_pitch_is_legal_and_opens_the_hemisphere():
@@ -60,3 +62,9 @@ def test_unknown_fields_and_both_f_and_fov_are_refused():
         OpticsConfig(pitch_mm=8.0)
     with pytest.raises(ValidationError, match="not both"):
         OpticsConfig(focal_length_mm=20.0, fov_x_deg=30.0)
+    with pytest.raises(ValidationError, match="not both"):
+        OpticsConfig(focal_length_mm=20.0, fit_camera_fov=True)
+    with pytest.raises(ValidationError, match="focal_length_mm is null"):
+        OpticsConfig(focal_length_mm=None, fit_camera_fov=False)
+    # a record from before fit_camera_fov existed: a null f meant "fit the camera's view"
+    assert OpticsConfig(focal_length_mm=None, fov_x_deg=None).fit_camera_fov

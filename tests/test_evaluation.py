@@ -247,7 +247,7 @@ def cbox(shared_scenes):
     from holocore.scene import load_scene
 
     loaded = load_scene(shared_scenes / "cbox-mirror-glass")
-    optics = OpticsConfig(resolution_hw=(48, 64), frames=8, z_inf_mm=2.0)
+    optics = OpticsConfig(resolution_hw=(48, 64), frames=8, z_inf_mm=2.0, fit_camera_fov=True)  # the whole box
     res = render_loaded(loaded, optics, RenderOptions(preset="balanced", spp=64))
     return loaded, optics, res
 

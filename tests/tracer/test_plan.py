@@ -10,7 +10,7 @@ from holocore.pipeline import RenderOptions, plan_scene, render_loaded
 from holocore.scene import load_scene
 from tests.tracer.scenes import T, camera, scene
 
-OPT = OpticsConfig(resolution_hw=(32, 32), frames=2)  # f from the scene camera: the whole view
+OPT = OpticsConfig(resolution_hw=(32, 32), frames=2, fit_camera_fov=True)  # f from the scene camera: the whole view
 
 
 @pytest.fixture(scope="module")
