@@ -1,13 +1,23 @@
 """Scene bundles: a folder holding a Mitsuba 3 XML scene and every file it references, checked before Mitsuba
-parses anything (issue 3 item 1, issue 5 item 6; the service runs it on every upload).
+parses anything (the service runs it on every upload; `holo` runs it before every load).
 
-Rules (the *bundle-confinement rule*): every referenced file (``filename`` attributes and strings,
-``<include>``) must resolve to a regular file inside the bundle; absolute paths, ``~``, ``..`` escapes,
-symbolic links leaving the bundle and ``<path>`` elements (extra search paths) are refused. The XML is read
-with defusedxml (no DTDs, no entities, no external references), element names and plugins must be on
-allow-lists, and caps bound bytes, files, includes, mesh faces/vertices (read from OBJ lines or PLY headers,
-with declared counts checked against the file size) and image pixels (headers only: Pillow for PNG/JPEG/...,
-hand-read headers for EXR, HDR and PFM). Pure Python: no Mitsuba import.
+The check sees what Mitsuba will do (issue 10), with Mitsuba's own rules, probed against Mitsuba 3.9:
+- ``<default>`` parameters form one ordered namespace over the entry and its includes, the first definition
+  wins; we refuse a name defined twice, and a value holding ``$``. ``$name`` is substituted in every attribute
+  of every element (types, names, values, file names), the longest name first; anything left with a ``$`` is
+  refused (Mitsuba would call it an undefined parameter).
+- Every relative reference (``filename`` attributes and strings, ``<include>``, in the entry or in an include)
+  resolves against the entry's folder, never the including file's; it must name a regular file inside the
+  bundle. Absolute paths, ``~``, URLs, ``..`` components and backslashes are refused, as are ``<path>``
+  elements (extra search paths) and symbolic links leaving the bundle.
+- Every file in the bundle is of a kind a scene reads, judged by its content (``holocore.filekinds``): no
+  shared object or executable can be in a bundle under any name.
+- The XML is read with defusedxml (no DTDs, entities or external references); element names and plugin types
+  must be on allow-lists; caps bound bytes, files, includes, mesh faces/vertices and image pixels (read from
+  headers, by content: a PNG named ``t.dat`` counts as an image).
+- The scene's ``<integrator>`` is ignored: the hologram brings its own. ``entry_source`` gives the entry XML
+  with its top-level integrators blanked (line and column numbers kept), and the report says what was ignored.
+Pure Python: no Mitsuba import.
 """
 
 from __future__ import annotations
@@ -21,11 +31,14 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Optional
 
-__all__ = ["BundleError", "BundleLimits", "BundleReport", "validate_bundle", "ALLOWED_PLUGINS", "ALLOWED_TAGS"]
+from holocore.filekinds import IMAGE_KINDS, FileKindError, image_pixels, obj_counts, ply_counts, sniff_kind
+
+__all__ = ["BundleError", "BundleLimits", "BundleReport", "validate_bundle", "entry_source", "content_sha256",
+           "ALLOWED_PLUGINS", "ALLOWED_TAGS", "IGNORED_PLUGIN_TAGS"]
 
 
 class BundleError(ValueError):
-    """The bundle is refused; the message says why."""
+    """The bundle is refused; the message says why, with bundle-relative names."""
 
 
 @dataclass(frozen=True)
@@ -50,7 +63,8 @@ class BundleLimits:
 @dataclass
 class BundleReport:
     """What a valid bundle holds. ``entry`` is the absolute path of the scene XML; ``files`` are relative
-    POSIX paths; ``sha256`` hashes sorted (relative path, bytes) pairs, so it names the content."""
+    POSIX paths; ``sha256`` names the content unambiguously (see ``content_sha256``); ``kinds`` maps each file
+    to its kind by content; ``ignored`` lists scene elements the hologram renderer does not use."""
 
     entry: Path
     files: list[str]
@@ -60,6 +74,8 @@ class BundleReport:
     warnings: list[str] = field(default_factory=list)
     mesh_faces: int = 0
     image_pixels: int = 0
+    kinds: dict[str, str] = field(default_factory=dict)
+    ignored: list[str] = field(default_factory=list)
 
 
 # Mitsuba 3 plugins a scene may use (rendering plugins only; nothing that writes files or runs code).
@@ -88,9 +104,15 @@ ALLOWED_TAGS = set(ALLOWED_PLUGINS) | {
     "scene", "default", "include", "ref", "alias", "boolean", "integer", "float", "string", "point", "vector",
     "rgb", "color", "transform", "translate", "rotate", "scale", "matrix", "lookat",
 }
-_IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tga", ".exr", ".hdr", ".rgbe", ".pfm", ".ppm", ".pgm"}
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+# Plugin elements the hologram renderer ignores: stripped from the entry before Mitsuba parses it, so their
+# type is never instantiated (any type is accepted there).
+IGNORED_PLUGIN_TAGS = ("integrator",)
+# What a plugin's file must be, by content.
+_EXPECTED_KINDS = {"shape:obj": ({"text"}, "an OBJ mesh"), "shape:ply": ({"ply"}, "a PLY mesh"),
+                   "shape:serialized": ({"serialized"}, "a Mitsuba serialized mesh"),
+                   "texture:bitmap": (IMAGE_KINDS, "a readable image"), "emitter:envmap": (IMAGE_KINDS,
+                                                                                         "a readable image")}
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
 
 
 def _rel(root: Path, p: Path) -> str:
@@ -106,23 +128,27 @@ def _inside(root: Path, target: Path) -> bool:
 
 
 def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
-    """Resolve a reference made from a file in folder ``base`` (inside root); refuse escapes and misses."""
+    """Resolve a reference as Mitsuba does (against the entry's folder ``base``); refuse escapes and misses."""
     if not value or "\x00" in value or len(value) > 4096:
         raise BundleError(f"{what}: empty or invalid file reference")
-    norm = value.replace("\\", "/")
-    pure = PurePosixPath(norm)
-    if pure.is_absolute() or re.match(r"^[A-Za-z]:", value) or value.startswith("~") or "://" in value:
-        raise BundleError(f"{what}: absolute path {value!r} is not allowed; paths must be relative to the bundle")
-    if "$" in norm:
-        raise BundleError(f"{what}: {value!r} uses an undefined $parameter")
-    candidates = [(base / Path(*pure.parts)).resolve(), (root / Path(*pure.parts)).resolve()]
-    if not _inside(root, candidates[0]):
-        raise BundleError(f"{what}: {value!r} leaves the scene bundle")
-    for cand in candidates:
-        # Mitsuba resolves relative to the including file's folder, then to the entry's; both must stay inside.
-        if _inside(root, cand) and cand.is_file():
-            return cand
-    raise BundleError(f"{what}: {value!r} is referenced but not in the bundle")
+    shown = value[:120]
+    if value.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", value) or "://" in value:
+        raise BundleError(f"{what}: absolute path {shown!r} is not allowed; paths must be relative to the bundle")
+    if "$" in value:
+        raise BundleError(f"{what}: {shown!r} uses an undefined $parameter")
+    if "\\" in value:
+        raise BundleError(f"{what}: {shown!r} holds a backslash; use '/' between folders")
+    parts = PurePosixPath(value).parts
+    if ".." in parts:
+        raise BundleError(f"{what}: {shown!r} leaves the scene bundle ('..' is not allowed in references)")
+    target = base.joinpath(*parts)
+    resolved = target.resolve()
+    if not _inside(root, resolved):
+        raise BundleError(f"{what}: {shown!r} leaves the scene bundle (a link points outside)")
+    if not target.is_file():
+        raise BundleError(f"{what}: {shown!r} is referenced but not in the bundle (references are relative to the "
+                          "scene file's folder, also inside includes)")
+    return resolved
 
 
 def _parse(path: Path, limits: BundleLimits, name: str):
@@ -142,164 +168,54 @@ def _parse(path: Path, limits: BundleLimits, name: str):
         raise BundleError(f"{name}: not well-formed XML: {exc}") from None
 
 
-def _defaults(root_el) -> dict[str, str]:
-    return {d.get("name", ""): d.get("value", "") for d in root_el.iter("default")}
+class _Params:
+    """Mitsuba's ``<default>`` namespace: ordered, global over includes, substituted longest name first."""
+
+    def __init__(self) -> None:
+        self.values: dict[str, str] = {}
+        self._pattern: Optional[re.Pattern] = None
+
+    def define(self, name: str, value: str, where: str) -> None:
+        if not _NAME.match(name):
+            raise BundleError(f"{where}: <default name={name[:40]!r}>: parameter names are letters, digits, '_', "
+                              "'.' and '-', starting with a letter or '_'")
+        if name in self.values:
+            raise BundleError(f"{where}: <default name={name!r}> is defined twice; define each parameter once")
+        if "$" in value:
+            raise BundleError(f"{where}: <default name={name!r}> has a value holding '$'; values are not expanded")
+        self.values[name] = value
+        names = sorted(self.values, key=len, reverse=True)
+        self._pattern = re.compile(r"\$(" + "|".join(re.escape(n) for n in names) + ")")
+
+    def substitute(self, value: str, where: str) -> str:
+        out = self._pattern.sub(lambda m: self.values[m.group(1)], value) if self._pattern else value
+        if "$" in out:
+            raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
+        return out
 
 
-def _subst(value: str, defaults: dict[str, str]) -> str:
-    return re.sub(r"\$(\w+)", lambda m: defaults.get(m.group(1), m.group(0)), value)
-
-
-def _obj_counts(path: Path) -> tuple[int, int]:
-    """(triangles, vertices) of a Wavefront OBJ, streaming its lines (polygons count as fans)."""
-    faces = verts = 0
-    with path.open("rb") as fh:
-        for line in fh:
-            s = line.lstrip()
-            if s[:2] in (b"f ", b"f\t"):
-                faces += max(1, len(s.split()) - 3)
-            elif s[:2] in (b"v ", b"v\t"):
-                verts += 1
-    return faces, verts
-
-
-def _ply_counts(path: Path, name: str) -> tuple[int, int]:
-    """(faces, vertices) declared in a PLY header; refuses headers whose counts need more bytes than the file
-    holds (a tiny file declaring a billion faces would make the loader allocate for them)."""
-    size = path.stat().st_size
-    elements: list[list] = []  # [name, count, min binary bytes per item, values per item]
-    fmt = None
-    with path.open("rb") as fh:
-        first = fh.readline(64).strip()
-        if first != b"ply":
-            raise BundleError(f"{name}: not a PLY file")
-        for _ in range(1000):
-            line = fh.readline(4096)
-            if not line:
-                raise BundleError(f"{name}: PLY header has no end_header")
-            parts = line.split()
-            if not parts or parts[0] in (b"comment", b"obj_info"):
-                continue
-            if parts[0] == b"end_header":
-                break
-            try:
-                if parts[0] == b"format":
-                    fmt = parts[1].decode()
-                elif parts[0] == b"element":
-                    n = int(parts[2])
-                    if n < 0:
-                        raise ValueError
-                    elements.append([parts[1].decode(errors="replace"), n, 0, 0])
-                elif parts[0] == b"property" and elements:
-                    if parts[1] == b"list":  # count type, item type: at least the count plus 3 indices
-                        elements[-1][2] += _PLY_SIZES[parts[2].decode()] + 3 * _PLY_SIZES[parts[3].decode()]
-                        elements[-1][3] += 4
-                    else:
-                        elements[-1][2] += _PLY_SIZES[parts[1].decode()]
-                        elements[-1][3] += 1
-            except (IndexError, ValueError, KeyError, UnicodeError):
-                raise BundleError(f"{name}: malformed PLY header line {line[:60]!r}") from None
-        else:
-            raise BundleError(f"{name}: PLY header too long")
-    counts = {e[0]: e[1] for e in elements}
-    if fmt is None:
-        raise BundleError(f"{name}: PLY header has no format line")
-    # ASCII needs at least 2 bytes (digit + separator) per value, binary the property sizes.
-    need = sum(e[1] * (2 * e[3] if fmt == "ascii" else e[2]) for e in elements)
-    if need > size:
-        raise BundleError(f"{name}: PLY header declares {counts} elements needing at least {need} bytes, but the "
-                          f"file holds {size}")
-    return counts.get("face", 0), counts.get("vertex", 0)
-
-
-def _exr_pixels(path: Path, name: str) -> int:
-    with path.open("rb") as fh:
-        head = fh.read(65536)
-    if head[:4] != b"\x76\x2f\x31\x01":
-        raise BundleError(f"{name}: not an OpenEXR file")
-    pos = 8
-    while pos < len(head):
-        end = head.find(b"\0", pos)
-        if end < 0 or end == pos:
-            break
-        attr = head[pos:end]
-        tend = head.find(b"\0", end + 1)
-        if tend < 0 or tend + 5 > len(head):
-            break
-        (size,) = struct.unpack("<i", head[tend + 1:tend + 5])
-        value = head[tend + 5:tend + 5 + size]
-        if attr == b"dataWindow" and len(value) == 16:
-            x0, y0, x1, y1 = struct.unpack("<4i", value)
-            return max(0, x1 - x0 + 1) * max(0, y1 - y0 + 1)
-        pos = tend + 5 + max(size, 0)
-    raise BundleError(f"{name}: OpenEXR header without a readable dataWindow")
-
-
-def _hdr_pixels(path: Path, name: str) -> int:
-    with path.open("rb") as fh:
-        for _ in range(200):
-            line = fh.readline(4096)
-            if not line:
-                break
-            m = re.match(rb"^([-+])([YX]) (\d+) ([-+])([YX]) (\d+)\s*$", line)
-            if m:
-                return int(m.group(3)) * int(m.group(6))
-    raise BundleError(f"{name}: Radiance HDR header without a resolution line")
-
-
-def _pfm_pixels(path: Path, name: str) -> int:
-    with path.open("rb") as fh:
-        tokens = fh.read(256).split()
-    try:
-        if tokens[0] not in (b"PF", b"Pf"):
-            raise ValueError
-        return int(tokens[1]) * int(tokens[2])
-    except (IndexError, ValueError):
-        raise BundleError(f"{name}: malformed PFM header") from None
-
-
-def _image_pixels(path: Path, name: str, limits: BundleLimits) -> int:
-    ext = path.suffix.lower()
-    if ext == ".exr":
-        return _exr_pixels(path, name)
-    if ext in (".hdr", ".rgbe"):
-        return _hdr_pixels(path, name)
-    if ext == ".pfm":
-        return _pfm_pixels(path, name)
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:  # parses the header only; pixels are decoded on load()
-            w, h = im.size
-    except Image.DecompressionBombError:
-        raise BundleError(f"{name}: image declares more than {limits.max_image_pixels} pixels") from None
-    except Exception:  # noqa: BLE001 - Pillow raises many types for damaged files
-        raise BundleError(f"{name}: not a readable image") from None
-    return int(w) * int(h)
-
-
-def _is_file_reference(node) -> Optional[str]:
+def _file_reference(tag: str, attrs: dict[str, str]) -> Optional[str]:
     """The file path an element names, if any: a ``filename`` attribute, or a string property whose name
     says it is a file (``filename``, ``*_filename``, ``*file``)."""
-    if node.get("filename") is not None:
-        return node.get("filename")
-    if node.tag == "string":
-        pname = (node.get("name") or "").lower()
-        if pname == "filename" or pname.endswith("filename") or pname.endswith("file"):
-            return node.get("value", "")
+    if "filename" in attrs:
+        return attrs["filename"]
+    if tag == "string":
+        pname = attrs.get("name", "").lower()
+        if pname.endswith("filename") or pname.endswith("file"):
+            return attrs.get("value", "")
     return None
 
 
-def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int]:
+def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int, dict[str, str]]:
     files: list[Path] = []
+    kinds: dict[str, str] = {}
     total = 0
     for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
         d = Path(dirpath)
         for name in list(dirnames):
             p = d / name
-            if p.is_symlink():
-                if not _inside(root, p.resolve()):
-                    raise BundleError(f"{_rel(root, p)}: symbolic link leaves the bundle")
+            if p.is_symlink() and not _inside(root, p.resolve()):
+                raise BundleError(f"{_rel(root, p)}: symbolic link leaves the bundle")
         for name in filenames:
             p = d / name
             rel = _rel(root, p)
@@ -317,7 +233,124 @@ def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int]:
                 raise BundleError(f"bundle holds more than {limits.max_files} files")
             if total > limits.max_total_bytes:
                 raise BundleError(f"bundle is larger than {limits.max_total_bytes} bytes")
-    return files, total
+            try:
+                kinds[rel] = sniff_kind(p, rel)
+            except FileKindError as exc:
+                raise BundleError(str(exc)) from None
+    return files, total, kinds
+
+
+def content_sha256(root: Path, files: list[Path]) -> str:
+    """Names and contents hashed unambiguously: for each file in name order, the byte length of its UTF-8
+    name, the name, the byte length of its content, the content (8-byte big-endian lengths)."""
+    h = hashlib.sha256(b"holo-bundle-v2\0")
+    for p in sorted(files, key=lambda q: _rel(root, q)):
+        name = _rel(root, p).encode("utf-8", "surrogateescape")
+        h.update(struct.pack(">Q", len(name)) + name + struct.pack(">Q", p.stat().st_size))
+        with p.open("rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+class _Walker:
+    """One pass over the entry and its includes in document order, as Mitsuba's parser reads them."""
+
+    def __init__(self, root: Path, entry: Path, limits: BundleLimits, kinds: dict[str, str]) -> None:
+        self.root, self.base, self.limits, self.kinds = root, entry.parent, limits, kinds
+        self.entry = entry
+        self.params = _Params()
+        self.plugins: set[str] = set()
+        self.ignored: list[str] = []
+        self.warnings: list[str] = []
+        self.referenced: set[Path] = set()
+        self.counted: set[Path] = set()
+        self.faces = self.verts = self.pixels = self.includes = 0
+        self.stack: list[Path] = []
+
+    def account(self, ref: Path, plugin: Optional[str]) -> None:
+        rel = _rel(self.root, ref)
+        kind = self.kinds.get(rel, "")
+        expected = _EXPECTED_KINDS.get(plugin or "")
+        if expected is not None and kind not in expected[0]:
+            raise BundleError(f"{rel}: {plugin} needs {expected[1]}, but the file is not one (by its content: "
+                              f"{kind})")
+        if ref in self.counted:  # a mesh or image used twice is loaded once
+            return
+        self.counted.add(ref)
+        try:
+            if kind in IMAGE_KINDS:
+                self.pixels += image_pixels(ref, rel, kind, max_pixels=self.limits.max_image_pixels)
+            elif kind == "ply":
+                f, v = ply_counts(ref, rel)
+                self.faces, self.verts = self.faces + f, self.verts + v
+            elif kind == "serialized":
+                self.warnings.append(f"{rel}: face count of .serialized meshes is not checked before loading "
+                                     "(bytes are)")
+            elif kind == "text" and plugin == "shape:obj":
+                f, v = obj_counts(ref)
+                self.faces, self.verts = self.faces + f, self.verts + v
+        except FileKindError as exc:
+            raise BundleError(str(exc)) from None
+        if self.faces > self.limits.max_mesh_faces:
+            raise BundleError(f"meshes declare more than {self.limits.max_mesh_faces} faces ({rel})")
+        if self.verts > self.limits.max_mesh_vertices:
+            raise BundleError(f"meshes declare more than {self.limits.max_mesh_vertices} vertices ({rel})")
+        if self.pixels > self.limits.max_image_pixels:
+            raise BundleError(f"images hold more than {self.limits.max_image_pixels} pixels ({rel})")
+
+    def visit(self, xml: Path) -> None:
+        name = _rel(self.root, xml)
+        if xml in self.stack:
+            raise BundleError(f"{name}: includes itself (include cycle)")
+        if len(self.stack) >= self.limits.max_include_depth:
+            raise BundleError(f"{name}: includes nested deeper than {self.limits.max_include_depth}")
+        if self.kinds.get(name) != "xml":
+            raise BundleError(f"{name}: is not an XML file (by its content)")
+        self.stack.append(xml)
+        el = _parse(xml, self.limits, name)
+        if el.tag != "scene":
+            raise BundleError(f"{name}: root element is <{str(el.tag)[:40]}>, expected <scene>")
+        self.element(el, name, parent=None, top=True)
+        self.stack.pop()
+
+    def element(self, node, name: str, *, parent: Optional[str], top: bool) -> None:
+        for child in node:
+            tag = child.tag
+            if not isinstance(tag, str):
+                continue  # comments and processing instructions
+            if tag == "path":
+                raise BundleError(f"{name}: <path> elements (extra search paths) are not allowed")
+            if tag not in ALLOWED_TAGS:
+                raise BundleError(f"{name}: unknown XML element <{tag[:40]}>")
+            where = f"{name}: <{tag}>"
+            if tag == "default":
+                self.params.define(child.get("name", ""), child.get("value", ""), name)
+                continue
+            attrs = {k: self.params.substitute(v, where) for k, v in child.attrib.items()}
+            if tag in IGNORED_PLUGIN_TAGS and top and len(self.stack) == 1:
+                self.ignored.append(f"the scene's <{tag} type={attrs.get('type', '')[:40]!r}> (the hologram "
+                                    "renderer brings its own)")
+                continue
+            if tag == "include":
+                self.includes += 1
+                if self.includes > self.limits.max_includes:
+                    raise BundleError(f"scene has more than {self.limits.max_includes} includes")
+                inc = _check_reference(self.root, self.base, attrs.get("filename", ""), f"{name}: include")
+                self.referenced.add(inc)
+                self.visit(inc)
+                continue
+            kind = attrs.get("type")
+            if tag in ALLOWED_PLUGINS and kind is not None:
+                if kind not in ALLOWED_PLUGINS[tag]:
+                    raise BundleError(f"{name}: unknown or disallowed {tag} plugin {kind[:40]!r}")
+                self.plugins.add(f"{tag}:{kind}")
+            value = _file_reference(tag, attrs)
+            if value is not None:
+                ref = _check_reference(self.root, self.base, value, f"{name}: filename")
+                self.referenced.add(ref)
+                self.account(ref, parent if tag == "string" else f"{tag}:{kind}")
+            self.element(child, name, parent=f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None, top=False)
 
 
 def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: BundleLimits = BundleLimits()
@@ -328,10 +361,9 @@ def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: Bu
         raise ValueError(f"limits must be a BundleLimits, got {type(limits).__name__}")
     root_in = Path(root)
     if not root_in.is_dir():
-        raise BundleError(f"scene bundle {root_in} is not a folder")
+        raise BundleError(f"scene bundle {root_in.name or root_in} is not a folder")
     root = root_in.resolve()
-    files, total = _list_files(root, limits)
-
+    files, total, kinds = _list_files(root, limits)
     if entry is None:
         xmls = sorted(p for p in root.glob("*.xml") if p.is_file())
         if len(xmls) != 1:
@@ -340,94 +372,54 @@ def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: Bu
     else:
         entry_path = _check_reference(root, root, entry, "entry")
         if entry_path.suffix.lower() != ".xml":
-            raise BundleError(f"entry {entry!r} is not an .xml file")
-
-    plugins: set[str] = set()
-    warnings: list[str] = []
-    referenced: set[Path] = set()
-    counted: set[Path] = set()
-    totals = {"faces": 0, "verts": 0, "pixels": 0, "includes": 0}
-    stack: list[Path] = []
-
-    def account(ref: Path, rel: str) -> None:
-        if ref in counted:  # a mesh or image used twice is loaded once
-            return
-        counted.add(ref)
-        ext = ref.suffix.lower()
-        if ext == ".obj":
-            f, v = _obj_counts(ref)
-        elif ext == ".ply":
-            f, v = _ply_counts(ref, rel)
-        elif ext == ".serialized":
-            f = v = 0
-            warnings.append(f"{rel}: face count of .serialized meshes is not checked before loading (bytes are)")
-        elif ext in _IMAGE_EXT:
-            totals["pixels"] += _image_pixels(ref, rel, limits)
-            f = v = 0
-        else:
-            f = v = 0
-        totals["faces"] += f
-        totals["verts"] += v
-        if totals["faces"] > limits.max_mesh_faces:
-            raise BundleError(f"meshes declare more than {limits.max_mesh_faces} faces ({rel})")
-        if totals["verts"] > limits.max_mesh_vertices:
-            raise BundleError(f"meshes declare more than {limits.max_mesh_vertices} vertices ({rel})")
-        if totals["pixels"] > limits.max_image_pixels:
-            raise BundleError(f"images hold more than {limits.max_image_pixels} pixels ({rel})")
-
-    def visit(xml: Path, inherited: dict[str, str]) -> None:
-        name = _rel(root, xml)
-        if xml in stack:
-            raise BundleError(f"{name}: includes itself (include cycle)")
-        if len(stack) >= limits.max_include_depth:
-            raise BundleError(f"{name}: includes nested deeper than {limits.max_include_depth}")
-        stack.append(xml)
-        el = _parse(xml, limits, name)
-        if el.tag != "scene":
-            raise BundleError(f"{name}: root element is <{el.tag}>, expected <scene>")
-        defaults = {**_defaults(el), **inherited}
-        base = xml.parent
-        for node in el.iter():
-            tag = node.tag
-            if not isinstance(tag, str):
-                continue  # comments and processing instructions
-            if tag == "path":
-                raise BundleError(f"{name}: <path> elements (extra search paths) are not allowed")
-            if tag not in ALLOWED_TAGS:
-                raise BundleError(f"{name}: unknown XML element <{tag[:40]}>")
-            if tag == "include":
-                totals["includes"] += 1
-                if totals["includes"] > limits.max_includes:
-                    raise BundleError(f"scene has more than {limits.max_includes} includes")
-                inc = _check_reference(root, base, _subst(node.get("filename", ""), defaults), "include")
-                if inc.suffix.lower() != ".xml":
-                    raise BundleError(f"include: {_rel(root, inc)} is not an .xml file")
-                referenced.add(inc)
-                visit(inc, defaults)
-                continue
-            if tag in ALLOWED_PLUGINS and node.get("type") is not None:
-                kind = _subst(node.get("type", ""), defaults)
-                if kind not in ALLOWED_PLUGINS[tag]:
-                    raise BundleError(f"{name}: unknown or disallowed {tag} plugin {kind[:40]!r}")
-                plugins.add(f"{tag}:{kind}")
-            value = _is_file_reference(node)
-            if value is not None:
-                ref = _check_reference(root, base, _subst(value, defaults), f"{name}: filename")
-                referenced.add(ref)
-                account(ref, _rel(root, ref))
-        stack.pop()
-
-    visit(entry_path, {})
-    unused = [p for p in files if p not in referenced and p != entry_path and p.suffix.lower() != ".xml"]
+            raise BundleError(f"entry {entry[:120]!r} is not an .xml file")
+    w = _Walker(root, entry_path, limits, kinds)
+    w.visit(entry_path)
+    unused = [p for p in files if p not in w.referenced and p != entry_path and kinds[_rel(root, p)] != "xml"]
+    warnings = list(w.warnings)
     if unused:
         warnings.append(f"{len(unused)} file(s) not referenced by the scene, e.g. {_rel(root, unused[0])}")
-    h = hashlib.sha256()
-    for p in sorted(files, key=lambda q: _rel(root, q)):
-        h.update(_rel(root, p).encode("utf-8", "surrogateescape") + b"\0")
-        with p.open("rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-        h.update(b"\0")
     return BundleReport(entry=entry_path, files=sorted(_rel(root, p) for p in files), total_bytes=total,
-                        sha256=h.hexdigest(), plugins=sorted(plugins), warnings=warnings,
-                        mesh_faces=totals["faces"], image_pixels=totals["pixels"])
+                        sha256=content_sha256(root, files), plugins=sorted(w.plugins), warnings=warnings,
+                        mesh_faces=w.faces, image_pixels=w.pixels, kinds=kinds, ignored=w.ignored)
+
+
+def entry_source(report: BundleReport) -> str:
+    """The entry XML as Mitsuba should parse it: its top-level ``IGNORED_PLUGIN_TAGS`` elements blanked with
+    spaces (newlines kept, so Mitsuba's line and column numbers still point into the user's file)."""
+    import xml.parsers.expat
+
+    raw = Path(report.entry).read_bytes()
+    spans: list[list[int]] = []
+    depth = [0]
+    pending: list[list[int]] = []  # spans waiting for the byte index where they end
+
+    def close_pending() -> None:
+        while pending:
+            pending.pop()[1] = p.CurrentByteIndex
+
+    def start(tag, attrs):  # noqa: ARG001
+        close_pending()
+        depth[0] += 1
+        if depth[0] == 2 and tag in IGNORED_PLUGIN_TAGS:
+            spans.append([p.CurrentByteIndex, -1, depth[0]])
+
+    def end(tag):  # noqa: ARG001
+        close_pending()
+        if spans and spans[-1][1] == -1 and spans[-1][2] == depth[0]:
+            pending.append(spans[-1])
+        depth[0] -= 1
+
+    def other(*_):
+        close_pending()
+
+    p = xml.parsers.expat.ParserCreate()
+    p.StartElementHandler, p.EndElementHandler = start, end
+    p.CharacterDataHandler = p.CommentHandler = p.ProcessingInstructionHandler = p.DefaultHandler = other
+    p.Parse(raw, True)
+    out = bytearray(raw)
+    for a, b, _ in spans:
+        for i in range(a, b):
+            if out[i] not in (10, 13):
+                out[i] = 32
+    return out.decode("utf-8")

@@ -1,16 +1,69 @@
 """Loading a scene bundle into Mitsuba, after the bundle check (files confined to the bundle), and reading
-its perspective sensor."""
+its perspective sensor.
+
+Mitsuba resolves a plugin ``<type>`` to ``plugins/<type>.so`` through its file resolver, which normally
+searches the scene's folder first: a bundle could bring its own shared object (issue 10). So, before any scene
+is parsed, every plugin of Mitsuba's own installation is loaded once (the plugin manager keeps them, and never
+looks a loaded name up again); the bundle check refuses any file that is not scene data by its content; and
+scenes are parsed from the checked entry text (its integrator stripped) with a resolver holding only the
+entry's folder and Mitsuba's own folder. Errors come back as :class:`SceneLoadError` in the user's terms
+(bundle-relative paths, no server paths)."""
 
 from __future__ import annotations
 
 import math
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
+from holocore.errors import scrub_message
 from holocore.mitsuba_env import mitsuba
 
-__all__ = ["LoadedScene", "load_scene", "resolve_entry"]
+__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins"]
+
+_PRELOAD_LOCK = threading.Lock()
+_PRELOADED: list[str] = []
+
+
+class SceneLoadError(ValueError):
+    """Mitsuba could not load a checked bundle; the message names the file and line, relative to the bundle."""
+
+
+def preload_plugins() -> list[str]:
+    """Load every plugin of Mitsuba's installation (once per process) so that no plugin name is ever resolved
+    through a search path that holds a scene's folder; returns their names."""
+    with _PRELOAD_LOCK:
+        if not _PRELOADED:
+            mi = mitsuba()
+            folder = Path(mi.__file__).parent / "plugins"
+            pm = mi.PluginManager.instance()
+            names = sorted(p.name[:-3] for p in folder.iterdir() if p.name.endswith(".so"))
+            for name in names:
+                try:
+                    pm.plugin_type(name)
+                except Exception:  # noqa: BLE001 - a plugin this variant cannot use stays unloaded (never resolved)
+                    pass
+            _PRELOADED.extend(names)
+        return list(_PRELOADED)
+
+
+@contextmanager
+def _resolver_for(entry_dir: Path) -> Iterator[None]:
+    """The thread's file resolver holds only the entry's folder and Mitsuba's own folder while a scene loads."""
+    mi = mitsuba()
+    fr = mi.file_resolver()
+    saved = [str(p) for p in fr]
+    fr.clear()
+    fr.append(str(entry_dir))
+    fr.append(str(Path(mi.__file__).parent))
+    try:
+        yield
+    finally:
+        fr.clear()
+        for p in saved:
+            fr.append(p)
 
 
 @dataclass
@@ -52,17 +105,31 @@ def _sensor_fov_x_deg(sensor) -> float:
     return fov
 
 
+def _rel_name(root: Path, entry: Path) -> str:
+    try:
+        return entry.relative_to(root).as_posix()
+    except ValueError:
+        return entry.name
+
+
 def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
-    """Check the bundle (every file inside it, no escapes) and load it with Mitsuba."""
+    """Check the bundle (every file inside it, no escapes, only scene data) and load it with Mitsuba.
+    ``check_bundle=False`` is for trusted folders only (tests): Mitsuba then reads the files as it likes."""
     root, entry_name = resolve_entry(path)
     report = None
+    mi = mitsuba()
+    preload_plugins()
     if check_bundle:
-        from holocore.bundle import validate_bundle
+        from holocore.bundle import entry_source, validate_bundle
 
         report = validate_bundle(root, entry=entry_name)
         entry = Path(report.entry)
-        if not entry.is_absolute():
-            entry = root / entry
+        try:
+            with _resolver_for(entry.parent):
+                scene = mi.load_string(entry_source(report))
+        except RuntimeError as exc:
+            raise SceneLoadError(scrub_message(f"Mitsuba could not load the scene: {exc}", roots=[entry.parent],
+                                               entry_name=_rel_name(root, entry))) from None
     else:
         if entry_name is None:
             xmls = sorted(root.glob("*.xml"))
@@ -70,8 +137,7 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
                 raise ValueError(f"{root} holds {len(xmls)} XML files; name the scene file")
             entry_name = xmls[0].name
         entry = root / entry_name
-    mi = mitsuba()
-    scene = mi.load_file(str(entry))
+        scene = mi.load_file(str(entry))
     sensors = scene.sensors()
     if not sensors:
         raise ValueError(f"{entry} has no sensor: the hologram needs the scene's camera")

@@ -14,6 +14,12 @@ if ! ls /usr/lib/llvm-19/lib/libLLVM.so.19* >/dev/null 2>&1 && ! dpkg -s libllvm
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
 fi
 
+if ! command -v strace >/dev/null 2>&1; then
+  echo "[setup] installing strace (the bundle tests trace which files Mitsuba opens)"
+  $SUDO apt-get update -qq || true
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq strace >/dev/null || echo "[setup] strace not installed"
+fi
+
 PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   echo "[setup] creating .venv"

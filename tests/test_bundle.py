@@ -106,7 +106,7 @@ def test_real_small_image_is_counted(tmp_path):
     Image.new("RGB", (7, 5)).save(root / "t.png")
     assert validate_bundle(root).image_pixels == 35
     (root / "t.png").write_bytes(b"not an image")
-    with pytest.raises(BundleError, match="not a readable image"):
+    with pytest.raises(BundleError, match="needs a readable image"):
         validate_bundle(root)
 
 
@@ -130,7 +130,8 @@ def test_include_cycles_and_include_floods_are_refused(tmp_path):
     ('<default name="d" value="../.."/><shape type="obj"><string name="filename" value="$d/x.obj"/></shape>',
      "leaves the scene bundle"),
     ('<script type="python">import os</script>', "unknown XML element <script>"),
-    ('<integrator type="$i"/><default name="i" value="python"/>', "disallowed integrator plugin 'python'"),
+    ('<default name="i" value="python"/><bsdf type="$i"/>', "disallowed bsdf plugin 'python'"),
+    ('<bsdf type="$i"/><default name="i" value="diffuse"/>', "undefined"),  # Mitsuba: defaults come first
 ])
 def test_references_and_elements_outside_the_rules_are_refused(tmp_path, body, words):
     with pytest.raises(BundleError, match=words):

@@ -1,0 +1,218 @@
+"""What a file in a scene bundle is, judged by its content (magic bytes), never by its name, and the sizes its
+header declares (mesh faces and vertices, image pixels). Pure Python: no Mitsuba import.
+
+A bundle may hold only what a Mitsuba scene reads: XML, meshes (PLY, Mitsuba serialized, OBJ and other text),
+images (PNG, JPEG, BMP, TGA, OpenEXR, Radiance HDR, PFM, PNM), grid volumes and tensor files (measured BSDFs).
+Anything else (shared objects, executables, archives, unknown binaries) is refused, so nothing in a bundle can
+ever be loaded as code, whatever its name (issue 10: a ``plugins/sphere.so`` in a bundle).
+"""
+
+from __future__ import annotations
+
+import codecs
+import re
+import struct
+from pathlib import Path
+
+__all__ = ["FileKindError", "IMAGE_KINDS", "ALLOWED_KINDS", "sniff_kind", "image_pixels", "obj_counts", "ply_counts"]
+
+
+class FileKindError(ValueError):
+    """The file is not a kind a scene bundle may hold, or its header is malformed; the message says why."""
+
+
+IMAGE_KINDS = frozenset({"png", "jpeg", "bmp", "tga", "exr", "hdr", "pfm", "pnm"})
+ALLOWED_KINDS = IMAGE_KINDS | {"xml", "text", "ply", "serialized", "volume", "tensor", "empty"}
+_ALLOWED_WORDS = ("XML, meshes (PLY, OBJ, Mitsuba serialized), images (PNG, JPEG, BMP, TGA, EXR, HDR, PFM, PNM), "
+                  "spectra and other text, grid volumes, tensor files")
+_EXECUTABLE = ((b"\x7fELF", "an ELF executable or shared library"), (b"MZ", "a Windows executable"),
+               (b"\xcf\xfa\xed\xfe", "a Mach-O binary"), (b"\xfe\xed\xfa\xcf", "a Mach-O binary"),
+               (b"\xca\xfe\xba\xbe", "a Mach-O or Java binary"), (b"#!", "a script"))
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _is_text(head: bytes, complete: bool) -> bool:
+    if b"\0" in head:
+        return False
+    try:
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=complete)
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def sniff_kind(path: Path, name: str) -> str:
+    """The kind of ``path`` from its first bytes (one of ``ALLOWED_KINDS``); FileKindError for anything else.
+    ``name`` is the bundle-relative name used in messages."""
+    with path.open("rb") as fh:
+        head = fh.read(65536)
+        complete = len(head) < 65536
+    if not head:
+        return "empty"
+    for magic, what in _EXECUTABLE:
+        if head.startswith(magic):
+            raise FileKindError(f"{name}: is {what}; a scene bundle may hold only {_ALLOWED_WORDS}")
+    if head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return "png"
+    if head.startswith(b"\xff\xd8\xff"):
+        return "jpeg"
+    if head.startswith(b"v/1\x01"):
+        return "exr"
+    if head.startswith((b"#?RADIANCE", b"#?RGBE")):
+        return "hdr"
+    if re.match(rb"P[fF]\s", head):
+        return "pfm"
+    if re.match(rb"P[1-6]\s", head):
+        return "pnm"
+    if head.startswith(b"BM") and len(head) >= 26:
+        return "bmp"
+    if re.match(rb"ply\r?\n", head):
+        return "ply"
+    if head.startswith(b"\x1c\x04"):
+        return "serialized"
+    if head.startswith(b"VOL") and len(head) > 3 and head[3] == 3:
+        return "volume"
+    if head.startswith(b"tensor_file\0"):
+        return "tensor"
+    if _is_text(head, complete):
+        stripped = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+        return "xml" if stripped.startswith(b"<") else "text"
+    if path.suffix.lower() == ".tga" and _pillow_format(path) == "TGA":  # TGA has no magic bytes
+        return "tga"
+    raise FileKindError(f"{name}: unknown binary file; a scene bundle may hold only {_ALLOWED_WORDS}")
+
+
+def _pillow_format(path: Path) -> str | None:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return im.format
+    except Exception:  # noqa: BLE001 - Pillow raises many types for files it does not read
+        return None
+
+
+def obj_counts(path: Path) -> tuple[int, int]:
+    """(triangles, vertices) of a Wavefront OBJ, streaming its lines (polygons count as fans)."""
+    faces = verts = 0
+    with path.open("rb") as fh:
+        for line in fh:
+            s = line.lstrip()
+            if s[:2] in (b"f ", b"f\t"):
+                faces += max(1, len(s.split()) - 3)
+            elif s[:2] in (b"v ", b"v\t"):
+                verts += 1
+    return faces, verts
+
+
+def ply_counts(path: Path, name: str) -> tuple[int, int]:
+    """(faces, vertices) declared in a PLY header; refuses headers whose counts need more bytes than the file
+    holds (a tiny file declaring a billion faces would make the loader allocate for them)."""
+    size = path.stat().st_size
+    elements: list[list] = []  # [name, count, min binary bytes per item, values per item]
+    fmt = None
+    with path.open("rb") as fh:
+        if fh.readline(64).strip() != b"ply":
+            raise FileKindError(f"{name}: not a PLY file")
+        for _ in range(1000):
+            line = fh.readline(4096)
+            if not line:
+                raise FileKindError(f"{name}: PLY header has no end_header")
+            parts = line.split()
+            if not parts or parts[0] in (b"comment", b"obj_info"):
+                continue
+            if parts[0] == b"end_header":
+                break
+            try:
+                if parts[0] == b"format":
+                    fmt = parts[1].decode()
+                elif parts[0] == b"element":
+                    n = int(parts[2])
+                    if n < 0:
+                        raise ValueError
+                    elements.append([parts[1].decode(errors="replace"), n, 0, 0])
+                elif parts[0] == b"property" and elements:
+                    if parts[1] == b"list":  # count type, item type: at least the count plus 3 indices
+                        elements[-1][2] += _PLY_SIZES[parts[2].decode()] + 3 * _PLY_SIZES[parts[3].decode()]
+                        elements[-1][3] += 4
+                    else:
+                        elements[-1][2] += _PLY_SIZES[parts[1].decode()]
+                        elements[-1][3] += 1
+            except (IndexError, ValueError, KeyError, UnicodeError):
+                raise FileKindError(f"{name}: malformed PLY header line {line[:60]!r}") from None
+        else:
+            raise FileKindError(f"{name}: PLY header too long")
+    counts = {e[0]: e[1] for e in elements}
+    if fmt is None:
+        raise FileKindError(f"{name}: PLY header has no format line")
+    # ASCII needs at least 2 bytes (digit + separator) per value, binary the property sizes.
+    need = sum(e[1] * (2 * e[3] if fmt == "ascii" else e[2]) for e in elements)
+    if need > size:
+        raise FileKindError(f"{name}: PLY header declares {counts} elements needing at least {need} bytes, but "
+                            f"the file holds {size}")
+    return counts.get("face", 0), counts.get("vertex", 0)
+
+
+def _exr_pixels(path: Path, name: str) -> int:
+    with path.open("rb") as fh:
+        head = fh.read(65536)
+    pos = 8
+    while pos < len(head):
+        end = head.find(b"\0", pos)
+        if end < 0 or end == pos:
+            break
+        attr = head[pos:end]
+        tend = head.find(b"\0", end + 1)
+        if tend < 0 or tend + 5 > len(head):
+            break
+        (size,) = struct.unpack("<i", head[tend + 1:tend + 5])
+        value = head[tend + 5:tend + 5 + size]
+        if attr == b"dataWindow" and len(value) == 16:
+            x0, y0, x1, y1 = struct.unpack("<4i", value)
+            return max(0, x1 - x0 + 1) * max(0, y1 - y0 + 1)
+        pos = tend + 5 + max(size, 0)
+    raise FileKindError(f"{name}: OpenEXR header without a readable dataWindow")
+
+
+def _hdr_pixels(path: Path, name: str) -> int:
+    with path.open("rb") as fh:
+        for _ in range(200):
+            line = fh.readline(4096)
+            if not line:
+                break
+            m = re.match(rb"^([-+])([YX]) (\d{1,9}) ([-+])([YX]) (\d{1,9})\s*$", line)
+            if m:
+                return int(m.group(3)) * int(m.group(6))
+    raise FileKindError(f"{name}: Radiance HDR header without a resolution line")
+
+
+def _pfm_pixels(path: Path, name: str) -> int:
+    with path.open("rb") as fh:
+        tokens = fh.read(256).split()
+    try:
+        if tokens[0] not in (b"PF", b"Pf") or len(tokens[1]) > 9 or len(tokens[2]) > 9:
+            raise ValueError
+        return int(tokens[1]) * int(tokens[2])
+    except (IndexError, ValueError):
+        raise FileKindError(f"{name}: malformed PFM header") from None
+
+
+def image_pixels(path: Path, name: str, kind: str, *, max_pixels: int) -> int:
+    """Pixels an image of ``kind`` declares in its header (the pixels are never decoded)."""
+    if kind == "exr":
+        return _exr_pixels(path, name)
+    if kind == "hdr":
+        return _hdr_pixels(path, name)
+    if kind == "pfm":
+        return _pfm_pixels(path, name)
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:  # parses the header only; pixels are decoded on load()
+            w, h = im.size
+    except Image.DecompressionBombError:
+        raise FileKindError(f"{name}: image declares more than {max_pixels} pixels") from None
+    except Exception:  # noqa: BLE001 - Pillow raises many types for damaged files
+        raise FileKindError(f"{name}: not a readable image") from None
+    return int(w) * int(h)
