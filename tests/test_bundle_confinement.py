@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from holocore.bundle import BundleError, BundleLimits, validate_bundle
+from tests.project_scenes import SCENE_SOURCES
 
 SCENE = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="30"/></sensor>
@@ -30,11 +31,14 @@ def bundle(tmp_path: Path, body: str, files: dict[str, bytes] | None = None) -> 
 OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 
 
-def test_shared_scenes_pass(shared_scenes):
+@pytest.mark.parametrize("source", SCENE_SOURCES)
+def test_scene_bundles_pass(bundles_by_source, source):
+    bundles = bundles_by_source[source]
     for name in ("cbox-mirror-glass", "veach-bidir", "veach-mis"):
-        rep = validate_bundle(shared_scenes / name)
+        rep = validate_bundle(bundles.folder(name), entry=bundles.entry(name).name)
         assert rep.entry.suffix == ".xml" and rep.sha256 and rep.total_bytes > 0
-    assert "shape:obj" in validate_bundle(shared_scenes / "cbox-mirror-glass").plugins
+    cbox = validate_bundle(bundles.folder("cbox-mirror-glass"))
+    assert "shape:obj" in cbox.plugins and "meshes/cbox_floor.obj" in cbox.files and cbox.entry.name == "cbox.xml"
 
 
 def test_relative_mesh_inside_passes_and_hash_is_content_addressed(tmp_path):

@@ -1,4 +1,5 @@
-"""EffectPlan on the shared scenes, and planned vs forced renders (issue 3, DESIGN.md §8)."""
+"""EffectPlan on the scene bundles (the project's stand-ins always, ../shared's third-party scenes when
+present), and planned vs forced renders (issue 3, DESIGN.md §8)."""
 
 from __future__ import annotations
 
@@ -8,17 +9,18 @@ import pytest
 from holocore.config import OpticsConfig
 from holocore.pipeline import RenderOptions, plan_scene, render_loaded
 from holocore.scene import load_scene
+from tests.project_scenes import SCENE_SOURCES
 from tests.tracer.scenes import T, camera, scene
 
 OPT = OpticsConfig(resolution_hw=(32, 32), frames=2, fit_camera_fov=True)  # f from the scene camera: the whole view
 
 
-@pytest.fixture(scope="module")
-def plans(shared_scenes):
+@pytest.fixture(scope="module", params=SCENE_SOURCES)
+def plans(request, bundles_by_source):
+    bundles = bundles_by_source[request.param]
     out = {}
-    for key, rel in {"cbox": "cbox-mirror-glass/cbox.xml", "bidir": "veach-bidir/scene.xml",
-                     "mis": "veach-mis/integrator_direct_both.xml"}.items():
-        out[key] = plan_scene(load_scene(shared_scenes / rel), OPT, RenderOptions(preset="balanced"))
+    for key, name in {"cbox": "cbox-mirror-glass", "bidir": "veach-bidir", "mis": "veach-mis"}.items():
+        out[key] = plan_scene(load_scene(bundles.entry(name)), OPT, RenderOptions(preset="balanced"))
     return out
 
 
@@ -48,8 +50,9 @@ def test_veach_mis_plan_has_no_coherent_loop(plans):
     assert any("first hit is the image point" in s for s in plan.summary)
 
 
-def test_forcing_turns_everything_on(shared_scenes):
-    pl = plan_scene(load_scene(shared_scenes / "veach-mis/integrator_direct_both.xml"),
+@pytest.mark.parametrize("source", SCENE_SOURCES)
+def test_forcing_turns_everything_on(bundles_by_source, source):
+    pl = plan_scene(load_scene(bundles_by_source[source].entry("veach-mis")),
                     OpticsConfig(resolution_hw=(16, 16), focal_length_mm=20.0, frames=1),
                     RenderOptions(preset="fast", force_all_effects=True))
     p = pl["plan"]

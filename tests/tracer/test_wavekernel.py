@@ -1,5 +1,6 @@
 """The fused wave-path kernel against the reference implementation (first hit, delta chain, then Mitsuba's
-``path`` from the last chain vertex) on the shared cbox with its mirror and glass spheres."""
+``path`` from the last chain vertex) on the cbox with its mirror and glass spheres: the project's own
+(holocore.demo_scene.write_cbox_scene) and ../shared's when present."""
 
 from __future__ import annotations
 
@@ -8,18 +9,20 @@ import math
 import numpy as np
 import pytest
 
+from tests.project_scenes import SCENE_SOURCES
+
 R = 128 * 128 * 32  # a 128 x 128 image, 32 rays a pixel
 
 
-@pytest.fixture(scope="module")
-def both(shared_scenes):
+@pytest.fixture(scope="module", params=SCENE_SOURCES)
+def both(request, bundles_by_source):
     from holocore.mitsuba_env import mitsuba
     from holocore.scene import load_scene
     from holocore.wavekernel import trace_wave_paths
     from holocore.wavetrace import aligned, trace_chain
 
     mi = mitsuba()
-    loaded = load_scene(shared_scenes / "cbox-mirror-glass" / "cbox.xml")
+    loaded = load_scene(bundles_by_source[request.param].entry("cbox-mirror-glass"))
     M = np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
     rng = np.random.default_rng(0)
     tan = math.tan(math.radians(loaded.fov_x_deg) / 2)
