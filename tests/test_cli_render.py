@@ -4,6 +4,7 @@ scene; RESULT.npz must open with numpy alone."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -41,6 +42,9 @@ def test_render_writes_a_numpy_readable_result(demo, tmp_path):
         assert key in meta
     assert meta["wavelengths_m"] == pytest.approx([640e-9, 516.5e-9, 455.4e-9])
     assert meta["focal_length_m"] == pytest.approx(0.02)
+    assert meta["display_profile"] == "paper" and meta["display"]["fourier_filter"] is True
+    assert sorted(meta["display"]["overridden"]) == ["focal_length_mm", "frames", "resolution_hw"]
+    assert meta["field_of_view"]["hologram_fov_x_deg"] == pytest.approx(2 * math.degrees(math.atan(32 * 8e-6 / 0.04)))
     assert meta["plan"]["summary"] and meta["timings"]["total_s"] > 0 and meta["versions"]["mitsuba"]
     assert any("mirror" in s for s in meta["plan"]["summary"])
     stages = [json.loads(line)["stage"] for line in progress.read_text().splitlines()]
