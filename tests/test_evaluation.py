@@ -290,7 +290,7 @@ def test_holo_evaluate_and_baseline_cli(cbox, tmp_path, shared_scenes):
     assert (tmp_path / "ev" / "focus_sheet.png").is_file() and "mean over 8 cells" in p.stdout
     out = tmp_path / "L.npz"
     p = run("baseline", "layers", scene, "--out", out, "--planes", 3, "--spp", 4, "--resolution", "24x32",
-            "--frames", 2, "--z-inf-mm", 2)
+            "--frames", 2, "--z-inf-mm", 2, "--fit-camera-fov")  # the whole box, as the cbox render above
     assert p.returncode == 0, p.stderr
     field, meta, kind = load_slm_field(out)
     assert kind == "result" and field.shape == (2, 3, 24, 32) and len(meta["layers"]["plane_z_m"]) == 3
