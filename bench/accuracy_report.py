@@ -136,7 +136,7 @@ def default_specs(shape_hw: tuple[int, int], work: Path, quick: bool) -> list[Sc
     fov = 2 * math.degrees(math.atan(W * pitch_um * 1e-3 / (2 * f_mm)))
     cards = write_mirror_cards(work / "mirror-cards", fov_deg=fov)
     specs = [
-        SceneSpec("cbox", SHARED / "cbox-mirror-glass", {"z_inf_mm": 4.0}, 0.5,
+        SceneSpec("cbox", SHARED / "cbox-mirror-glass", {"z_inf_mm": 4.0, "fit_camera_fov": True}, 0.5,
                   {"wrp/balanced": [16, 64, 256], "wrp/fast": [16, 64, 256], "direct/balanced": [64, 256, 1024]},
                   {"wrp/balanced": 64, "wrp/fast": 64, "direct/balanced": 256}, ref_spp=1024),
         SceneSpec("mirror-cards", cards, {"z_inf_mm": 4.0, "focal_length_mm": f_mm}, 0.25,
