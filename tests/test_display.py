@@ -244,3 +244,12 @@ def test_bad_display_options_are_one_line_errors(wide_scene, tmp_path, args, wor
         assert words in p.stderr and "Traceback" not in p.stderr
         assert len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_display_profile_command_shows_and_writes_a_profile(tmp_path):
+    p = run("display-profile", "paper", "--out", tmp_path / "mine.toml")
+    assert p.returncode == 0, p.stderr
+    assert "f = 50 mm" in p.stdout and "17.5 deg" in p.stdout and "80.25, 82.78, 85 mm" in p.stdout
+    assert load_display(tmp_path / "mine.toml") == PAPER
+    bad = run("display-profile", "nope")
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "unknown display" in bad.stderr
