@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List
+from typing import List, Optional
 
 import typer
 
@@ -29,12 +29,17 @@ def create(
     data_dir: Path = typer.Option(..., "--data-dir", help="The service's data folder."),
     scope: List[str] = typer.Option(..., "--scope", help="submit | read | admin | agent (repeat for several)."),
     name: str = typer.Option("", "--name", help="A label for the token (at most 100 characters)."),
+    owner: str = typer.Option("default", "--owner", help="Whose scenes, jobs and displays the token sees and "
+                                                        "makes (a lab or a person; tokens of one owner share)."),
+    expires_days: Optional[float] = typer.Option(None, "--expires-days", help="Days until the token stops working "
+                                                                             "(default: until revoked)."),
 ) -> None:
     """Create a token and print it (only its hash is stored: keep the printed value)."""
     from service.auth import create_token
 
     try:
-        _, token = create_token(_db(data_dir), scopes=scope, name=name)
+        _, token = create_token(_db(data_dir), scopes=scope, name=name, owner=owner,
+                                expires_in_s=None if expires_days is None else expires_days * 86400.0)
     except ValueError as exc:
         fail(str(exc))
     print(token)
@@ -46,7 +51,11 @@ def list_(data_dir: Path = typer.Option(..., "--data-dir", help="The service's d
     from service.auth import list_tokens
 
     for t in list_tokens(_db(data_dir)):
-        print(f"{t['id']}  {','.join(t['scopes']):<24} {'revoked' if t['revoked'] else 'active ':<8} {t['name']}")
+        import time
+
+        state = "revoked" if t["revoked"] else ("expired" if t["expires_at"] and t["expires_at"] <= time.time()
+                                                else "active")
+        print(f"{t['id']}  {','.join(t['scopes']):<24} {state:<8} {t['owner']:<16} {t['name']}")
 
 
 @token_app.command("revoke")

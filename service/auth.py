@@ -1,12 +1,18 @@
 """Bearer tokens with scopes, stored hashed (sha256 of a 256-bit random secret; the secret is shown once).
 
 Scopes: ``read`` (list and download), ``submit`` (upload scenes, submit and cancel jobs; implies read),
-``agent`` (read + display heartbeats) and ``admin`` (everything).
+``agent`` (read + display heartbeats) and ``admin`` (everything, for every owner).
+
+Every token has an *owner* (a lab or a person; ``default`` unless given): scenes, jobs and displays belong to
+the owner of the token that made them, and only tokens of that owner (or admin tokens) see or change them.
+Tokens may expire (``expires_at``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
+import re
 import secrets
 import time
 from dataclasses import dataclass
@@ -14,11 +20,15 @@ from typing import Iterable, Optional
 
 from service.db import Database
 
-__all__ = ["SCOPES", "Principal", "create_token", "verify_token", "revoke_token", "list_tokens", "allows"]
+__all__ = ["SCOPES", "DEFAULT_OWNER", "Principal", "create_token", "verify_token", "revoke_token", "list_tokens", "allows"]
 
 SCOPES = ("submit", "read", "admin", "agent")
 _IMPLIES = {"admin": set(SCOPES), "submit": {"submit", "read"}, "agent": {"agent", "read"}, "read": {"read"}}
 _PREFIX = "hpt_"
+
+
+_OWNER = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+DEFAULT_OWNER = "default"
 
 
 @dataclass(frozen=True)
@@ -26,6 +36,15 @@ class Principal:
     token_id: str
     name: str
     scopes: frozenset[str]
+    owner: str = DEFAULT_OWNER
+
+    @property
+    def is_admin(self) -> bool:
+        return "admin" in self.scopes
+
+    def sees(self, owner: Optional[str]) -> bool:
+        """Whether this token may see and act on something that belongs to ``owner`` (None: the default)."""
+        return self.is_admin or (owner or DEFAULT_OWNER) == self.owner
 
 
 def _hash(token: str) -> str:
@@ -37,8 +56,10 @@ def allows(scopes: Iterable[str], needed: str) -> bool:
     return any(needed in _IMPLIES.get(s, set()) for s in scopes)
 
 
-def create_token(db: Database, *, scopes: Iterable[str], name: str = "") -> tuple[str, str]:
-    """Create a token; returns (token id, secret token string). Only its sha256 is stored."""
+def create_token(db: Database, *, scopes: Iterable[str], name: str = "", owner: str = DEFAULT_OWNER,
+                 expires_in_s: Optional[float] = None) -> tuple[str, str]:
+    """Create a token of ``owner``, valid for ``expires_in_s`` seconds (None: until revoked); returns (token
+    id, secret token string). Only its sha256 is stored."""
     scopes = sorted(set(scopes))
     if not scopes:
         raise ValueError(f"scopes: give at least one of {', '.join(SCOPES)}")
@@ -47,23 +68,30 @@ def create_token(db: Database, *, scopes: Iterable[str], name: str = "") -> tupl
         raise ValueError(f"scopes: unknown {bad}; allowed: {', '.join(SCOPES)}")
     if len(name) > 100:
         raise ValueError("name must be at most 100 characters")
+    if not isinstance(owner, str) or not _OWNER.match(owner):
+        raise ValueError("owner: 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit")
+    if expires_in_s is not None and not (math.isfinite(expires_in_s) and 0 < expires_in_s <= 10 * 365 * 86400):
+        raise ValueError("expiry must be more than 0 s and at most 10 years")
     token_id = secrets.token_hex(6)
     token = f"{_PREFIX}{token_id}_{secrets.token_urlsafe(32)}"
     import json
 
-    db.execute("INSERT INTO tokens (id, hash, name, scopes, created_at) VALUES (?, ?, ?, ?, ?)",
-               (token_id, _hash(token), name, json.dumps(scopes), time.time()))
+    now = time.time()
+    db.execute("INSERT INTO tokens (id, hash, name, scopes, created_at, owner, expires_at) VALUES (?, ?, ?, ?, ?, "
+               "?, ?)", (token_id, _hash(token), name, json.dumps(scopes), now, owner,
+                         None if expires_in_s is None else now + expires_in_s))
     return token_id, token
 
 
 def verify_token(db: Database, token: Optional[str]) -> Optional[Principal]:
-    """The token's principal, or None for an unknown, malformed or revoked token."""
+    """The token's principal, or None for an unknown, malformed, expired or revoked token."""
     if not token or len(token) > 200 or not token.startswith(_PREFIX):
         return None
-    row = db.one("SELECT id, name, scopes, revoked FROM tokens WHERE hash = ?", (_hash(token),))
-    if row is None or row["revoked"]:
+    row = db.one("SELECT id, name, scopes, revoked, owner, expires_at FROM tokens WHERE hash = ?", (_hash(token),))
+    if row is None or row["revoked"] or (row["expires_at"] is not None and row["expires_at"] <= time.time()):
         return None
-    return Principal(token_id=row["id"], name=row["name"], scopes=frozenset(row["scopes"]))
+    return Principal(token_id=row["id"], name=row["name"], scopes=frozenset(row["scopes"]),
+                     owner=row["owner"] or DEFAULT_OWNER)
 
 
 def revoke_token(db: Database, token_id: str) -> bool:
@@ -71,4 +99,5 @@ def revoke_token(db: Database, token_id: str) -> bool:
 
 
 def list_tokens(db: Database) -> list[dict]:
-    return db.query("SELECT id, name, scopes, created_at, revoked FROM tokens ORDER BY created_at")
+    return db.query("SELECT id, name, scopes, created_at, revoked, COALESCE(owner, 'default') AS owner, expires_at "
+                    "FROM tokens ORDER BY created_at")

@@ -41,7 +41,12 @@ CREATE TABLE IF NOT EXISTS idempotency (
 CREATE TABLE IF NOT EXISTS displays (
     name TEXT PRIMARY KEY, last_seen REAL NOT NULL, agent_version TEXT, showing TEXT, state TEXT,
     message TEXT, token_id TEXT);
+CREATE TABLE IF NOT EXISTS scene_owners (
+    scene_id TEXT NOT NULL, owner TEXT NOT NULL, created_at REAL NOT NULL, PRIMARY KEY (scene_id, owner));
 """
+# Columns added after the first release (tenancy, token expiry): added in place to older databases.
+_ADDED_COLUMNS = {"tokens": {"owner": "TEXT", "expires_at": "REAL"}, "jobs": {"owner": "TEXT"},
+                  "displays": {"owner": "TEXT"}}
 
 _JSON_COLS = {"report", "plan", "spec", "progress", "timings", "estimate", "scopes", "showing", "artifacts"}
 
@@ -61,6 +66,18 @@ class Database:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
         self._conn().executescript(_SCHEMA)
+        self._migrate()
+
+    def _migrate(self) -> None:
+        conn = self._conn()
+        for table, cols in _ADDED_COLUMNS.items():
+            have = {r["name"] for r in conn.execute(f"PRAGMA table_info({table})").fetchall()}
+            for col, kind in cols.items():
+                if col not in have:
+                    try:
+                        conn.execute(f"ALTER TABLE {table} ADD COLUMN {col} {kind}")
+                    except sqlite3.OperationalError:  # a concurrent process added it first
+                        pass
 
     def _conn(self) -> sqlite3.Connection:
         conn = getattr(self._local, "conn", None)
@@ -136,9 +153,11 @@ class Database:
             "ORDER BY created_at, rowid LIMIT 1) AND state = 'queued' RETURNING *", (now, now))
 
     def list_jobs(self, *, state: Optional[str] = None, display: Optional[str] = None,
-                  scene_id: Optional[str] = None, limit: int = 50) -> list[dict]:
+                  scene_id: Optional[str] = None, owner: Optional[str] = None, limit: int = 50) -> list[dict]:
+        """Jobs newest first; ``owner`` limits them to one owner's (None: everyone's)."""
         where, params = [], []
-        for col, value in (("state", state), ("display", display), ("scene_id", scene_id)):
+        for col, value in (("state", state), ("display", display), ("scene_id", scene_id),
+                           ("COALESCE(owner, 'default')", owner)):
             if value is not None:
                 where.append(f"{col} = ?")
                 params.append(value)
@@ -172,6 +191,39 @@ class Database:
             sql += " AND plan_state = :_ps"
             params["_ps"] = where_plan_state
         return self.execute(sql, params) > 0
+
+    def add_scene_owner(self, scene_id: str, owner: str) -> bool:
+        """Record that ``owner`` uploaded ``scene_id``; False when it had already."""
+        return self.execute("INSERT OR IGNORE INTO scene_owners (scene_id, owner, created_at) VALUES (?, ?, ?)",
+                            (scene_id, owner, time.time())) > 0
+
+    def scene_owned_by(self, scene_id: str, owner: str) -> bool:
+        return self.one("SELECT 1 AS ok FROM scene_owners WHERE scene_id = ? AND owner = ?",
+                        (scene_id, owner)) is not None
+
+    # ---- displays --------------------------------------------------------------------------------------
+    def display_owner(self, name: str) -> Optional[str]:
+        row = self.one("SELECT owner FROM displays WHERE name = ?", (name,))
+        return None if row is None else (row["owner"] or "default")
+
+    def claim_display(self, name: str, owner: str, token_id: str) -> Optional[str]:
+        """Register display ``name`` to ``owner`` unless another owner holds it; returns the owner that holds it."""
+        self.execute("INSERT OR IGNORE INTO displays (name, last_seen, owner, token_id) VALUES (?, ?, ?, ?)",
+                     (name, time.time(), owner, token_id))
+        self.execute("UPDATE displays SET owner = ? WHERE name = ? AND owner IS NULL", (owner, name))
+        return self.display_owner(name)
+
+    def heartbeat(self, name: str, *, agent_version: str, showing: Optional[dict], state: str, message: str,
+                  token_id: str) -> None:
+        self.execute("UPDATE displays SET last_seen = ?, agent_version = ?, showing = ?, state = ?, message = ?, "
+                     "token_id = ? WHERE name = ?", (time.time(), agent_version,
+                                                     json.dumps(showing) if showing is not None else None, state,
+                                                     message, token_id, name))
+
+    def list_displays(self, *, owner: Optional[str] = None) -> list[dict]:
+        if owner is None:
+            return self.query("SELECT * FROM displays ORDER BY name")
+        return self.query("SELECT * FROM displays WHERE COALESCE(owner, 'default') = ? ORDER BY name", (owner,))
 
     def claim_next_plan(self) -> Optional[dict]:
         return self.one("UPDATE scenes SET plan_state = 'running', plan_updated_at = ? WHERE id = (SELECT id FROM "

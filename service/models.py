@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -14,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from holocore.config import OpticsConfig
 from service.settings import JobLimits
 
-__all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
+__all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
            "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "cache_key", "effective_optics",
            "estimate_cost"]
 
@@ -95,6 +96,7 @@ class SceneOut(BaseModel):
 
 class DisplayOut(BaseModel):
     name: str
+    owner: Optional[str] = None
     last_seen: str
     age_s: float
     agent_version: Optional[str] = None
@@ -122,6 +124,34 @@ def effective_optics(req: JobRequest) -> OpticsConfig:
     if req.frames is None:
         return req.optics
     return req.optics.model_copy(update={"frames": req.frames})
+
+
+# Physical bounds of the numbers a display may have: legal but absurd values (a pitch of 1e-300 um) overflow
+# in the numerics long after submit, so they are refused here, in the user's units.
+_PITCH_UM = (0.01, 1000.0)
+_LENGTH_MM = (0.001, 10_000.0)
+_FOV_DEG = (0.001, 179.0)
+
+
+def optics_sanity_errors(o: OpticsConfig) -> list[str]:
+    """Why a display's numbers cannot describe a real display (empty when they can)."""
+    errs = []
+    if not _PITCH_UM[0] <= o.pitch_um <= _PITCH_UM[1]:
+        errs.append(f"optics.pitch_um: must be in {_PITCH_UM[0]}..{_PITCH_UM[1]} um, got {o.pitch_um:g}")
+    if not _LENGTH_MM[0] <= o.z_inf_mm <= _LENGTH_MM[1]:
+        errs.append(f"optics.z_inf_mm: must be in {_LENGTH_MM[0]}..{_LENGTH_MM[1]} mm, got {o.z_inf_mm:g}")
+    if o.focal_length_mm is not None and not _LENGTH_MM[0] <= o.focal_length_mm <= _LENGTH_MM[1]:
+        errs.append(f"optics.focal_length_mm: must be in {_LENGTH_MM[0]}..{_LENGTH_MM[1]} mm, got "
+                    f"{o.focal_length_mm:g}")
+    if o.fov_x_deg is not None:
+        if not _FOV_DEG[0] <= o.fov_x_deg <= _FOV_DEG[1]:
+            errs.append(f"optics.fov_x_deg: must be in {_FOV_DEG[0]}..{_FOV_DEG[1]} degrees, got {o.fov_x_deg:g}")
+        elif not errs:
+            f_mm = o.focal_length_m(o.fov_x_deg) * 1e3
+            if not (math.isfinite(f_mm) and _LENGTH_MM[0] <= f_mm <= _LENGTH_MM[1]):
+                errs.append(f"optics.fov_x_deg: {o.fov_x_deg:g} degrees on this SLM means an eyepiece f of {f_mm:.3g} "
+                            f"mm, outside {_LENGTH_MM[0]}..{_LENGTH_MM[1]} mm")
+    return errs
 
 
 def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 
 from service.settings import ServiceSettings
 
@@ -17,7 +18,16 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
 
     logging.basicConfig(level=getattr(logging, log_level.upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from service.http_timeouts import header_timeout_protocol
+
+    from service.workers.engine import resolve_sandbox
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    if resolve_sandbox(settings) is not None:  # raises SandboxUnavailable when --sandbox on cannot be honoured
+        os.umask(0o077)  # what the server creates is its own; folders sandbox users enter are opened explicitly
     app = create_app(settings)
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level,
-                            timeout_graceful_shutdown=3, proxy_headers=False, server_header=False)
+                            timeout_graceful_shutdown=3, proxy_headers=False, server_header=False,
+                            http=header_timeout_protocol(settings.header_timeout_s),
+                            timeout_keep_alive=settings.keepalive_timeout_s)
     uvicorn.Server(config).run()

@@ -64,6 +64,20 @@ class ServiceSettings(BaseModel):
     keep_result: bool = Field(default=True, description="Keep RESULT.npz (complex fields) after encoding.")
     job_limits: JobLimits = JobLimits()
     upload_limits: UploadLimits = UploadLimits()
+    # Privilege separation (issue 10 item 1; service/workers/engine.py, docs/service.md "Privilege separation").
+    sandbox: str = Field(default="auto", pattern=r"^(auto|on|off|[0-9]{1,10})$",
+                         description="Run scene planning and jobs as unprivileged uids: auto (when root and "
+                                     "possible), on (mandatory), off, or a uid base (on, with that base).")
+    sandbox_uid_base: int = Field(default=61000, ge=1, le=2 ** 31 - 300, description="Planner uid; job slot k "
+                                                                                       "runs as base + 1 + k.")
+    # Connections and authentication (issue 10 item 6).
+    header_timeout_s: float = Field(default=10.0, gt=0, le=600, description="Time a client has to send a request's "
+                                                                            "headers; slower connections are closed.")
+    keepalive_timeout_s: float = Field(default=5.0, gt=0, le=600, description="Idle keep-alive connections close "
+                                                                             "after this.")
+    auth_failures_per_minute: int = Field(default=60, ge=1, description="Failed authentications a client address "
+                                                                       "may make per minute before it gets 429.")
+    metrics_public: bool = Field(default=False, description="Serve /metrics without a token (else: scope read).")
 
     @field_validator("data_dir")
     @classmethod
@@ -82,6 +96,11 @@ class ServiceSettings(BaseModel):
     def jobs_dir(self) -> Path:
         return self.data_dir / "jobs"
 
+    @property
+    def sandbox_dir(self) -> Path:
+        """Folders of sandboxed scene planning (``plan-<scene>/``)."""
+        return self.data_dir / "sandbox"
+
     @classmethod
     def from_env(cls, **overrides) -> "ServiceSettings":
         """Settings from ``HOLO_*`` variables, then explicit overrides (None = keep)."""
@@ -89,7 +108,11 @@ class ServiceSettings(BaseModel):
         data: dict = {}
         for key, var in (("data_dir", "HOLO_DATA_DIR"), ("host", "HOLO_HOST"), ("port", "HOLO_PORT"),
                          ("workers", "HOLO_WORKERS"), ("engine", "HOLO_ENGINE"), ("ray_address", "HOLO_RAY_ADDRESS"),
-                         ("ray_gpus_per_job", "HOLO_RAY_GPUS"), ("max_attempts", "HOLO_MAX_ATTEMPTS")):
+                         ("ray_gpus_per_job", "HOLO_RAY_GPUS"), ("max_attempts", "HOLO_MAX_ATTEMPTS"),
+                         ("sandbox", "HOLO_SANDBOX"),
+                         ("header_timeout_s", "HOLO_HEADER_TIMEOUT_S"),
+                         ("auth_failures_per_minute", "HOLO_AUTH_FAILURES_PER_MINUTE"),
+                         ("metrics_public", "HOLO_METRICS_PUBLIC")):
             if env.get(var):
                 data[key] = env[var]
         upload_mb = overrides.pop("max_upload_mb", None) or env.get("HOLO_MAX_UPLOAD_MB")

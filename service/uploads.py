@@ -46,6 +46,11 @@ def safe_member_path(name: str) -> PurePosixPath:
         raise UploadError(f"file name {name[:80]!r}: '..' would leave the bundle")
     if not parts:
         raise UploadError(f"file name {name[:80]!r} names no file")
+    long = next((p for p in parts if len(p.encode("utf-8", "surrogateescape")) > 255), None)
+    if long is not None:
+        raise UploadError(f"file name {name[:80]!r}...: a folder or file name is longer than 255 bytes")
+    if len(parts) > 32:
+        raise UploadError(f"file name {name[:80]!r}...: nested deeper than 32 folders")
     return PurePosixPath(*parts)
 
 
@@ -68,9 +73,17 @@ def _copy_with_budget(src: BinaryIO, dest: Path, *, declared: int | None, budget
 def _target(staging: Path, rel: PurePosixPath) -> Path:
     dest = staging.joinpath(*rel.parts)
     parent = dest.parent
-    parent.mkdir(parents=True, exist_ok=True)
+    for i in range(1, len(rel.parts)):  # a folder on the way that is a file already: d, then d/e.txt
+        if staging.joinpath(*rel.parts[:i]).is_file():
+            raise UploadError(f"file name {rel}: {PurePosixPath(*rel.parts[:i])} is a file and a folder")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UploadError(f"file name {rel}: cannot be created ({exc.strerror or type(exc).__name__})") from None
     if not parent.resolve().is_relative_to(staging.resolve()):
         raise UploadError(f"file name {rel}: leaves the bundle")
+    if dest.is_dir():
+        raise UploadError(f"file name {rel}: is a file and a folder")
     if dest.exists():
         raise UploadError(f"file name {rel}: given twice")
     return dest

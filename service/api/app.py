@@ -8,12 +8,13 @@ import os
 import time
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from service.api import displays, jobs, scenes
 from service.api.context import ServiceContext
+from service.api.deps import require
 from service.api.problems import install_handlers, problem
 from service.db import Database
 from service.metrics import Metrics
@@ -50,25 +51,35 @@ class _Guard:
             self._record(scope, 413, t0)
             return
         seen = 0
+        over = {"limit": False, "started": False}
 
         async def limited_receive():
             nonlocal seen
+            if over["limit"]:
+                return {"type": "http.disconnect"}
             message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
-                if seen > limit:
-                    raise _TooLarge()
+                if seen > limit:  # a streamed (chunked) body: the app sees a disconnect, the client a 413
+                    over["limit"] = True
+                    return {"type": "http.disconnect"}
             return message
 
         async def recording_send(message):
+            if over["limit"] and not over["started"]:
+                return  # whatever the app answers to the cut body, the client gets the 413 below
             if message["type"] == "http.response.start":
+                over["started"] = True
                 status["code"] = message["status"]
                 self._record(scope, message["status"], t0)
             await send(message)
 
         try:
             await self.app(scope, limited_receive, recording_send)
-        except _TooLarge:
+        except Exception:  # noqa: BLE001 - the app's reaction to the cut body
+            if not over["limit"]:
+                raise
+        if over["limit"] and not over["started"]:
             resp = problem(413, f"request body is larger than the limit of {limit} bytes")
             await resp(scope, receive, send)
             self._record(scope, 413, t0)
@@ -79,9 +90,6 @@ class _Guard:
         m = self.ctx.metrics
         m.requests.labels(method=scope.get("method", "?"), route=path, status=str(code)).inc()
         m.latency.labels(route=path).observe(time.perf_counter() - t0)
-
-class _TooLarge(Exception):
-    pass
 
 def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=None) -> FastAPI:
     """The service app. With ``start_workers`` its lifespan locks the data dir and runs the scheduler and the
@@ -138,9 +146,11 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
         ok = all(checks.values())
         return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
 
-    @app.get("/metrics", tags=["health"], response_class=Response)
+    metrics_auth = [] if settings.metrics_public else [Depends(require("read"))]
+
+    @app.get("/metrics", tags=["health"], response_class=Response, dependencies=metrics_auth)
     def metrics() -> Response:
-        """Prometheus metrics."""
+        """Prometheus metrics (a token with scope read, unless the server runs with metrics public)."""
         return Response(generate_latest(ctx.metrics.registry), media_type=CONTENT_TYPE_LATEST)
 
     _add_problem_schema(app)

@@ -19,13 +19,18 @@ class Unsatisfiable(Exception):
     pass
 
 
+def _num(digits: str) -> str:
+    """Digits as they are, or 10^19 for longer numbers (past the end of any file; int() refuses 4300+ digits)."""
+    return digits if len(digits) <= 19 else str(10**19)
+
+
 def parse_range(header: str, size: int) -> Optional[tuple[int, int]]:
     """(first, last) byte of a single ``bytes=`` range; None to ignore the header (malformed or several
     ranges: the whole file is sent); raises Unsatisfiable when the range starts past the end."""
     m = re.fullmatch(r"\s*bytes\s*=\s*(\d*)\s*-\s*(\d*)\s*", header)
     if not m or (not m.group(1) and not m.group(2)):
         return None
-    a, b = m.group(1), m.group(2)
+    a, b = _num(m.group(1)), _num(m.group(2))
     if a:
         first = int(a)
         last = min(int(b), size - 1) if b else size - 1

@@ -24,8 +24,9 @@ from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
 from service.auth import Principal
 from service.db import FINAL_STATES
+from service.integrity import artifact_intact
 from service.models import (ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest, cache_key, effective_optics,
-                            estimate_cost, job_limit_errors)
+                            estimate_cost, job_limit_errors, optics_sanity_errors)
 
 __all__ = ["router", "job_out"]
 
@@ -50,9 +51,10 @@ def job_out(row: dict) -> dict:
             "reused_from": row["reused_from"], "cache_key": row["cache_key"], "links": links}
 
 
-def _get(ctx: ServiceContext, job_id: str) -> dict:
+def _get(ctx: ServiceContext, job_id: str, principal: Optional[Principal] = None) -> dict:
+    """The job, or 404 when it does not exist or belongs to another owner (the same answer: no leak)."""
     row = ctx.db.get_job(job_id)
-    if row is None:
+    if row is None or (principal is not None and not principal.sees(row.get("owner"))):
         raise ApiError(404, f"no job {job_id!r}")
     return row
 
@@ -65,10 +67,12 @@ def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
 
 
 def _reusable(ctx: ServiceContext, key: str) -> Optional[dict]:
+    """The newest succeeded job with the same content address whose artifacts all still match their hashes."""
     for prev in ctx.db.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
                              "ORDER BY finished_at DESC LIMIT 5", (key,)):
         d = Path(prev["artifact_dir"] or "")
-        if prev["stack_sha256"] and (d / "stack.npz").is_file():
+        others = [(d / name, info.get("sha256")) for name, info in (prev["artifacts"] or {}).items()]
+        if all(artifact_intact(p, sha) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
             return prev
     return None
 
@@ -90,8 +94,16 @@ def submit_job(
     if errs:
         raise ApiError(422, "; ".join(errs))
     scene = ctx.db.get_scene(req.scene_id)
-    if scene is None:
+    if scene is None or not (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner)):
         raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
+    if req.display is not None:
+        holder = ctx.db.display_owner(req.display)
+        if holder is not None and not principal.sees(holder):
+            raise ApiError(403, f"display {req.display!r} is registered to another owner; jobs for it come from "
+                                "that owner's tokens")
+    optics_errs = optics_sanity_errors(effective_optics(req))
+    if optics_errs:
+        raise ApiError(422, "; ".join(optics_errs))
     body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
@@ -107,7 +119,7 @@ def submit_job(
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id, "spec": spec,
            "cache_key": key, "created_at": now, "estimate": estimate_cost(req, scene_plan=scene["plan"]),
-           "token_id": principal.token_id,
+           "token_id": principal.token_id, "owner": principal.owner,
            "artifact_dir": str(ctx.settings.jobs_dir / job_id), "plan": {"summary": (scene["plan"] or {}).get(
                "summary", []), "source": "scene plan at default optics" if scene["plan"] else "pending"}}
     prev = _reusable(ctx, key)
@@ -144,7 +156,8 @@ async def list_jobs(
     principal: Principal = Depends(require("read")),
 ):
     """Jobs, newest first, filtered by state, display and scene."""
-    rows = get_ctx(request).db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit)
+    rows = get_ctx(request).db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit,
+                                         owner=None if principal.is_admin else principal.owner)
     return JSONResponse({"jobs": [job_out(r) for r in rows]})
 
 
@@ -154,7 +167,7 @@ async def get_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
     """A job's state, progress, timings, plan and error."""
     # Polled by clients and agents: answered on the event loop (one indexed read) without re-validating the
     # body against JobOut (job_out builds exactly that shape; the schema tests check it).
-    return JSONResponse(job_out(_get(get_ctx(request), job_id)))
+    return JSONResponse(job_out(_get(get_ctx(request), job_id, principal)))
 
 
 @router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
@@ -162,7 +175,7 @@ def cancel_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
                principal: Principal = Depends(require("submit"))):
     """Cancel a queued or running job (a running render's process group is killed)."""
     ctx = get_ctx(request)
-    row = _get(ctx, job_id)
+    row = _get(ctx, job_id, principal)
     if not ctx.db.update_job(job_id, where_state=("queued", "running"), state="cancelled", finished_at=time.time()):
         raise ApiError(409, f"job {job_id} is already {_get(ctx, job_id)['state']}; only queued or running jobs "
                             "can be cancelled")
@@ -183,7 +196,7 @@ async def job_events(request: Request, job_id: str = PathParam(pattern=ID_PATTER
     """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
     job reaches succeeded, failed or cancelled."""
     ctx = get_ctx(request)
-    await run_in_threadpool(_get, ctx, job_id)
+    await run_in_threadpool(_get, ctx, job_id, principal)
 
     async def stream():
         last_state, last_progress, last_sent = None, None, time.monotonic()
@@ -215,9 +228,9 @@ async def job_events(request: Request, job_id: str = PathParam(pattern=ID_PATTER
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
-def _artifact(request: Request, job_id: str, kind: str):
+def _artifact(request: Request, job_id: str, kind: str, principal: Principal):
     ctx = get_ctx(request)
-    row = _get(ctx, job_id)
+    row = _get(ctx, job_id, principal)
     if row["state"] != "succeeded":
         raise ApiError(409, f"job {job_id} is {row['state']}; its artifacts exist once it has succeeded")
     name, media = _ARTIFACTS[kind]
@@ -227,6 +240,9 @@ def _artifact(request: Request, job_id: str, kind: str):
     if not path.is_file() or not sha:
         raise ApiError(404, f"job {job_id} has no {name}" + (" (the worker could not make it)" if kind == "preview"
                                                             else ""))
+    if not artifact_intact(path, sha):
+        raise ApiError(409, f"job {job_id}: the stored {name} fails its integrity check (its sha256 is no longer "
+                            f"{sha[:12]}...); it is not served. Submit the job again to recompute it")
     return file_response(request, path, sha256=sha, media_type=media, filename=f"{job_id}-{name}")
 
 
@@ -240,7 +256,7 @@ def get_stack(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
               principal: Principal = Depends(require("read"))):
     """STACK.npz: ``ETag`` is the sha256 of the file (also in ``X-Content-SHA256``); honours ``If-None-Match``,
     ``Range`` and ``If-Range``."""
-    return _artifact(request, job_id, "stack")
+    return _artifact(request, job_id, "stack", principal)
 
 
 @router.get("/v1/jobs/{job_id}/frames.zip", responses={200: {"content": {"application/zip": {}}},
@@ -248,11 +264,11 @@ def get_stack(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
 def get_frames(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
                principal: Principal = Depends(require("read"))):
     """The 8-bit SLM frames as PNGs ``f{frame:03d}_c{color}.png`` in a zip."""
-    return _artifact(request, job_id, "frames")
+    return _artifact(request, job_id, "frames", principal)
 
 
 @router.get("/v1/jobs/{job_id}/preview.png", responses={200: {"content": {"image/png": {}}}, **_FILE_RESPONSES})
 def get_preview(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
                 principal: Principal = Depends(require("read"))):
     """What an eye sees (`holo view`, 4 mm pupil, focused mid-volume, frames averaged), made by the worker."""
-    return _artifact(request, job_id, "preview")
+    return _artifact(request, job_id, "preview", principal)

@@ -43,8 +43,8 @@ def scene_out(row: dict) -> dict:
             "plan_error": row["plan_error"]}
 
 
-def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[UploadFile], entry: Optional[str]
-            ) -> tuple[dict, bool]:
+def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[UploadFile], entry: Optional[str],
+            owner: str) -> tuple[dict, bool]:
     lim = ctx.settings.upload_limits
     staging_parent = ctx.settings.scenes_dir / ".staging"
     staging_parent.mkdir(parents=True, exist_ok=True)
@@ -71,10 +71,12 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
                 if not (final / "bundle").is_dir():  # not a concurrent twin upload: a real error
                     raise
         summary = {"files": report.files, "total_bytes": report.total_bytes, "plugins": report.plugins,
-                   "warnings": report.warnings, "mesh_faces": report.mesh_faces, "image_pixels": report.image_pixels}
-        created = ctx.db.insert_scene({"id": scene_id, "sha256": report.sha256, "entry": entry_rel, "report": summary,
-                                       "plan_state": "pending", "created_at": time.time()})
-        return ctx.db.get_scene(scene_id), created
+                   "warnings": report.warnings, "mesh_faces": report.mesh_faces, "image_pixels": report.image_pixels,
+                   "ignored": report.ignored}
+        first = ctx.db.insert_scene({"id": scene_id, "sha256": report.sha256, "entry": entry_rel, "report": summary,
+                                     "plan_state": "pending", "created_at": time.time()})
+        created = ctx.db.add_scene_owner(scene_id, owner)
+        return ctx.db.get_scene(scene_id), created, first
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
@@ -100,12 +102,12 @@ async def upload_scene(
     if isinstance(bundle, str) or any(isinstance(f, str) for f in files or []):
         raise ApiError(422, "'bundle' and 'files' must be file parts (with a filename)")
     try:
-        row, created = await run_in_threadpool(_ingest, ctx, bundle, files or [], entry)
+        row, created, first = await run_in_threadpool(_ingest, ctx, bundle, files or [], entry, principal.owner)
     except (UploadError, BundleError) as exc:
         ctx.metrics.uploads.labels(outcome="refused").inc()
         raise ApiError(getattr(exc, "status", 422), f"scene refused: {exc}") from None
     ctx.metrics.uploads.labels(outcome="created" if created else "existing").inc()
-    if created:
+    if first:
         ctx.wake_planner()
     return JSONResponse(scene_out(row), status_code=201 if created else 200,
                         headers={"Location": f"/v1/scenes/{row['id']}"})
@@ -114,7 +116,8 @@ async def upload_scene(
 @router.get("/v1/scenes/{scene_id}", response_model=SceneOut, responses=PROBLEM_RESPONSES)
 def get_scene(request: Request, scene_id: str = PathParam(pattern=ID_PATTERN), principal=Depends(require("read"))):
     """A scene's validation report and its effect plan (``plan_state``: pending, running, ready, failed)."""
-    row = get_ctx(request).db.get_scene(scene_id)
-    if row is None:
+    ctx = get_ctx(request)
+    row = ctx.db.get_scene(scene_id)
+    if row is None or not (principal.is_admin or ctx.db.scene_owned_by(scene_id, principal.owner)):
         raise ApiError(404, f"no scene {scene_id!r}")
     return scene_out(row)

@@ -190,7 +190,8 @@ def test_health_metrics_and_openapi(server, rendered):
     assert httpx.get(f"{server.url}/livez").json() == {"status": "ok"}
     ready = httpx.get(f"{server.url}/readyz").json()
     assert ready["status"] == "ready" and all(ready["checks"].values())
-    m = httpx.get(f"{server.url}/metrics").text
+    assert httpx.get(f"{server.url}/metrics").status_code == 401  # metrics need a token (scope read)
+    m = httpx.get(f"{server.url}/metrics", headers={"Authorization": f"Bearer {server.reader}"}).text
     assert 'holo_jobs{state="succeeded"}' in m and "holo_http_request_duration_seconds_bucket" in m
     assert 'route="/v1/jobs/{job_id}/stack"' in m
     paths = httpx.get(f"{server.url}/openapi.json").json()["paths"]

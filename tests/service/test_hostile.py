@@ -17,7 +17,7 @@ import pytest
 
 from service.auth import revoke_token
 from service.db import Database
-from tests.service.helpers import Server, make_token
+from tests.service.helpers import Server, make_token, wait_for
 
 SCENE = '<scene version="3.0.0"><sensor type="perspective"/>{body}</scene>'
 
@@ -150,14 +150,15 @@ def raw_job(c: httpx.Client, text: str) -> httpx.Response:
     return c.post("/v1/jobs", content=text.encode(), headers={"content-type": "application/json"})
 
 
-def test_hostile_jobs_are_refused(hostile, shared_scenes):
+def test_hostile_jobs_are_refused(hostile, scene_bundle):
     srv, _ = hostile
     with srv.client("submit") as c:
         buf = io.BytesIO()
+        folder = scene_bundle("cbox-mirror-glass")
         with zipfile.ZipFile(buf, "w") as zf:
-            for p in (shared_scenes / "cbox-mirror-glass").rglob("*"):
+            for p in folder.rglob("*"):
                 if p.is_file():
-                    zf.write(p, p.relative_to(shared_scenes / "cbox-mirror-glass").as_posix())
+                    zf.write(p, p.relative_to(folder).as_posix())
         sid = c.post("/v1/scenes", files={"bundle": ("b.zip", buf.getvalue())}).json()["id"]
         good = {"scene_id": sid, "optics": {"resolution_hw": [64, 64]}, "preset": "fast", "spp": 4}
         cases = [
@@ -177,6 +178,8 @@ def test_hostile_jobs_are_refused(hostile, shared_scenes):
             (json.dumps({**good, "display": "../../etc"}), "display"),
             (json.dumps({**good, "scene_id": "snope"}), "no scene 'snope'"),
             (json.dumps({**good, "scene_id": "../../x"}), "scene_id"),
+            (json.dumps({**good, "optics": {"pitch_um": 1e-300}}), "optics.pitch_um: must be in"),
+            (json.dumps({**good, "optics": {"fov_x_deg": 1e-300}}), "optics.fov_x_deg: must be in"),
             ("{not json", "JSON decode error"),
             ("[]", "Input should be a valid dictionary"),
         ]
@@ -236,3 +239,250 @@ def test_odd_paths_and_methods(hostile):
         r = c.post("/v1/displays/lab/heartbeat", json={"agent_version": "1", "state": "x" * 100, "message": ""})
         assert r.status_code == 422
     assert httpx.get(f"{srv.url}/readyz").status_code == 200
+
+
+# ---- issue 10: code, leaks, integrity, tenancy, malformed input, connections --------------------------------
+
+SECRET_LINE = "root:x:0:0"  # the first line of /etc/passwd: it must never appear anywhere
+
+
+def _evil_so(tmp: Path, marker: Path) -> bytes:
+    """A shared object whose constructor writes ``marker`` (what a planted Mitsuba plugin would run)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("gcc") is None:
+        return b"\x7fELF\x02\x01\x01\x00" + b"\0" * 56  # still an ELF header: the check refuses it by content
+    src = tmp / "evil.c"
+    src.write_text('#include <stdio.h>\n__attribute__((constructor)) static void hit(void) '
+                   f'{{ FILE *f = fopen("{marker}", "w"); if (f) {{ fputs("ran", f); fclose(f); }} }}\n')
+    subprocess.run(["gcc", "-shared", "-fPIC", "-o", str(tmp / "evil.so"), str(src)], check=True)
+    return (tmp / "evil.so").read_bytes()
+
+
+def _everything_stored(srv: Server) -> str:
+    """Every byte the server stored or logged, as text (database, logs, status files, plans)."""
+    chunks = [srv.log()]
+    for p in srv.data_dir.rglob("*"):
+        if p.is_file() and p.suffix not in (".npz", ".zip", ".png"):
+            chunks.append(p.read_bytes().decode("latin-1"))
+    return "".join(chunks)
+
+
+def test_uploaded_code_never_runs_and_no_outside_byte_leaks(hostile, tmp_path):
+    srv, root = hostile
+    marker = tmp_path / "MARKER"
+    so = _evil_so(tmp_path, marker)
+    sphere = '<shape type="sphere"/>'
+    deep = "d/" * 6
+    cases = [
+        ("plugin shared object", scene_zip(sphere, {"plugins/sphere.so": so}), 422, "plugins/sphere.so: is an ELF"),
+        ("shared object named like a mesh", scene_zip('<shape type="ply"><string name="filename" '
+                                                      'value="m.ply"/></shape>', {"m.ply": so}), 422, "is an ELF"),
+        ("duplicate defaults", scene_zip('<default name="f" value="/etc/passwd"/><default name="f" value="m.obj"/>'
+                                         '<shape type="obj"><string name="filename" value="$f"/></shape>',
+                                         {"m.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"}), 422, "defined twice"),
+        ("duplicate default plugin type", scene_zip('<default name="t" value="sphere"/><default name="t" value="evil"/>'
+                                                    '<shape type="$t"/>'), 422, "defined twice"),
+        ("include in subfolders escaping", scene_zip(f'<include filename="{deep}inc.xml"/>', {
+            f"{deep}inc.xml": ('<scene version="3.0.0"><shape type="obj"><string name="filename" value="'
+                               + "../" * 20 + 'etc/passwd"/></shape></scene>').encode()}), 422, "leaves the scene"),
+        ("image by content, not name", scene_zip('<bsdf type="diffuse"><texture type="bitmap" name="reflectance">'
+                                                 '<string name="filename" value="t.dat"/></texture></bsdf>',
+                                                 {"t.dat": png_header(10000, 10000)}), 422, "images hold more than"),
+    ]
+    with srv.client("submit") as c:
+        for name, data, status, words in cases:
+            r = c.post("/v1/scenes", files={"bundle": ("b.zip", data, "application/zip")})
+            assert r.status_code == status and words in r.json()["detail"], (name, r.status_code, r.text[:300])
+            assert SECRET_LINE not in r.text
+        # the CLI loads scenes the same way: a folder with a planted plugin is refused in one line
+        import subprocess
+        import sys
+
+        folder = tmp_path / "planted"
+        (folder / "plugins").mkdir(parents=True)
+        (folder / "scene.xml").write_text(SCENE.format(body=sphere))
+        (folder / "plugins" / "sphere.so").write_bytes(so)
+        cli = subprocess.run([sys.executable, "-m", "holo", "plan", str(folder)], capture_output=True, text=True,
+                             timeout=120, cwd=tmp_path)
+        assert cli.returncode != 0 and "is an ELF" in cli.stderr and "Traceback" not in cli.stderr, cli.stderr
+    assert not marker.exists(), "uploaded code ran"
+    assert SECRET_LINE not in _everything_stored(srv)
+
+
+def test_plan_errors_name_the_users_file_not_the_server(hostile):
+    srv, _ = hostile
+    with srv.client("submit") as c:
+        data = zbytes({"scene.xml": ('<scene version="3.0.0">\n<sensor type="perspective"/>\n'
+                                     '<shape type="sphere"><float name="radius" value="abc"/></shape>\n'
+                                     '</scene>').encode()})
+        sid = c.post("/v1/scenes", files={"bundle": ("b.zip", data)}).json()["id"]
+        scene = wait_for(lambda: (lambda s: s if s["plan_state"] in ("ready", "failed") else None)(
+            c.get(f"/v1/scenes/{sid}").json()), timeout=120, what="plan")
+    err = scene["plan_error"]
+    assert scene["plan_state"] == "failed" and "scene.xml (line 3" in err, err
+    assert str(srv.data_dir) not in err and "/tmp/" not in err and ".cpp" not in err, err
+
+
+def _small_job(c: httpx.Client, folder: Path, **over) -> dict:
+    from tests.service.helpers import SMALL_JOB, upload
+
+    sid = upload(c, folder).json()["id"]
+    r = c.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB, **over})
+    assert r.status_code == 202, r.text
+    return r.json()
+
+
+def test_stored_artifacts_are_checked_before_serving_or_reuse(hostile, scene_bundle):
+    from tests.service.helpers import wait_state
+
+    srv, _ = hostile
+    with srv.client("submit") as c:
+        job = wait_state(c, _small_job(c, scene_bundle("cbox-mirror-glass"))["id"], ("succeeded", "failed"),
+                         timeout=300)
+        assert job["state"] == "succeeded", job["error"]
+        url = f"/v1/jobs/{job['id']}/stack"
+        r = c.get(url, headers={"Range": "bytes=0-" + "9" * 5000})
+        assert r.status_code == 206, r.status_code
+        r = c.get(url, headers={"Range": "bytes=" + "9" * 5000 + "-"})
+        assert r.status_code == 416
+        etag = c.get(url).headers["etag"]
+        stack = srv.data_dir / "jobs" / job["id"] / "stack.npz"
+        with open(stack, "r+b") as fh:
+            fh.truncate(1000)
+        for headers in ({}, {"If-None-Match": etag}, {"Range": "bytes=0-10"}):
+            r = c.get(url, headers=headers)
+            assert r.status_code == 409 and "integrity check" in r.json()["detail"], (headers, r.status_code)
+        again = _small_job(c, scene_bundle("cbox-mirror-glass"))
+        assert again["reused_from"] is None and again["state"] == "queued"  # recomputed, not the corrupt one
+        c.delete(f"/v1/jobs/{again['id']}")
+
+
+def test_tenancy_owners_see_only_their_own(hostile, scene_bundle):
+    from service.auth import create_token
+    from tests.service.helpers import SMALL_JOB, upload
+
+    srv, _ = hostile
+    db = Database(srv.data_dir / "service.db")
+    tok = {f"{o}-{s}": create_token(db, scopes=[s], owner=o, name=f"{o}-{s}")[1]
+           for o in ("alice", "bob") for s in ("submit", "agent")}
+    folder = scene_bundle("cbox-mirror-glass")
+    with srv.client(tok["alice-submit"]) as alice, srv.client(tok["bob-submit"]) as bob, \
+            srv.client(tok["alice-agent"]) as alice_agent, srv.client(tok["bob-agent"]) as bob_agent:
+        hb = {"agent_version": "1", "state": "idle", "message": "<script>x</script>\x07"}
+        assert alice_agent.post("/v1/displays/alice-lab/heartbeat", json=hb).status_code == 204
+        r = bob_agent.post("/v1/displays/alice-lab/heartbeat", json=hb)
+        assert r.status_code == 403 and "another owner" in r.json()["detail"]
+        sid = upload(alice, folder).json()["id"]
+        assert bob.get(f"/v1/scenes/{sid}").status_code == 404
+        r = bob.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB})
+        assert r.status_code == 422 and "no scene" in r.json()["detail"]
+        job = alice.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB, "display": "alice-lab"}).json()
+        for call in (bob.get(f"/v1/jobs/{job['id']}"), bob.delete(f"/v1/jobs/{job['id']}"),
+                     bob.get(f"/v1/jobs/{job['id']}/events"), bob.get(f"/v1/jobs/{job['id']}/stack")):
+            assert call.status_code == 404, call.request.url
+        assert job["id"] not in [j["id"] for j in bob.get("/v1/jobs").json()["jobs"]]
+        assert bob_agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"] == []
+        assert [j["id"] for j in alice_agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"]] \
+            == [job["id"]]
+        assert upload(bob, folder).status_code == 201  # bob brings the same files: now his scene too
+        r = bob.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB, "display": "alice-lab"})
+        assert r.status_code == 403 and "registered to another owner" in r.json()["detail"]
+        shown = [d for d in alice.get("/v1/displays").json()["displays"] if d["name"] == "alice-lab"]
+        assert shown and "\x07" not in shown[0]["message"] and bob.get("/v1/displays").json()["displays"] == []
+        with srv.client("admin") as admin:
+            assert admin.get(f"/v1/jobs/{job['id']}").status_code == 200
+            assert admin.delete(f"/v1/jobs/{job['id']}").status_code in (202, 409)
+
+
+def _chunks(total: int):
+    """A multipart upload of ``total`` bytes, streamed (chunked transfer encoding: no Content-Length)."""
+    yield b'--XyZ\r\nContent-Disposition: form-data; name="bundle"; filename="b.zip"\r\n\r\n'
+    block = b"x" * (1 << 20)
+    sent = 0
+    while sent < total:
+        yield block
+        sent += len(block)
+    yield b"\r\n--XyZ--\r\n"
+
+
+def test_malformed_input_answers_4xx_and_keeps_serving(hostile):
+    srv, _ = hostile
+    with srv.client("submit") as c:
+        cases = [
+            ("1000-character name", {"files": {"bundle": ("b.zip", zbytes({"a" * 1000 + ".xml": b"<scene/>"}))}},
+             422, "longer than 255 bytes"),
+            ("file then folder", {"files": {"bundle": ("b.zip", zbytes({"d": b"x", "d/e.txt": b"y"}))}}, 422,
+             "is a file and a folder"),
+            ("folder then file", {"files": {"bundle": ("b.zip", zbytes({"d/e.txt": b"y", "d": b"x"}))}}, 422,
+             "is a file and a folder"),
+        ]
+        for name, kw, status, words in cases:
+            r = c.post("/v1/scenes", **kw)
+            assert r.status_code == status and words in r.json()["detail"], (name, r.status_code, r.text[:200])
+            assert c.get("/v1/jobs").status_code == 200, f"connection lost after {name}"
+        r = c.post("/v1/scenes", content=_chunks(9 << 20), headers={"content-type": "multipart/form-data; boundary=XyZ"})
+        assert r.status_code == 413 and "larger than the limit" in r.json()["detail"]
+        assert c.get("/v1/jobs").status_code == 200
+
+
+def test_slow_and_idle_connections_are_closed(server_factory):
+    import socket
+    import time
+
+    srv = server_factory("slow")
+    os.environ["HOLO_HEADER_TIMEOUT_S"] = "1"
+    try:
+        srv.start()
+    finally:
+        del os.environ["HOLO_HEADER_TIMEOUT_S"]
+    for trickle in (False, True):
+        s = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+        t0 = time.monotonic()
+        s.settimeout(0.3)
+        if trickle:
+            s.sendall(b"GET /livez HTTP/1.1\r\nHost: x\r\n")
+        closed = False
+        while time.monotonic() - t0 < 8:
+            try:
+                if trickle:
+                    s.sendall(b"X-Slow: 1\r\n")
+                if s.recv(100) == b"":
+                    closed = True
+                    break
+            except socket.timeout:
+                continue
+            except OSError:
+                closed = True
+                break
+        s.close()
+        assert closed and time.monotonic() - t0 < 6, f"connection (trickle={trickle}) stayed open"
+    assert httpx.get(f"{srv.url}/livez").status_code == 200
+
+
+def test_token_expiry_rate_limit_and_metrics(server_factory):
+    import time
+
+    from service.auth import create_token
+
+    srv = server_factory("auth")
+    os.environ["HOLO_AUTH_FAILURES_PER_MINUTE"] = "5"
+    try:
+        srv.start()
+    finally:
+        del os.environ["HOLO_AUTH_FAILURES_PER_MINUTE"]
+    assert httpx.get(f"{srv.url}/metrics").status_code == 401
+    assert httpx.get(f"{srv.url}/metrics", headers={"Authorization": f"Bearer {srv.reader}"}).status_code == 200
+    short = create_token(Database(srv.data_dir / "service.db"), scopes=["read"], expires_in_s=1.0)[1]
+    with srv.client(short) as c:
+        assert c.get("/v1/jobs").status_code == 200
+        time.sleep(1.2)
+        r = c.get("/v1/jobs")
+        assert r.status_code == 401 and "expired" in r.json()["detail"]
+    for _ in range(4):  # with the expired token's: 5 failures in this minute
+        assert httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"}).status_code == 401
+    r = httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"})
+    assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1 and "too many" in r.json()["detail"]
+    r = httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": f"Bearer {srv.reader}"})
+    assert r.status_code == 429  # a blocked address cannot try tokens, good ones included
