@@ -216,3 +216,27 @@ def test_traced_loads_never_open_a_file_outside_their_bundle(tmp_path):
                "/lib", str(REPO))
     stray = [p for p in after_warm if not p.startswith(allowed) and not any(p.startswith(r) for r in roots)]
     assert not stray, stray[:10]
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is needed to build the planted plugin")
+def test_preloaded_plugins_never_resolve_through_a_scene_folder(tmp_path):
+    """Defence in depth: even a folder loaded without the bundle check (``check_bundle=False``, trusted folders
+    only) cannot make Mitsuba run a planted ``plugins/sphere.so``, once every plugin is preloaded."""
+    marker = tmp_path / "MARKER"
+    root = scene(tmp_path / "b", '<shape type="sphere"/>')
+    (root / "plugins").mkdir()
+    (tmp_path / "evil.c").write_text('#include <stdio.h>\n__attribute__((constructor)) static void hit(void) '
+                                     f'{{ FILE *f = fopen("{marker}", "w"); if (f) fclose(f); }}\n')
+    subprocess.run(["gcc", "-shared", "-fPIC", "-o", str(root / "plugins" / "sphere.so"), str(tmp_path / "evil.c")],
+                   check=True)
+    ours = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.scene import load_scene; "
+            "load_scene(sys.argv[2], check_bundle=False)")
+    proc = subprocess.run([sys.executable, "-c", ours, str(REPO), str(root)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-1000:]
+    assert not marker.exists()
+    # the control: Mitsuba's own load_file, without the preloading, runs the planted code (the attack is real)
+    bare = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.mitsuba_env import mitsuba; "
+            "mitsuba().load_file(sys.argv[2] + '/scene.xml')")
+    subprocess.run([sys.executable, "-c", bare, str(REPO), str(root)], capture_output=True, text=True, timeout=300)
+    assert marker.exists()
