@@ -90,7 +90,7 @@ def test_timeouts_and_unreachable():
     t0 = time.monotonic()
     with pytest.raises(FocusTimeout, match="did not answer within 0.5 s"):
         c.connect()
-    assert 0.45 <= time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 >= 0.45  # it waited its timeout (a lower bound: load only adds to it)
     port = free_port()  # nobody listens
     c = FocusController(f"socket://127.0.0.1:{port}", reconnect_timeout_s=0.5)
     with pytest.raises(FocusDisconnected, match="unreachable for 0.5 s"):
