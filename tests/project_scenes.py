@@ -59,7 +59,9 @@ def _sensor(fov_deg: float, origin: str, target: str, width_px: int, height_px: 
     <sensor type="perspective" id="sensor">
         <float name="fov" value="{fov_deg}"/><string name="fov_axis" value="x"/>
         <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{width_px}"/><integer name="height" value="{height_px}"/></film>
+        <film type="hdrfilm">
+            <integer name="width" value="{width_px}"/><integer name="height" value="{height_px}"/>
+        </film>
     </sensor>"""
 
 
@@ -68,8 +70,9 @@ def write_glossy_glass_room(folder: Path) -> Path:
     wall, lit by two area lights; the stand-in for veach-bidir. Returns the scene XML path."""
     folder.mkdir(parents=True, exist_ok=True)
     xml = folder / ENTRIES["veach-bidir"]
+    sensor = _sensor(40.0, "0, 0.2, 4", "0, -0.2, 0", 96, 64)
     xml.write_text(f"""<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="6"/></integrator>{_sensor(40.0, "0, 0.2, 4", "0, -0.2, 0", 96, 64)}{_ROOM}
+    <integrator type="path"><integer name="max_depth" value="6"/></integrator>{sensor}{_ROOM}
     <shape type="sphere" id="Glass">
         <point name="center" x="0" y="-0.3" z="0"/><float name="radius" value="0.45"/>
         <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
@@ -114,8 +117,9 @@ def write_glossy_plates(folder: Path) -> Path:
         <emitter type="area"><rgb name="radiance" value="{value}"/></emitter>
     </shape>""")
     xml = folder / ENTRIES["veach-mis"]
+    sensor = _sensor(40.0, "0, 0.6, 4", "0, -0.2, 0", 96, 64)
     xml.write_text(f"""<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="4"/></integrator>{_sensor(40.0, "0, 0.6, 4", "0, -0.2, 0", 96, 64)}{_ROOM}{"".join(plates)}{"".join(lights)}
+    <integrator type="path"><integer name="max_depth" value="4"/></integrator>{sensor}{_ROOM}{"".join(plates)}{"".join(lights)}
 </scene>
 """)
     return xml

@@ -23,10 +23,8 @@ def _have_service() -> bool:
 
 
 @pytest.mark.skipif(not _have_service(), reason="holo serve / token / submit (issue 5) or Mitsuba not installed")
-def test_agent_shows_what_the_service_rendered(tmp_path, shared_scenes):
-    scene = shared_scenes / "cbox-mirror-glass"
-    if not scene.is_dir():
-        pytest.skip(f"{scene} missing")
+def test_agent_shows_what_the_service_rendered(tmp_path, scene_bundle):
+    scene = scene_bundle("cbox-mirror-glass")  # ../shared's, else the project's own box
     data = tmp_path / "svc"
     tok = subprocess.run([*HOLO, "token", "create", "--data-dir", str(data), "--scope", "submit", "--scope", "read",
                           "--scope", "agent"], env=env(), capture_output=True, text=True, timeout=60)

@@ -24,9 +24,9 @@ pytestmark = pytest.mark.scenes
 
 
 @pytest.fixture(scope="module")
-def rendered(server, shared_scenes, tmp_path_factory):
+def rendered(server, scene_bundle, tmp_path_factory):
     """The small job, run once through the service (and followed by SSE) and once through the CLIs."""
-    scene = shared_scenes / "cbox-mirror-glass"
+    scene = scene_bundle("cbox-mirror-glass")
     with server.client("submit") as c:
         up = upload(c, scene)
         assert up.status_code == 201, up.text
@@ -202,10 +202,10 @@ def test_health_metrics_and_openapi(server, rendered):
     assert httpx.get(f"{server.url}/docs").status_code == 200
 
 
-def test_holo_submit_cli_uploads_follows_and_downloads(server, rendered, shared_scenes, tmp_path):
+def test_holo_submit_cli_uploads_follows_and_downloads(server, rendered, scene_bundle, tmp_path):
     """`holo submit` of the same job: the service reuses the result; the downloaded stack is byte-identical."""
     out = tmp_path / "stack.npz"
-    r = subprocess.run([sys.executable, "-m", "holo", "submit", str(shared_scenes / "cbox-mirror-glass"),
+    r = subprocess.run([sys.executable, "-m", "holo", "submit", str(scene_bundle("cbox-mirror-glass")),
                         "--server", server.url, "--token", server.submit, "--resolution", "64x64", "--seed", "7",
                         "--frames", "2", "--spp", "4", "--preset", "fast", "--encoder", "dpac", "--out", str(out)],
                        capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
@@ -213,14 +213,14 @@ def test_holo_submit_cli_uploads_follows_and_downloads(server, rendered, shared_
     doc = json.loads(r.stdout.strip().splitlines()[-1])
     assert doc["stack_sha256"] == rendered["job"]["stack_sha256"]
     assert hashlib.sha256(out.read_bytes()).hexdigest() == doc["stack_sha256"]
-    bad = subprocess.run([sys.executable, "-m", "holo", "submit", str(shared_scenes / "cbox-mirror-glass"),
+    bad = subprocess.run([sys.executable, "-m", "holo", "submit", str(scene_bundle("cbox-mirror-glass")),
                           "--server", server.url, "--token", "hpt_nope_nope"], capture_output=True, text=True,
                          env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=60)
     assert bad.returncode == 1 and "401" in bad.stderr and "invalid or revoked token" in bad.stderr
 
 
-def test_files_upload_gives_the_same_content_address(server, rendered, shared_scenes):
-    scene = shared_scenes / "cbox-mirror-glass"
+def test_files_upload_gives_the_same_content_address(server, rendered, scene_bundle):
+    scene = scene_bundle("cbox-mirror-glass")
     files = [("files", (p.relative_to(scene).as_posix(), p.read_bytes(), "application/octet-stream"))
              for p in sorted(scene.rglob("*")) if p.is_file()]
     with server.client("submit") as c:

@@ -196,9 +196,9 @@ def _ray_worker_of(driver_pid: int) -> int:
     return worker
 
 
-def test_a_job_runs_on_ray_into_the_shared_data_dir_and_matches_the_cli(ray_server, ray_cluster, shared_scenes,
+def test_a_job_runs_on_ray_into_the_shared_data_dir_and_matches_the_cli(ray_server, ray_cluster, scene_bundle,
                                                                          tmp_path):
-    scene = shared_scenes / "cbox-mirror-glass"
+    scene = scene_bundle("cbox-mirror-glass")
     assert f"ray engine: connected to {ray_cluster['address']}" in ray_server.log()
     with ray_server.client("submit") as c:
         up = upload(c, scene)
@@ -234,11 +234,11 @@ def test_a_job_runs_on_ray_into_the_shared_data_dir_and_matches_the_cli(ray_serv
     assert meta["optics"] == cli_meta["optics"] and meta["encoder"]["method"] == "dpac"
 
 
-def test_cancel_stops_the_ray_jobs_process_group_and_gpu_jobs_get_a_gpu(env_server, ray_cluster, shared_scenes):
+def test_cancel_stops_the_ray_jobs_process_group_and_gpu_jobs_get_a_gpu(env_server, ray_cluster, scene_bundle):
     log = env_server.log()
     assert f"ray engine: connected to {ray_cluster['client']} (1.0 GPUs per job)" in log and "engine ray" in log
     with env_server.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         slow = c.post("/v1/jobs", json={"scene_id": sid, **SLOW}).json()
         pgid, render_pid = _driver_rendering(env_server, slow["id"])
         _ray_worker_of(pgid)
@@ -253,9 +253,9 @@ def test_cancel_stops_the_ray_jobs_process_group_and_gpu_jobs_get_a_gpu(env_serv
     assert s["state"] == "cancelled" and s["stack_sha256"] is None and s["attempts"] == 1
 
 
-def test_a_killed_ray_worker_means_a_retry_then_a_failure(env_server, shared_scenes):
+def test_a_killed_ray_worker_means_a_retry_then_a_failure(env_server, scene_bundle):
     with env_server.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         job = c.post("/v1/jobs", json={"scene_id": sid, **SLOW, "optics": {**SLOW["optics"], "seed": 2}}).json()
         seen = []
         for attempt in (1, 2):  # HOLO_MAX_ATTEMPTS=2: the second crash is the last

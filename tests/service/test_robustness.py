@@ -65,10 +65,10 @@ SLOW = {"optics": {"resolution_hw": [256, 256], "seed": 1}, "preset": "balanced"
         "encoder": "sgd", "iterations": 300}
 
 
-def test_cancel_running_and_queued_jobs(server_factory, shared_scenes):
+def test_cancel_running_and_queued_jobs(server_factory, scene_bundle):
     srv = server_factory("cancel", workers=1).start()
     with srv.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         slow = c.post("/v1/jobs", json={"scene_id": sid, **SLOW}).json()
         small = c.post("/v1/jobs", json=job_body(sid, 11)).json()
         pgid, render_pid = running_render(c, slow["id"])
@@ -95,10 +95,10 @@ def test_cancel_running_and_queued_jobs(server_factory, shared_scenes):
     assert not (srv.data_dir / "jobs" / slow["id"] / "stack.npz").exists()
 
 
-def test_kill_9_of_a_worker_requeues_until_it_succeeds(server_factory, shared_scenes):
+def test_kill_9_of_a_worker_requeues_until_it_succeeds(server_factory, scene_bundle):
     srv = server_factory("kill", workers=1, extra=("--max-attempts", "3")).start()
     with srv.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         job = c.post("/v1/jobs", json=job_body(sid, 21)).json()
         pgid1, _ = running_render(c, job["id"])
         os.kill(pgid1, signal.SIGKILL)  # the driver: its render child is orphaned and must be cleaned up
@@ -113,10 +113,10 @@ def test_kill_9_of_a_worker_requeues_until_it_succeeds(server_factory, shared_sc
     assert "requeued" in srv.log()
 
 
-def test_a_job_that_keeps_dying_fails_with_a_reason(server_factory, shared_scenes):
+def test_a_job_that_keeps_dying_fails_with_a_reason(server_factory, scene_bundle):
     srv = server_factory("giveup", workers=1, extra=("--max-attempts", "1")).start()
     with srv.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         job = c.post("/v1/jobs", json=job_body(sid, 31)).json()
         pgid, _ = running_render(c, job["id"])
         os.kill(pgid, signal.SIGKILL)
@@ -124,10 +124,10 @@ def test_a_job_that_keeps_dying_fails_with_a_reason(server_factory, shared_scene
     assert done["state"] == "failed" and "killed by signal 9" in done["error"] and "1 attempts" in done["error"]
 
 
-def test_server_killed_then_stopped_mid_queue_loses_nothing(server_factory, shared_scenes):
+def test_server_killed_then_stopped_mid_queue_loses_nothing(server_factory, scene_bundle):
     srv = server_factory("restart", workers=1).start()
     with srv.client("submit") as c:
-        sid = upload(c, shared_scenes / "cbox-mirror-glass").json()["id"]
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
         jobs = [c.post("/v1/jobs", json=job_body(sid, 40 + i)).json()["id"] for i in range(3)]
         pgid, _ = running_render(c, jobs[0])
     srv.stop(signal.SIGKILL)  # a crash: the drivers die with it (PR_SET_PDEATHSIG)
