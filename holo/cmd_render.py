@@ -64,6 +64,12 @@ def render(
         source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
             "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
         console.print(f"estimated render time: {secs:.1f} s ({source})")
+        from holocore.memory_estimate import estimate_memory
+
+        mem = estimate_memory(height_px=optics_cfg.height, width_px=optics_cfg.width,
+                              colors=len(optics_cfg.wavelengths_nm), frames=optics_cfg.frames)
+        console.print(f"estimated peak memory: render {mem.render_bytes / 1e9:.2f} GB, encode (sgd) "
+                      f"{mem.encode_bytes / 1e9:.2f} GB, view {mem.view_bytes / 1e9:.2f} GB")
         return
     write_progress = progress_writer(progress_jsonl)
     t0 = time.perf_counter()

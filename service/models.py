@@ -13,10 +13,11 @@ from typing import Any, Literal, Optional
 from pydantic import BaseModel, ConfigDict, Field
 
 from holocore.config import OpticsConfig
+from holocore.memory_estimate import MemoryEstimate, estimate_memory
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
-           "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "cache_key", "effective_optics",
+           "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "job_memory", "memory_admission_error", "cache_key", "effective_optics",
            "estimate_cost"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
@@ -201,6 +202,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     h, w = o.resolution_hw
     c = len(o.wavelengths_nm)
     f = o.frames
+    memory = job_memory(req).as_dict()
     spp = _spp(req)
     rays = h * w * c * spp
     pix = h * w * c * f
@@ -217,11 +219,29 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
                                 encode_iterations=iters if req.encoder == "sgd" else 0)
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
-                "model": "calibrated" + (" + scene plan" if ana else "")}
+                "model": "calibrated" + (" + scene plan" if ana else ""), "memory": memory}
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
         return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
-                "model": "cpu-linear-v1"}
+                "model": "cpu-linear-v1", "memory": memory}
+
+
+def job_memory(req: JobRequest) -> MemoryEstimate:
+    """Predicted peak bytes of the job's render, encode and preview (holocore.memory_estimate)."""
+    o = effective_optics(req)
+    return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
+
+
+def memory_admission_error(req: JobRequest, worker_memory_bytes: int) -> Optional[str]:
+    """Why the workers cannot hold the job (None when they can)."""
+    m = job_memory(req)
+    if m.peak_bytes <= worker_memory_bytes:
+        return None
+    o = effective_optics(req)
+    return (f"the job needs about {m.peak_bytes / 1e9:.1f} GB at its peak ({m.peak_stage}; "
+            f"{o.height}x{o.width} px x {len(o.wavelengths_nm)} colors x {o.frames} frames), but the workers have "
+            f"{worker_memory_bytes / 1e9:.1f} GB: lower optics.resolution_hw, frames or the number of wavelengths "
+            "(memory grows with their product)")
 
 
 def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str) -> str:

@@ -26,7 +26,7 @@ from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.models import (ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest, cache_key, effective_optics,
-                            estimate_cost, job_limit_errors, optics_sanity_errors)
+                            estimate_cost, job_limit_errors, memory_admission_error, optics_sanity_errors)
 
 __all__ = ["router", "job_out"]
 
@@ -104,6 +104,9 @@ def submit_job(
     optics_errs = optics_sanity_errors(effective_optics(req))
     if optics_errs:
         raise ApiError(422, "; ".join(optics_errs))
+    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes)
+    if too_big:
+        raise ApiError(422, too_big)
     body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",

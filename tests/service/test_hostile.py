@@ -486,3 +486,25 @@ def test_token_expiry_rate_limit_and_metrics(server_factory):
     assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1 and "too many" in r.json()["detail"]
     r = httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": f"Bearer {srv.reader}"})
     assert r.status_code == 429  # a blocked address cannot try tokens, good ones included
+
+
+def test_a_job_too_big_for_the_workers_is_refused_at_submit(server_factory, scene_bundle):
+    from tests.service.helpers import SMALL_JOB, upload
+
+    srv = server_factory("memory")
+    os.environ["HOLO_WORKER_MEMORY_MB"] = "4000"
+    try:
+        srv.start()
+    finally:
+        del os.environ["HOLO_WORKER_MEMORY_MB"]
+    with srv.client("submit") as c:
+        sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
+        r = c.post("/v1/jobs", json={"scene_id": sid, "optics": {"resolution_hw": [1080, 1920]}, "frames": 24,
+                                     "encoder": "dpac"})
+        assert r.status_code == 422, r.text
+        detail = r.json()["detail"]
+        assert "needs about 17.5 GB" in detail and "workers have 4.0 GB" in detail and "lower" in detail, detail
+        assert c.get("/v1/jobs").json()["jobs"] == []
+        r = c.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB})
+        assert r.status_code == 202 and r.json()["estimate"]["memory"]["peak_bytes"] < 4e9
+        c.delete(f"/v1/jobs/{r.json()['id']}")
