@@ -1,0 +1,62 @@
+"""Peak RSS of `holo render`, `holo encode` and `holo view` on the demo scene at a few sizes, beside the memory
+model (holocore.memory_estimate). Writes bench/results/memory.md. Usage:
+``.venv/bin/python bench/bench_memory.py [--sizes 135x240x8,270x480x8]`` (H x W x frames, 3 colors)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def peak_rss(cmd: list[str]) -> tuple[int, float]:
+    """(peak RSS bytes, seconds) of a command, from GNU time."""
+    out = subprocess.run(["/usr/bin/time", "-f", "%M %e", *cmd], capture_output=True, text=True, check=True)
+    kb, secs = out.stderr.strip().splitlines()[-1].split()
+    return int(kb) * 1024, float(secs)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", default="135x240x8,270x480x8")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "memory.md")
+    args = ap.parse_args()
+    from holocore.demo_scene import write_demo_scene
+    from holocore.memory_estimate import estimate_memory
+
+    holo = [sys.executable, "-m", "holo"]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Path(tmp)
+        write_demo_scene(t / "scene")
+        for size in args.sizes.split(","):
+            h, w, f = (int(v) for v in size.split("x"))
+            r, s = t / f"r{size}.npz", t / f"s{size}.npz"
+            got = {"render": peak_rss([*holo, "render", str(t / "scene"), "--out", str(r), "--resolution", f"{h}x{w}",
+                                       "--frames", str(f), "--preset", "fast"]),
+                   "encode": peak_rss([*holo, "encode", str(r), "--out", str(s), "--iterations", "3"]),
+                   "view": peak_rss([*holo, "view", str(s), "--focus-mm", "81", "--pupil-mm", "4", "--out",
+                                     str(t / "v.png")])}
+            model = estimate_memory(height_px=h, width_px=w, colors=3, frames=f)
+            for stage, (peak, secs) in got.items():
+                pred = getattr(model, f"{stage}_bytes")
+                rows.append(f"| {h}x{w}x3x{f} | {stage} | {peak / 1e6:.0f} MB | {pred / 1e6:.0f} MB | "
+                            f"{pred / peak:.2f} | {secs:.1f} s |")
+                print(rows[-1], flush=True)
+    text = (f"# Peak memory per stage vs the model\n\n{platform.machine()}, {platform.node()}, "
+            f"{datetime.date.today().isoformat()}; demo scene, fast preset, SGD encode 3 iterations; "
+            "`.venv/bin/python bench/bench_memory.py`. Peak RSS from GNU time.\n\n"
+            "| size (H x W x C x F) | stage | measured | model | model / measured | time |\n|---|---|---|---|---|---|\n"
+            + "\n".join(rows) + "\n")
+    args.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
