@@ -34,6 +34,11 @@ def serve(
                                                                             "else 3)."),
     max_upload_mb: Optional[float] = typer.Option(None, "--max-upload-mb", help="Largest upload and unpacked "
                                                                                 "bundle, MiB (default 256)."),
+    sandbox: Optional[str] = typer.Option(None, "--sandbox", help="Privilege separation: run scene planning and "
+                                                                  "jobs as unprivileged uids. auto (default: on "
+                                                                  "when root and possible), on (mandatory), off, "
+                                                                  "or UIDBASE (on; planner uid, jobs UIDBASE+1..; "
+                                                                  "default 61000). Env HOLO_SANDBOX."),
     log_level: str = typer.Option("info", "--log-level", help="debug | info | warning | error"),
 ) -> None:
     """Run the rendering service (REST API on /v1, OpenAPI at /docs)."""
@@ -50,13 +55,15 @@ def serve(
     try:
         settings = ServiceSettings.from_env(data_dir=data_dir, host=host, port=port, workers=workers, engine=engine,
                                             ray_address=ray_address, ray_gpus_per_job=ray_gpus,
-                                            max_attempts=max_attempts, max_upload_mb=max_upload_mb)
+                                            max_attempts=max_attempts, max_upload_mb=max_upload_mb,
+                                            sandbox=sandbox)
     except ValidationError as exc:
         fail("; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()))
     from service.api.context import DataDirBusy
     from service.server import serve as run
+    from service.workers.engine import SandboxUnavailable
 
     try:
         run(settings, log_level=log_level)
-    except DataDirBusy as exc:
+    except (DataDirBusy, SandboxUnavailable) as exc:
         fail(str(exc), code=1)

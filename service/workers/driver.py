@@ -184,6 +184,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         status = {"ok": False, "error": f"worker error: {type(exc).__name__}: {exc}"[:1000], "retryable": False}
         code = EXIT_FAILED
     status["total_s"] = time.time() - t0
+    status["uid"] = os.getuid()  # who ran it (a sandbox slot's uid when the service sandboxes jobs)
     try:  # which run this is: a stale run (after a restart) must not pass for the current one
         status["attempt"] = json.loads((job_dir / "job.json").read_text()).get("attempt")
     except (OSError, ValueError):

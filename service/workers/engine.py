@@ -1,10 +1,23 @@
 """Where job drivers run. ``LocalEngine``: a subprocess per job on this machine, each in a new process group
-(session), so cancelling kills the driver and every CLI it started in one ``killpg``."""
+(session), so cancelling kills the driver and every CLI it started in one ``killpg``.
+
+Privilege separation (``--sandbox``): when the service runs as root, scene planning and each running job run
+as dedicated unprivileged numeric uids (no /etc/passwd entry needed): the planner as ``base``, job slot ``k``
+as ``base + 1 + k``, each with the same gid, no supplementary groups and umask 077, in a folder of its own
+(its HOME and TMPDIR) that only it may enter. The helpers here resolve the setting, check that those users
+can reach the interpreter, the code and the data dir, set the data dir's permissions, hand folders to a
+sandbox user and take them back (dropping links and anything but plain files and folders), and kill what a
+sandbox user left running.
+"""
 
 from __future__ import annotations
 
+import logging
 import os
+import re
+import shutil
 import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -13,9 +26,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Protocol
 
-__all__ = ["Handle", "Engine", "LocalEngine", "group_alive", "kill_group", "driver_env"]
+__all__ = ["Handle", "Engine", "LocalEngine", "group_alive", "kill_group", "driver_env", "RunAs",
+           "SandboxUnavailable", "resolve_sandbox", "sandbox_blockers", "sandbox_env", "secure_data_dir",
+           "give_tree", "reclaim_tree", "kill_uids", "uid_alive"]
 
 _REPO = Path(__file__).resolve().parents[2]
+log = logging.getLogger("holo.service.sandbox")
 
 
 @dataclass
@@ -28,6 +44,7 @@ class Handle:
     pid: Optional[int] = None
     started: float = field(default_factory=time.monotonic)
     obj: Any = None  # Popen (local) or an ObjectRef (ray)
+    run_as: Optional["RunAs"] = None  # the sandbox user of the run (local engine, sandbox on)
 
 
 class Engine(Protocol):
@@ -47,7 +64,221 @@ def driver_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO), env.get("PYTHONPATH", "")) if p)
     env.setdefault("PYTHONUNBUFFERED", "1")
+    env["PYTHONSAFEPATH"] = "1"  # `python -m` never imports from its working dir (a job dir, a bundle)
     return env
+
+
+# ---- privilege separation ------------------------------------------------------------------------------
+class SandboxUnavailable(RuntimeError):
+    """``--sandbox on`` (or a uid base) was asked for and this platform or data dir cannot give it."""
+
+
+@dataclass(frozen=True)
+class RunAs:
+    """A sandbox user: a numeric uid and gid (no passwd entry), no supplementary groups, umask 077."""
+
+    uid: int
+    gid: int
+
+    def popen_kwargs(self) -> dict[str, Any]:
+        return {"user": self.uid, "group": self.gid, "extra_groups": [], "umask": 0o077}
+
+
+_SECRET_ENV = re.compile(r"TOKEN|SECRET|PASSW|CREDENTIAL|API_?KEY|PRIVATE|AUTH", re.IGNORECASE)
+
+
+def sandbox_env(home: Path) -> dict[str, str]:
+    """A sandboxed process's environment: the driver's, HOME and TMPDIR (so Dr.Jit's and Mitsuba's caches)
+    inside its own folder ``home``, without variables that look like secrets."""
+    env = {k: v for k, v in driver_env().items() if not _SECRET_ENV.search(k)}
+    env.update(HOME=str(home / "home"), TMPDIR=str(home / "tmp"), XDG_CACHE_HOME=str(home / "home" / ".cache"))
+    for var in ("USER", "LOGNAME"):
+        env.pop(var, None)
+    return env
+
+
+def _others_can_traverse(path: Path) -> Optional[Path]:
+    """The first folder from / down to ``path`` (included when a folder) that others cannot enter, or None."""
+    path = Path(os.path.realpath(path))
+    chain = [*reversed(path.parents), path] if path.is_dir() else list(reversed(path.parents))
+    for d in chain:
+        try:
+            if not os.stat(d).st_mode & stat.S_IXOTH:
+                return d
+        except OSError:
+            return d
+    return None
+
+
+def sandbox_blockers(data_dir: Path) -> list[str]:
+    """Why a sandbox user could not run jobs here: folders others cannot enter on the way to the data dir, the
+    interpreter, the standard library or the code (empty when nothing stands in the way)."""
+    import sys as _sys
+
+    out: list[str] = []
+    # the data dir itself is made 0711 on start; the folders above it must already be enterable
+    targets = [data_dir / "service.db", Path(_sys.executable), Path(os.path.realpath(_sys.executable)),
+               Path(_sys.prefix), Path(_sys.base_prefix), _REPO]
+    seen: set[Path] = set()
+    for t in targets:
+        bad = _others_can_traverse(t.parent if t.parent == data_dir else t)
+        if bad == Path(os.path.realpath(data_dir)):
+            bad = None
+        if bad is not None and bad not in seen:
+            seen.add(bad)
+            out.append(f"{bad} (on the way to {t}) is not traversable by other users: chmod o+x {bad}")
+    exe = Path(os.path.realpath(_sys.executable))
+    try:
+        if not os.stat(exe).st_mode & stat.S_IXOTH:
+            out.append(f"{exe} is not executable by other users: chmod o+rx {exe}")
+    except OSError as exc:
+        out.append(f"cannot stat the interpreter {exe}: {exc}")
+    return out
+
+
+def resolve_sandbox(settings) -> Optional[int]:
+    """The sandbox uid base when sandboxing applies, else None; records the answer in ``settings.sandbox``
+    ("on" / "off") so later calls agree. ``auto`` is on when the service runs as root and the sandbox users can
+    reach everything they need (else a warning and off); ``on`` (or a uid base) makes it mandatory:
+    ``SandboxUnavailable`` says why it cannot be."""
+    mode = str(settings.sandbox)
+    if mode == "off":
+        return None
+    mandatory = mode != "auto"
+    if mode.isdigit():
+        settings.sandbox_uid_base = int(mode)
+    why: list[str] = []
+    if os.geteuid() != 0:
+        why = [f"the service runs as uid {os.geteuid()}, not root (it cannot switch users)"]
+    elif not hasattr(os, "setgroups"):
+        why = ["this platform cannot switch users"]
+    else:
+        why = sandbox_blockers(settings.data_dir)
+    top = settings.sandbox_uid_base + settings.workers
+    if not why and not 1 <= settings.sandbox_uid_base <= top <= 2 ** 31 - 2:
+        why = [f"uids {settings.sandbox_uid_base}..{top} are out of range (1..{2 ** 31 - 2})"]
+    if why:
+        if mandatory:
+            raise SandboxUnavailable("--sandbox on: cannot run jobs as unprivileged users: " + "; ".join(why)
+                                     + " (or start with --sandbox off)")
+        if os.geteuid() == 0:
+            log.warning("running as root WITHOUT privilege separation (--sandbox auto): %s. Fix that, or make "
+                        "it mandatory with --sandbox on; --sandbox off silences this", "; ".join(why))
+        settings.sandbox = "off"
+        return None
+    settings.sandbox = "on"
+    return settings.sandbox_uid_base
+
+
+def secure_data_dir(settings) -> None:
+    """Permissions of the data dir when sandboxing: the dir 0711 (enter, not list), ``service.db`` and its
+    -wal/-shm and ``server.lock`` 0600, ``scenes/`` 0700, ``jobs/`` and ``sandbox/`` 0711, each job dir 0700."""
+    d = settings.data_dir
+    os.chmod(d, 0o711)
+    for name in ("service.db", "service.db-wal", "service.db-shm", "server.lock"):
+        try:
+            os.chmod(d / name, 0o600)
+        except FileNotFoundError:
+            pass
+    for sub, mode in ((settings.scenes_dir, 0o700), (settings.jobs_dir, 0o711), (d / "sandbox", 0o711)):
+        sub.mkdir(parents=True, exist_ok=True)
+        os.chmod(sub, mode)
+    with os.scandir(settings.jobs_dir) as it:
+        for entry in it:
+            if entry.is_dir(follow_symlinks=False):
+                os.chmod(entry.path, 0o700)
+    for entry in os.scandir(d):
+        if entry.is_file(follow_symlinks=False) and entry.name.startswith("service.db"):
+            os.chmod(entry.path, 0o600)
+
+
+def give_tree(root: Path, who: RunAs) -> None:
+    """Hand ``root`` and everything under it to ``who``: owner, folders 0700, files 0600 (links untouched)."""
+    for dirpath, dirnames, filenames in os.walk(root):
+        os.chown(dirpath, who.uid, who.gid, follow_symlinks=False)
+        os.chmod(dirpath, 0o700)
+        for name in filenames + [n for n in dirnames if os.path.islink(os.path.join(dirpath, n))]:
+            p = os.path.join(dirpath, name)
+            st = os.lstat(p)
+            os.chown(p, who.uid, who.gid, follow_symlinks=False)
+            if stat.S_ISREG(st.st_mode):
+                os.chmod(p, 0o600)
+
+
+def reclaim_tree(root: Path, *, remove: tuple[str, ...] = ()) -> list[str]:
+    """Take ``root`` back from a sandbox user (whose processes must all be gone): every folder and file owned
+    by this process again (folders 0700, files 0600), the subfolders ``remove`` deleted, and every entry that is
+    not a plain file or folder (a symlink, a fifo) or a file with other hard links removed, so nothing in it
+    leads the service elsewhere. Returns what it removed (relative paths)."""
+    uid, gid = os.geteuid(), os.getegid()
+    dropped: list[str] = []
+    if root.is_symlink() or not root.is_dir():
+        return dropped
+    for name in remove:
+        p = root / name
+        if p.is_symlink() or (p.exists() and not p.is_dir()):
+            p.unlink()
+        elif p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+    for dirpath, dirnames, filenames in os.walk(root):  # walk never follows a symlinked folder
+        os.chown(dirpath, uid, gid, follow_symlinks=False)
+        os.chmod(dirpath, 0o700)
+        for name in filenames + list(dirnames):
+            p = os.path.join(dirpath, name)
+            st = os.lstat(p)
+            if stat.S_ISDIR(st.st_mode):
+                continue
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+                os.unlink(p)
+                dropped.append(os.path.relpath(p, root))
+                continue
+            os.chown(p, uid, gid, follow_symlinks=False)
+            os.chmod(p, 0o600)
+        dirnames[:] = [n for n in dirnames if not os.path.islink(os.path.join(dirpath, n))]
+    return dropped
+
+
+def _uid_pids(uids: set[int]) -> list[int]:
+    pids = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/status", "rb") as fh:
+                text = fh.read().decode(errors="replace")
+        except OSError:
+            continue
+        uid_line = next((ln for ln in text.splitlines() if ln.startswith("Uid:")), "")
+        state = next((ln for ln in text.splitlines() if ln.startswith("State:")), "")
+        fields = uid_line.split()[1:]
+        if fields and any(int(f) in uids for f in fields) and " Z " not in state + " ":
+            pids.append(int(entry.name))
+    return pids
+
+
+def uid_alive(uid: int) -> bool:
+    """Whether any (non-zombie) process runs as ``uid``."""
+    return bool(_uid_pids({uid}))
+
+
+def kill_uids(uids, *, timeout_s: float = 5.0) -> bool:
+    """SIGKILL every process of the sandbox users ``uids`` (whatever group or session it moved to) until none
+    is left; returns whether none is."""
+    uids = set(uids)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        pids = _uid_pids(uids)
+        if not pids:
+            return True
+        if time.monotonic() > deadline:
+            log.error("processes of sandbox uids %s survive SIGKILL: %s", sorted(uids), pids)
+            return False
+        for pid in pids:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        time.sleep(0.02)
 
 
 def group_alive(pgid: int) -> bool:
@@ -93,16 +324,22 @@ class LocalEngine:
 
     name = "local"
 
-    def launch(self, job_id: str, attempt: int, job_dir: Path) -> Handle:
-        log = open(job_dir / "driver.log", "ab")
+    sandboxed = True  # can run drivers as a sandbox user (``run_as``)
+
+    def launch(self, job_id: str, attempt: int, job_dir: Path, run_as: Optional[RunAs] = None) -> Handle:
+        """Start the driver; with ``run_as`` as that user, HOME and TMPDIR in ``job_dir`` (which it owns)."""
+        log_fh = open(job_dir / "driver.log", "ab")
         try:
+            if run_as is not None:
+                os.fchown(log_fh.fileno(), run_as.uid, run_as.gid)
             proc = subprocess.Popen(
                 [sys.executable, "-m", "service.workers.driver", str(job_dir), "--parent-pid", str(os.getpid())],
-                stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=job_dir,
-                env=driver_env(), start_new_session=True)
+                stdin=subprocess.DEVNULL, stdout=log_fh, stderr=subprocess.STDOUT, cwd=job_dir,
+                env=driver_env() if run_as is None else sandbox_env(job_dir), start_new_session=True,
+                **(run_as.popen_kwargs() if run_as is not None else {}))
         finally:
-            log.close()
-        return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=proc.pid, obj=proc)
+            log_fh.close()
+        return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=proc.pid, obj=proc, run_as=run_as)
 
     def poll(self, handle: Handle) -> Optional[int]:
         return handle.obj.poll()

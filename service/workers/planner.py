@@ -1,10 +1,16 @@
 """Effect plans of uploaded scenes: a thread that runs ``holo plan SCENE --json`` in a subprocess (its own
-process group, with a timeout) for each scene whose plan is pending, and stores the JSON or the error."""
+process group, with a timeout) for each scene whose plan is pending, and stores the JSON or the error.
+
+With the sandbox on (service/workers/engine.py) the plan runs as the planner uid (``sandbox_uid_base``) on a
+copy of the bundle in ``data_dir/sandbox/plan-<scene>/`` that it owns (its HOME and TMPDIR too); the copy is
+deleted afterwards, and so is anything the planner uid left running."""
 
 from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
 import subprocess
 import sys
 import threading
@@ -12,7 +18,7 @@ from typing import Optional
 
 from service.db import Database
 from service.settings import ServiceSettings
-from service.workers.engine import driver_env, kill_group
+from service.workers.engine import RunAs, driver_env, give_tree, kill_group, kill_uids, resolve_sandbox, sandbox_env
 
 __all__ = ["Planner"]
 
@@ -27,8 +33,17 @@ class Planner:
         self._wake = threading.Event()
         self._proc: Optional[subprocess.Popen] = None
         self._thread: Optional[threading.Thread] = None
+        self.run_as: Optional[RunAs] = None
 
     def start(self) -> None:
+        base = resolve_sandbox(self.settings)
+        if base is not None:
+            self.run_as = RunAs(base, base)
+            kill_uids({base})  # what a previous server's plan left running
+            self.settings.sandbox_dir.mkdir(parents=True, exist_ok=True)
+            os.chmod(self.settings.sandbox_dir, 0o711)
+            for old in self.settings.sandbox_dir.glob("plan-*"):
+                shutil.rmtree(old, ignore_errors=True)
         self._thread = threading.Thread(target=self._loop, name="holo-planner", daemon=True)
         self._thread.start()
 
@@ -41,6 +56,8 @@ class Planner:
         proc = self._proc
         if proc is not None and proc.poll() is None:
             kill_group(proc.pid, grace_s=0.5, proc=proc)
+        if self.run_as is not None:
+            kill_uids({self.run_as.uid})
         if self._thread is not None:
             self._thread.join(timeout=10)
 
@@ -57,12 +74,33 @@ class Planner:
             self._wake.clear()
 
     def _plan(self, scene: dict) -> None:
-        bundle = self.settings.scenes_dir / scene["id"] / "bundle"
+        if self.run_as is None:
+            self._run_plan(scene, self.settings.scenes_dir / scene["id"] / "bundle", None)
+            return
+        work = self.settings.sandbox_dir / f"plan-{scene['id']}"
+        try:
+            shutil.rmtree(work, ignore_errors=True)
+            work.mkdir(mode=0o700)
+            shutil.copytree(self.settings.scenes_dir / scene["id"] / "bundle", work / "bundle", symlinks=True)
+            for sub in ("home", "tmp"):
+                (work / sub).mkdir()
+            give_tree(work, self.run_as)
+            self._run_plan(scene, work / "bundle", work)
+        finally:
+            kill_uids({self.run_as.uid})
+            shutil.rmtree(work, ignore_errors=True)
+
+    def _run_plan(self, scene: dict, bundle, work) -> None:
+        """``holo plan`` on ``bundle``; sandboxed (as ``self.run_as``, in ``work``) when ``work`` is given."""
         cmd = [sys.executable, "-m", "holo", "plan", str(bundle / scene["entry"]), "--json"]
+        extra = {} if work is None else self.run_as.popen_kwargs()
+        if work is not None:
+            log.info("scene %s: planning as uid %d", scene["id"], self.run_as.uid)
         try:
             self._proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                          stdin=subprocess.DEVNULL, cwd=bundle, env=driver_env(),
-                                          start_new_session=True)
+                                          stdin=subprocess.DEVNULL, cwd=bundle if work is None else work,
+                                          env=driver_env() if work is None else sandbox_env(work),
+                                          start_new_session=True, **extra)
             try:
                 out, err = self._proc.communicate(timeout=self.settings.plan_timeout_s)
             except subprocess.TimeoutExpired:
@@ -77,6 +115,8 @@ class Planner:
         if rc != 0:
             lines = [ln for ln in err.decode(errors="replace").strip().splitlines() if ln.strip()]
             msg = next((ln for ln in reversed(lines) if ln.startswith("error:")), lines[-1] if lines else "")
+            if work is not None:  # the copy's path is nobody's business; say the bundle's
+                msg = msg.replace(str(bundle), str(self.settings.scenes_dir / scene["id"] / "bundle"))
             self._store(scene["id"], None, f"holo plan failed (exit {rc}): {msg.removeprefix('error: ')[:500]}")
             return
         try:

@@ -5,13 +5,23 @@ timed-out runs, and records how each run ended. Crashed runs are requeued until 
 On start it recovers from a crash: jobs left ``running`` (their drivers are gone or are killed now) are
 finished from their ``status.json`` if it says done, else requeued, or failed after ``max_attempts`` runs.
 None stays running.
+
+With the sandbox on (local engine; service/workers/engine.py) each running job holds a slot ``k`` and runs as
+uid ``sandbox_uid_base + 1 + k``: before launch the scene bundle is copied into ``JOB_DIR/scene/`` (job.json's
+``scene_path``) and the job dir is handed to that uid (0700). However the run ends (done, failed, cancelled,
+timed out, found on recovery) every process of that uid is killed, the dir is taken back (links and odd files
+dropped), the scene copy removed, and only then is the slot free again. ``status.json`` is the worker's word
+and is not trusted for integrity: the artifacts' hashes and sizes are the scheduler's own.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
+import shutil
+import stat
 import threading
 import time
 from pathlib import Path
@@ -20,7 +30,8 @@ from typing import Optional
 from service.db import Database
 from service.settings import ServiceSettings
 from service.workers.driver import EXIT_FAILED, STEPS, write_json_atomic
-from service.workers.engine import Engine, Handle, group_alive, kill_group
+from service.workers.engine import (Engine, Handle, RunAs, give_tree, group_alive, kill_group, kill_uids,
+                                    reclaim_tree, resolve_sandbox, secure_data_dir)
 
 __all__ = ["Scheduler", "read_progress", "STEP_WEIGHTS"]
 
@@ -31,6 +42,29 @@ STEP_WEIGHTS = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07
 _RENDER_STAGE_END = {"analysis": 0.1, "bank": 0.15, "cache": 0.3, "trace": 0.9, "propagate": 1.0}
 _RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
               *(f"{s}.log" for s in STEPS))
+ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
+_SANDBOX_ONLY = ("scene", "home", "tmp")  # what a sandboxed run gets in its job dir, removed after it
+
+
+def hash_artifacts(job_dir: Path) -> dict[str, dict]:
+    """{name: {"sha256", "bytes"}} of the job's artifacts, hashed here: plain files only (no symlink is
+    followed, no file with other hard links counts)."""
+    out: dict[str, dict] = {}
+    for name in ARTIFACTS:
+        try:
+            fd = os.open(job_dir / name, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue
+        with os.fdopen(fd, "rb") as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+                continue
+            h, n = hashlib.sha256(), 0
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+                n += len(chunk)
+        out[name] = {"sha256": h.hexdigest(), "bytes": n}
+    return out
 
 
 def _last_json_line(path: Path) -> Optional[dict]:
@@ -106,9 +140,24 @@ class Scheduler:
         self._wake = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self.last_tick = 0.0
+        self.sandbox_base: Optional[int] = None  # slot k runs as sandbox_base + 1 + k (None: no sandbox)
+        self._slot_of: dict[str, int] = {}
+        self._draining: set[int] = set()  # slots whose run is being killed and taken back
+        self._releasers: list[threading.Thread] = []
 
     # ---- lifecycle -------------------------------------------------------------------------------------
     def start(self) -> None:
+        base = resolve_sandbox(self.settings)
+        if base is not None:
+            secure_data_dir(self.settings)
+            if getattr(self.engine, "sandboxed", False):
+                self.sandbox_base = base
+                kill_uids(range(base + 1, base + 1 + self.settings.workers))  # a previous server's leftovers
+                log.info("sandbox on: jobs run as uids %d..%d, scene planning as uid %d", base + 1,
+                         base + self.settings.workers, base)
+            else:
+                log.warning("sandbox: engine %s runs jobs as its workers' own user; only scene planning is "
+                            "sandboxed", self.engine.name)
         self.recover()
         self._thread = threading.Thread(target=self._loop, name="holo-scheduler", daemon=True)
         self._thread.start()
@@ -130,10 +179,14 @@ class Scheduler:
                 kill_group(h.pid, grace_s=min(1.0, self.settings.kill_grace_s), proc=h.obj)
             else:
                 self.engine.kill(h, grace_s=0)
+            if h.run_as is not None:
+                self._take_back(job_id, h)
             if requeue:
                 self.db.update_job(job_id, where_state=("running",), state="queued", attempts=max(0, h.attempt - 1),
                                    started_at=None, worker_pid=None, progress=None)
         self.running.clear()
+        for t in list(self._releasers):
+            t.join(timeout=15)
         self.engine.close()
 
     def recover(self) -> None:
@@ -144,6 +197,11 @@ class Scheduler:
             if pid and _pid_is_our_driver(pid, job_dir):
                 log.warning("job %s: killing the driver (pid %d) a previous server left behind", row["id"], pid)
                 kill_group(pid, grace_s=1.0)
+            try:  # a sandboxed run's dir (its uids were killed in start): ours again before anything reads it
+                if job_dir.is_dir() and (self.sandbox_base is not None or job_dir.stat().st_uid != os.geteuid()):
+                    reclaim_tree(job_dir, remove=_SANDBOX_ONLY)
+            except OSError:
+                log.exception("job %s: could not take its dir back", row["id"])
             status = _read_status(job_dir, row["attempts"])
             if status and status.get("ok"):
                 self._succeed(row["id"], row["attempts"], status, job_dir)
@@ -171,6 +229,8 @@ class Scheduler:
         for job_id, h in list(self.running.items()):
             self._watch(job_id, h)
         while len(self.running) < self.settings.workers and not self._stop.is_set():
+            if self.sandbox_base is not None and self._free_slot() is None:
+                break  # every slot is still being taken back from a stopped run
             row = self.db.claim_next_job()
             if row is None:
                 break
@@ -178,11 +238,63 @@ class Scheduler:
         if self.metrics is not None:
             self.metrics.workers_busy.set(len(self.running))
 
+    # ---- sandbox slots ---------------------------------------------------------------------------------
+    def _free_slot(self) -> Optional[int]:
+        used = set(self._slot_of.values()) | self._draining
+        return next((k for k in range(self.settings.workers) if k not in used), None)
+
+    def _slot_user(self, slot: int) -> RunAs:
+        uid = self.sandbox_base + 1 + slot
+        return RunAs(uid, uid)
+
+    def _take_back(self, job_id: str, h: Handle) -> None:
+        """Kill whatever the run's uid still runs, take its dir back and free its slot (once the run stopped)."""
+        try:
+            kill_uids({h.run_as.uid})
+            dropped = reclaim_tree(h.job_dir, remove=_SANDBOX_ONLY)
+            if dropped:
+                log.warning("job %s: removed from its dir (links or special files): %s", job_id, dropped[:20])
+        except OSError:
+            log.exception("job %s: could not take its dir back", job_id)
+        finally:
+            self._slot_of.pop(job_id, None)  # no-op for a draining slot (_release_later frees it)
+
+    def _release_later(self, job_id: str, h: Handle, *, grace_s: float, then=None) -> None:
+        """Stop the run (SIGTERM, ``grace_s``, SIGKILL) and take its slot back in a helper thread; the slot
+        stays in use until then."""
+        slot = self._slot_of.pop(job_id, None)
+        if slot is not None:
+            self._draining.add(slot)
+
+        def work() -> None:
+            try:
+                if h.pid is not None:
+                    kill_group(h.pid, grace_s=grace_s, proc=h.obj)
+                self._take_back(job_id, h)
+                if then is not None:
+                    then()
+            finally:
+                self._draining.discard(slot)
+                self._releasers.remove(threading.current_thread())
+                self.wake()
+
+        t = threading.Thread(target=work, name=f"release-{job_id}", daemon=True)
+        self._releasers.append(t)
+        t.start()
+
     def _launch(self, row: dict) -> None:
         job_id, attempt = row["id"], row["attempts"]
         job_dir = Path(row["artifact_dir"])
+        run_as = None
+        if self.sandbox_base is not None:
+            slot = self._free_slot()
+            run_as = self._slot_user(slot)
+            self._slot_of[job_id] = slot
         try:
             job_dir.mkdir(parents=True, exist_ok=True)
+            if run_as is not None:
+                os.chmod(job_dir, 0o700)
+                reclaim_tree(job_dir, remove=_SANDBOX_ONLY)
             for name in _RUN_FILES:  # a fresh run: nothing of a previous attempt may look like this one's
                 (job_dir / name).unlink(missing_ok=True)
             spec = row["spec"]
@@ -191,28 +303,45 @@ class Scheduler:
                 raise FileNotFoundError(f"scene {row['scene_id']} is gone")
             write_json_atomic(job_dir / "optics.json", spec["optics"])
             scene_path = self.settings.scenes_dir / scene["id"] / "bundle" / scene["entry"]
+            if run_as is not None:  # the job reads its own copy only (scenes/ is closed to it)
+                shutil.copytree(self.settings.scenes_dir / scene["id"] / "bundle",
+                                job_dir / "scene", symlinks=True)
+                scene_path = job_dir / "scene" / scene["entry"]
+                for sub in ("home", "tmp"):
+                    (job_dir / sub).mkdir(exist_ok=True)
             write_json_atomic(job_dir / "job.json", {**{k: v for k, v in spec.items() if k != "optics"},
                                                      "job_id": job_id, "attempt": attempt,
                                                      "scene_path": str(scene_path),
                                                      "keep_result": self.settings.keep_result})
-            handle = self.engine.launch(job_id, attempt, job_dir)
+            if run_as is not None:
+                give_tree(job_dir, run_as)
+                handle = self.engine.launch(job_id, attempt, job_dir, run_as=run_as)
+            else:
+                handle = self.engine.launch(job_id, attempt, job_dir)
         except Exception as exc:  # noqa: BLE001
             log.exception("job %s: launch failed", job_id)
+            if run_as is not None:
+                self._take_back(job_id, Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, run_as=run_as))
             self._fail(job_id, attempt, f"could not start the worker: {exc}")
             return
         self.running[job_id] = handle
         self.db.update_job(job_id, where_state=("running",), worker_pid=handle.pid,
                            progress={"step": "starting", "stage": "starting", "done": 0, "total": 0,
                                      "fraction": 0.0})
-        log.info("job %s: attempt %d started (pid %s, %s)", job_id, attempt, handle.pid, self.engine.name)
+        log.info("job %s: attempt %d started (pid %s, %s%s)", job_id, attempt, handle.pid, self.engine.name,
+                 f", uid {run_as.uid}" if run_as is not None else "")
 
     def _watch(self, job_id: str, h: Handle) -> None:
         row = self.db.get_job(job_id)
         if row is None or row["state"] != "running" or row["attempts"] != h.attempt:
             log.info("job %s: %s, stopping its run", job_id, row["state"] if row else "deleted")
-            self.engine.kill(h, grace_s=self.settings.kill_grace_s)
             del self.running[job_id]
             self._progress.pop(job_id, None)
+            if h.run_as is not None:
+                self._release_later(job_id, h, grace_s=self.settings.kill_grace_s,
+                                    then=lambda: self._remove_partials(h.job_dir))
+                return
+            self.engine.kill(h, grace_s=self.settings.kill_grace_s)
             self._cleanup_cancelled(h.job_dir)
             return
         rc = self.engine.poll(h)
@@ -222,12 +351,17 @@ class Scheduler:
                 self._progress[job_id] = prog
                 self.db.update_job(job_id, where_state=("running",), progress=prog)
             if time.monotonic() - h.started > self.settings.job_timeout_s:
-                self.engine.kill(h, grace_s=self.settings.kill_grace_s)
+                if h.run_as is not None:
+                    self._release_later(job_id, h, grace_s=self.settings.kill_grace_s)
+                else:
+                    self.engine.kill(h, grace_s=self.settings.kill_grace_s)
                 del self.running[job_id]
                 self._fail(job_id, h.attempt, f"timed out after {self.settings.job_timeout_s:.0f} s")
             return
         del self.running[job_id]
         self._progress.pop(job_id, None)
+        if h.run_as is not None:  # the driver is gone: nothing of its uid survives it, its dir is ours again
+            self._take_back(job_id, h)
         status = _read_status(h.job_dir, h.attempt)
         if rc == 0 and status and status.get("ok"):
             self._succeed(job_id, h.attempt, status, h.job_dir)
@@ -249,6 +383,15 @@ class Scheduler:
 
     # ---- outcomes --------------------------------------------------------------------------------------
     def _succeed(self, job_id: str, attempt: int, status: dict, job_dir: Path) -> None:
+        artifacts = hash_artifacts(job_dir)  # our own hashes: status.json is the worker's word only
+        stack = artifacts.get("stack.npz")
+        if stack is None:
+            self._fail(job_id, attempt, "the run reported success but left no stack.npz")
+            return
+        if status.get("stack_sha256") != stack["sha256"]:
+            self._fail(job_id, attempt, "integrity check failed: stack.npz does not have the SHA-256 its worker "
+                                        "reported; the job can be submitted again")
+            return
         row = self.db.get_job(job_id)
         timings = dict((row or {}).get("timings") or {})
         timings.update(status.get("timings") or {})
@@ -261,9 +404,8 @@ class Scheduler:
         if status.get("warnings"):
             plan = {**(plan or {}), "warnings": status["warnings"]}
         changed = self.db.update_job(
-            job_id, where_state=("running",), state="succeeded", finished_at=now, stack_sha256=status["stack_sha256"],
-            stack_bytes=status.get("stack_bytes"), timings=timings, plan=plan, error=None,
-            artifacts=status.get("artifacts"),
+            job_id, where_state=("running",), state="succeeded", finished_at=now, stack_sha256=stack["sha256"],
+            stack_bytes=stack["bytes"], timings=timings, plan=plan, error=None, artifacts=artifacts,
             progress={"step": "done", "stage": "done", "done": 1, "total": 1, "fraction": 1.0})
         if changed:
             log.info("job %s: succeeded (attempt %d)", job_id, attempt)
@@ -283,7 +425,11 @@ class Scheduler:
         """A cancelled run's partial fields are of no use; its logs stay."""
         def later() -> None:
             time.sleep(2.0)
-            for name in ("result.npz", "stack.npz", "frames.zip", "preview.png"):
-                (job_dir / name).unlink(missing_ok=True)
+            Scheduler._remove_partials(job_dir)
 
         threading.Thread(target=later, daemon=True).start()
+
+    @staticmethod
+    def _remove_partials(job_dir: Path) -> None:
+        for name in ("result.npz", *ARTIFACTS):
+            (job_dir / name).unlink(missing_ok=True)
