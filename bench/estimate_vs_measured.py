@@ -144,7 +144,9 @@ def report(rows: list[dict], *, command: str, machine: str, minutes: float, repe
         p = r["point"]
         lines.append(f"| {p.scene} | {p.resolution_hw[0]}x{p.resolution_hw[1]} | {p.frames} | {p.preset} | {p.spp} "
                      f"| {r['measured_s']:.3f} | {r['estimate_s']:.3f} | {r['ratio']:.2f} |")
-    lines += ["", "The machine is shared (two cores, other work running): ratios move with its load.", ""]
+    lines += ["", "The machine is shared (two cores, other work running): a load average above the core count "
+              "slows every run by about that factor, and ratios move with it. The calibration's own numbers were "
+              "measured on an idle machine.", ""]
     return "\n".join(lines)
 
 
@@ -159,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     machine = _machine()
     t0 = time.perf_counter()
     rows = measure(_points(args.quick), args.repeats)
+    if hasattr(os, "getloadavg"):
+        machine += f", {os.getloadavg()[0]:.2f} at the end"
     text = report(rows, command="bench/estimate_vs_measured.py" + (" --quick" if args.quick else ""),
                   machine=machine, minutes=(time.perf_counter() - t0) / 60, repeats=args.repeats)
     args.out.parent.mkdir(parents=True, exist_ok=True)
