@@ -98,7 +98,9 @@ def test_complex_scale_of_the_target_only_shifts_the_phase():
         d = np.angle(np.exp(1j * (scaled.phase.astype(np.float64) - base.phase)))  # wrapped difference
         offset = np.angle(np.exp(1j * d).mean(axis=(-2, -1), keepdims=True))
         resid = np.angle(np.exp(1j * (d - offset)))
-        assert np.abs(resid).max() < 2e-2, np.abs(resid).max()
+        # Adam normalises every pixel's step, so pixels whose gradient is near zero amplify float rounding: a
+        # few of 4096 move by a few 0.01 rad, the rest by < 1e-3.
+        assert np.quantile(np.abs(resid), 0.99) < 2e-3 and np.abs(resid).max() < 0.1, np.abs(resid).max()
         assert np.allclose(offset, np.angle(c), atol=2e-3)  # the offset is the scale's phase
         assert np.allclose(scaled.loss, base.loss, atol=1e-4)
         assert np.allclose(scaled.illumination, base.illumination, rtol=1e-3)
@@ -206,7 +208,9 @@ def test_progress_and_tolerance():
     kw = dict(z_wrp_m=1e-3, wavelengths_m=LAMS, pitch_m=P)
     full = enc.encode_sgd(target, iterations=45, tol=0.0, progress=lambda *a: calls.append(a), **kw)
     assert full.iterations == 45 and not full.converged
-    assert calls[0] == ("encode", 10, 45) and calls[-1] == ("encode", 45, 45)
+    # one block per color: progress counts through both (2 x 45 steps)
+    assert calls[0] == ("encode", 10, 90) and calls[-1] == ("encode", 90, 90)
+    assert [c[1] for c in calls] == sorted(c[1] for c in calls)
     assert len(full.history) == 5 and full.history[-1] < full.history[0]
     early = enc.encode_sgd(target, iterations=2000, tol=0.05, **kw)
     assert early.converged and early.iterations < 2000
