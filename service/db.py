@@ -144,9 +144,18 @@ class Database:
             params.update({f"_s{i}": s for i, s in enumerate(where_state)})
         return self.execute(sql, params) > 0
 
-    def claim_next_job(self) -> Optional[dict]:
-        """Atomically move the oldest queued job to running (attempts + 1) and return it, or None."""
+    def next_queued_job(self) -> Optional[dict]:
+        """The oldest queued job (not claimed)."""
+        return self.one("SELECT * FROM jobs WHERE state = 'queued' ORDER BY created_at, rowid LIMIT 1")
+
+    def claim_next_job(self, job_id: Optional[str] = None) -> Optional[dict]:
+        """Atomically move the oldest queued job (or ``job_id``, if still queued) to running (attempts + 1) and
+        return it, or None."""
         now = time.time()
+        if job_id is not None:
+            return self.one("UPDATE jobs SET state = 'running', attempts = attempts + 1, started_at = ?, "
+                            "updated_at = ?, worker_pid = NULL, error = NULL WHERE id = ? AND state = 'queued' "
+                            "RETURNING *", (now, now, job_id))
         return self.one(
             "UPDATE jobs SET state = 'running', attempts = attempts + 1, started_at = ?, updated_at = ?, "
             "worker_pid = NULL, error = NULL WHERE id = (SELECT id FROM jobs WHERE state = 'queued' "

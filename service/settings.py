@@ -78,6 +78,10 @@ class ServiceSettings(BaseModel):
     auth_failures_per_minute: int = Field(default=60, ge=1, description="Failed authentications a client address "
                                                                        "may make per minute before it gets 429.")
     metrics_public: bool = Field(default=False, description="Serve /metrics without a token (else: scope read).")
+    # Memory admission (issue 11 item 3).
+    worker_memory_mb: Optional[float] = Field(default=None, gt=0, description="Memory the workers may use together, "
+                                                                             "MB (default: the machine's, less "
+                                                                             "10% or 1 GiB, whichever is more).")
 
     @field_validator("data_dir")
     @classmethod
@@ -97,6 +101,14 @@ class ServiceSettings(BaseModel):
         return self.data_dir / "jobs"
 
     @property
+    def worker_memory_bytes(self) -> int:
+        """What the workers may hold at once: ``worker_memory_mb``, else physical memory less a margin."""
+        if self.worker_memory_mb is not None:
+            return int(self.worker_memory_mb * 1e6)
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        return int(total - max(0.1 * total, 2**30))
+
+    @property
     def sandbox_dir(self) -> Path:
         """Folders of sandboxed scene planning (``plan-<scene>/``)."""
         return self.data_dir / "sandbox"
@@ -112,7 +124,7 @@ class ServiceSettings(BaseModel):
                          ("sandbox", "HOLO_SANDBOX"),
                          ("header_timeout_s", "HOLO_HEADER_TIMEOUT_S"),
                          ("auth_failures_per_minute", "HOLO_AUTH_FAILURES_PER_MINUTE"),
-                         ("metrics_public", "HOLO_METRICS_PUBLIC")):
+                         ("metrics_public", "HOLO_METRICS_PUBLIC"), ("worker_memory_mb", "HOLO_WORKER_MEMORY_MB")):
             if env.get(var):
                 data[key] = env[var]
         upload_mb = overrides.pop("max_upload_mb", None) or env.get("HOLO_MAX_UPLOAD_MB")

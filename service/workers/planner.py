@@ -16,6 +16,7 @@ import sys
 import threading
 from typing import Optional
 
+from holocore.errors import scrub_message
 from service.db import Database
 from service.settings import ServiceSettings
 from service.workers.engine import RunAs, driver_env, give_tree, kill_group, kill_uids, resolve_sandbox, sandbox_env
@@ -129,6 +130,10 @@ class Planner:
     def _store(self, scene_id: str, plan: Optional[dict], error: Optional[str]) -> None:
         import time
 
+        if error is not None:  # bundle-relative paths only; no server path reaches the user or the database
+            error = scrub_message(error, roots=[self.settings.scenes_dir / scene_id / "bundle",
+                                                self.settings.sandbox_dir / f"plan-{scene_id}" / "bundle",
+                                                self.settings.data_dir])
         self.db.update_scene(scene_id, where_plan_state="running", plan_state="ready" if plan else "failed",
                              plan=plan, plan_error=error, plan_updated_at=time.time())
         log.info("scene %s: plan %s", scene_id, "ready" if plan else f"failed: {error}")

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
+from holocore.errors import scrub_message
 from service.db import Database
 from service.settings import ServiceSettings
 from service.workers.driver import EXIT_FAILED, STEPS, write_json_atomic
@@ -118,6 +119,13 @@ def _read_status(job_dir: Path, attempt: int) -> Optional[dict]:
     return doc if isinstance(doc, dict) and doc.get("attempt") == attempt else None
 
 
+def _peak_bytes(row: dict) -> int:
+    """A job's predicted peak memory from its estimate (0 when it has none: jobs from before the estimate)."""
+    mem = (row.get("estimate") or {}).get("memory") or {}
+    peak = mem.get("peak_bytes")
+    return int(peak) if isinstance(peak, (int, float)) and peak > 0 else 0
+
+
 def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
     try:
         cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
@@ -135,6 +143,7 @@ class Scheduler:
         self.engine = engine
         self.metrics = metrics
         self.running: dict[str, Handle] = {}
+        self._memory: dict[str, int] = {}  # predicted peak bytes of each running job
         self._progress: dict[str, dict] = {}
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -231,10 +240,20 @@ class Scheduler:
         while len(self.running) < self.settings.workers and not self._stop.is_set():
             if self.sandbox_base is not None and self._free_slot() is None:
                 break  # every slot is still being taken back from a stopped run
-            row = self.db.claim_next_job()
-            if row is None:
+            nxt = self.db.next_queued_job()
+            if nxt is None:
                 break
+            need = _peak_bytes(nxt)
+            held = sum(self._memory.get(j, 0) for j in self.running)
+            if self.running and held + need > self.settings.worker_memory_bytes:
+                break  # runs start in order, and only while their estimates fit together
+            row = self.db.claim_next_job(nxt["id"])
+            if row is None:
+                continue  # cancelled meanwhile
+            self._memory[row["id"]] = need
             self._launch(row)
+        for job_id in [j for j in self._memory if j not in self.running]:
+            del self._memory[job_id]
         if self.metrics is not None:
             self.metrics.workers_busy.set(len(self.running))
 
@@ -413,8 +432,9 @@ class Scheduler:
                 self.metrics.jobs_finished.labels(state="succeeded").inc()
 
     def _fail(self, job_id: str, attempt: int, error: str) -> None:
+        error = scrub_message(error, roots=[self.settings.jobs_dir / job_id, self.settings.data_dir], limit=2000)
         changed = self.db.update_job(job_id, where_state=("running", "queued"), state="failed",
-                                     finished_at=time.time(), error=error[:2000])
+                                     finished_at=time.time(), error=error)
         if changed:
             log.warning("job %s: failed (attempt %d): %s", job_id, attempt, error)
             if self.metrics is not None:

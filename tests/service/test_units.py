@@ -211,3 +211,33 @@ def test_second_server_on_the_same_data_dir_is_refused(server_factory):
                        capture_output=True, text=True, cwd=REPO, timeout=60)
     assert r.returncode != 0 and "another holo serve uses" in r.stderr
 
+
+
+def test_jobs_run_together_only_while_their_memory_estimates_fit(tmp_path):
+    from service.settings import ServiceSettings
+    from service.workers.engine import Handle
+    from service.workers.scheduler import Scheduler
+
+    settings = ServiceSettings(data_dir=tmp_path, workers=3, worker_memory_mb=1000, sandbox="off")
+    db = Database(settings.db_path)
+    now = time.time()
+    for i, mb in enumerate((600, 300, 500, 900)):
+        db.insert_job({"id": f"j{i}", "state": "queued", "scene_id": "s", "spec": {}, "cache_key": "k",
+                       "created_at": now + i, "estimate": {"memory": {"peak_bytes": int(mb * 1e6)}}})
+    sched = Scheduler(settings, db, engine=None)
+    launched: list[str] = []
+
+    def fake_launch(row):
+        launched.append(row["id"])
+        sched.running[row["id"]] = Handle(job_id=row["id"], attempt=1, job_dir=tmp_path)
+
+    sched._launch = fake_launch  # noqa: SLF001 - the claim order is what this test watches
+    sched._watch = lambda job_id, h: None  # noqa: SLF001
+    sched.tick()
+    assert launched == ["j0", "j1"]  # 600 + 300 MB fit in 1000; + 500 would not: j2 waits (in order)
+    del sched.running["j0"]
+    sched.tick()
+    assert launched == ["j0", "j1", "j2"]  # 300 + 500
+    del sched.running["j1"], sched.running["j2"]
+    sched.tick()
+    assert launched[-1] == "j3"  # alone, 900 MB
