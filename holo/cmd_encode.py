@@ -22,8 +22,16 @@ def encode(
                                            "the ideal SLM field)."),
     iterations: int = typer.Option(500, help="Most Adam steps for sgd (0..1000000); stops earlier once converged."),
     lr: float = typer.Option(0.2, help="Adam step for sgd, rad (> 0)."),
-    tol: float = typer.Option(1e-3, help="sgd stops when the loss falls by less than this fraction over 30 steps "
-                                         "(0: run every iteration)."),
+    stop_db: float = typer.Option(0.05, "--stop-db", help="sgd stops a (frame, color) once its field SNR gained "
+                                                         "less than this many dB over 30 steps (0: run every step)."),
+    tol: Optional[float] = typer.Option(None, help="Instead of --stop-db: stop when the loss falls by less than "
+                                                   "this fraction over 30 steps (0: run every step)."),
+    fourier_filter: Optional[bool] = typer.Option(
+        None, "--fourier-filter/--no-fourier-filter",
+        help="Whether the display's Fourier filter passes only the recording cone (default: the RESULT's display; "
+             "on when it names none). Off: light outside the cone is visible and counts as error."),
+    memory_limit_gb: float = typer.Option(8.0, "--memory-limit-gb", help="Peak memory to plan for (GiB): frames "
+                                                                         "are encoded in blocks that fit."),
     efficiency_weight: float = typer.Option(0.0, "--efficiency-weight",
                                             help="0..1: > 0 keeps more light in the viewing cone (brighter, less "
                                                  "accurate); 0 is pure complex supervision."),
@@ -41,19 +49,9 @@ def encode(
     if not result.is_file():
         fail(f"result not found: {result}")
 
-    import numpy as np
     import torch
 
     from holocore import encoding
-    from holocore.io import load_result
-
-    try:
-        _, wrp, meta = load_result(result)
-    except (ValueError, OSError, KeyError) as exc:
-        fail(f"cannot read {result}: {exc}")
-    missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
-    if missing:
-        fail(f"{result}: meta lacks {missing}")
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     try:
@@ -62,30 +60,43 @@ def encode(
         fail(f"--device: {exc}")
     if dev.type == "cuda" and not torch.cuda.is_available():
         fail("--device cuda asked for, but torch sees no CUDA device")
+    if not memory_limit_gb > 0:
+        fail(f"--memory-limit-gb must be > 0, got {memory_limit_gb}")
+    from holocore.encoding_stream import encode_file, read_meta
+
+    try:
+        meta = read_meta(result)
+    except (ValueError, OSError, KeyError) as exc:
+        fail(f"cannot read {result}: {exc}")
+    missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
+    if missing:
+        fail(f"{result}: meta lacks {missing}")
     lut_table = None
     if lut is not None:
         try:
             lut_table = encoding.load_lut(lut, wavelengths_m=meta["wavelengths_m"])
         except ValueError as exc:
             fail(str(exc))
-
     write_progress = progress_writer(progress_jsonl)
     write_progress("load", 1, 1)
-    options = dict(iterations=iterations, lr=lr, tol=tol, efficiency_weight=efficiency_weight,
-                   progress=write_progress) if method == "sgd" else {}
+    options = dict(iterations=iterations, lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=efficiency_weight) \
+        if method == "sgd" else {}
     t0 = time.perf_counter()
     try:
-        res = encoding.encode(method, torch.from_numpy(np.ascontiguousarray(wrp)).to(dev), z_wrp_m=meta["z_wrp_m"],
-                              wavelengths_m=meta["wavelengths_m"], pitch_m=meta["pitch_m"], **options)
-        encoding.save_encoded(out, res, meta=meta, lut=lut_table, lut_source=None if lut is None else lut.name)
-    except ValueError as exc:
+        res, _ = encode_file(result, out, method=method, fourier_filter=fourier_filter,
+                             memory_limit_bytes=int(memory_limit_gb * 2**30), device=dev, lut=lut_table,
+                             lut_source=None if lut is None else lut.name, progress=write_progress, **options)
+    except (ValueError, OSError) as exc:
         fail(str(exc))
     write_progress("save", 1, 1)
     s = res.summary()
-    F, C, H, W = res.phase.shape
-    msg = (f"encoded {result.name} with {method}: {F} frame(s) x {C} color(s) x {H}x{W}, complex-field error "
-           f"{s['loss_mean']:.4f} (start {s['loss_init_mean']:.4f}), light in the cone "
-           f"{float(res.efficiency.mean()):.0%}")
+    F, C, H, W = len(res.black), len(res.black[0]), *res.phase.shape[-2:]
+    msg = (f"encoded {result.name} with {method} for a display {'with' if s['fourier_filter'] else 'without'} a "
+           f"Fourier filter ({s['fourier_filter_source']}; {s['supervision']} supervision): {F} frame(s) x {C} "
+           f"color(s) x {H}x{W} in blocks of {s['block_frames']} frame(s), complex-field error {s['loss_mean']:.4f} "
+           f"(start {s['loss_init_mean']:.4f}; in the cone {s['loss_cone_mean']:.4f}, whole field "
+           f"{s['loss_full_mean']:.4f}), light in the cone {s['efficiency_mean']:.0%}, in the target "
+           f"{s['efficiency_target_mean']:.0%}")
     if method == "sgd":
         msg += f", {res.iterations} iteration(s){' (converged)' if res.converged else ''}"
     typer.echo(f"{msg}, {time.perf_counter() - t0:.1f} s -> {out}", err=True)

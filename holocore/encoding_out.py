@@ -102,5 +102,5 @@ def save_encoded(path: Union[str, Path], result: "EncodeResult", *, meta: dict, 
     enc = result.summary()
     enc["lut"] = None if lut is None else {"source": lut_source or "array",
                                             "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}
-    out_meta = {**meta, "encoder": enc}
+    out_meta = {**meta, "display_profile": meta.get("display_profile"), "display": meta.get("display"), "encoder": enc}
     save_stack(path, phase=result.phase, meta=out_meta, frames_u8=quantize(result.phase, lut=lut))
