@@ -1,5 +1,6 @@
-"""`holo baseline layers`: the layer-based (RGB-D) baseline hologram, in the renderer's RESULT.npz format, so
-that `holo evaluate` and `holo encode` treat it like a render."""
+"""`holo baseline layers` and `holo baseline focal-stack`: the layer-based (RGB-D) and the focal-stack baseline
+holograms, in the renderer's RESULT.npz format, so that `holo view` and `holo evaluate` (and, for the layers,
+`holo encode`) treat them like a render."""
 
 from __future__ import annotations
 
@@ -53,3 +54,74 @@ def layers(
                f"({used} hold pixels) from {m['layers']['plane_z_m'][0] * 1e3:.4f} to "
                f"{m['layers']['plane_z_m'][-1] * 1e3:.4f} mm, z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
                f"in {time.perf_counter() - t0:.1f} s -> {out}", err=True)
+
+
+@baseline_app.command("focal-stack")
+@with_optics_options
+def focal_stack(
+    scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
+    out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz (slm_field = sqrt(P_c) exp(i phase))."),
+    planes: int = typer.Option(5, "--planes", help="Focal-stack planes (1..64)."),
+    spacing_mm: float = typer.Option(1.25, "--spacing-mm", help="Plane spacing in hologram depth, mm (the "
+                                     "paper's 1.25), centred on the image volume; 0: spread the planes "
+                                     "uniformly from the far to the near end of the image volume."),
+    pupil_mm: Optional[float] = typer.Option(None, "--pupil-mm", help="Eye pupil of the targets and the model, "
+                                             "mm (default: the one `holo evaluate` uses by default)."),
+    iterations: int = typer.Option(200, "--iterations", help="Adam steps (0..100000)."),
+    lr: float = typer.Option(0.05, "--lr", help="Adam learning rate on the phases (rad)."),
+    gt_spp: int = typer.Option(64, "--gt-spp", help="Mitsuba samples per pixel of each target (1..65536)."),
+    stack: Optional[Path] = typer.Option(None, "--stack", help="Also write the phases as STACK.npz (8-bit frames, "
+                                         "laser powers in meta.encoder.illumination)."),
+    device: str = typer.Option("cpu", "--device", help="torch device of the optimisation: cpu, cuda or auto."),
+    optics: OpticsOptions = OpticsOptions(),
+) -> None:
+    """Focal stack: phase-only SGD of the frames on the frame-averaged amplitude at planes across the image
+    volume, against Mitsuba thin-lens targets through the eye's pupil (time-multiplexed neural holography)."""
+    profile, optics_cfg = optics.resolve()
+    if not 1 <= planes <= 64:
+        fail(f"--planes must be in 1..64, got {planes}")
+    if not (spacing_mm >= 0 and spacing_mm < 1000):
+        fail(f"--spacing-mm must be in [0, 1000) mm, got {spacing_mm}")
+    if pupil_mm is not None and not (0 < pupil_mm <= 1000):
+        fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
+    if not 0 <= iterations <= 100_000:
+        fail(f"--iterations must be in 0..100000, got {iterations}")
+    if not (lr > 0 and lr < 100):
+        fail(f"--lr must be in (0, 100), got {lr}")
+    if not 1 <= gt_spp <= 65536:
+        fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
+    if device not in ("cpu", "cuda", "auto"):
+        fail(f"--device must be cpu, cuda or auto, got {device!r}")
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+    import torch
+
+    from holocore.baseline_focal_stack import render_focal_stack, stack_of
+    from holocore.io import save_result, save_stack
+    from holocore.scene import load_scene
+
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and not torch.cuda.is_available():
+        fail("--device cuda: no CUDA device here")
+    t0 = time.perf_counter()
+    try:
+        result = render_focal_stack(load_scene(scene), optics_cfg, planes=planes,
+                                    spacing_m=spacing_mm * 1e-3 if spacing_mm > 0 else None,
+                                    pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3,
+                                    iterations=iterations, lr=lr, gt_spp=gt_spp, device=device, display=profile)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
+    if stack is not None:
+        phase, smeta = stack_of(result)
+        save_stack(stack, phase=phase, meta=smeta)
+    m = result.meta
+    fs = m["focal_stack"]
+    F, C, H, W = m["shape_fchw"]
+    zs = fs["plane_z_m"]
+    typer.echo(f"focal-stack baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x "
+               f"{H}x{W}, {len(zs)} planes from {zs[0] * 1e3:.4f} to {zs[-1] * 1e3:.4f} mm, pupil "
+               f"{fs['pupil_diameter_m'] * 1e3:.3g} mm, loss {fs['loss_first']:.4g} -> {fs['loss_final']:.4g} in "
+               f"{iterations} steps, in {time.perf_counter() - t0:.1f} s -> {out}"
+               + (f" and {stack}" if stack is not None else ""), err=True)
