@@ -1,4 +1,5 @@
-"""One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, `holo view`.
+"""One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, `holo view`, and the
+web page's pictures (``service.workers.pictures``: focal sweep and view grid under ``pictures/``).
 
 Run as ``python -m service.workers.driver JOB_DIR [--parent-pid PID]``. ``JOB_DIR/job.json`` says what to do;
 the driver writes ``step.json`` as each step starts, each CLI appends ``progress-<step>.jsonl``, and at the end
@@ -27,7 +28,7 @@ from typing import Any, Optional
 
 __all__ = ["main", "STEPS", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm"]
 
-STEPS = ("render", "encode", "package", "preview")
+STEPS = ("render", "encode", "package", "preview", "pictures")
 EXIT_FAILED = 3
 EXIT_RETRY = 75
 
@@ -70,13 +71,13 @@ class StepFailed(Exception):
         self.retryable = retryable
 
 
-def _run(step: str, args: list[str], job_dir: Path) -> float:
-    """Run ``python -m holo ARGS`` as a child (same process group); returns seconds taken."""
+def _run(step: str, args: list[str], job_dir: Path, module: str = "holo") -> float:
+    """Run ``python -m MODULE ARGS`` (default: holo) as a child (same process group); returns seconds taken."""
     write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
     t0 = time.monotonic()
     with open(job_dir / f"{step}.log", "wb") as log:
         # the CLI dies with the driver, however the driver dies (even SIGKILL, which no handler sees)
-        proc = subprocess.run([sys.executable, "-m", "holo", *args], stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.run([sys.executable, "-m", module, *args], stdout=log, stderr=subprocess.STDOUT,
                               stdin=subprocess.DEVNULL, cwd=job_dir, preexec_fn=_child_dies_with_driver)
     if proc.returncode != 0:
         lines = (job_dir / f"{step}.log").read_text(errors="replace").strip().splitlines()
@@ -121,6 +122,15 @@ def preview_focus_mm(meta: dict) -> float:
     return float(meta["z_inf_m"]) * 1e3
 
 
+def _peak_rss_bytes() -> int:
+    """The largest resident set of this driver or any step it ran (the job's measured peak memory)."""
+    import resource
+
+    kib = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+              resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+    return int(kib) * 1024
+
+
 def run_job(job_dir: Path) -> dict:
     spec = json.loads((job_dir / "job.json").read_text())
     timings: dict[str, float] = {}
@@ -153,6 +163,14 @@ def run_job(job_dir: Path) -> dict:
         if exc.retryable:
             raise
         warnings.append(f"no preview: {exc}")
+    try:  # the web page's focal sweep and view grid (service/workers/pictures.py)
+        timings["pictures_s"] = _run("pictures", ["stack.npz", "--out", "pictures"], job_dir,
+                                     module="service.workers.pictures")
+    except StepFailed as exc:
+        if exc.retryable:
+            raise
+        warnings.append(f"no pictures: {exc}")
+    timings["peak_rss_bytes"] = _peak_rss_bytes()
     if not spec.get("keep_result", True):
         (job_dir / "result.npz").unlink(missing_ok=True)
     plan = meta.get("plan") or {}
