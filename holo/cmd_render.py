@@ -28,10 +28,24 @@ def render(
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
+    device: Optional[str] = typer.Option(None, "--device", help="auto (CUDA when available) | cpu | cuda; "
+                                                                 "default: HOLO_DEVICE, else auto."),
+    memory_budget_mb: Optional[int] = typer.Option(
+        None, "--memory-budget-mb", help="Peak memory to stay within (MiB): frames are traced and propagated in "
+                                         "chunks that fit and streamed to --out; default: HOLO_MEMORY_BUDGET_MB, "
+                                         "else 8192."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Render a scene into WRP and SLM wave fields (RESULT.npz) for a display (default: the paper's)."""
     profile, optics_cfg = optics.resolve()
+    from holocore.device import select_device
+    from holocore.membudget import memory_budget_bytes
+
+    try:
+        select_device(device)
+        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
+    except ValueError as exc:
+        fail(str(exc))
     if preset not in ("fast", "balanced", "reference"):
         fail(f"--preset must be fast, balanced or reference, got {preset!r}")
     if method not in ("wrp", "direct"):
@@ -42,7 +56,7 @@ def render(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from holocore.pipeline import RenderOptions, render as do_render
+    from holocore.pipeline import RenderOptions, render_to_file
 
     try:
         options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects)
@@ -84,21 +98,26 @@ def render(
             write_progress(stage, done, total)
 
         try:
-            result = do_render(scene, optics_cfg, options, progress=progress, display=profile)
+            m = render_to_file(scene, out, optics_cfg, options, progress=progress, display=profile,
+                               memory_budget_bytes=budget)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
-    from holocore.io import save_result
-
-    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
-    m = result.meta
     F, C, H, W = m["shape_fchw"]
     st = m["stats"]
     console.print(
         f"rendered {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x {H}x{W}, "
         f"f = {m['focal_length_m'] * 1e3:.4g} mm, {st['rays']:,} rays "
         f"({st['valid'] / max(1, st['rays']):.0%} with an image point), z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
-        f"in {time.perf_counter() - t0:.1f} s -> {out}"
+        f"in {time.perf_counter() - t0:.1f} s on {m['device']} -> {out}"
     )
+    mem = m["memory"]
+    if mem["trace_passes"] > 1 or mem["frames_per_propagation_chunk"] < F:
+        console.print(f"  - memory budget {mem['budget_bytes'] / 2**20:.0f} MiB: {mem['trace_passes']} trace "
+                      f"pass(es) of {mem['frames_per_trace_pass']} frame(s), propagation in chunks of "
+                      f"{mem['frames_per_propagation_chunk']} frame(s)")
+    if mem["estimated_peak_bytes"] > mem["budget_bytes"]:
+        console.print(f"  - note: the chunk plan estimates a peak of {mem['estimated_peak_bytes'] / 2**20:.0f} "
+                      f"MiB, more than the budget of {mem['budget_bytes'] / 2**20:.0f} MiB")
     for line in m["plan"]["summary"]:
         console.print(f"  - {line}")
 

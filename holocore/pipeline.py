@@ -1,5 +1,13 @@
 """From a scene and the optics to the WRP and SLM fields (DESIGN.md §1): load -> plan -> analyse -> trace ->
-propagate. This is what `holo render` and the service's workers call."""
+propagate. This is what `holo render` and the service's workers call.
+
+Memory is bounded by a budget (:mod:`holocore.membudget`: keyword, HOLO_MEMORY_BUDGET_MB, default 8 GiB) that
+sizes chunks of frames: the tracer runs one pass per chunk of frames whose random-phase bank fits (one pass
+for every frame when it fits, as it does at 1080x1920 x 3 x 24 in 8 GiB; each pass retraces the same rays, so
+the result does not depend on the chunking), and the propagation runs per chunk of frames and color.
+:func:`render_to_file` streams both fields into RESULT.npz (the traced one through a scratch file), so no
+[F, C, H, W] array is ever held; :func:`render` / :func:`render_loaded` return them in memory.
+"""
 
 from __future__ import annotations
 
@@ -16,7 +24,7 @@ from holocore import __version__
 from holocore.config import OpticsConfig
 from holocore.display import DisplayProfile
 
-__all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "plan_scene"]
+__all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -68,34 +76,110 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
             "field_of_view": fov}
 
 
-def _banks(optics: OpticsConfig, shape_hw, device="cpu"):
+def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
+           wavelengths_m=None):
+    """exp(i phi_m) per color as [F, H, W] views of one cell-major tensor ([H, W, C, F] in memory): the tracer
+    gathers every frame of every color of a cell at once (tracer.combined_cells). Frames first_frame..
+    first_frame+frames-1 (default: all of optics.frames), colors ``wavelengths_m`` (default: all), built frame by
+    frame (no [F, H, W] temporaries)."""
     import torch
 
     from holocore.randomfield import phase_bank
 
-    # Stored cell-major, all colors together ([H, W, C, F] in memory, each color seen as [F, H, W]): the tracer
-    # gathers every frame of every color of a cell at once (tracer.combined_cells).
     H, W = shape_hw
-    F, C = optics.frames, len(optics.wavelengths_m)
+    F = optics.frames - first_frame if frames is None else frames
+    lams = list(optics.wavelengths_m if wavelengths_m is None else wavelengths_m)
+    C = len(lams)
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
-    for c, lam in enumerate(optics.wavelengths_m):
-        ph = phase_bank(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device)
-        cells[:, :, c, :] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64).permute(1, 2, 0)
+    for c, lam in enumerate(lams):
+        for m in range(F):
+            ph = phase_bank(1, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device,
+                            first_frame=first_frame + m)[0]
+            cells[:, :, c, m] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64)
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 
 
-def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
-                  progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None) -> RenderResult:
-    """Render a loaded scene: WRP field (two-stage) or SLM field (direct), then ASM to the other plane.
-    ``display``: the profile ``optics`` came from, recorded in the meta (``display_profile``, ``display``)."""
+class _MemorySink:
+    """Both fields in memory (the unchunked layout: one [F, C, H, W] array each)."""
+
+    def __init__(self, shape):
+        self.traced = np.zeros(shape, dtype=np.complex64)
+        self.other = np.empty(shape, dtype=np.complex64)
+
+    def write_rows(self, f0, colors, r0, block):
+        self.traced[f0:f0 + block.shape[0], colors, r0:r0 + block.shape[2]] = block
+
+    def read_traced(self, f0, f1, c):
+        return self.traced[f0:f1, c]
+
+    def write_other(self, f0, block):
+        self.other[f0:f0 + block.shape[0]] = block
+
+
+class _FileSink:
+    """The traced field in a scratch file, the propagated one streamed straight into RESULT.npz."""
+
+    def __init__(self, writer, shape, traced_name, other_name):
+        from holocore.io import ScratchArray
+
+        self.writer, self.shape, self.traced_name = writer, shape, traced_name
+        self.scratch = ScratchArray(shape, np.complex64, dir=writer.path.parent)
+        self.stream = writer.stream(other_name, shape, np.complex64)
+
+    def write_rows(self, f0, colors, r0, block):
+        self.scratch.write_rows(f0, colors, r0, block)
+
+    def read_traced(self, f0, f1, c):
+        return self.scratch.read_fc(f0, f1, c)
+
+    def write_other(self, f0, block):
+        self.stream.write(block)
+
+    def finish(self):
+        self.stream.close()
+        self.writer.copy_from(self.traced_name, self.scratch)
+        self.scratch.close()
+
+
+# What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
+# scene, the ambient cache, a tracer tile) and, per complex sample of a padded propagation grid, the ASM's
+# workspace, spectrum and output.
+_FIXED_BYTES = 1.0 * 2**30
+_ASM_GRIDS = 3
+
+
+def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
+    """(frames per trace pass, frames per propagation chunk, estimated peak bytes)."""
+    from holocore.membudget import frames_per_chunk
+
+    hp, wp = pad_hw
+    plane = 8 * H * W  # one complex64 frame of one color
+    held = 2 * F * C * plane if in_memory else 0  # the in-memory result holds both fields
+    tf = 2 * C * 8 * hp * wp  # cached transfer functions (H and conj(H)/N per color)
+    fixed = _FIXED_BYTES + held
+    ft = F if not random_phase else frames_per_chunk(F, per_frame_bytes=C_lit * plane, fixed_bytes=fixed,
+                                                    budget_bytes=budget)
+    per_prop = _ASM_GRIDS * 8 * hp * wp + 2 * plane + (0 if in_memory else C * plane)
+    fp = frames_per_chunk(F, per_frame_bytes=per_prop, fixed_bytes=fixed + tf, budget_bytes=budget)
+    peak = max(fixed + (ft * C_lit * plane if random_phase else 0), fixed + tf + fp * per_prop)
+    return ft, fp, int(peak)
+
+
+def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOptions, *, progress, display,
+                 memory_budget_bytes, in_memory):
+    """The render, its fields handed to the sink that ``sink_factory(shape, traced, other)`` makes; returns
+    (sink, meta)."""
     import torch
 
-    from holocore.mitsuba_env import mitsuba, variant
-    from holocore.propagation import asm
+    from holocore.membudget import memory_budget_bytes as _budget
+    from holocore.mitsuba_env import compute_device, mitsuba, variant
+    from holocore.propagation import asm, padded_shape
     from holocore.radiance_cache import build_cache
     from holocore.tracer import TraceSettings, TraceStats, trace_field
 
     mi = mitsuba()
+    dev = compute_device()
+    budget = _budget(memory_budget_bytes)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, options)
@@ -106,10 +190,13 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
     H, W = optics.resolution_hw
     C, F = len(optics.wavelengths_m), optics.frames
     z_wrp = ana.z_wrp_m
-
-    t1 = time.perf_counter()
-    banks = _banks(optics, (H, W)) if plan.random_phase else None
-    timings["bank_s"] = time.perf_counter() - t1
+    lit = plan.colors_lit
+    lit_idx = [i for i, on in enumerate(lit) if on]
+    wl_lit = [optics.wavelengths_m[i] for i in lit_idx]
+    ft, fp, peak = _chunk_plan(H, W, C, len(wl_lit), F, budget, plan.random_phase, in_memory,
+                               padded_shape((H, W), 2))
+    direct = options.method == "direct"
+    sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
     cache = None
@@ -122,31 +209,53 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
                              max_delta=plan.max_delta if plan.coherent_delta else 0,
                              tile_rays=options.tile_rays, random_phase=plan.random_phase)
     stats = TraceStats()
-    lit = plan.colors_lit
-    wl_lit = [lam for lam, on in zip(optics.wavelengths_m, lit) if on]
-    field = np.zeros((F, C, H, W), dtype=np.complex64)
-    t3 = time.perf_counter()
-    if wl_lit:
-        plane = z_wrp if options.method == "wrp" else 0.0
-        traced = trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
-                             plane_z_m=plane, z_wrp_m=z_wrp, frames=F, settings=settings, integrator=integrator,
-                             seed=optics.seed, radiance_cache=cache,
-                             bank_phasors=None if banks is None else [b for b, on in zip(banks, lit) if on],
-                             progress=progress, stats=stats)
-        field[:, [i for i, on in enumerate(lit) if on]] = traced
-    timings["trace_s"] = time.perf_counter() - t3
+    timings["bank_s"] = 0.0
+    timings["trace_s"] = 0.0
+    passes = list(range(0, F, ft)) if wl_lit else []
+    for pi, f0 in enumerate(passes):
+        f1 = min(F, f0 + ft)
+        t1 = time.perf_counter()
+        banks = _banks(optics, (H, W), dev, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
+            if plan.random_phase else None
+        timings["bank_s"] += time.perf_counter() - t1
+        t3 = time.perf_counter()
+        n_pass = len(passes)
+
+        def tile_progress(stage, done, total, _pi=pi, _n=n_pass):
+            if progress:
+                progress(stage, _pi * total + done, _n * total)
+
+        def on_tile(r0, r1, block, _f0=f0):
+            sink.write_rows(_f0, lit_idx, r0, block.cpu().numpy())  # the one transfer to the host per tile
+
+        trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                    plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, frames=(f1 - f0) if banks else F,
+                    settings=settings, integrator=integrator, seed=optics.seed, radiance_cache=cache,
+                    bank_phasors=banks, progress=tile_progress, stats=stats if pi == 0 else TraceStats(),
+                    device=dev, on_tile=on_tile)
+        del banks
+        timings["trace_s"] += time.perf_counter() - t3
+        if not plan.random_phase:
+            break  # one pass wrote every frame
 
     t4 = time.perf_counter()
-    out = np.empty_like(field)
-    for c, lam in enumerate(optics.wavelengths_m):
-        u = torch.from_numpy(field[:, c])
-        dz = -z_wrp if options.method == "wrp" else z_wrp
-        out[:, c] = asm(u, dz, lam, optics.pitch_m).numpy()
+    dz = z_wrp if direct else -z_wrp
+    chunks = list(range(0, F, fp))
+    for ci, f0 in enumerate(chunks):
+        f1 = min(F, f0 + fp)
+        block = np.zeros((f1 - f0, C, H, W), dtype=np.complex64)
+        for c, lam in enumerate(optics.wavelengths_m):
+            if c not in lit_idx:
+                continue  # the field of an unlit color is zero on both planes
+            u = torch.from_numpy(sink.read_traced(f0, f1, c)).to(dev)
+            block[:, c] = asm(u, dz, lam, optics.pitch_m).cpu().numpy()
+            del u
+        sink.write_other(f0, block)
+        del block
+        if progress:
+            progress("propagate", ci + 1, len(chunks))
     timings["propagate_s"] = time.perf_counter() - t4
     timings["total_s"] = time.perf_counter() - t0
-    if progress:
-        progress("propagate", 1, 1)
-    slm, wrp = (out, field) if options.method == "wrp" else (field, out)
 
     meta: dict[str, Any] = {
         "focal_length_m": pl["focal_length_m"],
@@ -167,17 +276,57 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
         **_display_meta(display, optics),
         "stats": stats.as_dict(),
         "timings": timings,
+        "memory": {"budget_bytes": budget, "estimated_peak_bytes": peak, "trace_passes": len(passes),
+                   "frames_per_trace_pass": ft, "frames_per_propagation_chunk": fp, "streamed": not in_memory},
+        "device": str(dev),
         "versions": _versions(variant()),
     }
+    return sink, meta
+
+
+def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
+                  progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None,
+                  memory_budget_bytes: Optional[int] = None) -> RenderResult:
+    """Render a loaded scene: WRP field (two-stage) or SLM field (direct), then ASM to the other plane.
+    ``display``: the profile ``optics`` came from, recorded in the meta (``display_profile``, ``display``).
+    ``memory_budget_bytes``: sizes the chunks (see the module docstring); the two fields returned are held
+    in memory whatever it says (use :func:`render_to_file` to stream them)."""
+    sink, meta = _render_into(lambda shape, _t, _o: _MemorySink(shape), loaded, optics, options,
+                              progress=progress, display=display, memory_budget_bytes=memory_budget_bytes,
+                              in_memory=True)
+    slm, wrp = (sink.traced, sink.other) if options.method == "direct" else (sink.other, sink.traced)
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
 
 
 def render(scene_path: str | Path, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
-           progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None) -> RenderResult:
+           progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None,
+           memory_budget_bytes: Optional[int] = None) -> RenderResult:
     """Check and load a scene bundle, then :func:`render_loaded`."""
     from holocore.scene import load_scene
 
-    return render_loaded(load_scene(scene_path), optics, options, progress=progress, display=display)
+    return render_loaded(load_scene(scene_path), optics, options, progress=progress, display=display,
+                         memory_budget_bytes=memory_budget_bytes)
+
+
+def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
+                   progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None,
+                   memory_budget_bytes: Optional[int] = None) -> dict:
+    """Render ``scene`` (a bundle path or a loaded scene) straight into RESULT.npz at ``out_path`` in bounded
+    memory (the same file :func:`holocore.io.save_result` writes, equal fields); returns the meta."""
+    from holocore.io import RESULT_META_KEYS, NpzWriter
+    from holocore.scene import load_scene
+
+    loaded = load_scene(scene) if isinstance(scene, (str, Path)) else scene
+    with NpzWriter(out_path) as writer:
+        sink, meta = _render_into(lambda shape, t, o: _FileSink(writer, shape, t, o), loaded, optics, options,
+                                  progress=progress, display=display, memory_budget_bytes=memory_budget_bytes,
+                                  in_memory=False)
+        sink.finish()
+        missing = [k for k in RESULT_META_KEYS if k not in meta]
+        if missing:
+            raise ValueError(f"result meta lacks {missing}")
+        writer.add("meta", np.array(json.dumps(meta)))
+    return meta
 
 
 def _display_meta(display: Optional[DisplayProfile], optics: OpticsConfig) -> dict:

@@ -63,10 +63,10 @@ def passband_mask(shape_hw: tuple[int, int], wavelength_m: float, pitch_m: Pitch
     return (fx[None, :] ** 2 + fy[:, None] ** 2) <= rho * rho * (1.0 + 1e-12)
 
 
-def _frame_rngs(frames: int, seed: int, lam: float) -> list[np.random.Generator]:
+def _frame_rngs(frames: int, seed: int, lam: float, first: int = 0) -> list[np.random.Generator]:
     lam_key = int(round(lam * 1e15))  # femtometres: distinct laser lines give distinct streams
     root = np.random.SeedSequence(entropy=[int(seed), _STREAM_TAG, lam_key])
-    return [np.random.default_rng(child) for child in root.spawn(frames)]
+    return [np.random.default_rng(child) for child in root.spawn(first + frames)[first:]]
 
 
 def _check_bank(frames: int, seed: int) -> None:
@@ -76,15 +76,18 @@ def _check_bank(frames: int, seed: int) -> None:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
 
 
-def _frames(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, seed: int):
-    """Yield r_m (complex128 [H, W], unit mean intensity) for m = 0..F-1, on the CPU."""
+def _frames(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, seed: int,
+            first: int = 0):
+    """Yield r_m (complex128 [H, W], unit mean intensity) for m = first..first+F-1, on the CPU."""
     _check_bank(frames, seed)
+    if isinstance(first, bool) or not isinstance(first, (int, np.integer)) or first < 0:
+        raise ValueError(f"first_frame must be an integer >= 0, got {first!r}")
     h, w, lam, py, px = _check(shape_hw, wavelength_m, pitch_m)
     mask = passband_mask((h, w), lam, (py, px))
     idx = np.flatnonzero(mask)
     # Parseval: mean |r|^2 = n_in / (H W)^2 for the unnormalised inverse DFT; rescale to 1.
     scale = (h * w) / math.sqrt(max(idx.size, 1))
-    for rng in _frame_rngs(int(frames), seed, lam):
+    for rng in _frame_rngs(int(frames), seed, lam, int(first)):
         spec = np.zeros(h * w, dtype=np.complex128)
         spec[idx] = np.exp(1j * rng.uniform(0.0, 2.0 * np.pi, size=idx.size))
         yield np.fft.ifft2(spec.reshape(h, w)) * scale
@@ -101,14 +104,15 @@ def random_field(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pi
 
 
 def phase_bank(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, seed: int,
-               device: Union[str, torch.device] = "cpu") -> torch.Tensor:
+               device: Union[str, torch.device] = "cpu", first_frame: int = 0) -> torch.Tensor:
     """Random phase maps phi_m = arg r_m, float32 [F, H, W] in [0, 2pi) (paper Eq. 4), periodic on H x W.
 
     ``seed`` >= 0; the stream is derived from (seed, wavelength, frame index), so the same arguments give the
-    same bank on any device and each wavelength an independent one.
+    same bank on any device and each wavelength an independent one. ``first_frame``: frames first_frame..
+    first_frame+frames-1 of the same bank (a chunk of a longer one, equal to its slice).
     """
     phases = []
-    for r in _frames(frames, shape_hw, wavelength_m, pitch_m, seed):
+    for r in _frames(frames, shape_hw, wavelength_m, pitch_m, seed, first_frame):
         phi = np.mod(np.angle(r), 2.0 * np.pi).astype(np.float32)
         phi[phi >= np.float32(2.0 * np.pi)] = 0.0  # float32 rounding of values just under 2pi
         phases.append(phi)

@@ -112,7 +112,7 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     over n (one gather serves every color: the image point, hence the cell, is the same for all).
     """
     P, (C, F) = base.shape[0] // n, cells.shape[1:]
-    out = torch.empty((P, C, F), dtype=torch.complex64)
+    out = torch.empty((P, C, F), dtype=torch.complex64, device=cells.device)
     step = max(1, _CHUNK_RAYS // n)
     b = base.view(P, n, C, 1)
     for p0 in range(0, P, step):
@@ -139,13 +139,20 @@ def trace_field(
     radiance_cache=None,
     progress: Optional[ProgressFn] = None,
     stats: Optional[TraceStats] = None,
-) -> np.ndarray:
+    device: Optional[torch.device] = None,
+    on_tile: Optional[Callable[[int, int, torch.Tensor], None]] = None,
+) -> Optional[np.ndarray]:
     """Complex field on the plane z = plane_z_m, complex64 [F, C, H, W].
 
     ``plane_z_m == z_wrp_m``: the two-stage method's WRP. ``plane_z_m == 0``: the direct method on the SLM.
     ``bank_phasors``: per color a complex64 tensor [F, H, W] of exp(i phi_m) (None: no random phase).
     ``integrator``: Mitsuba's ``path`` with ``settings.max_depth``, for the radiance samples beyond the
     first (``settings.amp_spp`` > 1); the first one is traced with the wave path itself.
+
+    ``device``: where the torch work runs (default: the banks' device, else the CPU); on CUDA the kernel's
+    outputs reach torch through DLPack without leaving the GPU. ``on_tile(r0, r1, block)``: receives each tile's
+    rows r0..r1 of the field as a complex64 tensor [F, C, r1 - r0, W] on ``device`` (valid during the call)
+    instead of one [F, C, H, W] array being filled and returned (the caller streams them; returns None).
     """
     H, W = shape_hw
     C = len(wavelengths_m)
@@ -157,27 +164,37 @@ def trace_field(
     geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
                          plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp)
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
-    out = torch.zeros((frames, C, H, W), dtype=torch.complex64)
+    if device is not None:
+        dev = torch.device(device)
+    else:
+        dev = bank_phasors[0].device if bank_phasors is not None else torch.device("cpu")
+    out = None if on_tile is not None else torch.zeros((frames, C, H, W), dtype=torch.complex64, device=dev)
     cells = None if bank_phasors is None else combined_cells(bank_phasors)
+    if cells is not None and cells.device != dev:
+        raise ValueError(f"bank_phasors are on {cells.device}, the trace runs on {dev}")
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
         tile = _trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
-                           seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats)
+                           seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev)
         _park_drjit_workers()
         t1 = time.perf_counter()
         if cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
-            for c in range(C):
-                out[:, c, r0:r1] += tile[c].view(r1 - r0, W)[None]
+            block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
         else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
             base = torch.stack([tile[c] for c in range(C)], dim=1)
             acc = _accumulate_frames(cells, tile["idx"], base, settings.spp)  # [P, C, F]
-            out[:, :, r0:r1] += acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
+            block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
+        if on_tile is not None:
+            on_tile(r0, r1, block)
+        else:
+            out[:, :, r0:r1] += block
+        del tile, block
         stats.seconds_trace += t1 - t0
         stats.seconds_accumulate += time.perf_counter() - t1
         if progress is not None:
             progress("trace", ti + 1, len(tiles))
-    return out.numpy()
+    return None if out is None else out.cpu().numpy()
 
 
 def _park_drjit_workers() -> None:
@@ -256,8 +273,16 @@ def _opaque(mi, g: _Geometry) -> SimpleNamespace:
     return o
 
 
+def _to_torch(x, dev: torch.device) -> torch.Tensor:
+    """A Dr.Jit array as a torch tensor on ``dev``: zero-copy through DLPack on the GPU, through numpy on the
+    CPU (the tensors' values are the same)."""
+    if dev.type == "cuda":
+        return x.torch()
+    return torch.from_numpy(np.asarray(x))
+
+
 def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
-                want_cells: bool, *, seed: int, stats: TraceStats) -> dict:
+                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device) -> dict:
     """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
     ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
     major) and, with ``want_cells``, the bank cell of every ray's image point ("idx")."""
@@ -325,20 +350,22 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     if not want_cells:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
         dr.eval(parts)
-    out = {c: torch.complex(torch.from_numpy(np.asarray(parts[2 * c])), torch.from_numpy(np.asarray(parts[2 * c + 1])))
+    out = {c: torch.complex(_to_torch(parts[2 * c], device), _to_torch(parts[2 * c + 1], device))
            for c in range(len(g.ks))}
     if want_cells:
-        out["idx"] = torch.from_numpy(np.asarray(idx).astype(np.int64))
-    st = np.asarray(status)
-    bits = [int(np.count_nonzero(st & (1 << b))) for b in range(5)]
+        out["idx"] = _to_torch(idx, device).to(torch.int64)
+    # The ray counts, reduced where the rays are (one small read back per tile).
+    st = _to_torch(status, device).to(torch.int64)
+    ok_t = (st & 1).bool()
     nd = st >> 8
-    ok_np = (st & 1).astype(bool)
+    counts = torch.stack([*[((st >> b) & 1).sum() for b in range(5)], (ok_t & (nd > 0)).sum(),
+                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(())]).tolist()
     stats.rays += R
-    stats.valid += bits[0]
-    stats.behind_plane += bits[1]
-    stats.escaped += bits[2]
-    stats.capped += bits[3]
-    stats.path_samples += bits[4] * settings.amp_spp
-    stats.delta_paths += int(np.count_nonzero(ok_np & (nd > 0)))
-    stats.max_delta_seen = max(stats.max_delta_seen, int(nd[ok_np].max()) if ok_np.any() else 0)
+    stats.valid += counts[0]
+    stats.behind_plane += counts[1]
+    stats.escaped += counts[2]
+    stats.capped += counts[3]
+    stats.path_samples += counts[4] * settings.amp_spp
+    stats.delta_paths += counts[5]
+    stats.max_delta_seen = max(stats.max_delta_seen, counts[6])
     return out
