@@ -29,7 +29,9 @@ PAPER_SCENE_Z_INF_MM = 10.0
 @with_optics_options
 def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Folder for the scene, RESULT.npz and pictures."),
-    preset: str = typer.Option("fast", help="fast | balanced | reference"),
+    preset: Optional[str] = typer.Option(None, help="fast | balanced | reference (default fast; balanced for "
+                                                    "--scene glossy, whose highlight the fast preset's "
+                                                    "view-independent cache cannot show)"),
     scene: Optional[str] = typer.Option(
         None, "--scene", help="One of the paper's scenes with depth (holocore.paper_scenes): depth (cards at "
                               "0.5, 0.9 and 10 m), mirror (a plane mirror's image 2 m away), glass (a glass "
@@ -55,6 +57,8 @@ def demo(
     else:
         profile, optics_cfg = optics.resolve(resolution_hw=PAPER_SCENE_RESOLUTION, frames=PAPER_SCENE_FRAMES,
                                              z_inf_mm=PAPER_SCENE_Z_INF_MM)
+    if preset is None:
+        preset = "balanced" if scene == "glossy" else "fast"
     if preset not in ("fast", "balanced", "reference"):
         fail(f"--preset must be fast, balanced or reference, got {preset!r}")
     xml = write_demo_scene(out / "scene") if scene is None else write_paper_scene(scene, out / "scene")

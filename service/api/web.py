@@ -1,0 +1,242 @@
+"""The results web page and the API routes it needs beyond the rest.
+
+- ``GET /`` and ``GET /web/{file}``: the page (static HTML, CSS and JavaScript modules shipped in
+  ``service/web/``; no build step, no inline script). The page itself needs no token: it asks for one and sends
+  it as ``Authorization: Bearer`` on every API call; it keeps it in the browser session (sessionStorage).
+- ``GET /v1/whoami``: the token's owner and scopes (the page shows the submit form only to tokens that may).
+- ``GET /v1/display-profiles``: the built-in display profiles and their optics (the form's "display profile").
+- ``POST /v1/jobs/estimate``: what ``POST /v1/jobs`` would predict (seconds, memory), after the same checks, and
+  whether an earlier identical result would be reused; nothing is created.
+- ``GET /v1/jobs/{id}/pictures`` and ``.../pictures/{file}``: the focal sweep and view grid the job's worker
+  made when it finished (``service/workers/pictures.py``), as a JSON index and PNGs.
+
+``SecurityHeaders`` (pure ASGI) puts on every response ``X-Content-Type-Options: nosniff``,
+``Referrer-Policy: no-referrer``, ``X-Frame-Options: DENY`` and a Content-Security-Policy: the page's
+(``default-src 'self'``, scripts only from files of this origin, images also from ``blob:``, no framing) on
+``/`` and ``/web/``, ``default-src 'none'`` on API answers, and only ``frame-ancestors 'none'`` on the
+OpenAPI try-it pages (``/docs``, ``/redoc``), whose inline script FastAPI writes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from functools import lru_cache
+from pathlib import Path
+from typing import Optional
+
+from fastapi import APIRouter, Depends, Path as PathParam, Request
+from fastapi.responses import JSONResponse, Response
+
+from service.api.deps import get_ctx, require
+from service.api.files import file_response
+from service.api.problems import PROBLEM_RESPONSES, ApiError
+from service.auth import Principal
+from service.integrity import artifact_intact
+from service.models import (ID_PATTERN, JobRequest, cache_key, effective_optics, estimate_cost, job_limit_errors,
+                            memory_admission_error, optics_sanity_errors)
+
+__all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
+
+router = APIRouter()
+WEB_DIR = Path(__file__).resolve().parent.parent / "web"
+PAGE_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; "
+            "connect-src 'self'; font-src 'self'; object-src 'none'; base-uri 'none'; form-action 'none'; "
+            "frame-ancestors 'none'")
+API_CSP = "default-src 'none'; frame-ancestors 'none'; sandbox"
+DOCS_CSP = "frame-ancestors 'none'"
+_DOCS = ("/docs", "/redoc")
+_MEDIA = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+          ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
+_STATIC = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}\.(js|css|svg|png)$")
+_PICTURE = re.compile(r"^(sweep|view)-\d{2}\.png$")
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+class SecurityHeaders:
+    """Pure ASGI middleware adding the security headers above to every response (streams untouched)."""
+
+    def __init__(self, app) -> None:
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        path = scope.get("path", "")
+        if path == "/" or path.startswith("/web/"):
+            csp = PAGE_CSP
+        elif any(path == d or path.startswith(d + "/") for d in _DOCS):
+            csp = DOCS_CSP
+        else:
+            csp = API_CSP
+        extra = [(b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer"),
+                 (b"x-frame-options", b"DENY"), (b"content-security-policy", csp.encode()),
+                 (b"cross-origin-opener-policy", b"same-origin")]
+
+        async def send_with_headers(message):
+            if message["type"] == "http.response.start":
+                have = {k.lower() for k, _ in message.get("headers", [])}
+                message = {**message, "headers": [*message.get("headers", []),
+                                                  *((k, v) for k, v in extra if k not in have)]}
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+
+# ---- the page -----------------------------------------------------------------------------------------------
+@lru_cache(maxsize=64)
+def _static(name: str, mtime_ns: int) -> tuple[bytes, str]:  # noqa: ARG001 - mtime_ns keys the cache
+    data = (WEB_DIR / name).read_bytes()
+    return data, hashlib.sha256(data).hexdigest()[:32]
+
+
+def _serve_static(request: Request, name: str) -> Response:
+    path = WEB_DIR / name
+    try:
+        st = path.stat()
+    except OSError:
+        raise ApiError(404, f"no file {name!r} in the web page") from None
+    data, tag = _static(name, st.st_mtime_ns)
+    etag = f'"{tag}"'
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers=headers)
+    return Response(data, media_type=_MEDIA[path.suffix], headers=headers)
+
+
+@router.get("/", include_in_schema=False)
+def index(request: Request) -> Response:
+    """The results page (it asks for a token; the page itself holds no data)."""
+    return _serve_static(request, "index.html")
+
+
+@router.get("/web/{name}", include_in_schema=False)
+def web_file(request: Request, name: str) -> Response:
+    if not _STATIC.match(name):
+        raise ApiError(404, f"no file {name!r} in the web page")
+    return _serve_static(request, name)
+
+
+# ---- small API routes the page needs -------------------------------------------------------------------------
+@router.get("/v1/whoami", tags=["tokens"], responses=PROBLEM_RESPONSES)
+async def whoami(principal: Principal = Depends(require("read"))) -> dict:
+    """The calling token's owner, name and scopes (what the page may offer)."""
+    from service.auth import allows
+
+    return {"owner": principal.owner, "name": principal.name, "scopes": sorted(principal.scopes),
+            "admin": principal.is_admin, "may_submit": allows(principal.scopes, "submit")}
+
+
+@router.get("/v1/display-profiles", tags=["displays"], responses=PROBLEM_RESPONSES)
+def display_profiles(principal: Principal = Depends(require("read"))) -> dict:  # noqa: ARG001
+    """The built-in display profiles (holocore.display) and the optics each gives a job."""
+    from holocore.display import BUILTIN_DISPLAYS, DEFAULT_DISPLAY, OPTICS_FIELDS
+
+    out = []
+    for p in BUILTIN_DISPLAYS.values():
+        optics = {k: list(v) if isinstance(v, tuple) else v for k, v in
+                  ((k, getattr(p, k)) for k in OPTICS_FIELDS)}
+        out.append({"name": p.name, "description": p.description, "fourier_filter": p.fourier_filter,
+                    "field_of_view_x_deg": round(p.field_of_view_x_deg(), 3), "optics": optics})
+    return {"default": DEFAULT_DISPLAY, "profiles": out}
+
+
+@router.post("/v1/jobs/estimate", tags=["jobs"], responses=PROBLEM_RESPONSES)
+def estimate_job(req: JobRequest, request: Request, principal: Principal = Depends(require("submit"))) -> dict:
+    """What ``POST /v1/jobs`` with this body would predict, after the same checks (limits, the scene and display
+    being this owner's, sane optics, memory); nothing is created. ``reuses`` names the earlier job whose result
+    an identical submit would reuse at once."""
+    from service.api.jobs import _reusable
+
+    ctx = get_ctx(request)
+    errs = job_limit_errors(req, ctx.settings.job_limits)
+    if errs:
+        raise ApiError(422, "; ".join(errs))
+    scene = ctx.db.get_scene(req.scene_id)
+    if scene is None or not (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner)):
+        raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
+    if req.display is not None:
+        holder = ctx.db.display_owner(req.display)
+        if holder is not None and not principal.sees(holder):
+            raise ApiError(403, f"display {req.display!r} is registered to another owner; jobs for it come from "
+                                "that owner's tokens")
+    optics = effective_optics(req)
+    optics_errs = optics_sanity_errors(optics)
+    if optics_errs:
+        raise ApiError(422, "; ".join(optics_errs))
+    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes)
+    if too_big:
+        raise ApiError(422, too_big)
+    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
+    prev = _reusable(ctx, key)
+    if prev is not None and not principal.sees(prev.get("owner")):
+        prev = None  # another owner's job: say nothing about it (a submit would still reuse its bytes)
+    return {"estimate": estimate_cost(req, scene_plan=scene["plan"]), "plan_state": scene["plan_state"],
+            "optics": optics.model_dump(mode="json"), "reuses": prev["id"] if prev is not None else None,
+            "worker_memory_bytes": ctx.settings.worker_memory_bytes}
+
+
+# ---- pictures -------------------------------------------------------------------------------------------------
+def _job(request: Request, job_id: str, principal: Principal) -> dict:
+    row = get_ctx(request).db.get_job(job_id)
+    if row is None or not principal.sees(row.get("owner")):
+        raise ApiError(404, f"no job {job_id!r}")
+    if row["state"] != "succeeded":
+        raise ApiError(409, f"job {job_id} is {row['state']}; its pictures are made when it has succeeded")
+    return row
+
+
+def _index(row: dict) -> tuple[Path, dict]:
+    folder = Path(row["artifact_dir"] or "") / "pictures"
+    try:
+        doc = json.loads((folder / "index.json").read_text())
+    except (OSError, ValueError):
+        doc = None
+    if not isinstance(doc, dict) or doc.get("stack_sha256") != row["stack_sha256"]:
+        raise ApiError(404, f"job {row['id']} has no pictures (its worker makes them as its last step; jobs "
+                            "from before the web page, or whose picture step failed, have none: see plan.warnings)")
+    return folder, doc
+
+
+def _pictures(doc: dict) -> list[dict]:
+    try:
+        rows = [*doc["sweep"]["pictures"], *doc["grid"]["pictures"]]
+    except (KeyError, TypeError):
+        return []
+    return [r for r in rows if isinstance(r, dict) and _PICTURE.match(str(r.get("file", "")))]
+
+
+@router.get("/v1/jobs/{job_id}/pictures", tags=["jobs"], responses=PROBLEM_RESPONSES)
+def job_pictures(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+                 principal: Principal = Depends(require("read"))):
+    """The job's focal sweep (far to near, with each focus depth in mm and in words) and view grid (eye
+    offsets in mm), each picture with its URL and SHA-256."""
+    row = _job(request, job_id, principal)
+    _, doc = _index(row)
+    for r in _pictures(doc):
+        r["url"] = f"/v1/jobs/{job_id}/pictures/{r['file']}"
+    return JSONResponse(doc)
+
+
+@router.get("/v1/jobs/{job_id}/pictures/{name}", tags=["jobs"],
+            responses={200: {"content": {"image/png": {}}}, 304: {"description": "Not modified"},
+                       **PROBLEM_RESPONSES})
+def job_picture(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
+                name: str = PathParam(pattern=r"^(sweep|view)-\d{2}\.png$"),
+                principal: Principal = Depends(require("read"))):
+    """One picture of the sweep or grid, checked against the SHA-256 its index records."""
+    row = _job(request, job_id, principal)
+    folder, doc = _index(row)
+    info: Optional[dict] = next((r for r in _pictures(doc) if r["file"] == name), None)
+    path = folder / name
+    if info is None or not isinstance(info.get("sha256"), str) or not path.is_file():
+        raise ApiError(404, f"job {job_id} has no picture {name!r}")
+    if not artifact_intact(path, info["sha256"]):
+        raise ApiError(409, f"job {job_id}: picture {name} fails its integrity check; it is not served")
+    with open(path, "rb") as fh:
+        if fh.read(8) != _PNG_MAGIC:
+            raise ApiError(409, f"job {job_id}: picture {name} is not a PNG; it is not served")
+    resp = file_response(request, path, sha256=info["sha256"], media_type="image/png", filename=f"{job_id}-{name}")
+    resp.headers["Content-Disposition"] = f'inline; filename="{job_id}-{name}"'
+    return resp
