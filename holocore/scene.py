@@ -21,7 +21,7 @@ from typing import Any, Iterator
 from holocore.errors import scrub_message
 from holocore.mitsuba_env import mitsuba
 
-__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins"]
+__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins", "unsupported_reason"]
 
 _PRELOAD_LOCK = threading.Lock()
 _PRELOADED: list[str] = []
@@ -105,6 +105,33 @@ def _sensor_fov_x_deg(sensor) -> float:
     return fov
 
 
+_PERSPECTIVE = {"perspective", "thinlens"}
+
+
+def unsupported_reason(plugins: list[str]) -> str | None:
+    """Why a scene using ``plugins`` ("tag:type", as the bundle report lists them) cannot become a hologram, in
+    one line that says what to change; None when it can. Checked before Mitsuba parses the scene."""
+    kinds = {p.split(":", 1)[0] for p in plugins}
+    if "medium" in kinds:
+        return ("participating media (<medium>, with its phase function and volumes) are not simulated by wave "
+                "path tracing: remove the medium from the scene (the hologram would silently ignore it)")
+    ellipsoids = sorted(p for p in plugins if p in ("shape:ellipsoids", "shape:ellipsoidsmesh"))
+    if ellipsoids:
+        return (f"Gaussian ellipsoid primitives (<shape type={ellipsoids[0].split(':')[1]!r}>) need Mitsuba's "
+                "volumetric-primitive integrators; wave path tracing does not trace them: use meshes")
+    other = sorted(p.split(":")[1] for p in plugins if p.startswith("sensor:") and p.split(":")[1] not in _PERSPECTIVE)
+    if other:
+        return (f"<sensor type={other[0]!r}>: wave path tracing needs a perspective sensor (the eye's camera; "
+                "perspective or thinlens) and no other: remove or replace it")
+    tables = sorted(p.split(":")[1] for p in plugins if p in ("spectrum:blackbody", "spectrum:regular",
+                                                               "spectrum:irregular"))
+    if tables:
+        return (f"<spectrum type={tables[0]!r}> needs a spectral Mitsuba variant, and holograms render in RGB at the "
+                "display's laser lines: give that emitter or material an <rgb> value (spectral files given as "
+                "<spectrum filename=...> are converted and work)")
+    return None
+
+
 def _rel_name(root: Path, entry: Path) -> str:
     try:
         return entry.relative_to(root).as_posix()
@@ -124,6 +151,9 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
 
         report = validate_bundle(root, entry=entry_name)
         entry = Path(report.entry)
+        why = unsupported_reason(report.plugins)
+        if why is not None:
+            raise SceneLoadError(f"{_rel_name(root, entry)}: {why}")
         try:
             with _resolver_for(entry.parent):
                 scene = mi.load_string(entry_source(report))
