@@ -71,7 +71,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
                      subhologram_radius_px=ana.subhologram_radius_px,
                      theta_max=max(optics.theta_max(lam) for lam in optics.wavelengths_m))
-    plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"]]})
+    ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
+    plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"], *ignored]})
     return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f,
             "field_of_view": fov}
 
