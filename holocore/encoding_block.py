@@ -68,7 +68,7 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
     grid = encoder_grid((h, w), z_m, wavelength_m, pitch_m)
     op_full = Operator((h, w), z_m, wavelength_m, pitch_m, cone=False, device=dev, grid=grid)
     op_cone = Operator((h, w), z_m, wavelength_m, pitch_m, cone=True, device=dev, grid=grid)
-    op_cone.share_buffers(op_full)
+    op_cone.share_buffers(op_full)  # one set of workspaces for the color
     with torch.no_grad():
         peak = _peaks(target)
         scale = torch.where(peak > 0, 1.0 / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(peak))

@@ -3,8 +3,8 @@
 Operator. A_z u = crop( IFFT{ M . FFT{pad(u)} } ), M = H_z . K: the band-limited ASM transfer function
 (``propagation.transfer_function``; Matsushima & Shimobaba 2009, Eq. 13) times K, the recording cone's disc
 (``supervision="cone"``: a display with a Fourier filter) or 1 (``"full"``: everything the SLM sends). The
-inverse DFT is a forward one read backwards, IFFT(X)[n] = FFT(X)[-n mod N] / N, so no ifft is ever called
-(torch 2.13's CPU ifft2 is wrong on some grids, see ``propagation.ifft2``) and no conjugation pass is needed.
+inverse DFT is a forward one, IFFT(X) = conj(FFT(conj X)) / N, so no ifft is ever called (torch 2.13's CPU
+ifft2 is wrong on some grids, see ``propagation.ifft2``); the last conjugation rides on the crop copy.
 A_-z = A_z^H for the full band (H_-z = conj H_z on the propagating components), so the ideal SLM field
 u0 = A_-z U_t and the gradient use the same two multipliers.
 
@@ -83,44 +83,77 @@ class Operator:
         tf = transfer_function((self.hp, self.wp), z_m, wavelength_m, pitch_m, device=device)
         if cone:
             tf.mul_(torch.from_numpy(passband_mask((self.hp, self.wp), wavelength_m, pitch_m)).to(device))
-        self.mult = tf.div_(self.hp * self.wp)  # M / N: the inverse's 1/N folded in
+        # IFFT(S M) = conj(FFT(conj(S) conj(M))) / N: the multipliers hold conj(M) / N (and M / N for A^H).
+        self.mult = tf.conj_physical_().div_(self.hp * self.wp)
         self.mult_adj = self.mult.conj().resolve_conj()
-        self.rows = (-torch.arange(self.h, device=device)) % self.hp  # IFFT read as FFT at -n mod N
-        self.cols = (-torch.arange(self.w, device=device)) % self.wp
-        self._pad: Optional[torch.Tensor] = None
-        self._spec: Optional[torch.Tensor] = None
-
-    def _buffers(self, b: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
-        if self._pad is None or self._pad.shape[0] < b:
-            self._pad = torch.zeros((b, self.hp, self.wp), dtype=torch.complex64, device=device)
-            self._spec = torch.empty_like(self._pad)
-        return self._pad[:b], self._spec[:b]  # type: ignore[index]
+        self._ws: dict[str, torch.Tensor] = {}
+        self._owner: Optional["Operator"] = None
 
     def share_buffers(self, other: "Operator") -> None:
         """Use ``other``'s workspaces (same grid): one set per color, whatever the number of operators."""
         assert (self.hp, self.wp) == (other.hp, other.wp)
-        self._pad, self._spec = other._pad, other._spec
         self._owner = other
+
+    def workspace(self, name: str, b: int, device: torch.device) -> torch.Tensor:
+        """Zero-padded [b, Hp, Wp] buffer ``name`` ('in', 'adj' or 'spec'); only [:, :H, :W] is ever written
+        into the input ones, so the rest stays zero."""
+        ws = (self._owner or self)._ws
+        buf = ws.get(name)
+        if buf is None or buf.shape[0] < b:
+            buf = ws[name] = torch.zeros((b, self.hp, self.wp), dtype=torch.complex64, device=device)
+        return buf[:b]
+
+    def window(self, name: str, b: int, device: torch.device) -> torch.Tensor:
+        """The [b, H, W] window of workspace ``name``: write an input there and call :meth:`apply`."""
+        return self.workspace(name, b, device)[:, :self.h, :self.w]
+
+    def apply(self, name: str, b: int, device: torch.device, *, adjoint: bool = False) -> torch.Tensor:
+        """A (or A^H) of what workspace ``name`` holds; a new [b, H, W] tensor."""
+        spec = self.workspace("spec", b, device)
+        torch.fft.fft2(self.workspace(name, b, device), out=spec)
+        spec.conj_physical_().mul_(self.mult_adj if adjoint else self.mult)
+        return torch.conj_physical(torch.fft.fft2(spec)[..., :self.h, :self.w])
 
     def __call__(self, u: torch.Tensor, *, adjoint: bool = False) -> torch.Tensor:
         """A u (or A^H u) for u complex64 [B, H, W]; a new [B, H, W] tensor."""
-        owner = getattr(self, "_owner", None)
-        pad, spec = (owner or self)._buffers(u.shape[0], u.device)
-        pad[:, :self.h, :self.w].copy_(u)  # the rest of the workspace stays zero
-        torch.fft.fft2(pad, out=spec)
-        spec.mul_(self.mult_adj if adjoint else self.mult)
-        out = torch.fft.fft2(spec)
-        return out.index_select(-2, self.rows).index_select(-1, self.cols)
-
-
-def _sums(x: torch.Tensor) -> torch.Tensor:
-    """Per-item sum over H, W of [B, H, W], item by item: the same numbers whatever B is (chunking is exact)."""
-    return torch.stack([x[i].sum() for i in range(x.shape[0])])
+        b = u.shape[0]
+        self.window("in", b, u.device).copy_(u)
+        return self.apply("in", b, u.device, adjoint=adjoint)
 
 
 def inner_energy(t: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """a = <t, p> (complex [B]) and e = ||p||^2 (float [B]) per item."""
-    return _sums(t.conj() * p), _sums(p.real.square() + p.imag.square())
+    """a = <t, p> (complex [B]) and e = ||p||^2 (float [B]), item by item (one BLAS dot each, no temporaries):
+    the same numbers whatever B is, so chunking is exact."""
+    a = torch.stack([torch.vdot(t[i].reshape(-1), p[i].reshape(-1)) for i in range(t.shape[0])])
+    e = torch.stack([torch.vdot(p[i].reshape(-1), p[i].reshape(-1)).real for i in range(p.shape[0])])
+    return a, e
+
+
+def _adam(phi: torch.Tensor, lr: float, state: Optional[dict]) -> torch.optim.Adam:
+    """torch's Adam on phi (fused on CPU and CUDA: one pass per step), optionally with a given state."""
+    phi.requires_grad_(False)
+    opt = torch.optim.Adam([phi], lr=lr, betas=_BETAS, eps=_EPS, fused=phi.device.type in ("cpu", "cuda"))
+    if state is not None:
+        opt.state[phi] = state
+    return opt
+
+
+def _stop(hist: list[float], stop_db: Optional[float], tol: Optional[float]) -> bool:
+    """The per-item stop rule on the objective at the checks so far (module docstring)."""
+    if len(hist) <= WINDOW_CHECKS:
+        return False
+    old, new = hist[-1 - WINDOW_CHECKS], hist[-1]
+    if new <= 1e-7:
+        return True
+    if tol is not None:
+        return tol > 0 and old - new <= tol * max(old, 1e-12)
+    if not stop_db:
+        return False
+
+    def snr(o: float) -> float:
+        return 10.0 * math.log10(max(1.0 - o, 1e-30) / max(o, 1e-30))
+
+    return snr(new) - snr(old) < stop_db
 
 
 @dataclass
@@ -157,14 +190,16 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
     idx = torch.from_numpy(active).to(dev)
     phi = phi0.index_select(0, idx).contiguous()
     t = t_unit.index_select(0, idx).contiguous()
-    m = torch.zeros_like(phi)
-    v = torch.zeros_like(phi)
-    b1, b2 = _BETAS
+    opt = _adam(phi, lr, None)
     w_eff = float(efficiency_weight)
     with torch.no_grad():
+        cos, sin = torch.empty_like(phi), torch.empty_like(phi)
         for it in range(1, iterations + 1):
-            u = torch.polar(torch.ones_like(phi), phi)
-            p = op(u)
+            n = phi.shape[0]
+            torch.cos(phi, out=cos)
+            torch.sin(phi, out=sin)
+            torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the workspace
+            p = op.apply("in", n, dev)
             a, e = inner_energy(t, p)
             e = e.clamp_min(1e-30)
             rho2 = (a.real.square() + a.imag.square()) / e
@@ -172,15 +207,13 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
             obj = 1.0 - q * rho2
             if it == 1:
                 loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
-            c1 = -(q / e) * a * hw  # dO/dp* = c1 t + c2 p, times HW
-            c2 = ((q / e) * (1.0 - w_eff) * rho2 * hw).to(p.dtype)
-            gp = t * c1[:, None, None] + p * c2[:, None, None]
-            gu = op(gp, adjoint=True)
-            grad = (u.conj() * gu).imag.mul_(2.0)
-            m.mul_(b1).add_(grad, alpha=1 - b1)
-            v.mul_(b2).addcmul_(grad, grad, value=1 - b2)
-            denom = (v / (1 - b2 ** it)).sqrt_().add_(_EPS)
-            phi.addcdiv_(m, denom, value=-lr / (1 - b1 ** it))
+            c1 = (-(q / e) * a * hw)[:, None, None]  # dO/dp* = c1 t + c2 p, times HW
+            c2 = ((q / e) * (1.0 - w_eff) * rho2 * hw).to(p.dtype)[:, None, None]
+            torch.mul(p, c2, out=op.window("adj", n, dev)).addcmul_(t, c1)
+            gu = op.apply("adj", n, dev, adjoint=True)
+            grad = torch.mul(cos, gu.imag)  # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g)
+            phi.grad = grad.addcmul_(sin, gu.real, value=-1.0).mul_(2.0)
+            opt.step()
             iters[active] = it
             if it % CHECK_EVERY and it != iterations:
                 continue
@@ -188,29 +221,25 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
             keep = []
             for j, k in enumerate(active):
                 trace[k].append(float(objs[j]))
-                hist = trace[k]
-                done = False
-                if len(hist) > WINDOW_CHECKS:
-                    old, new = hist[-1 - WINDOW_CHECKS], hist[-1]
-                    if tol is not None:
-                        done = tol > 0 and (old - new <= tol * max(old, 1e-12) or new <= 1e-7)
-                    elif stop_db:
-                        snr = lambda o: 10 * math.log10(max(1 - o, 1e-30) / max(o, 1e-30))  # noqa: E731
-                        done = snr(new) - snr(old) < stop_db or new <= 1e-7
+                done = _stop(trace[k], stop_db, tol)
                 conv[k] = done
                 keep.append(not done)
             if progress is not None:
                 progress(it)
             if not all(keep):
-                finished = [j for j, kp in enumerate(keep) if not kp]
-                fi = torch.tensor(finished, device=dev)
-                phi_out.index_copy_(0, idx.index_select(0, fi), phi.index_select(0, fi))
+                finished = torch.tensor([j for j, kp in enumerate(keep) if not kp], device=dev)
+                phi_out.index_copy_(0, idx.index_select(0, finished), phi.index_select(0, finished))
                 sel = torch.tensor([j for j, kp in enumerate(keep) if kp], dtype=torch.long, device=dev)
                 active = active[np.asarray(keep)]
                 if active.size == 0:
                     break
                 idx = idx.index_select(0, sel)
-                phi, t, m, v = (x.index_select(0, sel).contiguous() for x in (phi, t, m, v))
+                state = opt.state[phi]
+                phi = phi.index_select(0, sel).contiguous()
+                opt = _adam(phi, lr, {k: (v.index_select(0, sel).contiguous() if v.dim() else v.clone())
+                                      for k, v in state.items()})
+                t = t.index_select(0, sel).contiguous()
+                cos, sin = cos[: len(sel)], sin[: len(sel)]
         if active.size:
             phi_out.index_copy_(0, idx, phi)
     return SgdOutcome(phi_out, iters, conv, trace, loss_init)
