@@ -30,6 +30,9 @@ def evaluate(
                                                                         "recording cone at every view)."),
     gt_spp: int = typer.Option(256, "--gt-spp", help="Samples per pixel of the ground-truth renders."),
     images: bool = typer.Option(True, "--images/--no-images", help="Write one side-by-side PNG per cell."),
+    memory_budget_mb: Optional[int] = typer.Option(
+        None, "--memory-budget-mb", help="Peak memory to stay within (MiB): the hologram is read and viewed in "
+                                         "chunks of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
 ) -> None:
     """Simulated views vs thin-lens ground truth: PSNR/SSIM per (focus, view) after one brightness scale."""
     if not 1 <= focus_planes <= 64:
@@ -47,13 +50,17 @@ def evaluate(
     if not scene.exists():
         fail(f"scene not found: {scene}")
 
-    from holocore.evaluate import evaluate as run_eval, load_slm_field, write_outputs
+    from holocore.evaluate import evaluate as run_eval, write_outputs
+    from holocore.fieldsource import open_slm_field
     from holocore.groundtruth import GroundTruth
+    from holocore.membudget import memory_budget_bytes
     from holocore.scene import load_scene
 
     t0 = time.perf_counter()
     try:
-        field, meta, kind = load_slm_field(source)
+        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
+        field = open_slm_field(source)
+        meta, kind = field.meta, field.kind
         loaded = load_scene(scene)
         sha = getattr(loaded.bundle, "sha256", None)
         if meta.get("scene_sha256") and sha and meta["scene_sha256"] != sha:
@@ -61,7 +68,8 @@ def evaluate(
                        "(content hash differs)", err=True)
         truth = GroundTruth(loaded, meta, shape_hw=field.shape[-2:], spp=gt_spp)
         ev = run_eval(field, meta, truth, focus_planes=focus_planes, views=views, view_deg=view_deg,
-                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images)
+                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images,
+                      memory_budget_bytes=budget)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     paths = write_outputs(ev, out, label=source.name)

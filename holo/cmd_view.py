@@ -34,40 +34,18 @@ def _parse_xy(text: str) -> tuple[float, float]:
 
 
 def _load(path: Path, quantized: bool, equal_power: bool):
-    """(complex64 SLM field [F, C, H, W], meta, kind) from a STACK.npz or a RESULT.npz.
+    """A chunked SLM field source (:func:`holocore.fieldsource.open_slm_field`) of a STACK.npz or a RESULT.npz.
 
     A stack's frame f, color c is lit with the relative laser power P[f, c] its encoder recorded
     (``meta["encoder"]["illumination"]``: the scene's colour balance), unless ``equal_power``."""
-    import numpy as np
+    import zipfile
 
-    from holocore.io import load_result, load_stack, phase_to_u8
+    from holocore.fieldsource import open_slm_field
 
     try:
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
-    except (OSError, ValueError) as exc:
+        return open_slm_field(path, quantized=quantized, equal_power=equal_power)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
         fail(f"cannot read {path}: {exc}")
-    try:
-        if "phase" in keys:
-            phase, _, meta = load_stack(path)
-            if quantized:  # the 8-bit SLM levels of DESIGN §2, without a lookup table
-                phase = phase_to_u8(phase).astype(np.float32) * np.float32(2 * np.pi / 256)
-            field = np.exp(1j * phase.astype(np.float32)).astype(np.complex64)
-            power = (meta.get("encoder") or {}).get("illumination")
-            if power is not None and not equal_power:
-                p = np.asarray(power, dtype=np.float64)
-                if p.shape != field.shape[:2] or not np.all(np.isfinite(p)) or np.any(p < 0):
-                    fail(f"{path}: encoder illumination must be [F, C] powers >= 0, got shape {p.shape}")
-                field *= np.sqrt(p).astype(np.float32)[..., None, None]
-            return field, meta, "stack"
-        if "slm_field" in keys:
-            if quantized:
-                fail("--quantized applies to a STACK.npz only (a RESULT.npz holds a complex field)")
-            slm, _, meta = load_result(path)
-            return np.ascontiguousarray(slm, dtype=np.complex64), meta, "result"
-    except (ValueError, KeyError) as exc:
-        fail(f"cannot read {path}: {exc}")
-    fail(f"{path} is neither a STACK.npz (phase) nor a RESULT.npz (slm_field)")
 
 
 def _depth_words(z_m: float, meta: dict) -> str:
@@ -109,6 +87,11 @@ def view(
     white_percentile: float = typer.Option(99.5, "--white-percentile",
                                            help="Percentile of all views' intensities shown as white (50..100; "
                                                 "100: the brightest pixel, nothing clips)."),
+    device: Optional[str] = typer.Option(None, "--device", help="auto (CUDA when available) | cpu | cuda | cuda:N; "
+                                                                 "default: HOLO_DEVICE, else auto."),
+    memory_budget_mb: Optional[int] = typer.Option(
+        None, "--memory-budget-mb", help="Peak memory to stay within (MiB): the field is read and viewed in chunks "
+                                         "of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
 ) -> None:
     """Simulate what an eye sees (frame-averaged, pupil-filtered, focused) and write a PNG, sheet or GIF."""
     if (focus_mm is None) == (sweep is None):
@@ -135,23 +118,29 @@ def view(
     import numpy as np
     from PIL import Image, ImageDraw
 
-    from holocore.preview import focus_depths, to_png8, view_rgb
+    from holocore.device import select_device
+    from holocore.membudget import memory_budget_bytes
+    from holocore.preview import focus_depths, to_png8, views_rgb
 
+    try:
+        dev = select_device(device)
+        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
+    except ValueError as exc:
+        fail(str(exc))
     t0 = time.perf_counter()
-    field, meta, kind = _load(source, quantized, equal_power)
+    field = _load(source, quantized, equal_power)
+    meta, kind = field.meta, field.kind
     missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
     if missing:
         fail(f"{source}: meta lacks {missing}")
     pupil_m, offset_m = pupil_mm * 1e-3, (ex * 1e-3, ey * 1e-3)
     depths = [focus_mm * 1e-3] if focus_mm is not None else [float(z) for z in focus_depths(meta, sweep)]
 
-    def one(z_m: float) -> np.ndarray:
-        try:
-            return view_rgb(field, meta, focus_z_m=z_m, pupil_diameter_m=pupil_m, view_offset_m=offset_m)
-        except ValueError as exc:
-            fail(str(exc))
-
-    views = [one(z) for z in depths]
+    try:
+        views = views_rgb(field, meta, focus_z_m=depths, pupil_diameter_m=pupil_m, view_offset_m=offset_m,
+                          device=dev, memory_budget_bytes=budget)
+    except ValueError as exc:
+        fail(str(exc))
     white = float(np.percentile(np.stack(views), white_percentile)) or 1.0  # one white level for all views
     out.parent.mkdir(parents=True, exist_ok=True)
     H, W = views[0].shape[:2]

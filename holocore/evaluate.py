@@ -186,22 +186,26 @@ def lit_margin_px(meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
 
 
 # ---- one view -----------------------------------------------------------------------------------------------
-def eye_view(field_slm: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
-             view_offset_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+def eye_view(field_slm, meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
+             view_offset_m: tuple[float, float] = (0.0, 0.0), memory_budget_bytes: Optional[int] = None,
+             device=None) -> np.ndarray:
     """Frame-averaged intensity float64 [C, H, W] the eye sees, on the ground truth's pixel grid.
 
-    ``field_slm`` complex [F, C, H, W] on the SLM (z = 0); focus at hologram depth ``focus_z_m`` (m);
-    pupil ``pupil_diameter_m`` (m); eye offset ``view_offset_m`` (m). See the module docstring for the shift.
+    ``field_slm`` complex [F, C, H, W] on the SLM (z = 0), in memory or a chunked source
+    (:func:`holocore.fieldsource.open_slm_field`: read in chunks of frames of one color, sized by
+    ``memory_budget_bytes``); focus at hologram depth ``focus_z_m`` (m); pupil ``pupil_diameter_m`` (m); eye
+    offset ``view_offset_m`` (m). See the module docstring for the shift.
     """
-    import torch
+    from holocore.fieldsource import SlmFieldSource
+    from holocore.viewing import view_intensities
 
-    from holocore.propagation import ifft2
-    from holocore.viewing import simulate_view
-
-    u = np.asarray(field_slm)
-    if u.ndim != 4 or not np.iscomplexobj(u):
-        raise ValueError(f"field_slm must be complex [F, C, H, W], got {u.dtype} {u.shape}")
-    F, C, H, W = u.shape
+    if isinstance(field_slm, SlmFieldSource):
+        src = field_slm
+    else:
+        u = np.asarray(field_slm)
+        if u.ndim != 4 or not np.iscomplexobj(u):
+            raise ValueError(f"field_slm must be complex [F, C, H, W], got {u.dtype} {u.shape}")
+        src = SlmFieldSource.from_array(u)
     f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
     z_f = float(focus_z_m)
     if not math.isfinite(z_f):
@@ -211,22 +215,10 @@ def eye_view(field_slm: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diame
     # The eye sees plane point x at f tan = x - e dz / f: content moves by -e dz / f (x right, y up).
     a_col = ex * dz / f / p  # U'[j] = U[j + a_col]
     a_row = -ey * dz / f / p  # rows run down: U'[i] = U[i + a_row]
-    t = torch.from_numpy(np.ascontiguousarray(u, dtype=np.complex64))
-    m = 0
-    if abs(a_col) > 1e-9 or abs(a_row) > 1e-9:
-        m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2
-        big = torch.zeros((F, C, H + 2 * m, W + 2 * m), dtype=torch.complex64)
-        big[..., m:m + H, m:m + W] = t
-        ky = torch.fft.fftfreq(H + 2 * m, dtype=torch.float64)
-        kx = torch.fft.fftfreq(W + 2 * m, dtype=torch.float64)
-        ramp = torch.polar(torch.ones(H + 2 * m, W + 2 * m, dtype=torch.float64),
-                           2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)).to(torch.complex64)
-        t = ifft2(torch.fft.fft2(big) * ramp)
-    out = simulate_view(t, wavelengths_m=[float(v) for v in meta["wavelengths_m"]], pitch_m=p, focal_length_m=f,
-                        pupil_diameter_m=float(pupil_diameter_m), distance_m=z_f, view_offset_m=(ex, ey))
-    out = out.numpy().astype(np.float64)
-    if m:
-        out = out[:, m:m + H, m:m + W]
+    out = view_intensities(src, wavelengths_m=[float(v) for v in meta["wavelengths_m"]], pitch_m=p, focal_length_m=f,
+                           pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
+                           shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes)[0]
+    out = out.cpu().numpy().astype(np.float64)
     return np.ascontiguousarray(out.clip(min=0.0))
 
 
@@ -264,14 +256,15 @@ def compare(recon: np.ndarray, truth: np.ndarray, *, white_percentile: float = 9
 def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int = 5, views: int = 7,
              view_deg: float = 0.5, pupil_diameter_m: Optional[float] = None,
              focus_z_m: Optional[Sequence[float]] = None, keep_images: bool = False, crop: bool = True,
-             progress: Optional[Any] = None) -> Evaluation:
+             progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None, device=None) -> Evaluation:
     """Score a hologram on a grid of focus planes x views against ground truth.
 
     ``truth``: a :class:`holocore.groundtruth.GroundTruth` (or anything with ``channels(focus_z_m=,
     pupil_diameter_m=, view_offset_m=)`` -> [C, H, W]). ``focus_planes`` (1..64) uniform over the image volume
     unless ``focus_z_m`` lists depths (m); ``views`` x ``views`` eye offsets spanning +-``view_deg`` degrees;
     pupil ``pupil_diameter_m`` (m, default :func:`default_pupil_m`). ``keep_images`` keeps both images per cell;
-    ``crop`` scores only the fully lit part (:func:`lit_margin_px`).
+    ``crop`` scores only the fully lit part (:func:`lit_margin_px`). ``field_slm``: an array or a chunked source
+    (:func:`holocore.fieldsource.open_slm_field`), viewed in chunks that fit ``memory_budget_bytes``.
     """
     zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
     grid = view_offsets_m(meta, views, view_deg)
@@ -282,7 +275,8 @@ def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int
     total = len(zs) * len(grid)
     for fi, z in enumerate(zs):
         for vi, (idx, e) in enumerate(grid):
-            rec = eye_view(field_slm, meta, focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e)
+            rec = eye_view(field_slm, meta, focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e,
+                           memory_budget_bytes=memory_budget_bytes, device=device)
             gt = np.asarray(truth.channels(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e), dtype=np.float64)
             if gt.shape != rec.shape:
                 raise ValueError(f"ground truth {gt.shape} and reconstruction {rec.shape} differ in shape")

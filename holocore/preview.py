@@ -8,29 +8,53 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-__all__ = ["view_rgb", "focal_sweep_png", "to_png8"]
+__all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8"]
 
 
-def view_rgb(slm_field: np.ndarray, meta: dict, *, focus_z_m: float, pupil_diameter_m: float = 4e-3,
-             view_offset_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-    """Frame-averaged intensity [H, W, 3] seen with the eye focused at hologram depth ``focus_z_m``."""
+def _channel_of(wavelength_m: float) -> int:
+    nm = wavelength_m * 1e9  # as holocore.tracer.channel_of (DESIGN §4), without importing Mitsuba
+    return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
+
+
+def views_rgb(slm_field, meta: dict, *, focus_z_m, pupil_diameter_m: float = 4e-3,
+              view_offset_m: tuple[float, float] = (0.0, 0.0), device=None,
+              memory_budget_bytes: Optional[int] = None) -> list[np.ndarray]:
+    """Frame-averaged intensity [H, W, 3] seen with the eye focused at each hologram depth of ``focus_z_m``.
+
+    ``slm_field``: a complex [F, C, H, W] array or a chunked source (:func:`holocore.fieldsource.open_slm_field`),
+    read in chunks of frames that fit ``memory_budget_bytes``; ``device``: where the FFTs run."""
     import torch
 
-    from holocore.tracer import channel_of
-    from holocore.viewing import simulate_view
+    from holocore.fieldsource import SlmFieldSource
+    from holocore.viewing import view_intensities
 
-    field = torch.from_numpy(np.ascontiguousarray(slm_field))
+    if isinstance(slm_field, SlmFieldSource):
+        src = slm_field
+    else:
+        src = SlmFieldSource.from_array(torch.from_numpy(np.ascontiguousarray(slm_field)))
     wl = [float(v) for v in meta["wavelengths_m"]]
-    inten = simulate_view(field, wavelengths_m=wl, pitch_m=float(meta["pitch_m"]),
-                          focal_length_m=float(meta["focal_length_m"]), pupil_diameter_m=pupil_diameter_m,
-                          distance_m=focus_z_m, view_offset_m=view_offset_m).numpy()
-    H, W = inten.shape[-2:]
-    rgb = np.zeros((H, W, 3), dtype=np.float64)
-    for c, lam in enumerate(wl):
-        rgb[..., channel_of(lam)] += inten[c]
-    if len(wl) == 1:
-        rgb[...] = inten[0][..., None]
-    return rgb
+    inten = view_intensities(src, wavelengths_m=wl, pitch_m=float(meta["pitch_m"]),
+                             focal_length_m=float(meta["focal_length_m"]), pupil_diameter_m=pupil_diameter_m,
+                             distances_m=[float(z) for z in focus_z_m], view_offset_m=view_offset_m, device=device,
+                             memory_budget_bytes=memory_budget_bytes).cpu().numpy()
+    out = []
+    for one in inten:
+        H, W = one.shape[-2:]
+        rgb = np.zeros((H, W, 3), dtype=np.float64)
+        for c, lam in enumerate(wl):
+            rgb[..., _channel_of(lam)] += one[c]
+        if len(wl) == 1:
+            rgb[...] = one[0][..., None]
+        out.append(rgb)
+    return out
+
+
+def view_rgb(slm_field, meta: dict, *, focus_z_m: float, pupil_diameter_m: float = 4e-3,
+             view_offset_m: tuple[float, float] = (0.0, 0.0), device=None,
+             memory_budget_bytes: Optional[int] = None) -> np.ndarray:
+    """Frame-averaged intensity [H, W, 3] seen with the eye focused at hologram depth ``focus_z_m``."""
+    return views_rgb(slm_field, meta, focus_z_m=[focus_z_m], pupil_diameter_m=pupil_diameter_m,
+                     view_offset_m=view_offset_m, device=device, memory_budget_bytes=memory_budget_bytes)[0]
 
 
 def to_png8(rgb: np.ndarray, *, white: Optional[float] = None, gamma: float = 2.2) -> np.ndarray:

@@ -9,18 +9,25 @@ focus plane (band-limited ASM, DESIGN §5) in the same padded FFT pass, take |.|
 Sign of the row frequency: rows run down while y runs up (y = ((H-1)/2 - i) p), so a wave exp(i 2 pi f_y y)
 travelling upwards (f_y > 0) has DFT frequency -f_y along the row axis. The pupil therefore sits at
 row frequency -e_y / (f lambda).
+
+Memory: the field is read in chunks of frames of one color (:func:`view_intensities` takes anything with
+``shape`` and ``chunk(f0, f1, c)``, e.g. :class:`holocore.fieldsource.SlmFieldSource` streaming from a file), the
+chunk sized by the memory budget (:mod:`holocore.membudget`) and at most ``_CHUNK_BYTES`` of padded spectra.
+Each frame's intensity is summed in float64, so the view does not depend on the chunking beyond float32
+rounding of the FFTs.
 """
 
 from __future__ import annotations
 
-from typing import Sequence, Union
+import math
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import torch
 
 from holocore.propagation import PitchLike, _pitch_pair, _positive, _real, ifft2, padded_shape, transfer_function
 
-__all__ = ["simulate_view", "pupil_mask", "stack_to_field", "depth_of_field_m"]
+__all__ = ["simulate_view", "view_intensities", "pupil_mask", "stack_to_field", "depth_of_field_m"]
 
 _CHUNK_BYTES = 256 << 20  # padded spectra processed at once, per channel
 
@@ -68,9 +75,98 @@ def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: P
     return ((sx[None, :] - ex / f) ** 2 + (sy[:, None] - ey / f) ** 2) <= na * na
 
 
+class _TensorSource:
+    def __init__(self, field: torch.Tensor) -> None:
+        self.shape = tuple(field.shape)
+        self._f = field
+
+    def chunk(self, f0: int, f1: int, c: int) -> torch.Tensor:
+        return self._f[f0:f1, c]
+
+
+_VIEW_FIXED_BYTES = 0.6 * 2**30  # interpreter, torch, filters, accumulators outside the chunk
+
+
+def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
+                     pupil_diameter_m: float, distances_m: Sequence[float],
+                     view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
+                     pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
+                     memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
+    """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (DESIGN §7).
+
+    ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
+    plane; see :func:`simulate_view` for the optics. ``shift_px`` = (rows, cols): the view is first shifted by
+    that many pixels (U'[i, j] = U[i + a_row, j + a_col], exactly, on the spectrum of a grid padded by the
+    shift; evaluate's off-axis eye). ``device``: where the FFTs run (default: the chunks' device).
+    """
+    from holocore.membudget import frames_per_chunk, memory_budget_bytes as _budget
+
+    F, C, h, w = (int(v) for v in source.shape)
+    lams = [float(v) for v in wavelengths_m]
+    if len(lams) != C:
+        raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {C} channels")
+    zs = [_real("distance_m", z) for z in distances_m]
+    _pitch_pair(pitch_m)
+    a_row, a_col = (float(v) for v in shift_px)
+    m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
+    hs, ws = h + 2 * m, w + 2 * m
+    hp, wp = padded_shape((hs, ws), pad_factor)
+    cap = max(1, _CHUNK_BYTES // (hp * wp * 8))  # bound the padded working set
+    per_frame = 8 * (3 * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
+    fixed = _VIEW_FIXED_BYTES + len(zs) * C * h * w * 4 + 16 * h * w + 16 * hp * wp
+    chunk = frames_per_chunk(F, per_frame_bytes=per_frame, fixed_bytes=fixed,
+                             budget_bytes=_budget(memory_budget_bytes), cap=cap)
+    dev = None if device is None else torch.device(device)
+    out = None
+    ramp = None
+    for c, lam in enumerate(lams):
+        for di, z in enumerate(zs):
+            acc = None
+            filt = None
+            for f0 in range(0, F, chunk):
+                u0 = source.chunk(f0, min(F, f0 + chunk), c)
+                u0 = torch.from_numpy(u0) if isinstance(u0, np.ndarray) else u0
+                if not u0.is_complex():
+                    raise ValueError("field must be complex")
+                if dev is not None:
+                    u0 = u0.to(dev)
+                if u0.dtype != torch.complex64:
+                    u0 = u0.to(torch.complex64)
+                if out is None:
+                    out = torch.empty((len(zs), C, h, w), dtype=torch.float32, device=u0.device)
+                if m:
+                    if ramp is None:
+                        ky = torch.fft.fftfreq(hs, dtype=torch.float64)
+                        kx = torch.fft.fftfreq(ws, dtype=torch.float64)
+                        ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
+                                           2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
+                                           ).to(torch.complex64).to(u0.device)
+                    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
+                    big[..., m:m + h, m:m + w] = u0
+                    u0 = ifft2(torch.fft.fft2(big) * ramp)
+                    del big
+                if filt is None:
+                    mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
+                                      pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                                      device=u0.device)
+                    filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
+                        if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
+                    filt.mul_(mask.to(filt.real.dtype))
+                    acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
+                spec = torch.fft.fft2(u0, s=(hp, wp))
+                del u0
+                spec.mul_(filt)
+                u = ifft2(spec)[..., :hs, :ws]
+                del spec
+                acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
+                del u
+            out[di, c] = (acc / F).to(torch.float32)[m:m + h, m:m + w]
+    return out
+
+
 def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
                   pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
-                  pad_factor: float = 2) -> torch.Tensor:
+                  pad_factor: float = 2, memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
     """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
@@ -87,23 +183,6 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     if len(lams) != field.shape[1]:
         raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {field.shape[1]} channels")
     z = _real("distance_m", distance_m)
-    _pitch_pair(pitch_m)
-    h, w = field.shape[-2:]
-    hp, wp = padded_shape((h, w), pad_factor)
-    out = torch.empty((field.shape[1], h, w), dtype=torch.float32, device=field.device)
-    n_frames = field.shape[0]
-    chunk = max(1, _CHUNK_BYTES // (hp * wp * field.element_size()))  # bound the padded working set
-    for c, lam in enumerate(lams):
-        mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
-                          view_offset_m=view_offset_m, device=field.device)
-        filt = transfer_function((hp, wp), z, lam, pitch_m, device=field.device, dtype=field.dtype) if z != 0.0 \
-            else torch.ones((hp, wp), dtype=field.dtype, device=field.device)
-        filt.mul_(mask.to(filt.real.dtype))
-        acc = torch.zeros((h, w), dtype=torch.float64, device=field.device)
-        for f0 in range(0, n_frames, chunk):
-            spec = torch.fft.fft2(field[f0:f0 + chunk, c], s=(hp, wp))
-            spec.mul_(filt)
-            u = ifft2(spec)[..., :h, :w]
-            acc += (u.real.square() + u.imag.square()).sum(dim=0).to(torch.float64)
-        out[c] = (acc / n_frames).to(torch.float32)
-    return out
+    return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
+                            pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
+                            pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes)[0]
