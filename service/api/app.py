@@ -12,7 +12,7 @@ from fastapi import Depends, FastAPI
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from service.api import displays, jobs, scenes
+from service.api import displays, jobs, scenes, web
 from service.api.context import ServiceContext
 from service.api.deps import require
 from service.api.problems import install_handlers, problem
@@ -129,6 +129,8 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
     app.state.ctx = ctx
     install_handlers(app)
     app.add_middleware(_Guard, ctx=ctx)
+    app.add_middleware(web.SecurityHeaders)  # outermost: every answer, the Guard's 413 included
+    app.include_router(web.router)  # before jobs: POST /v1/jobs/estimate, the page at /
     app.include_router(scenes.router)
     app.include_router(jobs.router)
     app.include_router(displays.router)

@@ -82,6 +82,7 @@ function route() {
     show("job", false); show("home", true);
     refreshHome();
     state.timer = setInterval(refreshHome, 10000);
+    if (state.scene) estimateSoon();
   }
 }
 
