@@ -68,8 +68,13 @@ def render(
         from holocore.pipeline import plan_scene
         from holocore.scene import load_scene
 
+        from holocore.estimate_probe import estimate_with_probe, probe_scene, process_age_s
+
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
-            pl = plan_scene(load_scene(scene), optics_cfg, options)
+            loaded = load_scene(scene)
+            startup = process_age_s()
+            pl = plan_scene(loaded, optics_cfg, options)
+            probe = probe_scene(loaded, optics_cfg, options, startup_s=startup)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
         cal = load_calibration()
@@ -77,7 +82,12 @@ def render(
                                 subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
         source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
             "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
-        console.print(f"estimated render time: {secs:.1f} s ({source})")
+        full = estimate_with_probe(optics_cfg, options, probe, scene_primitives=pl["inventory"].primitives,
+                                   subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
+        console.print(f"estimated time of `holo render`: {full['total']:.1f} s (start-up {full['startup']:.1f} s, "
+                      f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
+                      f"cost per ray from a {probe.probe_s:.1f} s probe render)")
+        console.print(f"estimated warm render time: {secs:.1f} s ({source})")
         from holocore.memory_estimate import estimate_memory
 
         mem = estimate_memory(height_px=optics_cfg.height, width_px=optics_cfg.width,
