@@ -350,6 +350,8 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     if not want_cells:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
         dr.eval(parts)
+    if device.type == "cuda":
+        dr.sync_thread()  # Dr.Jit's kernels run on its own stream: done before torch reads their outputs
     out = {c: torch.complex(_to_torch(parts[2 * c], device), _to_torch(parts[2 * c + 1], device))
            for c in range(len(g.ks))}
     if want_cells:
