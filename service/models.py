@@ -194,7 +194,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     The render and the SGD encoder come from ``holocore.estimate`` (rates calibrated on this machine by
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
     sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
-    8 s for starting the job's three processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
+    14 s for starting the job's four processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
     preview (2e-7 s per pixel-color). Without a usable calibration: a linear model fitted on a 2-core CPU."""
     from types import SimpleNamespace
 
@@ -207,7 +207,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     rays = h * w * c * spp
     pix = h * w * c * f
     iters = req.iterations if req.iterations is not None else 500
-    fixed = 8.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
+    fixed = 14.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
     try:

@@ -13,7 +13,7 @@ SERVICE_VERSION = "0.1.0"
 _ROOT = Path(__file__).resolve().parent.parent
 # Everything a job's bytes depend on: the physics, the CLIs the worker runs, and the worker itself.
 _SOURCES = ("holocore", "holo/cmd_render.py", "holo/cmd_encode.py", "holo/cmd_view.py", "holo/common.py",
-            "service/workers/driver.py")
+            "service/workers/driver.py", "service/workers/pictures.py")
 
 
 @lru_cache(maxsize=1)
