@@ -1,5 +1,6 @@
-"""`holo bench calibrate` (measure this machine's rates for the cost estimate) and `holo bench accuracy`
-(the accuracy-versus-time report, bench/accuracy_report.py)."""
+"""`holo bench calibrate` (measure this machine's rates for the cost estimate), `holo bench accuracy`
+(the accuracy-versus-time report, bench/accuracy_report.py) and `holo bench paper` (the paper's figures and the
+equal-time table on the paper scenes, bench/paper_report.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import typer
 
 from holo.common import fail
 
-bench_app = typer.Typer(help="Benchmarks: calibrate the cost estimate, accuracy versus time.", no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks: calibrate the cost estimate, accuracy versus time, the paper's figures.",
+                        no_args_is_help=True)
 
 
 def register(app: typer.Typer) -> None:
@@ -64,22 +66,34 @@ def calibrate(
     typer.echo(f"calibrated on {cal['scene']} in {time.perf_counter() - t0:.0f} s -> {path}", err=True)
 
 
-@bench_app.command("accuracy", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def accuracy(ctx: typer.Context) -> None:
-    """Run bench/accuracy_report.py (options pass through: --scene, --resolution, --out, --repeats, --quick)."""
-    script = Path(__file__).resolve().parents[1] / "bench" / "accuracy_report.py"
+def _run_script(name: str, module: str, args: list[str]) -> None:
+    script = Path(__file__).resolve().parents[1] / "bench" / name
     if not script.is_file():
-        fail(f"{script} not found: the accuracy report runs from a source checkout of the project")
+        fail(f"{script} not found: the report runs from a source checkout of the project")
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("holo_accuracy_report", script)
+    spec = importlib.util.spec_from_file_location(module, script)
     mod = importlib.util.module_from_spec(spec)
     assert spec.loader is not None
     sys.modules[spec.name] = mod  # dataclasses look their module up by name
     spec.loader.exec_module(mod)
-    code = mod.main(list(ctx.args))
+    code = mod.main(args)
     if code:
         raise typer.Exit(code)
+
+
+@bench_app.command("accuracy", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def accuracy(ctx: typer.Context) -> None:
+    """Run bench/accuracy_report.py (options pass through: --scene, --resolution, --out, --repeats, --quick)."""
+    _run_script("accuracy_report.py", "holo_accuracy_report", list(ctx.args))
+
+
+@bench_app.command("paper", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def paper(ctx: typer.Context) -> None:
+    """Regenerate the paper's Figs. 5-7 and the equal-time table on the paper scenes into bench/results/paper/
+    (bench/paper_report.py; options pass through: --stages, --scenes, --resolution, --z-inf-mm, --budget-s,
+    --out, ...; see --help)."""
+    _run_script("paper_report.py", "holo_paper_report", list(ctx.args))
 
 
 @bench_app.command("show-calibration")

@@ -1,0 +1,712 @@
+"""The paper's figures (Figs. 5, 6, 7) and an equal-time table, regenerated on the project's paper scenes
+(holocore/paper_scenes.py) at the paper display's pitch (8 µm), f = 50 mm, laser lines and 24 frames, on a
+reduced part of the SLM (default 135x240 px; see the README this writes for why and where z_inf lies).
+
+Stages (each writes a JSON under --out, the report is rebuilt from all JSONs present):
+
+* ``equal``: per scene, every method gets the same wall-time budget ``--budget-s`` for 24 phase-only frames:
+  ours = two-stage render (preset balanced) + the SGD phase-only encoder, spp chosen from a 16-spp timing run
+  to fill the budget; fast = the same with preset fast; layers = the RGB-D layer baseline + the same encoder;
+  focal stack = `holocore.baseline_focal_stack` (its Mitsuba targets included), Adam iterations chosen from a
+  timing probe to fill the budget. Scored with holocore.evaluate's machinery (eye_view + compare) against
+  Mitsuba thin-lens ground truth on 4 focus planes (near / middle / far of the image volume and the depth of the
+  mirror or glass image) x 3 views (left, centre, right), none of them the focal stack's own planes unless by
+  chance (the table gives each plane's distance to the nearest stack plane). Keeps the images of Fig. 7.
+* ``conv``: convergence map (Fig. 5): two-stage, fast and direct at several spp, each rendered once with 24
+  frames (frame m's random phase and paths do not depend on how many frames are rendered, so F = 3, 8 are the
+  first F frames, checked by tests/test_paper_report.py; F = 1 is the first random-phase frame, whereas a
+  1-frame render skips the random phase, DESIGN §8), centre view, 3 focus planes. Convergence =
+  PSNR(vs ground truth) / PSNR(converged reference vs ground truth), the reference a two-stage render at
+  ``--ref-spp`` with 24 frames; the 80 % contour is drawn. PSNR against the reference's first F frames (Monte
+  Carlo error alone) is kept too.
+* ``runtime``: wall time over 1, 3, 8, 24 frames (Fig. 6) for ours, fast, layers, focal stack at the settings
+  the equal-time stage chose (24 frames: taken from it).
+
+    .venv/bin/python bench/paper_report.py                   # or: holo bench paper
+    .venv/bin/python bench/paper_report.py --stages report   # rebuild README/figures from the JSONs
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+RESULTS = ROOT / "bench" / "results" / "paper"
+FRAMES = (1, 3, 8, 24)
+METHOD_LABEL = {"ours": "ours (two-stage, balanced)", "fast": "fast (two-stage + radiance cache)",
+                "direct": "direct (scene -> SLM)", "layers": "layers (RGB-D, 8 planes)", "focal-stack": "focal stack"}
+
+
+# ---- bookkeeping (pure, tested) -------------------------------------------------------------------------------
+def fit_count(budget_s: float, fixed_s: float, per_unit_s: float, *, lo: int = 1, hi: int = 1 << 16) -> int:
+    """The largest count n in [lo, hi] with fixed_s + n per_unit_s <= budget_s (lo if even that does not fit):
+    how many rays per pixel, or Adam iterations, a method gets for an equal time budget."""
+    if not (per_unit_s > 0 and math.isfinite(per_unit_s)):
+        raise ValueError(f"per_unit_s must be > 0, got {per_unit_s!r}")
+    n = math.floor((float(budget_s) - float(fixed_s)) / float(per_unit_s))
+    return int(min(hi, max(lo, n)))
+
+
+def convergence_ratio(psnr_db: float, ref_psnr_db: float) -> float:
+    """PSNR (vs ground truth) relative to the converged reference's PSNR (vs the same ground truth)."""
+    if not (math.isfinite(ref_psnr_db) and ref_psnr_db > 0):
+        return math.nan
+    return float(psnr_db) / float(ref_psnr_db)
+
+
+def image_focus_m(scene: str, meta: dict) -> Optional[float]:
+    """Hologram depth (m) of the image that carries the scene's cue: the mirror image, the glass ball's image,
+    the glossy highlight, the middle card (z = z_inf + f^2 / zc)."""
+    from holocore.paper_scenes import PAPER_SCENES, scene_facts
+
+    if scene not in PAPER_SCENES:
+        return None
+    fx = scene_facts(scene)
+    zc = {"mirror": fx.get("mirror_image_zc_m"), "glass": fx.get("paraxial_image_zc_m"),
+          "glossy": fx.get("highlight_image_zc_m"), "depth": (fx.get("depths_m") or {}).get("mid")}[scene]
+    f, zi = float(meta["focal_length_m"]), float(meta["z_inf_m"])
+    return zi + f * f / float(zc)
+
+
+def cell_grid(scene: str, meta: dict, *, view_deg: float) -> tuple[list[tuple[str, float]], list[tuple[str, tuple]]]:
+    """Focus planes [(name, z)] (near, middle, far of the image volume, and the cue's image) and views
+    [(name, (ex, ey))] (left, centre, right at +-view_deg)."""
+    from holocore.evaluate import focus_planes_m
+
+    near, mid, far = focus_planes_m(meta, 3)
+    focus = [("near", near), ("middle", mid), ("far", far)]
+    zi = image_focus_m(scene, meta)
+    if zi is not None:
+        focus.append(("image", zi))
+    e = float(meta["focal_length_m"]) * math.sin(math.radians(view_deg))
+    return focus, [("left", (-e, 0.0)), ("centre", (0.0, 0.0)), ("right", (e, 0.0))]
+
+
+def margin_px(meta: dict, shape_hw: tuple[int, int], *, focus_z_m: float, pupil_m: float, view: tuple) -> int:
+    """holocore.evaluate.lit_margin_px, capped so that at least 16 px stay (tiny test sizes)."""
+    from holocore.evaluate import lit_margin_px
+
+    m = lit_margin_px(meta, focus_z_m=focus_z_m, pupil_diameter_m=pupil_m, view_offset_m=view)
+    return int(min(m, max(0, (min(shape_hw) - 16) // 2)))
+
+
+def score_cell(recon: np.ndarray, truth: np.ndarray, m: int) -> tuple[float, float, float]:
+    """(PSNR dB, SSIM, scale) of holocore.evaluate.compare on the lit part (border m px left out)."""
+    from holocore.evaluate import compare
+
+    H, W = recon.shape[-2:]
+    sc = compare(recon[:, m:H - m, m:W - m], truth[:, m:H - m, m:W - m])
+    return sc.psnr_db, sc.ssim, sc.scale
+
+
+def phase_only_field(enc: Any) -> np.ndarray:
+    """What the display shows for an encoder result: sqrt(P) exp(i phi), P the encoder's laser powers [F, C]."""
+    P = np.sqrt(np.asarray(enc.illumination, dtype=np.float64)).astype(np.float32)
+    return (np.exp(1j * enc.phase.astype(np.float32)) * P[..., None, None]).astype(np.complex64)
+
+
+# ---- running ------------------------------------------------------------------------------------------------
+class Runner:
+    def __init__(self, args, log) -> None:
+        self.args, self.log = args, log
+        self.H, self.W = args.shape_hw
+        self.work = Path(args.work)
+        self.work.mkdir(parents=True, exist_ok=True)
+
+    def optics(self, frames: int):
+        from holocore.display import PAPER
+
+        return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm)
+
+    def load(self, scene: str):
+        from holocore.paper_scenes import write_paper_scene
+        from holocore.scene import load_scene
+
+        return load_scene(write_paper_scene(scene, self.work / scene))
+
+    def warm(self, loaded, methods=("wrp/balanced", "wrp/fast", "direct/balanced")) -> None:
+        """Compile every kernel once (tiny size), so no timed run pays for JIT compilation."""
+        from holocore.baseline_layers import render_layers
+        from holocore.display import PAPER
+        from holocore.encoding import encode_sgd
+        from holocore.pipeline import RenderOptions, render_loaded
+
+        small = PAPER.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm)
+        for key in methods:
+            method, preset = key.split("/")
+            r = render_loaded(loaded, small, RenderOptions(preset=preset, method=method, spp=4))
+        encode_sgd(r.wrp_field, z_wrp_m=r.meta["z_wrp_m"], wavelengths_m=r.meta["wavelengths_m"],
+                   pitch_m=r.meta["pitch_m"], iterations=2, stop_db=0.0)
+        render_layers(loaded, small, planes=2, spp=4)
+
+    def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp"):
+        from holocore.display import PAPER
+        from holocore.pipeline import RenderOptions, render_loaded
+
+        t0 = time.perf_counter()
+        r = render_loaded(loaded, self.optics(frames), RenderOptions(preset=preset, method=method, spp=spp),
+                          display=PAPER)
+        return r, time.perf_counter() - t0
+
+    def encode(self, res):
+        from holocore.encoding import encode_sgd
+
+        m = res.meta
+        t0 = time.perf_counter()
+        enc = encode_sgd(res.wrp_field, z_wrp_m=m["z_wrp_m"], wavelengths_m=m["wavelengths_m"], pitch_m=m["pitch_m"],
+                         iterations=self.args.enc_iterations, stop_db=0.0, fourier_filter=True)
+        return enc, time.perf_counter() - t0
+
+    def layers(self, loaded, frames: int):
+        from holocore.baseline_layers import render_layers
+        from holocore.display import PAPER
+
+        t0 = time.perf_counter()
+        r = render_layers(loaded, self.optics(frames), planes=self.args.layer_planes, spp=self.args.layer_spp,
+                          display=PAPER)
+        return r, time.perf_counter() - t0
+
+    def focal_stack(self, loaded, frames: int, iterations: int):
+        from holocore.baseline_focal_stack import render_focal_stack
+        from holocore.display import PAPER
+
+        t0 = time.perf_counter()
+        r = render_focal_stack(loaded, self.optics(frames), iterations=iterations, gt_spp=self.args.fs_gt_spp,
+                               display=PAPER)
+        return r, time.perf_counter() - t0
+
+    def fs_probe(self, meta: dict, pupil: float) -> tuple[float, float]:
+        """(seconds of one focal-stack Adam iteration at 24 frames, seconds of its final no-gradient pass),
+        from two short runs with 2 frames on a random target (the cost is linear in frames)."""
+        from holocore.baseline_focal_stack import optimise_focal_stack, stack_plane_depths
+
+        ana = meta["analysis"]
+        zs = stack_plane_depths(z_inf_m=meta["z_inf_m"], z_far_m=ana["z_far_holo_m"], z_near_m=ana["z_near_holo_m"],
+                                planes=5, spacing_m=1.25e-3, z_limit_m=meta["z_wrp_m"])
+        T = np.random.default_rng(0).random((len(zs), 3, self.H, self.W))
+        kw = dict(wavelengths_m=meta["wavelengths_m"], pitch_m=meta["pitch_m"], focal_length_m=meta["focal_length_m"],
+                  pupil_diameter_m=pupil, frames=2)
+        t0 = time.perf_counter()
+        optimise_focal_stack(T, zs, iterations=0, **kw)
+        t1 = time.perf_counter()
+        optimise_focal_stack(T, zs, iterations=2, **kw)
+        t2 = time.perf_counter()
+        scale = self.args.frames / 2.0
+        return max(1e-3, ((t2 - t1) - (t1 - t0)) / 2.0 * scale), (t1 - t0) * scale
+
+    # ---- the equal-time comparison and Fig. 7 ----------------------------------------------------------------
+    def equal(self, scene: str) -> dict:
+        from holocore.evaluate import default_pupil_m, eye_view
+        from holocore.groundtruth import GroundTruth
+
+        a, F, B = self.args, self.args.frames, self.args.budget_s
+        loaded = self.load(scene)
+        self.warm(loaded, methods=("wrp/balanced", "wrp/fast"))
+        out: dict[str, Any] = {"scene": scene, "budget_s": B, "frames": F, "shape_hw": [self.H, self.W],
+                               "z_inf_mm": a.z_inf_mm, "enc_iterations": a.enc_iterations, "methods": {}}
+        fields: dict[str, np.ndarray] = {}
+        # layers + encoder (this also measures the encoder's time at this size, the same for every WRP field)
+        lay, t_lay = self.layers(loaded, F)
+        enc, t_enc = self.encode(lay)
+        meta = lay.meta
+        fields["layers"] = phase_only_field(enc)
+        fields["layers (complex)"] = lay.slm_field
+        out["methods"]["layers"] = {"render_s": t_lay, "encode_s": t_enc, "time_s": t_lay + t_enc,
+                                    "config": f"{a.layer_planes} planes, RGB-D {a.layer_spp} spp, SGD {a.enc_iterations} it"}
+        self.log(f"[{scene}] layers {t_lay:.1f} s + encoder {t_enc:.1f} s")
+        del lay
+        # ours and fast: a 16-spp run gives the fixed cost and the cost per spp
+        for name, preset in (("ours", "balanced"), ("fast", "fast")):
+            probe, t_probe = self.render(loaded, F, preset, 16)
+            tm = probe.meta["timings"]
+            per_spp = tm["trace_s"] / 16.0
+            fixed = t_probe - tm["trace_s"]
+            spp = fit_count(B - t_enc, fixed, per_spp, lo=4, hi=a.max_spp)
+            del probe
+            res, t_r = self.render(loaded, F, preset, spp)
+            e, t_e = self.encode(res)
+            fields[name] = phase_only_field(e)
+            if name == "ours":
+                fields["ours (complex)"] = res.slm_field
+                meta = res.meta
+            out["methods"][name] = {"render_s": t_r, "encode_s": t_e, "time_s": t_r + t_e, "spp": spp,
+                                    "probe": {"spp": 16, "seconds": t_probe, "fixed_s": fixed, "per_spp_s": per_spp},
+                                    "config": f"{spp} spp, SGD {a.enc_iterations} it",
+                                    "plan": res.meta["plan"]["summary"]}
+            self.log(f"[{scene}] {name}: {spp} spp {t_r:.1f} s + encoder {t_e:.1f} s")
+            del res
+        # focal stack: Adam iterations to fill the budget
+        pupil = default_pupil_m(meta, view_deg=a.view_deg)
+        truth = GroundTruth(loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
+        focus, views = cell_grid(scene, meta, view_deg=a.view_deg)
+        t_gt0 = time.perf_counter()
+        gts = {(fn, vn): truth.channels(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e)
+               for fn, z in focus for vn, e in views}
+        gt_per_render = (time.perf_counter() - t_gt0) / len(gts)
+        per_it, final = self.fs_probe(meta, pupil)
+        fixed_fs = 5 * gt_per_render * a.fs_gt_spp / a.gt_spp + final + 1.0
+        it = fit_count(B, fixed_fs, per_it, lo=1, hi=100_000)
+        fs, t_fs = self.focal_stack(loaded, F, it)
+        fields["focal-stack"] = fs.slm_field
+        fsm = fs.meta["focal_stack"]
+        out["methods"]["focal-stack"] = {"render_s": t_fs, "encode_s": 0.0, "time_s": t_fs, "iterations": it,
+                                         "probe": {"per_iteration_s": per_it, "fixed_s": fixed_fs},
+                                         "plane_z_m": fsm["plane_z_m"], "loss_first": fsm["loss_first"],
+                                         "loss_final": fsm["loss_final"], "timings": fs.meta["timings"],
+                                         "config": f"5 planes x 1.25 mm, {it} Adam it, targets {a.fs_gt_spp} spp"}
+        self.log(f"[{scene}] focal stack: {it} iterations {t_fs:.1f} s (targets {fs.meta['timings']['targets_s']:.1f} s)")
+        del fs
+        stack_planes = np.asarray(out["methods"]["focal-stack"]["plane_z_m"])
+        out.update(pupil_m=pupil, view_deg=a.view_deg, gt_spp=a.gt_spp,
+                   focus=[{"name": fn, "z_m": z, "to_nearest_stack_plane_mm": float(np.min(np.abs(stack_planes - z)) * 1e3)}
+                          for fn, z in focus],
+                   views=[{"name": vn, "e_m": list(e)} for vn, e in views],
+                   meta={k: meta[k] for k in ("focal_length_m", "z_inf_m", "z_wrp_m", "pitch_m", "wavelengths_m")},
+                   analysis={k: meta["analysis"][k] for k in ("z_near_holo_m", "z_far_holo_m", "zc_image_min_m",
+                                                               "zc_image_max_m") if k in meta["analysis"]})
+        # scores and the images of Fig. 7
+        rows, images = [], {}
+        for label, fld in fields.items():
+            complex_ = label.endswith("(complex)")
+            for fn, z in focus:
+                for vn, e in views:
+                    if complex_ and vn != "centre":
+                        continue
+                    rec = eye_view(fld, meta, focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e)
+                    m = margin_px(meta, (self.H, self.W), focus_z_m=z, pupil_m=pupil, view=e)
+                    p, s, k = score_cell(rec, gts[(fn, vn)], m)
+                    rows.append({"method": label, "focus": fn, "z_m": z, "view": vn, "psnr_db": p, "ssim": s,
+                                 "margin_px": m})
+                    if not complex_ and (vn == "centre" or fn == "image"):
+                        images[f"{label}|{fn}|{vn}"] = (rec * k).astype(np.float32)
+            self.log(f"[{scene}] scored {label}: mean PSNR "
+                     f"{np.mean([r['psnr_db'] for r in rows if r['method'] == label]):.2f} dB")
+        for (fn, vn), g in gts.items():
+            if vn == "centre" or fn == "image":
+                images[f"ground truth|{fn}|{vn}"] = g.astype(np.float32)
+        out["cells"] = rows
+        out["gt_seconds"] = truth.seconds
+        np.savez_compressed(self.work / f"images_{scene}.npz", **{k.replace("|", "__"): v for k, v in images.items()})
+        return out
+
+    # ---- Fig. 5 ------------------------------------------------------------------------------------------------
+    def conv(self, scene: str) -> dict:
+        from holocore.evaluate import default_pupil_m, eye_view, focus_planes_m
+        from holocore.groundtruth import GroundTruth
+
+        a = self.args
+        loaded = self.load(scene)
+        self.warm(loaded)
+        ref, t_ref = self.render(loaded, 24, "balanced", a.ref_spp)
+        meta = ref.meta
+        pupil = default_pupil_m(meta, view_deg=a.view_deg)
+        zs = focus_planes_m(meta, 3)
+        truth = GroundTruth(loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
+        gts = [truth.channels(focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
+        ms = [margin_px(meta, (self.H, self.W), focus_z_m=z, pupil_m=pupil, view=(0.0, 0.0)) for z in zs]
+        ref_views = {F: [eye_view(ref.slm_field[:F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
+                     for F in FRAMES}
+        del ref
+
+        def scores(fld):
+            out = {}
+            for F in FRAMES:
+                recs = [eye_view(fld[:F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
+                out[F] = {"psnr_gt_db": float(np.mean([score_cell(r, g, m)[0] for r, g, m in zip(recs, gts, ms)])),
+                          "psnr_ref_db": float(np.mean([score_cell(r, g, m)[0]
+                                                        for r, g, m in zip(recs, ref_views[F], ms)]))}
+            return out
+
+        ref_scores = {F: {"psnr_gt_db": float(np.mean([score_cell(r, g, m)[0]
+                                                       for r, g, m in zip(ref_views[F], gts, ms)]))} for F in FRAMES}
+        norm = ref_scores[24]["psnr_gt_db"]
+        rows = []
+        for key in ("wrp/balanced", "wrp/fast", "direct/balanced"):
+            method, preset = key.split("/")
+            name = {"wrp/balanced": "ours", "wrp/fast": "fast", "direct/balanced": "direct"}[key]
+            for spp in a.conv_spp:
+                res, t = self.render(loaded, 24, preset, spp, method=method)
+                sc = scores(res.slm_field)
+                del res
+                for F in FRAMES:
+                    rows.append({"method": name, "spp": spp, "frames": F, "render_s_24": t, **sc[F],
+                                 "ratio": convergence_ratio(sc[F]["psnr_gt_db"], norm)})
+                self.log(f"[{scene}] conv {name} {spp} spp ({t:.1f} s): ratio at 24 frames "
+                         f"{rows[-1]['ratio']:.3f}, PSNR vs GT {rows[-1]['psnr_gt_db']:.2f} dB")
+        return {"scene": scene, "ref_spp": a.ref_spp, "ref_render_s": t_ref, "ref": ref_scores, "norm_psnr_db": norm,
+                "focus_z_m": zs, "pupil_m": pupil, "gt_spp": a.gt_spp, "shape_hw": [self.H, self.W], "rows": rows}
+
+    # ---- Fig. 6 ------------------------------------------------------------------------------------------------
+    def runtime(self, scene: str, equal: dict) -> dict:
+        loaded = self.load(scene)
+        self.warm(loaded, methods=("wrp/balanced", "wrp/fast"))
+        em = equal["methods"]
+        rows = []
+        for F in FRAMES:
+            if F == equal["frames"]:
+                for name, v in em.items():
+                    rows.append({"method": name, "frames": F, "render_s": v["render_s"], "encode_s": v["encode_s"]})
+                continue
+            for name in ("ours", "fast"):
+                res, t = self.render(loaded, F, "balanced" if name == "ours" else "fast", em[name]["spp"])
+                _, te = self.encode(res)
+                rows.append({"method": name, "frames": F, "render_s": t, "encode_s": te})
+            lay, t = self.layers(loaded, F)
+            _, te = self.encode(lay)
+            rows.append({"method": "layers", "frames": F, "render_s": t, "encode_s": te})
+            _, t = self.focal_stack(loaded, F, em["focal-stack"]["iterations"])
+            rows.append({"method": "focal-stack", "frames": F, "render_s": t, "encode_s": 0.0})
+            self.log(f"[{scene}] runtime F={F}: " + ", ".join(f"{r['method']} {r['render_s'] + r['encode_s']:.1f} s"
+                                                            for r in rows if r["frames"] == F))
+        return {"scene": scene, "rows": rows,
+                "settings": {k: v["config"] for k, v in em.items()}}
+
+
+# ---- outputs ------------------------------------------------------------------------------------------------
+def _load_json(out: Path, prefix: str) -> dict[str, dict]:
+    res = {}
+    for p in sorted(out.glob(f"{prefix}_*.json")):
+        res[p.stem[len(prefix) + 1:]] = json.loads(p.read_text())
+    return res
+
+
+def plot_convergence(conv: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = ["ours", "fast", "direct"]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for ax, name in zip(axes, methods):
+        rows = [r for r in conv["rows"] if r["method"] == name]
+        spps = sorted({r["spp"] for r in rows})
+        Z = np.array([[next(r["ratio"] for r in rows if r["spp"] == s and r["frames"] == F) for s in spps]
+                      for F in FRAMES])
+        im = ax.imshow(Z, origin="lower", cmap="viridis", vmin=0.0, vmax=1.0, aspect="auto")
+        for i in range(len(FRAMES)):
+            for j in range(len(spps)):
+                ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                        color="w" if Z[i, j] < 0.6 else "k")
+        if Z.min() < 0.8 < Z.max():
+            ax.contour(np.arange(len(spps)), np.arange(len(FRAMES)), Z, levels=[0.8], colors="w",
+                       linestyles="--", linewidths=1.5)
+        ax.set_xticks(range(len(spps)))
+        ax.set_xticklabels([str(s) for s in spps])
+        ax.set_yticks(range(len(FRAMES)))
+        ax.set_yticklabels([str(f) for f in FRAMES])
+        ax.set_xlabel("rays per pixel (spp)")
+        ax.set_ylabel("frames")
+        ax.set_title(METHOD_LABEL[name], fontsize=9)
+    fig.colorbar(im, ax=axes, label=f"PSNR / PSNR of the {conv['ref_spp']}-spp x 24-frame reference")
+    fig.suptitle(f"{conv['scene']}: convergence (dashed: 80 %)", fontsize=10)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_runtime(rt: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = ["ours", "fast", "layers", "focal-stack"]
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    width = 0.2
+    cols = {1: "#c6dbef", 3: "#6baed6", 8: "#2171b5", 24: "#08306b"}
+    for k, F in enumerate(FRAMES):
+        for i, n in enumerate(names):
+            r = next((r for r in rt["rows"] if r["method"] == n and r["frames"] == F), None)
+            if r is None:
+                continue
+            x = i + (k - 1.5) * width
+            ax.bar(x, r["render_s"], width, color=cols[F], label=f"{F} frames" if i == 0 else None)
+            if r["encode_s"] > 0:
+                ax.bar(x, r["encode_s"], width, bottom=r["render_s"], color=cols[F], hatch="//", edgecolor="w")
+    ax.set_xticks(range(len(names)))
+    ax.set_xticklabels([f"{n}\n{rt['settings'].get(n, '')}" for n in names], fontsize=7)
+    ax.set_ylabel("wall time (s); hatched: phase-only encoder")
+    ax.set_title(f"{rt['scene']}: runtime over frames (measured, one process at a time)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def image_grid(eq: dict, npz: Path, path: Path, *, zoom: int = 1) -> None:
+    """Fig. 7: rows = methods, columns = near / middle / far / image focus (centre view) and the left / right
+    views at the image's focus; under each view a 2x close-up of its central half (the mirror or glass image).
+    Each tile: the reconstruction times its least-squares scale, white = the ground truth's 99th percentile."""
+    from PIL import Image, ImageDraw
+
+    from holocore.evaluate import to_rgb
+    from holocore.preview import to_png8
+
+    with np.load(npz) as z:
+        imgs = {k.replace("__", "|"): z[k] for k in z.files}
+    wl = eq["meta"]["wavelengths_m"]
+    methods = ["ours", "fast", "layers", "focal-stack", "ground truth"]
+    cols = [("near", "centre"), ("middle", "centre"), ("far", "centre"), ("image", "centre"), ("image", "left"),
+            ("image", "right")]
+    H, W = next(iter(imgs.values())).shape[-2:]
+    tw, th = W * zoom, 2 * H * zoom + 2  # view above, close-up below
+    left, top = 90, 30
+    sheet = Image.new("RGB", (left + len(cols) * (tw + 4), top + len(methods) * (th + 6)), (0, 0, 0))
+    draw = ImageDraw.Draw(sheet)
+    zname = {f["name"]: f["z_m"] for f in eq["focus"]}
+    for j, (fn, vn) in enumerate(cols):
+        x = left + j * (tw + 4)
+        draw.text((x + 2, 2), f"{fn} focus, {vn} view", fill=(255, 255, 0))
+        draw.text((x + 2, 14), f"z = {zname[fn] * 1e3:.3f} mm", fill=(255, 255, 0))
+    for i, mname in enumerate(methods):
+        y = top + i * (th + 6)
+        draw.text((2, y + 4), mname, fill=(255, 255, 255))
+        for j, (fn, vn) in enumerate(cols):
+            key = f"{mname}|{fn}|{vn}"
+            if key not in imgs:
+                continue
+            g = imgs[f"ground truth|{fn}|{vn}"]
+            white = float(np.percentile(g, 99.0)) or 1.0
+            rgb = to_png8(to_rgb(imgs[key], wl), white=white)
+            x = left + j * (tw + 4)
+            sheet.paste(Image.fromarray(rgb).resize((tw, H * zoom), Image.NEAREST), (x, y))
+            crop = rgb[H // 4:H // 4 + H // 2, W // 4:W // 4 + W // 2]
+            sheet.paste(Image.fromarray(crop).resize((tw, H * zoom), Image.NEAREST), (x, y + H * zoom + 2))
+            row = [c for c in eq["cells"] if c["method"] == mname and c["focus"] == fn and c["view"] == vn]
+            if row:
+                draw.text((x + 2, y + 2), f"{row[0]['psnr_db']:.1f} dB", fill=(255, 255, 0))
+    sheet.save(path)
+
+
+def summary(eq: dict) -> dict:
+    """Per method: mean PSNR / SSIM over the focus x view grid and over the views at the image's focus."""
+    out = {}
+    for name in dict.fromkeys(c["method"] for c in eq["cells"]):
+        cs = [c for c in eq["cells"] if c["method"] == name]
+        img = [c for c in cs if c["focus"] == "image"]
+        fin = [c["psnr_db"] for c in cs if math.isfinite(c["psnr_db"])]
+        out[name] = {"psnr_db": float(np.mean(fin)), "ssim": float(np.mean([c["ssim"] for c in cs])),
+                     "psnr_image_db": float(np.mean([c["psnr_db"] for c in img])) if img else math.nan,
+                     "ssim_image": float(np.mean([c["ssim"] for c in img])) if img else math.nan, "cells": len(cs)}
+    return out
+
+
+def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
+    eqs, convs, rts = _load_json(out, "equal"), _load_json(out, "conv"), _load_json(out, "runtime")
+    L = ["# The paper's figures, regenerated (Figs. 5, 6, 7 and an equal-time table)", "",
+         f"Generated by `{env['command']}` (stages as listed per section) on {env['date']}: {env['machine']}. "
+         "Every number below comes from that code as committed; the JSON files beside this README hold all of them.",
+         ""]
+    first = next(iter(eqs.values()), None) or next(iter(convs.values()), None)
+    if first:
+        H, W = first["shape_hw"]
+        L += ["## Setup", "",
+              f"Paper display (holocore.display.PAPER): pitch 8 µm, f = 50 mm, 640.0 / 516.5 / 455.4 nm, 24 frames, "
+              f"Fourier filter (the encoder supervises the recording cone). Reduced here to a **{H}x{W}** part of the "
+              f"SLM (the paper's 1080x1920): the paper scenes' cues sit in the middle of the view, and at {H}x{W} the "
+              f"view (±{math.degrees(math.atan(W * 8e-6 / 2 / 0.05)):.2f}° x ±{math.degrees(math.atan(H * 8e-6 / 2 / 0.05)):.2f}°) "
+              "lies inside the mirror and inside the glass ball: what the eye sees is the mirror image (2.0 m) or the "
+              "ball's image of its card (0.72 m) throughout, not their frame. "
+              f"**Virtual infinity at z_inf = {args.z_inf_mm:g} mm** instead of the paper's 80 mm: an image point z from "
+              "the SLM collects light from z (NA + |e|/f) / p pixels around it, so at 80 mm a 1.6 mm pupil's view of "
+              f"a {W}-px-wide SLM would be vignetted everywhere; at {args.z_inf_mm:g} mm the border left out of the "
+              "scores (holocore.evaluate.lit_margin_px) is about 30 px. The depth structure beyond z_inf is the paper's "
+              "(z = z_inf + f^2 / zc: 0.5 m at +5 mm, 0.9 m at +2.78 mm, 2 m at +1.25 mm, 10 m at +0.25 mm).", "",
+              "Scoring: holocore.evaluate (eye_view: pupil-filtered, propagated, frame-averaged; compare: one "
+              "least-squares brightness scale, white at the ground truth's 99th percentile, PSNR / SSIM on the lit "
+              "part) against Mitsuba thin-lens ground truth through the same pupil (holocore.groundtruth). Pupil: "
+              "holocore.evaluate.default_pupil_m at ±0.5° views (1.61 mm, the focal stack's own pupil too). Every "
+              "hologram scored in the equal-time table is phase-only (what the SLM can show): ours, fast and layers "
+              "go through the same SGD encoder (holocore.encoding.encode_sgd, complex supervision in the cone, fixed "
+              "iterations), whose time counts in their budget; the focal stack is phase-only by construction.", ""]
+    if eqs:
+        L += ["## Equal time (24 frames, phase-only)", "",
+              f"Stage `equal`. Budget per method: {first['budget_s']:g} s of wall time for all 24 frames, encoder "
+              "included. ours / fast: a 16-spp run of the same scene and frames gives the fixed cost and the cost per "
+              "spp, and the spp that fills the budget is used; layers: RGB-D baseline (8 planes, 64 spp) plus the "
+              "encoder (it has nothing to spend more time on: more RGB-D samples or planes do not move the mirror "
+              "image off the mirror); focal stack: a 2-frame probe gives the cost of one Adam iteration at 24 frames, "
+              "and the iterations that fill the budget after its Mitsuba targets are used. Measured times in the table.",
+              "", "Focus planes: near / middle / far of the image volume (the renderer's analysis) and `image` = the "
+              "depth of the mirror image (mirror) or of the glass ball's image (glass); views: left / centre / right "
+              f"eye offsets at ±{first['view_deg']:g}°. Mean over the 4 x 3 = 12 cells, and over the 3 views at the "
+              "image's focus. `(complex)`: the field before phase-only encoding, centre view only (an upper bound, "
+              "not displayable, not in the equal-time comparison).", ""]
+        for scene, eq in eqs.items():
+            sm = summary(eq)
+            fp = ", ".join(f"{f['name']} {f['z_m'] * 1e3:.3f} mm ({f['to_nearest_stack_plane_mm']:.2f} mm from a stack plane)"
+                           for f in eq["focus"])
+            sp = ", ".join(f"{z * 1e3:.3f}" for z in eq["methods"]["focal-stack"]["plane_z_m"])
+            L += [f"### {scene}", "",
+                  f"Image volume {eq['analysis']['z_far_holo_m'] * 1e3:.3f} .. {eq['analysis']['z_near_holo_m'] * 1e3:.3f} mm, "
+                  f"WRP {eq['meta']['z_wrp_m'] * 1e3:.3f} mm; focus planes: {fp}; focal-stack planes: {sp} mm.", "",
+                  "| method | settings | wall time s (render + encode) | PSNR dB (12 cells) | SSIM | PSNR dB at the image's focus | SSIM there |",
+                  "|---|---|---|---|---|---|---|"]
+            for name, s in sm.items():
+                m = eq["methods"].get(name.replace(" (complex)", ""), {})
+                t = (f"{m['time_s']:.1f} ({m['render_s']:.1f} + {m['encode_s']:.1f})" if m and not name.endswith(")")
+                     else (f"{m['render_s']:.1f} + 0" if m else "-"))
+                L.append(f"| {name} | {m.get('config', '') if not name.endswith(')') else 'no encoder'} | {t} | "
+                         f"{s['psnr_db']:.2f} | {s['ssim']:.3f} | {s['psnr_image_db']:.2f} | {s['ssim_image']:.3f} |")
+            o, lay, fs = sm.get("ours"), sm.get("layers"), sm.get("focal-stack")
+            if o and lay and fs:
+                L += ["", f"ours - layers: {o['psnr_db'] - lay['psnr_db']:+.2f} dB mean, "
+                          f"{o['psnr_image_db'] - lay['psnr_image_db']:+.2f} dB at the image's focus; ours - focal stack: "
+                          f"{o['psnr_db'] - fs['psnr_db']:+.2f} dB mean, {o['psnr_image_db'] - fs['psnr_image_db']:+.2f} dB "
+                          "at the image's focus."]
+            L += ["", "Per cell (PSNR dB / SSIM):", "",
+                  "| method | " + " | ".join(f"{f['name']} {v['name']}" for f in eq["focus"] for v in eq["views"]) + " |",
+                  "|---|" + "---|" * (len(eq["focus"]) * len(eq["views"]))]
+            for name in sm:
+                if name.endswith(")"):
+                    continue
+                vals = []
+                for f in eq["focus"]:
+                    for v in eq["views"]:
+                        c = next((c for c in eq["cells"] if c["method"] == name and c["focus"] == f["name"]
+                                  and c["view"] == v["name"]), None)
+                        vals.append(f"{c['psnr_db']:.2f} / {c['ssim']:.2f}" if c else "-")
+                L.append(f"| {name} | " + " | ".join(vals) + " |")
+            fsm = eq["methods"]["focal-stack"]
+            L += ["", f"Focal stack: {fsm['iterations']} Adam iterations in the budget (probe: "
+                      f"{fsm['probe']['per_iteration_s']:.1f} s per iteration at 24 frames; targets "
+                      f"{fsm['timings']['targets_s']:.1f} s); loss {fsm['loss_first']:.4f} -> {fsm['loss_final']:.4f}.",
+                  f"Ground truth: {eq['gt_seconds']:.0f} s of Mitsuba rendering, {eq['gt_spp']} spp.", "",
+                  f"![{scene} image grid](fig7_{scene}.png)", ""]
+    if convs:
+        for scene, cv in convs.items():
+            L += [f"## Convergence (Fig. 5): {scene}", "",
+                  f"Stage `conv`. Reference: two-stage, {cv['ref_spp']} spp x 24 frames ({cv['ref_render_s']:.0f} s), "
+                  f"{cv['norm_psnr_db']:.2f} dB against the ground truth (mean of 3 focus planes, centre view). Each "
+                  "cell: PSNR against the ground truth divided by that; second number: PSNR against the reference's "
+                  "first F frames (Monte Carlo error only, same random phases). Complex fields (no encoder).", "",
+                  "| method | spp | render s (24 frames) | " + " | ".join(f"F={F}" for F in FRAMES) + " |",
+                  "|---|---|---|" + "---|" * len(FRAMES)]
+            for name in ("ours", "fast", "direct"):
+                for spp in sorted({r["spp"] for r in cv["rows"] if r["method"] == name}):
+                    rs = {r["frames"]: r for r in cv["rows"] if r["method"] == name and r["spp"] == spp}
+                    L.append(f"| {name} | {spp} | {rs[24]['render_s_24']:.1f} | " + " | ".join(
+                        f"{rs[F]['ratio']:.2f} ({rs[F]['psnr_gt_db']:.1f} dB; {rs[F]['psnr_ref_db']:.1f} vs ref)"
+                        for F in FRAMES) + " |")
+            L.append("| reference | %d | %.1f | " % (cv["ref_spp"], cv["ref_render_s"]) + " | ".join(
+                f"{cv['ref'][str(F)]['psnr_gt_db'] / cv['norm_psnr_db']:.2f} ({cv['ref'][str(F)]['psnr_gt_db']:.1f} dB)"
+                for F in FRAMES) + " |")
+            L += ["", f"![convergence {scene}](fig5_{scene}.png)", ""]
+    if rts:
+        for scene, rt in rts.items():
+            L += [f"## Runtime over frames (Fig. 6): {scene}", "", "Stage `runtime`, the equal-time stage's settings "
+                  "(24 frames: that stage's runs). Wall time in s, render + encoder.", "",
+                  "| method | settings | " + " | ".join(f"{F} frames" for F in FRAMES) + " |", "|---|---|" + "---|" * len(FRAMES)]
+            for name in ("ours", "fast", "layers", "focal-stack"):
+                vals = []
+                for F in FRAMES:
+                    r = next((r for r in rt["rows"] if r["method"] == name and r["frames"] == F), None)
+                    vals.append(f"{r['render_s'] + r['encode_s']:.1f} ({r['render_s']:.1f} + {r['encode_s']:.1f})" if r else "-")
+                L.append(f"| {name} | {rt['settings'].get(name, '')} | " + " | ".join(vals) + " |")
+            L += ["", f"![runtime {scene}](fig6_{scene}.png)", ""]
+    notes = out / "NOTES.md"
+    if notes.is_file():
+        L += [notes.read_text()]
+    (out / "README.md").write_text("\n".join(L) + "\n")
+
+
+def environment(argv: list[str]) -> dict:
+    import drjit
+    import mitsuba
+    import torch
+
+    la = os.getloadavg()
+    return {"command": " ".join([".venv/bin/python bench/paper_report.py"] + argv),
+            "date": dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores shared with other engineers' jobs (load average "
+                       f"{la[0]:.1f} when this README was written), torch {torch.__version__}, mitsuba "
+                       f"{mitsuba.__version__}, drjit {drjit.__version__}"}
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--stages", default="equal,conv,runtime,report",
+                    help="Comma-separated: equal, conv, runtime, report (default all).")
+    ap.add_argument("--scenes", default="mirror,glass", help="Paper scenes for the equal-time table and Fig. 7.")
+    ap.add_argument("--conv-scene", default="mirror", help="Scene of the convergence map and the runtime figure.")
+    ap.add_argument("--resolution", default="135x240", help="HxW part of the paper's SLM (default 135x240).")
+    ap.add_argument("--z-inf-mm", type=float, default=4.0, help="Virtual infinity (default 4 mm; see README).")
+    ap.add_argument("--frames", type=int, default=24)
+    ap.add_argument("--budget-s", type=float, default=90.0, help="Equal wall-time budget per method (s).")
+    ap.add_argument("--enc-iterations", type=int, default=15, help="SGD encoder iterations (ours, fast, layers).")
+    ap.add_argument("--gt-spp", type=int, default=128, help="Ground-truth samples per pixel.")
+    ap.add_argument("--fs-gt-spp", type=int, default=64, help="Focal-stack target samples per pixel.")
+    ap.add_argument("--layer-planes", type=int, default=8)
+    ap.add_argument("--layer-spp", type=int, default=64)
+    ap.add_argument("--max-spp", type=int, default=4096)
+    ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
+    ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
+    ap.add_argument("--view-deg", type=float, default=0.5)
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--work", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "holo_paper_report")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = ap.parse_args(argv)
+    args.shape_hw = tuple(int(v) for v in args.resolution.lower().split("x"))
+    args.conv_spp = [int(v) for v in args.conv_spp.split(",")]
+    stages = [s.strip() for s in args.stages.split(",") if s.strip()]
+    bad = [s for s in stages if s not in ("equal", "conv", "runtime", "report")]
+    if bad:
+        ap.error(f"unknown stage(s) {bad}")
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+
+    def log(msg: str) -> None:
+        print(f"{time.perf_counter() - t0:7.1f}s {msg}", flush=True)
+
+    run = Runner(args, log)
+    if "equal" in stages:
+        for scene in [s for s in args.scenes.split(",") if s]:
+            eq = run.equal(scene)
+            eq["load_average"] = os.getloadavg()
+            (out / f"equal_{scene}.json").write_text(json.dumps(eq, indent=1))
+            image_grid(eq, run.work / f"images_{scene}.npz", out / f"fig7_{scene}.png")
+    if "conv" in stages:
+        cv = run.conv(args.conv_scene)
+        cv["load_average"] = os.getloadavg()
+        (out / f"conv_{args.conv_scene}.json").write_text(json.dumps(cv, indent=1))
+        plot_convergence(cv, out / f"fig5_{args.conv_scene}.png")
+    if "runtime" in stages:
+        eqp = out / f"equal_{args.conv_scene}.json"
+        if not eqp.is_file():
+            log(f"runtime needs {eqp} (stage equal for {args.conv_scene}) first")
+            return 2
+        rt = run.runtime(args.conv_scene, json.loads(eqp.read_text()))
+        rt["load_average"] = os.getloadavg()
+        (out / f"runtime_{args.conv_scene}.json").write_text(json.dumps(rt, indent=1))
+        plot_runtime(rt, out / f"fig6_{args.conv_scene}.png")
+    if "report" in stages:
+        for scene, eq in _load_json(out, "equal").items():
+            npz = run.work / f"images_{scene}.npz"
+            if npz.is_file():
+                image_grid(eq, npz, out / f"fig7_{scene}.png")
+        for scene, cv in _load_json(out, "conv").items():
+            plot_convergence(cv, out / f"fig5_{scene}.png")
+        for scene, rt in _load_json(out, "runtime").items():
+            plot_runtime(rt, out / f"fig6_{scene}.png")
+        write_readme(out, args, argv, environment(argv))
+        log(f"wrote {out / 'README.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

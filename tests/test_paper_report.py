@@ -1,0 +1,98 @@
+"""bench/paper_report.py (`holo bench paper`) at a tiny size: the equal-time bookkeeping, the convergence
+normalisation, the frame-prefix shortcut the convergence map relies on, and that the tables' physics holds
+(a reference scored against itself is perfect, the cue's image lies where T puts it)."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def rep():
+    spec = importlib.util.spec_from_file_location("holo_paper_report_test", ROOT / "bench" / "paper_report.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_equal_time_bookkeeping(rep):
+    # 10 s fixed + 0.5 s per unit in a 60 s budget: 100 units fill it exactly, 101 would not fit
+    assert rep.fit_count(60.0, 10.0, 0.5) == 100
+    n = rep.fit_count(61.3, 7.2, 0.37)
+    assert 7.2 + n * 0.37 <= 61.3 < 7.2 + (n + 1) * 0.37
+    assert rep.fit_count(5.0, 10.0, 0.5, lo=4) == 4  # over budget already: the floor, not a negative count
+    assert rep.fit_count(1e9, 0.0, 1.0, hi=4096) == 4096
+    with pytest.raises(ValueError):
+        rep.fit_count(10.0, 1.0, 0.0)
+
+
+def test_convergence_ratio(rep):
+    assert rep.convergence_ratio(30.0, 30.0) == 1.0
+    assert rep.convergence_ratio(24.0, 30.0) == pytest.approx(0.8)
+    assert math.isnan(rep.convergence_ratio(10.0, math.inf))
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    from holocore.display import PAPER
+    from holocore.paper_scenes import write_paper_scene
+    from holocore.pipeline import RenderOptions, render_loaded
+    from holocore.scene import load_scene
+
+    loaded = load_scene(write_paper_scene("mirror", tmp_path_factory.mktemp("mirror")))
+    opt = PAPER.optics(resolution_hw=(36, 48), frames=3, z_inf_mm=4.0)
+    r3 = render_loaded(loaded, opt, RenderOptions(preset="balanced", spp=4))
+    r2 = render_loaded(loaded, opt.model_copy(update={"frames": 2}), RenderOptions(preset="balanced", spp=4))
+    return loaded, r3, r2
+
+
+def test_frame_prefix_is_the_fewer_frame_render(tiny):
+    # The convergence map renders 24 frames once and scores the first F: for F >= 2 that is what an F-frame render
+    # gives (a 1-frame render has no random-phase bank, DESIGN §8, so the map's F = 1 is one random-phase frame).
+    _, r3, r2 = tiny
+    np.testing.assert_allclose(r3.slm_field[:2], r2.slm_field, rtol=1e-4, atol=1e-5 * np.abs(r2.slm_field).max())
+
+
+def test_reference_against_itself_and_cue_depth(rep, tiny):
+    from holocore.evaluate import default_pupil_m, eye_view
+
+    _, r3, _ = tiny
+    meta = r3.meta
+    focus, views = rep.cell_grid("mirror", meta, view_deg=0.5)
+    names = [n for n, _ in focus]
+    assert names == ["near", "middle", "far", "image"]
+    z_img = dict(focus)["image"]
+    # the mirror image 2.0 m away: z_inf + f^2 / 2 m = 4 mm + 1.25 mm, beyond the mirror surface (0.5 m, + 5 mm)
+    assert z_img == pytest.approx(4e-3 + 0.05 ** 2 / 2.0, rel=1e-9)
+    assert meta["analysis"]["z_far_holo_m"] - 1e-4 <= z_img <= meta["analysis"]["z_near_holo_m"]
+    assert [e for _, e in views][0][0] == pytest.approx(-views[2][1][0])
+    pupil = default_pupil_m(meta, view_deg=0.5)
+    ref = eye_view(r3.slm_field, meta, focus_z_m=z_img, pupil_diameter_m=pupil)
+    m = rep.margin_px(meta, (36, 48), focus_z_m=z_img, pupil_m=pupil, view=(0.0, 0.0))
+    assert 0 <= m <= (36 - 16) // 2
+    p, s, k = rep.score_cell(ref, ref, m)
+    assert p > 60.0 and s > 0.999 and k == pytest.approx(1.0)
+    # one frame against three is not perfect (speckle), and scores finite
+    one = eye_view(r3.slm_field[:1], meta, focus_z_m=z_img, pupil_diameter_m=pupil)
+    p1, _, _ = rep.score_cell(one, ref, m)
+    assert math.isfinite(p1) and p1 < p
+
+
+def test_phase_only_field(rep):
+    class Enc:
+        phase = np.full((2, 3, 4, 5), 0.5, dtype=np.float32)
+        illumination = np.array([[1.0, 0.25, 0.0]] * 2)
+
+    u = rep.phase_only_field(Enc())
+    assert u.dtype == np.complex64 and u.shape == (2, 3, 4, 5)
+    np.testing.assert_allclose(np.abs(u[0, :, 0, 0]), [1.0, 0.5, 0.0], atol=1e-6)
+    np.testing.assert_allclose(np.angle(u[0, 0]), 0.5, atol=1e-6)
