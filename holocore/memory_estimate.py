@@ -21,12 +21,13 @@ STAGES: tuple[Stage, ...] = ("render", "encode", "view")
 _MB = 1e6
 # (N = H*W*C*F samples, peak RSS in bytes) per stage, increasing N. The 1080x1920x3x24 points: render and view
 # measured after the chunked, streamed render and view (issue 14 item 1; default 8 GiB budget, view of a
-# full-size stack: bench/results/memory.md), SGD encode the issue's measurement of the unchunked encoder (17.5 GB).
+# full-size stack: bench/results/memory.md), SGD encode the streamed encoder's (7.34 GiB, bench/results/encode.md;
+# its small points are the older encoder's, an upper estimate).
 # Render and view no longer grow in proportion to N beyond these points (their chunks are sized by the budget),
 # so the extrapolation above them is an upper estimate.
 MEASURED_PEAKS: dict[Stage, tuple[tuple[float, float], ...]] = {
     "render": ((135 * 240 * 3 * 8, 612 * _MB), (270 * 480 * 3 * 8, 781 * _MB), (1080 * 1920 * 3 * 24, 6245 * _MB)),
-    "encode": ((135 * 240 * 3 * 8, 521 * _MB), (270 * 480 * 3 * 8, 1171 * _MB), (1080 * 1920 * 3 * 24, 17.5e9)),
+    "encode": ((135 * 240 * 3 * 8, 521 * _MB), (270 * 480 * 3 * 8, 1171 * _MB), (1080 * 1920 * 3 * 24, 7.34 * 2**30)),
     "view": ((135 * 240 * 3 * 8, 316 * _MB), (270 * 480 * 3 * 8, 465 * _MB), (1080 * 1920 * 3 * 24, 1695 * _MB)),
 }
 
