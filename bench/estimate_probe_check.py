@@ -43,6 +43,7 @@ def main() -> None:
     ap.add_argument("--sizes", default="96x128,270x480")
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--preset", default="fast")
+    ap.add_argument("--scenes", default="", help="Comma-separated labels to run (default: all).")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "estimate_probe.md")
     args = ap.parse_args()
     holo = [sys.executable, "-m", "holo"]
@@ -50,6 +51,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         for label, path, kind in scenes(t):
+            if args.scenes and label not in args.scenes.split(","):
+                continue
             for size in args.sizes.split(","):
                 common = [str(path), "--resolution", size, "--frames", str(args.frames), "--preset", args.preset]
                 est = subprocess.run([*holo, "render", *common, "--out", str(t / "x.npz"), "--estimate"],
