@@ -26,7 +26,8 @@ from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.models import (ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest, cache_key, effective_optics,
-                            estimate_cost, job_limit_errors, memory_admission_error, optics_sanity_errors)
+                            estimate_cost)
+from service.submission import admit_job, reusable_job
 
 __all__ = ["router", "job_out"]
 
@@ -66,17 +67,6 @@ def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
     return JSONResponse(job_out(row), status_code=202, headers=headers)
 
 
-def _reusable(ctx: ServiceContext, key: str) -> Optional[dict]:
-    """The newest succeeded job with the same content address whose artifacts all still match their hashes."""
-    for prev in ctx.db.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
-                             "ORDER BY finished_at DESC LIMIT 5", (key,)):
-        d = Path(prev["artifact_dir"] or "")
-        others = [(d / name, info.get("sha256")) for name, info in (prev["artifacts"] or {}).items()]
-        if all(artifact_intact(p, sha) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
-            return prev
-    return None
-
-
 @router.post("/v1/jobs", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
 def submit_job(
     req: JobRequest,
@@ -90,23 +80,7 @@ def submit_job(
     ctx = get_ctx(request)
     if idempotency_key is not None and not _IDEM.match(idempotency_key):
         raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
-    errs = job_limit_errors(req, ctx.settings.job_limits)
-    if errs:
-        raise ApiError(422, "; ".join(errs))
-    scene = ctx.db.get_scene(req.scene_id)
-    if scene is None or not (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner)):
-        raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
-    if req.display is not None:
-        holder = ctx.db.display_owner(req.display)
-        if holder is not None and not principal.sees(holder):
-            raise ApiError(403, f"display {req.display!r} is registered to another owner; jobs for it come from "
-                                "that owner's tokens")
-    optics_errs = optics_sanity_errors(effective_optics(req))
-    if optics_errs:
-        raise ApiError(422, "; ".join(optics_errs))
-    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes)
-    if too_big:
-        raise ApiError(422, too_big)
+    scene = admit_job(ctx, req, principal)
     body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
@@ -125,7 +99,7 @@ def submit_job(
            "token_id": principal.token_id, "owner": principal.owner,
            "artifact_dir": str(ctx.settings.jobs_dir / job_id), "plan": {"summary": (scene["plan"] or {}).get(
                "summary", []), "source": "scene plan at default optics" if scene["plan"] else "pending"}}
-    prev = _reusable(ctx, key)
+    prev = reusable_job(ctx, key)
     if prev is not None:
         row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
                    stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],

@@ -34,8 +34,8 @@ from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
-from service.models import (ID_PATTERN, JobRequest, cache_key, effective_optics, estimate_cost, job_limit_errors,
-                            memory_admission_error, optics_sanity_errors)
+from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics, estimate_cost
+from service.submission import admit_job, reusable_job
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
 
@@ -147,29 +147,11 @@ def estimate_job(req: JobRequest, request: Request, principal: Principal = Depen
     """What ``POST /v1/jobs`` with this body would predict, after the same checks (limits, the scene and display
     being this owner's, sane optics, memory); nothing is created. ``reuses`` names the earlier job whose result
     an identical submit would reuse at once."""
-    from service.api.jobs import _reusable
-
     ctx = get_ctx(request)
-    errs = job_limit_errors(req, ctx.settings.job_limits)
-    if errs:
-        raise ApiError(422, "; ".join(errs))
-    scene = ctx.db.get_scene(req.scene_id)
-    if scene is None or not (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner)):
-        raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
-    if req.display is not None:
-        holder = ctx.db.display_owner(req.display)
-        if holder is not None and not principal.sees(holder):
-            raise ApiError(403, f"display {req.display!r} is registered to another owner; jobs for it come from "
-                                "that owner's tokens")
+    scene = admit_job(ctx, req, principal)
     optics = effective_optics(req)
-    optics_errs = optics_sanity_errors(optics)
-    if optics_errs:
-        raise ApiError(422, "; ".join(optics_errs))
-    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes)
-    if too_big:
-        raise ApiError(422, too_big)
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
-    prev = _reusable(ctx, key)
+    prev = reusable_job(ctx, key)
     if prev is not None and not principal.sees(prev.get("owner")):
         prev = None  # another owner's job: say nothing about it (a submit would still reuse its bytes)
     return {"estimate": estimate_cost(req, scene_plan=scene["plan"]), "plan_state": scene["plan_state"],
