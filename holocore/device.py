@@ -12,7 +12,7 @@ import os
 import re
 from typing import Optional
 
-__all__ = ["ENV", "requested_device", "select_device", "torch_device"]
+__all__ = ["ENV", "cuda_available", "requested_device", "select_device", "torch_device"]
 
 ENV = "HOLO_DEVICE"
 _PATTERN = re.compile(r"^(auto|cpu|cuda(:\d+)?)$")
@@ -27,7 +27,8 @@ def requested_device(name: Optional[str] = None) -> str:
     return raw
 
 
-def _cuda_available() -> bool:
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device (HOLO_NO_CUDA set: never)."""
     if os.environ.get("HOLO_NO_CUDA"):
         return False
     try:
@@ -45,8 +46,8 @@ def select_device(name: Optional[str] = None) -> str:
     other kind in this process (the variant is chosen once)."""
     dev = requested_device(name)
     if dev == "auto":
-        dev = "cuda" if _cuda_available() else "cpu"
-    elif dev.startswith("cuda") and not _cuda_available():
+        dev = "cuda" if cuda_available() else "cpu"
+    elif dev.startswith("cuda") and not cuda_available():
         raise ValueError(f"device {dev} asked for, but torch sees no CUDA device")
     from holocore import mitsuba_env
 

@@ -15,6 +15,8 @@ import glob
 import os
 from functools import lru_cache
 
+from holocore.device import cuda_available
+
 __all__ = ["mitsuba", "variant", "is_jit", "compute_device", "variant_if_set"]
 
 _LLVM_GLOBS = (
@@ -31,17 +33,6 @@ def _find_libllvm() -> str | None:
         if hits:
             return hits[0]
     return None
-
-
-def _cuda_available() -> bool:
-    if os.environ.get("HOLO_NO_CUDA"):
-        return False
-    try:
-        import torch
-
-        return bool(torch.cuda.is_available())
-    except Exception:  # noqa: BLE001 - torch absent or broken: no CUDA
-        return False
 
 
 @lru_cache(maxsize=1)
@@ -63,7 +54,7 @@ def mitsuba():
                                "CUDA_VISIBLE_DEVICES and use --device cuda")
         wanted = "cuda_ad_rgb"
     if wanted is None:
-        if dev == "auto" and _cuda_available() and "cuda_ad_rgb" in mi.variants():
+        if dev == "auto" and cuda_available() and "cuda_ad_rgb" in mi.variants():
             wanted = "cuda_ad_rgb"
         elif os.environ.get("DRJIT_LIBLLVM_PATH"):
             wanted = "llvm_ad_rgb"
