@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import struct
 import tempfile
 import time
 import zipfile
@@ -27,49 +26,9 @@ from holocore.encoding_block import encode_block
 from holocore.encoding_core import _finite, _wavelengths, wrap_phase
 from holocore.encoding_out import quantize
 from holocore.encoding_sgd import encoder_grid
+from holocore.io import NpyMember
 
 BASE_BYTES = 1 << 30  # interpreter, torch, transfer functions and slack outside the per-frame working set
-
-
-class NpzMember:
-    """An uncompressed .npy member of an .npz, read slab by slab with plain reads (no mmap: RSS stays bounded)."""
-
-    def __init__(self, path: Union[str, Path], name: str) -> None:
-        self.path = Path(path)
-        with zipfile.ZipFile(self.path) as zf:
-            try:
-                info = zf.getinfo(name + ".npy")
-            except KeyError:
-                raise ValueError(f"{self.path} has no array {name!r}") from None
-            if info.compress_type != zipfile.ZIP_STORED:
-                raise ValueError(f"{self.path}: {name} is compressed; streaming needs np.savez (not savez_compressed)")
-        with open(self.path, "rb") as fh:
-            fh.seek(info.header_offset)
-            head = fh.read(30)
-            if head[:4] != b"PK\x03\x04":
-                raise ValueError(f"{self.path}: bad zip local header for {name}")
-            n_name, n_extra = struct.unpack("<HH", head[26:30])
-            fh.seek(info.header_offset + 30 + n_name + n_extra)
-            version = np.lib.format.read_magic(fh)
-            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                np.lib.format.read_array_header_2_0
-            shape, fortran, dtype = read_header(fh)
-            self.offset = fh.tell()
-        if fortran:
-            raise ValueError(f"{self.path}: {name} is stored in Fortran order")
-        self.shape, self.dtype = tuple(shape), np.dtype(dtype)
-
-    def read(self, f0: int, f1: int, c: int) -> np.ndarray:
-        """[f1 - f0, H, W] of a [F, C, H, W] array: element [f, c] for f in f0..f1-1."""
-        _, C, H, W = self.shape
-        item = H * W * self.dtype.itemsize
-        out = np.empty((f1 - f0, H, W), self.dtype)
-        with open(self.path, "rb") as fh:
-            for j, f in enumerate(range(f0, f1)):
-                fh.seek(self.offset + (f * C + c) * item)
-                if fh.readinto(memoryview(out[j]).cast("B")) != item:
-                    raise ValueError(f"{self.path}: truncated array data")
-        return out
 
 
 def read_meta(path: Union[str, Path]) -> dict:
@@ -126,7 +85,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
     if missing:
         raise ValueError(f"{result_path}: meta lacks {missing}")
-    src = NpzMember(result_path, "wrp_field")
+    src = NpyMember(result_path, "wrp_field")
     if len(src.shape) != 4:
         raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
     F, C, H, W = src.shape
@@ -162,7 +121,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                     done = (bi * C + c) * sgd_opts.get("iterations", 0)
                     cb = None if progress is None or method != "sgd" else \
                         (lambda it, _d=done: progress("encode", _d + it, total))
-                    t = torch.from_numpy(src.read(f0, f1, c)).to(device=device, dtype=torch.complex64)
+                    t = torch.from_numpy(src.read_fc(f0, f1, c)).to(device=device, dtype=torch.complex64)
                     if not bool(torch.isfinite(torch.view_as_real(t)).all()):
                         raise ValueError(f"{result_path}: wrp_field contains NaN or infinite values")
                     blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
