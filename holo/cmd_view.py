@@ -48,16 +48,6 @@ def _load(path: Path, quantized: bool, equal_power: bool):
         fail(f"cannot read {path}: {exc}")
 
 
-def _depth_words(z_m: float, meta: dict) -> str:
-    """Where a hologram depth lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
-    dz = z_m - float(meta["z_inf_m"])
-    if abs(dz) < 1e-12:
-        return "optical infinity"
-    if dz < 0:
-        return "beyond infinity"
-    return f"scene distance {float(meta['focal_length_m']) ** 2 / dz:.3g} m"
-
-
 def _warn_cone(meta: dict, pupil_m: float, offset_m: tuple[float, float]) -> None:
     """Say when the pupil accepts directions outside a color's recording cone (sin theta_max = lambda / 2p)."""
     f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
@@ -163,7 +153,9 @@ def view(
                 sheet.paste(tile, ((i % cols) * W, (i // cols) * (H + _LABEL_PX)))
             sheet.save(out)
     F = field.shape[0]
-    focus = [f"{z * 1e3:.3f} mm ({_depth_words(z, meta)})" for z in depths]
+    from holocore.preview import depth_words
+
+    focus = [f"{z * 1e3:.3f} mm ({depth_words(z, meta)})" for z in depths]
     where = focus[0] if len(focus) == 1 else f"from {focus[0]} to {focus[-1]} in {len(focus)} views"
     typer.echo(f"viewed {source.name} ({kind}, {F} frame(s) averaged) with a {pupil_mm:g} mm pupil at "
                f"({ex:g}, {ey:g}) mm, focus {where}, in {time.perf_counter() - t0:.1f} s -> {out}", err=True)

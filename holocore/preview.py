@@ -8,7 +8,17 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-__all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8"]
+__all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8", "depth_words"]
+
+
+def depth_words(z_m: float, meta: dict) -> str:
+    """Where a hologram depth ``z_m`` (m from the SLM) lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
+    dz = z_m - float(meta["z_inf_m"])
+    if abs(dz) < 1e-12:
+        return "optical infinity"
+    if dz < 0:
+        return "beyond infinity"
+    return f"scene distance {float(meta['focal_length_m']) ** 2 / dz:.3g} m"
 
 
 def _channel_of(wavelength_m: float) -> int:

@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 from typing import Optional
 
+from holocore.preview import depth_words
+
 __all__ = ["make_pictures", "picture_key", "PICTURES_VERSION", "depth_words"]
 
 PICTURES_VERSION = 1
@@ -50,16 +52,6 @@ def _sha256(path: Path) -> str:
 def picture_key(stack_sha256: str, params: dict) -> str:
     doc = {"stack": stack_sha256, "params": params, "version": PICTURES_VERSION}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
-
-
-def depth_words(z_m: float, meta: dict) -> str:
-    """Where a hologram depth lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
-    dz = z_m - float(meta["z_inf_m"])
-    if abs(dz) < 1e-12:
-        return "optical infinity"
-    if dz < 0:
-        return "beyond infinity"
-    return f"scene distance {float(meta['focal_length_m']) ** 2 / dz:.3g} m"
 
 
 def _field(stack: Path):
