@@ -13,6 +13,20 @@ import typer
 from holo.common import OpticsOptions, fail, progress_writer, with_optics_options
 
 
+def parse_wrp_planes(text: str):
+    """--wrp-planes: an integer 1..8 or 'auto' (one-line error otherwise)."""
+    t = text.strip().lower()
+    if t == "auto":
+        return "auto"
+    try:
+        n = int(t)
+    except ValueError:
+        fail(f"--wrp-planes must be an integer 1..8 or auto, got {text!r}")
+    if not 1 <= n <= 8:
+        fail(f"--wrp-planes must be in 1..8 or auto, got {n}")
+    return n
+
+
 def register(app: typer.Typer) -> None:
     app.command("render")(render)
     app.command("plan")(plan)
@@ -26,6 +40,8 @@ def render(
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
     method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
+    wrp_planes: str = typer.Option("1", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
+                                                             "the scene depth; the plan says where)."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
     device: Optional[str] = typer.Option(None, "--device", help="auto (CUDA when available) | cpu | cuda; "
@@ -59,7 +75,8 @@ def render(
     from holocore.pipeline import RenderOptions, render_to_file
 
     try:
-        options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects)
+        options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects,
+                                wrp_planes=parse_wrp_planes(wrp_planes))
     except ValueError as exc:
         fail(str(exc))
     console = Console(stderr=True)
@@ -138,6 +155,8 @@ def plan(
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
     force_all_effects: bool = typer.Option(False, "--force-all-effects"),
+    wrp_planes: str = typer.Option("1", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
+                                                             "the scene depth; the plan says where)."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Analyse a scene and print what the renderer would simulate (the EffectPlan), for the same display and
@@ -150,7 +169,8 @@ def plan(
 
     try:
         loaded = load_scene(scene)
-        pl = plan_scene(loaded, optics_cfg, RenderOptions(preset=preset, force_all_effects=force_all_effects))
+        pl = plan_scene(loaded, optics_cfg, RenderOptions(preset=preset, force_all_effects=force_all_effects,
+                                                          wrp_planes=parse_wrp_planes(wrp_planes)))
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     from holocore.display import display_meta

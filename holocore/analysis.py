@@ -38,6 +38,9 @@ class SceneAnalysis(BaseModel):
     z_far_holo_m: Optional[float]  # ... of the farthest
     subhologram_radius_px: float  # of the farthest image point on the WRP, widest cone
     margin_m: float
+    # Hologram depths of the image points, luminance-weighted quantiles (front to back): where the light is,
+    # for placing several recording planes (holocore.wrp_planes).
+    image_depths_holo_m: list[float] = []
 
 
 def _camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
@@ -208,6 +211,7 @@ def analyze(
             f"{hmap.focal_length_m * 1e3:.2f} mm; the limit (max_wrp_distance_mm) is "
             f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
         )
+    depth_q = _weighted_quantiles(hmap.holo_depth_m(zc_img), res.radiance[good & (zc_img_all > 0)].sum(axis=1))
     radius_px = 0.0 if z_far is None else (z_wrp - z_far) * math.tan(min(theta_max, math.radians(89))) / pitch_m
     return SceneAnalysis(
         rays=R,
@@ -225,4 +229,21 @@ def analyze(
         z_far_holo_m=z_far,
         subhologram_radius_px=float(radius_px),
         margin_m=float(margin),
+        image_depths_holo_m=depth_q,
     )
+
+
+def _weighted_quantiles(z: np.ndarray, lum: np.ndarray, n: int = 64) -> list[float]:
+    """n quantiles of z weighted by luminance (plus 5% of the mean, so that dim lit parts count too), front
+    (largest z) to back."""
+    z = np.asarray(z, dtype=np.float64)
+    w = np.nan_to_num(np.asarray(lum, dtype=np.float64), nan=0.0, posinf=0.0).clip(min=0)
+    ok = np.isfinite(z)
+    z, w = z[ok], w[ok]
+    if z.size == 0:
+        return []
+    w = w + 0.05 * (w.mean() if w.sum() > 0 else 1.0)
+    order = np.argsort(-z)
+    z, cw = z[order], np.cumsum(w[order])
+    pos = (np.arange(n) + 0.5) / n * cw[-1]
+    return [float(v) for v in z[np.minimum(np.searchsorted(cw, pos), z.size - 1)]]

@@ -304,6 +304,18 @@ class ScratchArray:
             for ci, c in enumerate(colors):
                 os.pwrite(self._fd, memoryview(b[j, ci].reshape(-1)).cast("B"), self._off(f0 + j, c, r0))
 
+    def add_rows(self, f0: int, colors: Sequence[int], r0: int, block: np.ndarray) -> None:
+        """Add block [k, len(colors), rows, W] to frames f0.., the listed colors, rows r0.. (read, add, write)."""
+        b = np.ascontiguousarray(block, dtype=self.dtype)
+        cur = np.empty(b.shape[2:], self.dtype)
+        buf = memoryview(cur.reshape(-1)).cast("B")
+        for j in range(b.shape[0]):
+            for ci, c in enumerate(colors):
+                if os.preadv(self._fd, [buf], self._off(f0 + j, c, r0)) != len(buf):
+                    raise OSError("short read from scratch file")
+                cur += b[j, ci]
+                os.pwrite(self._fd, buf, self._off(f0 + j, c, r0))
+
     def read_fc(self, f0: int, f1: int, c: int) -> np.ndarray:
         """[f1 - f0, H, W]: elements [f0:f1, c]."""
         _, _, H, W = self.shape

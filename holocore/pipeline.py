@@ -11,12 +11,14 @@ the result does not depend on the chunking), and the propagation runs per chunk 
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Literal, Optional
+from typing import Any, Callable, Literal, Optional, Union
 
 import numpy as np
 
@@ -36,10 +38,20 @@ class RenderOptions:
     method: Literal["wrp", "direct"] = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
+    wrp_planes: Union[int, Literal["auto"]] = 1  # recording planes (holocore.wrp_planes); "auto": from the depth
+    ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
+    # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
 
     def __post_init__(self) -> None:
+        from holocore.wrp_planes import MAX_WRP_PLANES
+
         if self.method not in ("wrp", "direct"):
             raise ValueError(f"method must be 'wrp' or 'direct', got {self.method!r}")
+        if self.wrp_planes != "auto" and not (isinstance(self.wrp_planes, int)
+                                              and 1 <= self.wrp_planes <= MAX_WRP_PLANES):
+            raise ValueError(f"wrp_planes must be 1..{MAX_WRP_PLANES} or 'auto', got {self.wrp_planes!r}")
+        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
+            raise ValueError("several recording planes need method 'wrp' (the direct method records on the SLM)")
         if self.spp is not None and not 1 <= self.spp <= 1_000_000:
             raise ValueError(f"spp must be in 1..1000000, got {self.spp}")
 
@@ -58,6 +70,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     from holocore.display import field_of_view_report
     from holocore.effects import inventory, make_plan
     from holocore.mapping import HologramMap
+    from holocore.wrp_planes import WrpPlanes, choose_planes, place_planes
 
     f = optics.focal_length_m(loaded.fov_x_deg)
     fov = field_of_view_report(optics, loaded.fov_x_deg)
@@ -66,15 +79,30 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     ana = analyze(loaded.scene, hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
                   shape_hw=optics.resolution_hw, margin_px=optics.wrp_margin_px,
                   max_wrp_distance_m=optics.max_wrp_distance_mm * 1e-3, seed=optics.seed)
+    theta_max = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    px_per_m = math.tan(min(theta_max, math.radians(89.0))) / optics.pitch_m  # sub-hologram radius per distance
+    depths, margin = ana.image_depths_holo_m, ana.margin_m
+    if options.method == "direct" or options.wrp_planes == 1:
+        planes = WrpPlanes((ana.z_wrp_m,), margin)
+    elif options.wrp_planes == "auto":
+        planes = choose_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin, shape_hw=optics.resolution_hw,
+                               pitch_m=optics.pitch_m, theta_max=theta_max)
+    else:
+        planes = place_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
+    # The noise target is set by the farthest image point from the plane that records it.
+    radius_px = ana.subhologram_radius_px if planes.count == 1 or not depths else \
+        planes.farthest_distance_m(depths) * px_per_m
     plan = make_plan(inv, preset=options.preset, frames=optics.frames, n_colors=len(optics.wavelengths_m),
                      colors_lit=ana.colors_lit, spp=options.spp, force_all=options.force_all_effects,
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
-                     subhologram_radius_px=ana.subhologram_radius_px,
-                     theta_max=max(optics.theta_max(lam) for lam in optics.wavelengths_m))
+                     subhologram_radius_px=radius_px, theta_max=theta_max, wrp_planes_m=list(planes.z_m),
+                     wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
+                     wrp_ray_shares=list(planes.ray_shares(depths)) if depths else None,
+                     z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"], *ignored]})
     return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f,
-            "field_of_view": fov}
+            "field_of_view": fov, "planes": planes}
 
 
 def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
@@ -110,11 +138,65 @@ class _MemorySink:
     def write_rows(self, f0, colors, r0, block):
         self.traced[f0:f0 + block.shape[0], colors, r0:r0 + block.shape[2]] = block
 
+    def add_rows(self, f0, colors, r0, block):
+        self.traced[f0:f0 + block.shape[0], colors, r0:r0 + block.shape[2]] += block
+
     def read_traced(self, f0, f1, c):
         return self.traced[f0:f1, c]
 
+    def write_traced(self, f0, c, block):
+        self.traced[f0:f0 + block.shape[0], c] = block
+
     def write_other(self, f0, block):
         self.other[f0:f0 + block.shape[0]] = block
+
+
+def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings) -> None:
+    """Trace every recording plane into the sink's traced field (frames f0..f0+n_f), the deepest first: each
+    deeper plane on a grid wider than the WRP's by its border (holocore.wrp_planes), held in a scratch file,
+    propagated by the ASM to the next plane, cropped to its grid, and the next plane's rays added to it.
+    ``trace_plane(k, shape_hw, on_tile)`` traces plane k; on_tile receives [n_f, C_lit, rows, W_k] blocks."""
+    import torch
+
+    from holocore.io import ScratchArray
+    from holocore.propagation import asm
+
+    H, W = optics.resolution_hw
+    lams = [optics.wavelengths_m[c] for c in lit_idx]
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    acc, b_acc = None, 0
+    for k in reversed(range(planes.count)):
+        b = planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta)
+        new = None if k == 0 else ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
+                                               dir=getattr(sink, "scratch_dir", None))
+        if acc is not None:  # the planes behind, carried to this one
+            t0 = time.perf_counter()
+            d = b_acc - b
+            for a in range(0, n_f, fp):
+                e = min(n_f, a + fp)
+                for ci, lam in enumerate(lams):
+                    u = torch.from_numpy(acc.read_fc(a, e, ci)).to(dev)
+                    v = asm(u, planes.z_m[k] - planes.z_m[k + 1], lam, optics.pitch_m)
+                    v = v[:, d:d + H + 2 * b, d:d + W + 2 * b].cpu().numpy()
+                    if new is None:
+                        sink.write_traced(f0 + a, lit_idx[ci], v)
+                    else:
+                        new.write_rows(a, [ci], 0, v[:, None])
+                    del u, v
+            acc.close()
+            timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
+
+        def on_tile(r0, r1, block, _new=new, _add=acc is not None):
+            rows = block.cpu().numpy()  # the one transfer to the host per tile
+            if _new is not None:
+                _new.add_rows(0, range(len(lams)), r0, rows)
+            elif _add:
+                sink.add_rows(f0, lit_idx, r0, rows)
+            else:
+                sink.write_rows(f0, lit_idx, r0, rows)
+
+        trace_plane(k, (H + 2 * b, W + 2 * b), on_tile)
+        acc, b_acc = new, b
 
 
 class _FileSink:
@@ -124,14 +206,21 @@ class _FileSink:
         from holocore.io import ScratchArray
 
         self.writer, self.shape, self.traced_name = writer, shape, traced_name
+        self.scratch_dir = writer.path.parent
         self.scratch = ScratchArray(shape, np.complex64, dir=writer.path.parent)
         self.stream = writer.stream(other_name, shape, np.complex64)
 
     def write_rows(self, f0, colors, r0, block):
         self.scratch.write_rows(f0, colors, r0, block)
 
+    def add_rows(self, f0, colors, r0, block):
+        self.scratch.add_rows(f0, colors, r0, block)
+
     def read_traced(self, f0, f1, c):
         return self.scratch.read_fc(f0, f1, c)
+
+    def write_traced(self, f0, c, block):
+        self.scratch.write_rows(f0, [c], 0, block[:, None])
 
     def write_other(self, f0, block):
         self.stream.write(block)
@@ -191,7 +280,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, options)
-    hmap, ana, plan = pl["hmap"], pl["analysis"], pl["plan"]
+    hmap, ana, plan, planes = pl["hmap"], pl["analysis"], pl["plan"], pl["planes"]
     timings["analysis_s"] = time.perf_counter() - t0
     if progress:
         progress("analysis", 1, 1)
@@ -217,6 +306,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                              max_delta=plan.max_delta if plan.coherent_delta else 0,
                              tile_rays=_tile_rays(options.tile_rays, dev), random_phase=plan.random_phase)
     stats = TraceStats()
+    ray_seed = optics.seed if options.ray_seed is None else int(options.ray_seed)
     timings["bank_s"] = 0.0
     timings["trace_s"] = 0.0
     passes = list(range(0, F, ft)) if wl_lit else []
@@ -228,19 +318,24 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         timings["bank_s"] += time.perf_counter() - t1
         t3 = time.perf_counter()
         n_pass = len(passes)
+        n_f = (f1 - f0) if banks else F
 
-        def tile_progress(stage, done, total, _pi=pi, _n=n_pass):
-            if progress:
-                progress(stage, _pi * total + done, _n * total)
+        def trace_plane(k, shape_hw, on_tile, _banks=banks, _pi=pi, _n=n_pass):
+            def tile_progress(stage, done, total, _j=_pi * planes.count + (planes.count - 1 - k),
+                              _nn=_n * planes.count):
+                if progress:
+                    progress(stage, _j * total + done, _nn * total)
 
-        def on_tile(r0, r1, block, _f0=f0):
-            sink.write_rows(_f0, lit_idx, r0, block.cpu().numpy())  # the one transfer to the host per tile
+            trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=shape_hw,
+                        plane_z_m=0.0 if direct else planes.z_m[k], z_wrp_m=z_wrp, frames=n_f,
+                        settings=dataclasses.replace(settings, spp=plan.spp_per_plane[k]) if planes.count > 1
+                        else settings, integrator=integrator, seed=ray_seed + 7919 * k,
+                        radiance_cache=cache, bank_phasors=_banks, progress=tile_progress,
+                        stats=stats if _pi == 0 else TraceStats(), device=dev, on_tile=on_tile,
+                        records_m=None if planes.count == 1 else planes.slab(k))
 
-        trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
-                    plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, frames=(f1 - f0) if banks else F,
-                    settings=settings, integrator=integrator, seed=optics.seed, radiance_cache=cache,
-                    bank_phasors=banks, progress=tile_progress, stats=stats if pi == 0 else TraceStats(),
-                    device=dev, on_tile=on_tile)
+        _chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
+                      timings=timings)
         del banks
         timings["trace_s"] += time.perf_counter() - t3
         if not plan.random_phase:
@@ -269,6 +364,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "focal_length_m": pl["focal_length_m"],
         "z_inf_m": optics.z_inf_m,
         "z_wrp_m": z_wrp,
+        "wrp_planes_m": list(planes.z_m),
         "pitch_m": optics.pitch_m,
         "wavelengths_m": list(optics.wavelengths_m),
         "shape_fchw": [F, C, H, W],

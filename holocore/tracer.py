@@ -66,6 +66,7 @@ class TraceStats:
     escaped: int = 0
     capped: int = 0
     behind_plane: int = 0
+    other_plane: int = 0  # image points that another recording plane records
     delta_paths: int = 0
     seconds_trace: float = 0.0
     seconds_accumulate: float = 0.0
@@ -141,10 +142,14 @@ def trace_field(
     stats: Optional[TraceStats] = None,
     device: Optional[torch.device] = None,
     on_tile: Optional[Callable[[int, int, torch.Tensor], None]] = None,
+    records_m: Optional[tuple[float, float]] = None,
 ) -> Optional[np.ndarray]:
     """Complex field on the plane z = plane_z_m, complex64 [F, C, H, W].
 
     ``plane_z_m == z_wrp_m``: the two-stage method's WRP. ``plane_z_m == 0``: the direct method on the SLM.
+    A plane between them is one of several recording planes (:mod:`holocore.wrp_planes`): its rays start
+    where they cross the WRP (in air, in front of every surface) and it records only the image points with
+    hologram depth in ``records_m`` = (lo, hi] (default: everything in front of the WRP).
     ``bank_phasors``: per color a complex64 tensor [F, H, W] of exp(i phi_m) (None: no random phase).
     ``integrator``: Mitsuba's ``path`` with ``settings.max_depth``, for the radiance samples beyond the
     first (``settings.amp_spp`` > 1); the first one is traced with the wave path itself.
@@ -162,7 +167,8 @@ def trace_field(
         raise ValueError("bank_phasors needs one bank per wavelength")
     stats = stats if stats is not None else TraceStats()
     geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
-                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp)
+                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp, records_m=records_m,
+                         bank_hw=None if bank_phasors is None else tuple(bank_phasors[0].shape[1:]))
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
     if device is not None:
         dev = torch.device(device)
@@ -218,7 +224,11 @@ class _Geometry:
     plane_z: float
     z_wrp: float
     z_mid: float
-    direct: bool
+    direct: bool  # the plane lies behind the WRP: rays start where they cross the WRP
+    bank_hw: tuple  # the random-phase bank's grid (the SLM's); a deeper plane's grid may be wider
+    z_lo: float  # the image points recorded: lo < q_z <= hi (hologram z)
+    z_hi: float
+    sign: float  # +1: image points behind the plane (diverging waves), -1: in front (the SLM, converging)
     f: float
     z_inf: float
     rot: tuple  # eye-camera -> world, 3x3 row-major
@@ -232,12 +242,18 @@ class _Geometry:
     chans: tuple
 
     @classmethod
-    def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp) -> "_Geometry":
+    def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
+             records_m=None, bank_hw=None) -> "_Geometry":
         thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
         # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
         thetas = [min(t, math.radians(89.0)) for t in thetas]
         th_max = max(thetas)
-        return cls(H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
+        lo, hi = (-1e30, z_wrp_m) if records_m is None else (max(-1e30, records_m[0]), min(z_wrp_m, records_m[1]))
+        if not lo < hi:
+            raise ValueError(f"empty recording slab {records_m}")
+        if records_m is not None and lo < plane_z_m < hi:
+            raise ValueError(f"a recording plane at {plane_z_m} m cannot record image points on both sides")
+        return cls(bank_hw=tuple(bank_hw or shape_hw), z_lo=lo, z_hi=hi, sign=1.0 if plane_z_m >= hi else -1.0,H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
                    z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
                    f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
                    rot=tuple(map(float, hmap._rot.ravel())), rot_inv=tuple(map(float, hmap._rot_inv.ravel())),
@@ -266,8 +282,9 @@ def _opaque(mi, g: _Geometry) -> SimpleNamespace:
         return dr.opaque(mi.Float64, float(v))
 
     o = SimpleNamespace(**{k: f64(getattr(g, k)) for k in ("pitch", "plane_z", "z_wrp", "z_mid", "f", "z_inf",
-                                                            "cos_max", "omega")})
+                                                            "cos_max", "omega", "z_lo", "z_hi", "sign")})
     o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
+    o.Hb, o.Wb, o.Wbu = f64(g.bank_hw[0]), f64(g.bank_hw[1]), dr.opaque(mi.UInt32, g.bank_hw[1])
     o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
     o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))
     return o
@@ -324,28 +341,31 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
     q = V3d(o.f * cv.x / cv.z, o.f * cv.y / cv.z, o.z_inf + o.f * o.f / cv.z)
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
+    slab = (q.z > o.z_lo) & (q.z <= o.z_hi)  # this plane's slab (several recording planes)
+    elsewhere = ok & ~slab
+    ok &= slab
     q = dr.select(ok, q, s)
     r = dr.norm(q - s)
     weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
-    sign = -1.0 if g.direct else 1.0
     parts = []
     for c in range(len(g.ks)):
         inside = cos_t >= o.cos_lim[c] - 1e-15
         amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
-        kr = sign * o.ks[c] * r
+        kr = o.sign * o.ks[c] * r
         phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
         sn, cs = dr.sincos(phase)
         parts += [amp * cs, amp * sn]
     idx = None
     if want_cells:
-        j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
-        i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
-        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
-        idx = mi.UInt32(i) * o.W + mi.UInt32(j)
+        j = dr.round(q.x / o.pitch + (o.Wb - 1.0) * 0.5)
+        i = dr.round((o.Hb - 1.0) * 0.5 - q.y / o.pitch)
+        j, i = j - o.Wb * dr.floor(j / o.Wb), i - o.Hb * dr.floor(i / o.Hb)  # periodic wrap (DESIGN §4)
+        idx = mi.UInt32(i) * o.Wbu + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
-    # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
-    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
-              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
+    # 3 capped, 4 sampled by path tracing, 5 recorded by another plane, bits 8.. delta bounces.
+    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok & ~elsewhere) << 1) | (mi.UInt32(wp.escaped) << 2)
+              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (mi.UInt32(elsewhere) << 5)
+              | (wp.n_delta << 8))
     dr.eval(parts, idx, status)  # the one kernel: rays, wave paths, contributions
     if not want_cells:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
@@ -361,7 +381,8 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     ok_t = (st & 1).bool()
     nd = st >> 8
     counts = torch.stack([*[((st >> b) & 1).sum() for b in range(5)], (ok_t & (nd > 0)).sum(),
-                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(())]).tolist()
+                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(()),
+                          ((st >> 5) & 1).sum()]).tolist()
     stats.rays += R
     stats.valid += counts[0]
     stats.behind_plane += counts[1]
@@ -370,4 +391,5 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     stats.path_samples += counts[4] * settings.amp_spp
     stats.delta_paths += counts[5]
     stats.max_delta_seen = max(stats.max_delta_seen, counts[6])
+    stats.other_plane += counts[7]
     return out

@@ -30,14 +30,16 @@ def demo(tmp_path_factory):
     return write_demo_scene(tmp_path_factory.mktemp("demo") / "scene").parent
 
 
-@pytest.mark.parametrize("method", ["wrp", "direct"])
-def test_streamed_chunked_render_equals_the_unchunked_one(demo, tmp_path, method):
+@pytest.mark.parametrize("method, planes", [("wrp", 1), ("direct", 1), ("wrp", 3)])
+def test_streamed_chunked_render_equals_the_unchunked_one(demo, tmp_path, method, planes):
     from holocore.pipeline import RenderOptions, render, render_to_file
 
-    optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5)
-    opts = RenderOptions(preset="fast", method=method)
+    # f = 20 mm: this small view holds the wall and two objects at other depths (several planes have work)
+    optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5, **({"focal_length_mm": 20.0} if planes > 1 else {}))
+    opts = RenderOptions(preset="fast", method=method, wrp_planes=planes)
     ref = render(demo, optics, opts)  # in memory, default budget: one trace pass, one propagation chunk
     assert ref.meta["memory"]["trace_passes"] == 1 and ref.meta["memory"]["frames_per_propagation_chunk"] == 3
+    assert len(ref.meta["wrp_planes_m"]) == planes if planes == 1 else len(ref.meta["wrp_planes_m"]) > 1
     out = tmp_path / "RESULT.npz"
     meta = render_to_file(demo, out, optics, opts, memory_budget_bytes=SMALL)
     mem = meta["memory"]

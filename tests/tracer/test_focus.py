@@ -53,10 +53,13 @@ def test_plane_focuses_at_predicted_depth(dots):
     assert abs(z - z_holo(zc)) < 0.5 * dof, (z, z_holo(zc), dof)
 
 
-def test_two_planes_focus_at_their_own_depths(dots):
+@pytest.mark.parametrize("wrp_planes", [1, 3])
+def test_two_planes_focus_at_their_own_depths(dots, wrp_planes):
     near = emitting_plane(-0.4, size=0.004, texture=dots, x=-0.004)
     far = emitting_plane(-1.0, size=0.01, texture=dots, x=+0.01)
-    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(), RenderOptions(preset="fast", spp=256))
+    res = render_loaded(scene(sensor=cam(), near=near, far=far), optics(),
+                        RenderOptions(preset="fast", spp=256, wrp_planes=wrp_planes))
+    assert len(res.meta["wrp_planes_m"]) == min(wrp_planes, 2)  # two depths: one plane in front of each
     left = (slice(8, H - 8), slice(4, W // 2 - 4))
     right = (slice(8, H - 8), slice(W // 2 + 4, W - 4))
     z_near, dof = focus_of(res, z_holo(0.4), region=left)
@@ -97,12 +100,14 @@ LEFT = (slice(6, HB - 6), slice(4, WB // 2 - 4))
 RIGHT = (slice(6, HB - 6), slice(WB // 2 + 4, WB - 4))
 
 
-def test_equal_radiance_at_two_depths_is_equally_bright():
+@pytest.mark.parametrize("wrp_planes", [1, 3])
+def test_equal_radiance_at_two_depths_is_equally_bright(wrp_planes):
     zc_far = F_M * F_M / (z_holo(0.5) - 0.08 - 0.5e-3)  # 0.5 mm farther in hologram space
     near = _half_plane(0.5, -1)
     far = _half_plane(zc_far, +1)
     res = render_loaded(scene(sensor=camera(fov=fov_deg(WB, P_B, F_M)), near=near, far=far), _bright_optics(),
-                        RenderOptions(preset="fast", spp=2048))
+                        RenderOptions(preset="fast", spp=2048, wrp_planes=wrp_planes))
+    assert len(res.meta["wrp_planes_m"]) == min(wrp_planes, 2)  # two depths: one plane in front of each
     a = _mean_in(res, LEFT, z_holo(0.5))
     b = _mean_in(res, RIGHT, z_holo(zc_far))
     assert abs(a / b - 1) < 0.10, (a, b)

@@ -1,0 +1,183 @@
+"""Several wave recording planes (paper Sec. 6, future work; DESIGN.md §4 "Convergence").
+
+The Monte Carlo noise of an image point grows as the square of its distance to the plane that records it.
+With K planes through a deep scene, each ray's contribution is recorded on the plane just in front of its
+image point (no closer than the margin), and the planes are chained to the front one (the WRP proper) with the
+band-limited ASM. Plane 0 is the WRP (z_wrp, in front of everything); planes 1..K-1 lie deeper (smaller z).
+Plane k records the image points with hologram depth z in (z_k+1 - margin, z_k - margin] (plane 0: up to
+z_wrp, the last plane: everything behind).
+
+Placement minimises the luminance-weighted mean squared distance of the image points (the analysis' depth
+samples) to their planes: the best plane for a group of points lies one margin in front of the group's
+frontmost point, so the candidates are the samples themselves and a small dynamic programme is exact.
+Rays are shared between the planes so that the field's total noise is least for the rays spent
+(:meth:`WrpPlanes.ray_shares`), and ``auto`` picks the K with the least rays for a given noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+__all__ = ["WrpPlanes", "place_planes", "choose_planes", "MAX_WRP_PLANES"]
+
+MAX_WRP_PLANES = 8
+MIN_GAP = 0.25  # least distance between two planes, in margins
+
+
+@dataclass(frozen=True)
+class WrpPlanes:
+    """Recording planes front to back (hologram z, m) and the margin that sets their slabs."""
+
+    z_m: tuple[float, ...]  # z_m[0] is the WRP (z_wrp); strictly decreasing
+    margin_m: float
+
+    def __post_init__(self) -> None:
+        if not self.z_m:
+            raise ValueError("at least one recording plane is needed")
+        if any(b >= a for a, b in zip(self.z_m, self.z_m[1:])):
+            raise ValueError(f"recording planes must lie front to back (decreasing z), got {self.z_m}")
+
+    @property
+    def count(self) -> int:
+        return len(self.z_m)
+
+    def slab(self, k: int) -> tuple[float, float]:
+        """Hologram depths (lo, hi] of the image points plane k records (m; -inf for the last plane). A plane
+        placed one margin in front of a point keeps that point (a slack of 1e-6 margins absorbs rounding)."""
+        return self._edge(k + 1), self._edge(k)
+
+    def _edge(self, k: int) -> float:
+        if k == 0:
+            return self.z_m[0]
+        if k >= self.count:
+            return -math.inf
+        return self.z_m[k] - self.margin_m * (1.0 - 1e-6)
+
+    def border_px(self, k: int, *, pitch_m: float, theta_max: float) -> int:
+        """Pixels a deeper plane's grid extends beyond the WRP's on each side: all the light that reaches the
+        WRP's window inside the cone crosses plane k within it, (z_0 - z_k) tan(theta_max) / p."""
+        t = math.tan(min(theta_max, math.radians(89.0)))
+        return int(math.ceil((self.z_m[0] - self.z_m[k]) * t / pitch_m - 1e-9))
+
+    def noise_energy(self, depths_m: Sequence[float]) -> list[float]:
+        """Per plane, sum of r^2 over the (luminance-quantile) depth samples it records, r their distance to
+        it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (DESIGN §4)."""
+        d = np.asarray(depths_m, dtype=np.float64)
+        out = []
+        for k, z in enumerate(self.z_m):
+            lo, hi = self.slab(k)
+            sel = d[(d > lo) & (d <= hi)]
+            out.append(float(np.sum(np.maximum(z - sel, self.margin_m) ** 2)))
+        return out
+
+    def ray_shares(self, depths_m: Sequence[float]) -> tuple[float, ...]:
+        """Rays per pixel of each plane relative to the most demanding one (max 1). The field's noise energy
+        is sum_k E_k / N_k for N_k rays per pixel on plane k; for a given number of rays it is smallest with
+        N_k proportional to sqrt(E_k) (a Lagrange multiplier). A plane with no sample gets 1/8 (points the
+        sparse analysis missed still need rays)."""
+        e = np.sqrt(np.asarray(self.noise_energy(depths_m)))
+        if self.count == 1 or e.max() <= 0:
+            return tuple(1.0 for _ in self.z_m)
+        return tuple(float(max(v / e.max(), 0.125)) for v in e)
+
+    def cost(self, depths_m: Sequence[float], *, shape_hw: tuple[int, int], pitch_m: float,
+             theta_max: float) -> float:
+        """Rays x noise energy (the product a plane count minimises) with rays shared by :meth:`ray_shares`,
+        each plane's grid widened by its border: (sum_k s_k P_k) (sum_k E_k / s_k), P_k its pixels."""
+        H, W = shape_hw
+        e = self.noise_energy(depths_m)
+        s = self.ray_shares(depths_m)
+        pix = [(H + 2 * b) * (W + 2 * b) for b in (self.border_px(k, pitch_m=pitch_m, theta_max=theta_max)
+                                                   for k in range(self.count))]
+        return sum(sk * pk for sk, pk in zip(s, pix)) * sum(ek / sk for ek, sk in zip(e, s))
+
+    def farthest_distance_m(self, depths_m: Sequence[float]) -> float:
+        """The largest distance from an image point (hologram depths) to the plane that records it."""
+        d = np.asarray(depths_m, dtype=np.float64)
+        if d.size == 0:
+            return 0.0
+        return float(np.max(self._distances(d)))
+
+    def _distances(self, d: np.ndarray) -> np.ndarray:
+        out = np.full(d.shape, np.nan)
+        for k, z in enumerate(self.z_m):
+            lo, hi = self.slab(k)
+            sel = (d > lo) & (d <= hi)
+            out[sel] = z - d[sel]
+        return np.where(np.isnan(out), 0.0, out)
+
+
+def place_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, z_wrp_m: float, margin_m: float,
+                 count: int) -> WrpPlanes:
+    """``count`` planes (the first at z_wrp_m) minimising sum w (z_plane - z)^2 over the depth samples.
+
+    depths_m: hologram depths of image points (m); weights: their luminance (None: equal). Fewer planes come
+    back when the samples cannot use more (a plane needs points behind it, and distinct positions)."""
+    if not 1 <= count <= MAX_WRP_PLANES:
+        raise ValueError(f"wrp planes must be 1..{MAX_WRP_PLANES}, got {count}")
+    d = np.asarray(depths_m, dtype=np.float64)
+    w = np.ones_like(d) if weights is None else np.asarray(weights, dtype=np.float64)
+    keep = np.isfinite(d) & np.isfinite(w) & (w >= 0) & (d < z_wrp_m)
+    d, w = d[keep], w[keep]
+    if count == 1 or d.size == 0:
+        return WrpPlanes((float(z_wrp_m),), float(margin_m))
+    order = np.argsort(-d, kind="stable")  # front to back
+    d, w = d[order], w[order]
+    n = d.size
+    # Prefix sums: the cost of samples i..j-1 recorded on a plane at P is S0 P^2 - 2 S1 P + S2.
+    c0, c1, c2 = (np.concatenate([[0.0], np.cumsum(w * d ** p)]) for p in (0, 1, 2))
+
+    def cost(i: int, j: int, P: float) -> float:
+        s0, s1, s2 = c0[j] - c0[i], c1[j] - c1[i], c2[j] - c2[i]
+        return s0 * P * P - 2.0 * s1 * P + s2
+
+    # Candidate plane for a group starting at sample i: one margin in front of it (below the WRP).
+    cand = np.minimum(d + margin_m, z_wrp_m)
+    INF = math.inf
+    # best[k][j]: samples 0..j-1 on k planes (plane 0 at z_wrp); arg: where the last group starts.
+    best = [[INF] * (n + 1) for _ in range(count + 1)]
+    arg = [[-1] * (n + 1) for _ in range(count + 1)]
+    for j in range(n + 1):
+        best[1][j] = cost(0, j, z_wrp_m)
+    for k in range(2, count + 1):
+        for j in range(1, n + 1):
+            for i in range(1, j):
+                P = cand[i]
+                if P > z_wrp_m - MIN_GAP * margin_m:  # hardly behind the WRP: no better than the WRP itself
+                    continue
+                v = best[k - 1][i] + cost(i, j, P)
+                if v < best[k][j]:
+                    best[k][j], arg[k][j] = v, i
+    # The best k <= count (an extra plane never hurts the objective, but an empty one is dropped).
+    k = min(range(1, count + 1), key=lambda kk: (best[kk][n], kk))
+    starts, j = [], n
+    for kk in range(k, 1, -1):
+        i = arg[kk][j]
+        starts.append(i)
+        j = i
+    z = [float(z_wrp_m)]
+    for p in sorted((float(cand[i]) for i in starts), reverse=True):
+        if z[-1] - p >= MIN_GAP * margin_m:  # planes closer than that would record almost the same points
+            z.append(p)
+    return WrpPlanes(tuple(z), float(margin_m))
+
+
+def choose_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, z_wrp_m: float, margin_m: float,
+                  shape_hw: tuple[int, int], pitch_m: float, theta_max: float,
+                  max_count: int = MAX_WRP_PLANES) -> WrpPlanes:
+    """``auto``: the plane count with the least rays for a given field noise (see :meth:`WrpPlanes.cost`);
+    a count that gains less than 10% over a smaller one is not taken (every plane also costs one ASM of
+    the whole field)."""
+    best, best_cost = None, math.inf
+    for k in range(1, max(1, min(max_count, MAX_WRP_PLANES)) + 1):
+        planes = place_planes(depths_m, weights, z_wrp_m=z_wrp_m, margin_m=margin_m, count=k)
+        if best is not None and planes.count <= best.count:
+            continue
+        c = planes.cost(depths_m, shape_hw=shape_hw, pitch_m=pitch_m, theta_max=theta_max)
+        if c < 0.9 * best_cost:
+            best, best_cost = planes, c
+    return best
