@@ -158,8 +158,9 @@ class Runner:
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
-        r = render_loaded(loaded, self.optics(frames), RenderOptions(preset=preset, method=method, spp=spp),
-                          display=PAPER)
+        planes = self.args.wrp_planes if method == "wrp" else 1
+        r = render_loaded(loaded, self.optics(frames), RenderOptions(preset=preset, method=method, spp=spp,
+                                                                     wrp_planes=planes), display=PAPER)
         return r, time.perf_counter() - t0
 
     def encode(self, res):
@@ -674,6 +675,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
     ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
     ap.add_argument("--view-deg", type=float, default=0.5)
+    ap.add_argument("--wrp-planes", type=lambda v: v if v == "auto" else int(v), default="auto",
+                    help="Recording planes of ours and fast: 1..8 or auto (default).")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--work", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "holo_paper_report")
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -39,6 +39,7 @@ class RenderOptions:
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
     wrp_planes: Union[int, Literal["auto"]] = 1  # recording planes (holocore.wrp_planes); "auto": from the depth
+    stratified: bool = True  # each pixel's rays stratified over the cone (holocore.tracer); False: independent
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
 
@@ -304,7 +305,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         timings["cache_s"] = time.perf_counter() - t2
     settings = TraceSettings(spp=plan.spp, amp_spp=plan.amp_spp, max_depth=max(1, plan.gi_depth),
                              max_delta=plan.max_delta if plan.coherent_delta else 0,
-                             tile_rays=_tile_rays(options.tile_rays, dev), random_phase=plan.random_phase)
+                             tile_rays=_tile_rays(options.tile_rays, dev), random_phase=plan.random_phase,
+                             stratified=options.stratified)
     stats = TraceStats()
     ray_seed = optics.seed if options.ray_seed is None else int(options.ray_seed)
     timings["bank_s"] = 0.0

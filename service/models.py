@@ -8,9 +8,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from holocore.config import OpticsConfig
 from holocore.memory_estimate import MemoryEstimate, estimate_memory
@@ -38,7 +38,15 @@ class JobRequest(BaseModel):
     encoder: Literal["sgd", "dpac"] = "sgd"
     iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
     method: Literal["wrp", "direct"] = "wrp"
+    wrp_planes: Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]] = Field(
+        default=1, description="Wave recording planes: 1..8, or 'auto' (chosen from the scene depth).")
     display: Optional[str] = Field(default=None, pattern=NAME_PATTERN, description="Display the job is for.")
+
+    @model_validator(mode="after")
+    def _planes_need_wrp(self) -> "JobRequest":
+        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
+            raise ValueError("wrp_planes > 1 needs method 'wrp' (the direct method records on the SLM)")
+        return self
 
 
 class Showing(BaseModel):
@@ -248,5 +256,6 @@ def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: s
     """Content address of a job's result: scene content + optics + options + code version (not the display)."""
     doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
            "preset": req.preset, "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations,
-           "method": req.method, "code": code_version}
+           "method": req.method, "code": code_version,
+           **({"wrp_planes": req.wrp_planes} if req.wrp_planes != 1 else {})}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

@@ -91,7 +91,8 @@ def submit_job(
             return _accepted(_get(ctx, prior["job_id"]), replayed=True)
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
     spec = {"optics": effective_optics(req).model_dump(mode="json"), "preset": req.preset, "frames": req.frames,
-            "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations, "method": req.method}
+            "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations, "method": req.method,
+            "wrp_planes": req.wrp_planes}
     job_id = "j" + secrets.token_hex(10)
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id, "spec": spec,
