@@ -73,7 +73,6 @@ class EffectPlan(BaseModel):
     amp_spp: int
     noise_to_signal: float = 0.0
     wrp_planes_m: list[float] = Field(default_factory=list)  # recording planes front to back (hologram z, m)
-    spp_per_plane: list[int] = Field(default_factory=list)  # rays per pixel of each recording plane
     forced: bool = False
     summary: list[str] = Field(default_factory=list)
 
@@ -130,7 +129,6 @@ def make_plan(
     theta_max: float = 0.05,
     wrp_planes_m: Optional[list[float]] = None,
     wrp_planes_asked: object = 1,
-    wrp_ray_shares: Optional[list[float]] = None,
     z_inf_m: float = 0.0,
 ) -> EffectPlan:
     """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
@@ -193,19 +191,14 @@ def make_plan(
     if len(planes) > 1:
         at = ", ".join(f"{(z - z_inf_m) * 1e3:.2f}" for z in planes)
         why = "chosen from the scene depth (auto)" if wrp_planes_asked == "auto" else "asked for"
-        words.append(f"{len(planes)} wave recording planes at z_inf + {at} mm ({why}): each image point is "
-                     f"recorded on the plane just in front of it, the planes chained to the WRP by the ASM")
+        words.append(f"{len(planes)} wave recording planes at z_inf + {at} mm ({why}): each ray's contribution is "
+                     f"recorded where it crosses the plane just in front of its image point, the planes chained "
+                     f"to the WRP by the ASM")
     elif wrp_planes_asked == "auto":
-        words.append("one wave recording plane (auto: more planes would not need fewer rays for this depth)")
-    where = "per pixel on the most demanding recording plane" if len(planes) > 1 else "per WRP pixel"
+        words.append("one wave recording plane (auto: more planes would not lower the noise much at this depth)")
+    where = "per WRP pixel"
     n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max)
     ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
-    shares = list(wrp_ray_shares or [1.0] * max(1, len(planes)))
-    per_plane = [max(1, math.ceil(n * sh - 1e-9)) for sh in shares] if len(planes) > 1 else [n]
-    if len(planes) > 1:
-        words.append("rays per pixel on the recording planes, front to back: "
-                     + ", ".join(str(v) for v in per_plane)
-                     + " (shared for the least field noise: each plane's share grows with its points' distances)")
     words.append(f"{n} rays {where} ({'given' if spp is not None else 'chosen from the scene depth'}): the "
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
                  f"Monte Carlo noise about {ratio:.2g}x its signal power; {p['amp_spp']} radiance sample(s) per "
@@ -213,5 +206,5 @@ def make_plan(
     return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
                       use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
                       spp=n, amp_spp=p["amp_spp"], noise_to_signal=ratio, forced=force_all,
-                      wrp_planes_m=[float(z) for z in planes], spp_per_plane=per_plane,
+                      wrp_planes_m=[float(z) for z in planes],
                       summary=words)

@@ -11,7 +11,6 @@ the result does not depend on the chunking), and the propagation runs per chunk 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import platform
@@ -86,8 +85,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     if options.method == "direct" or options.wrp_planes == 1:
         planes = WrpPlanes((ana.z_wrp_m,), margin)
     elif options.wrp_planes == "auto":
-        planes = choose_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin, shape_hw=optics.resolution_hw,
-                               pitch_m=optics.pitch_m, theta_max=theta_max)
+        planes = choose_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin)
     else:
         planes = place_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
     # The noise target is set by the farthest image point from the plane that records it.
@@ -98,7 +96,6 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
                      subhologram_radius_px=radius_px, theta_max=theta_max, wrp_planes_m=list(planes.z_m),
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
-                     wrp_ray_shares=list(planes.ray_shares(depths)) if depths else None,
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"], *ignored]})
@@ -153,10 +150,11 @@ class _MemorySink:
 
 
 def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings) -> None:
-    """Trace every recording plane into the sink's traced field (frames f0..f0+n_f), the deepest first: each
-    deeper plane on a grid wider than the WRP's by its border (holocore.wrp_planes), held in a scratch file,
-    propagated by the ASM to the next plane, cropped to its grid, and the next plane's rays added to it.
-    ``trace_plane(k, shape_hw, on_tile)`` traces plane k; on_tile receives [n_f, C_lit, rows, W_k] blocks."""
+    """Trace the recording planes into the sink's traced field (frames f0..f0+n_f): one trace from the WRP
+    records every ray on the plane in front of its image point (holocore.tracer, ``planes``); each deeper
+    plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
+    ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
+    ``trace_plane(spec, on_plane_rows)`` runs the trace."""
     import torch
 
     from holocore.io import ScratchArray
@@ -165,39 +163,41 @@ def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, de
     H, W = optics.resolution_hw
     lams = [optics.wavelengths_m[c] for c in lit_idx]
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    acc, b_acc = None, 0
-    for k in reversed(range(planes.count)):
-        b = planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta)
-        new = None if k == 0 else ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
-                                               dir=getattr(sink, "scratch_dir", None))
-        if acc is not None:  # the planes behind, carried to this one
-            t0 = time.perf_counter()
-            d = b_acc - b
+    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta) for k in range(planes.count)]
+    spec = [(planes.z_m[k], *planes.slab(k), borders[k]) for k in range(planes.count)]
+    scratch = [None] + [ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
+                                     dir=getattr(sink, "scratch_dir", None)) for b in borders[1:]]
+    try:
+        def on_plane_rows(k, r0, block):
+            rows = block.cpu().numpy()  # the one transfer to the host per block
+            if k == 0:
+                sink.write_rows(f0, lit_idx, r0, rows)
+            else:
+                scratch[k].write_rows(0, range(len(lams)), r0, rows)
+
+        trace_plane(spec if planes.count > 1 else None, on_plane_rows)
+        t0 = time.perf_counter()
+        for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
+            d = borders[k] - borders[k - 1]
+            Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
             for a in range(0, n_f, fp):
                 e = min(n_f, a + fp)
                 for ci, lam in enumerate(lams):
-                    u = torch.from_numpy(acc.read_fc(a, e, ci)).to(dev)
-                    v = asm(u, planes.z_m[k] - planes.z_m[k + 1], lam, optics.pitch_m)
-                    v = v[:, d:d + H + 2 * b, d:d + W + 2 * b].cpu().numpy()
-                    if new is None:
-                        sink.write_traced(f0 + a, lit_idx[ci], v)
+                    u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
+                    v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
+                    v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
+                    if k - 1 == 0:
+                        c = lit_idx[ci]
+                        sink.write_traced(f0 + a, c, sink.read_traced(f0 + a, f0 + e, c) + v)
                     else:
-                        new.write_rows(a, [ci], 0, v[:, None])
+                        scratch[k - 1].add_rows(a, [ci], 0, v[:, None])
                     del u, v
-            acc.close()
+            scratch[k].close()
+        if planes.count > 1:
             timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
-
-        def on_tile(r0, r1, block, _new=new, _add=acc is not None):
-            rows = block.cpu().numpy()  # the one transfer to the host per tile
-            if _new is not None:
-                _new.add_rows(0, range(len(lams)), r0, rows)
-            elif _add:
-                sink.add_rows(f0, lit_idx, r0, rows)
-            else:
-                sink.write_rows(f0, lit_idx, r0, rows)
-
-        trace_plane(k, (H + 2 * b, W + 2 * b), on_tile)
-        acc, b_acc = new, b
+    finally:
+        for sc in scratch[1:]:
+            sc.close()
 
 
 class _FileSink:
@@ -322,19 +322,17 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         n_pass = len(passes)
         n_f = (f1 - f0) if banks else F
 
-        def trace_plane(k, shape_hw, on_tile, _banks=banks, _pi=pi, _n=n_pass):
-            def tile_progress(stage, done, total, _j=_pi * planes.count + (planes.count - 1 - k),
-                              _nn=_n * planes.count):
+        def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi, _n=n_pass):
+            def tile_progress(stage, done, total, _j=_pi, _nn=_n):
                 if progress:
                     progress(stage, _j * total + done, _nn * total)
 
-            trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=shape_hw,
-                        plane_z_m=0.0 if direct else planes.z_m[k], z_wrp_m=z_wrp, frames=n_f,
-                        settings=dataclasses.replace(settings, spp=plan.spp_per_plane[k]) if planes.count > 1
-                        else settings, integrator=integrator, seed=ray_seed + 7919 * k,
-                        radiance_cache=cache, bank_phasors=_banks, progress=tile_progress,
-                        stats=stats if _pi == 0 else TraceStats(), device=dev, on_tile=on_tile,
-                        records_m=None if planes.count == 1 else planes.slab(k))
+            trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                        plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, frames=n_f, settings=settings,
+                        integrator=integrator, seed=ray_seed, radiance_cache=cache, bank_phasors=_banks,
+                        progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
+                        on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
+                        planes=spec, on_plane_rows=on_plane_rows if spec else None)
 
         _chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
                       timings=timings)

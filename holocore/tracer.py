@@ -67,7 +67,6 @@ class TraceStats:
     escaped: int = 0
     capped: int = 0
     behind_plane: int = 0
-    other_plane: int = 0  # image points that another recording plane records
     delta_paths: int = 0
     seconds_trace: float = 0.0
     seconds_accumulate: float = 0.0
@@ -143,14 +142,18 @@ def trace_field(
     stats: Optional[TraceStats] = None,
     device: Optional[torch.device] = None,
     on_tile: Optional[Callable[[int, int, torch.Tensor], None]] = None,
-    records_m: Optional[tuple[float, float]] = None,
+    planes: Optional[Sequence[tuple[float, float, float, int]]] = None,
+    on_plane_rows: Optional[Callable[[int, int, torch.Tensor], None]] = None,
 ) -> Optional[np.ndarray]:
     """Complex field on the plane z = plane_z_m, complex64 [F, C, H, W].
 
     ``plane_z_m == z_wrp_m``: the two-stage method's WRP. ``plane_z_m == 0``: the direct method on the SLM.
-    A plane between them is one of several recording planes (:mod:`holocore.wrp_planes`): its rays start
-    where they cross the WRP (in air, in front of every surface) and it records only the image points with
-    hologram depth in ``records_m`` = (lo, hi] (default: everything in front of the WRP).
+    ``planes``: several recording planes (:mod:`holocore.wrp_planes`), (z_k, lo_k, hi_k, border_k) front to
+    back, plane 0 the WRP itself: the rays still leave the WRP's pixels, and each ray's contribution is
+    recorded on the plane whose slab (lo_k, hi_k] holds its image point, at the pixel where the ray crosses
+    that plane, with r measured from that pixel's centre (the paper's Sec. 6). Plane k's grid is the WRP's
+    widened by border_k pixels on each side. The rows of every plane stream out through
+    ``on_plane_rows(k, r0, block)`` (block [F, C, rows, W + 2 border_k], each row once, in order).
     ``bank_phasors``: per color a complex64 tensor [F, H, W] of exp(i phi_m) (None: no random phase).
     ``integrator``: Mitsuba's ``path`` with ``settings.max_depth``, for the radiance samples beyond the
     first (``settings.amp_spp`` > 1); the first one is traced with the wave path itself.
@@ -167,10 +170,14 @@ def trace_field(
     if bank_phasors is not None and len(bank_phasors) != C:
         raise ValueError("bank_phasors needs one bank per wavelength")
     stats = stats if stats is not None else TraceStats()
-    geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
-                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp, records_m=records_m,
-                         bank_hw=None if bank_phasors is None else tuple(bank_phasors[0].shape[1:]))
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
+    multi = planes is not None and len(planes) > 1
+    if multi and (on_plane_rows is None or plane_z_m != z_wrp_m):
+        raise ValueError("several recording planes need plane_z_m == z_wrp_m and on_plane_rows")
+    geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
+                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp,
+                         bank_hw=None if bank_phasors is None else tuple(bank_phasors[0].shape[1:]),
+                         planes=planes if multi else None, ring_rows=rows_per_tile)
     if device is not None:
         dev = torch.device(device)
     else:
@@ -180,28 +187,75 @@ def trace_field(
     if cells is not None and cells.device != dev:
         raise ValueError(f"bank_phasors are on {cells.device}, the trace runs on {dev}")
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
+    bands = _PlaneBands(geo, C, frames if cells is not None else 1, dev) if multi else None
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
         tile = _trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
                            seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev)
         _park_drjit_workers()
         t1 = time.perf_counter()
-        if cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
+        if bands is not None:  # several planes: every ray's contribution into its plane's rows
+            bands.deposit(tile, cells)
+            for k, a, blk in bands.flush(r1 if ti + 1 < len(tiles) else None):
+                on_plane_rows(k, a, blk.expand(frames, *blk.shape[1:]))
+            del tile
+        elif cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
             block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
         else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
             base = torch.stack([tile[c] for c in range(C)], dim=1)
             acc = _accumulate_frames(cells, tile["idx"], base, settings.spp)  # [P, C, F]
             block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
-        if on_tile is not None:
+        if bands is not None:
+            pass
+        elif on_tile is not None:
             on_tile(r0, r1, block)
+            del tile, block
         else:
             out[:, :, r0:r1] += block
-        del tile, block
+            del tile, block
         stats.seconds_trace += t1 - t0
         stats.seconds_accumulate += time.perf_counter() - t1
         if progress is not None:
             progress("trace", ti + 1, len(tiles))
     return None if out is None else out.cpu().numpy()
+
+
+class _PlaneBands:
+    """The rows of every recording plane that rays can still reach, as ring buffers in one flat table
+    [sum_k ring_k W_k, C, F] (a ray's slot is computed in the kernel: geometry ``ring_offsets``). A WRP tile of
+    rows r0..r1 reaches rows r0..r1 + 2 border_k of plane k, so after it every row below r1 is final."""
+
+    def __init__(self, g, C: int, F: int, dev) -> None:
+        self.g, self.C, self.F = g, C, F
+        self.table = torch.zeros((g.ring_total, C, F), dtype=torch.complex64, device=dev)
+        self.flushed = [0] * len(g.planes)
+
+    def deposit(self, tile: dict, cells) -> None:
+        base = torch.stack([tile[c] for c in range(self.C)], dim=1)  # [R, C] per ray
+        pos = tile["pos"]
+        for a in range(0, base.shape[0], _CHUNK_RAYS):
+            b = min(base.shape[0], a + _CHUNK_RAYS)
+            if cells is None:
+                add = base[a:b, :, None]
+            else:
+                add = cells.index_select(0, tile["idx"][a:b]) * base[a:b, :, None]
+            self.table.index_add_(0, pos[a:b], add)
+
+    def flush(self, upto: Optional[int]):
+        """(k, first row, block [F, C, rows, W_k]) for the rows of each plane below ``upto`` (None: all)."""
+        g = self.g
+        for k, (_z, _lo, _hi, bord) in enumerate(g.planes):
+            Hk, Wk = g.H + 2 * bord, g.W + 2 * bord
+            end = Hk if upto is None else min(Hk, upto)
+            ring, off = g.ring_heights[k], g.ring_offsets[k]
+            view = self.table[off:off + ring * Wk].view(ring, Wk, self.C, self.F)
+            while self.flushed[k] < end:
+                a = self.flushed[k]
+                n = min(end - a, ring - a % ring)  # up to the ring's end
+                rows = view[a % ring:a % ring + n]
+                yield k, a, rows.permute(3, 2, 0, 1).clone()
+                rows.zero_()
+                self.flushed[k] = a + n
 
 
 def _park_drjit_workers() -> None:
@@ -225,11 +279,12 @@ class _Geometry:
     plane_z: float
     z_wrp: float
     z_mid: float
-    direct: bool  # the plane lies behind the WRP: rays start where they cross the WRP
-    bank_hw: tuple  # the random-phase bank's grid (the SLM's); a deeper plane's grid may be wider
-    z_lo: float  # the image points recorded: lo < q_z <= hi (hologram z)
-    z_hi: float
-    sign: float  # +1: image points behind the plane (diverging waves), -1: in front (the SLM, converging)
+    direct: bool  # the plane lies behind the WRP (the SLM): rays start where they cross the WRP
+    bank_hw: tuple  # the random-phase bank's grid (the SLM's); a deeper plane's grid is wider
+    planes: Optional[tuple]  # several recording planes: (z, lo, hi, border) front to back, plane 0 the WRP
+    ring_heights: tuple  # rows of each plane's ring buffer (see _PlaneBands)
+    ring_offsets: tuple  # first slot of each plane's ring in the flat table
+    ring_total: int
     f: float
     z_inf: float
     rot: tuple  # eye-camera -> world, 3x3 row-major
@@ -244,17 +299,19 @@ class _Geometry:
 
     @classmethod
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
-             records_m=None, bank_hw=None) -> "_Geometry":
+             bank_hw=None, planes=None, ring_rows: int = 1) -> "_Geometry":
         thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
         # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
         thetas = [min(t, math.radians(89.0)) for t in thetas]
         th_max = max(thetas)
-        lo, hi = (-1e30, z_wrp_m) if records_m is None else (max(-1e30, records_m[0]), min(z_wrp_m, records_m[1]))
-        if not lo < hi:
-            raise ValueError(f"empty recording slab {records_m}")
-        if records_m is not None and lo < plane_z_m < hi:
-            raise ValueError(f"a recording plane at {plane_z_m} m cannot record image points on both sides")
-        return cls(bank_hw=tuple(bank_hw or shape_hw), z_lo=lo, z_hi=hi, sign=1.0 if plane_z_m >= hi else -1.0,H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
+        H, W = shape_hw
+        pl = None if not planes else tuple((float(z), max(-1e30, float(lo)), float(hi), int(b))
+                                           for z, lo, hi, b in planes)
+        heights = tuple(ring_rows + 2 * b + 1 for _z, _lo, _hi, b in pl) if pl else ()
+        sizes = [h * (W + 2 * b) for h, (_z, _lo, _hi, b) in zip(heights, pl or ())]
+        offsets = tuple(int(v) for v in np.cumsum([0] + sizes[:-1])) if pl else ()
+        return cls(bank_hw=tuple(bank_hw or shape_hw), planes=pl, ring_heights=heights, ring_offsets=offsets,
+                   ring_total=int(sum(sizes)),H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
                    z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
                    f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
                    rot=tuple(map(float, hmap._rot.ravel())), rot_inv=tuple(map(float, hmap._rot_inv.ravel())),
@@ -283,7 +340,10 @@ def _opaque(mi, g: _Geometry) -> SimpleNamespace:
         return dr.opaque(mi.Float64, float(v))
 
     o = SimpleNamespace(**{k: f64(getattr(g, k)) for k in ("pitch", "plane_z", "z_wrp", "z_mid", "f", "z_inf",
-                                                            "cos_max", "omega", "z_lo", "z_hi", "sign")})
+                                                            "cos_max", "omega")})
+    u32 = lambda v: dr.opaque(mi.UInt32, int(v))  # noqa: E731
+    o.planes = tuple((f64(z), f64(lo), f64(hi), f64(g.H + 2 * b), f64(g.W + 2 * b), u32(g.W + 2 * b),
+                      u32(g.ring_heights[k]), u32(g.ring_offsets[k])) for k, (z, lo, hi, b) in enumerate(g.planes or ()))
     o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
     o.Hb, o.Wb, o.Wbu = f64(g.bank_hw[0]), f64(g.bank_hw[1]), dr.opaque(mi.UInt32, g.bank_hw[1])
     o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
@@ -305,6 +365,30 @@ def _pixel_directions(mi, pix, n, seed: int):
     x = x - dr.floor(x)
     y = mi.radical_inverse_2(i, v1)
     return mi.Point2f(dr.minimum(x, 1.0 - 2.0 ** -24), y)
+
+
+def _pixel_fraction_in_cone(mi, dq, cos_max, pitch):
+    """The fraction of a pixel (side ``pitch``, centred at the origin of ``dq``) from which the point dq (float64
+    vector from the pixel centre, dq.z < 0) lies inside the cone of half-angle acos(cos_max) around -z. The
+    cone's edge at the pixel is nearly straight (its radius is several pixels), so the fraction is the CDF at
+    s = R - |dq_xy| of n.(x - c) for x uniform in the square, n the unit lateral direction: a trapezoid of
+    half-widths A = p |n_x| / 2 >= B = p |n_y| / 2 (the sum of two uniform variables)."""
+    import drjit as dr
+
+    F64 = mi.Float64
+    dl = dr.sqrt(dq.x * dq.x + dq.y * dq.y)
+    tan_max = dr.safe_sqrt(1.0 - cos_max * cos_max) / cos_max
+    s = (-dq.z) * tan_max - dl
+    inv = 1.0 / dr.maximum(dl, 1e-30)
+    ax, ay = dr.abs(dq.x) * inv, dr.abs(dq.y) * inv
+    ax = dr.select(dl > 0, ax, F64(1.0))
+    A = 0.5 * pitch * dr.maximum(ax, ay)
+    B = 0.5 * pitch * dr.minimum(ax, ay)
+    t = dr.abs(s)
+    flat = 0.5 + t / (2.0 * A)  # |s| <= A - B: the density is 1 / 2A
+    ramp = 1.0 - (A + B - t) ** 2 / dr.maximum(8.0 * A * B, 1e-300)
+    upper = dr.select(t <= A - B, flat, dr.select(t < A + B, ramp, F64(1.0)))
+    return dr.select(s >= 0, upper, 1.0 - upper)
 
 
 def _to_torch(x, dev: torch.device) -> torch.Tensor:
@@ -341,6 +425,13 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
     sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
     dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
+    if g.planes:
+        # Several recording planes: each ray leaves a point uniform in its WRP pixel. A ray is recorded where
+        # it crosses its plane, and rays from pixel centres would cross a deeper plane on a lattice of spacing
+        # (1 - alpha) p, so each pixel there would take 1..4 bundles of the rays to one image cell (a moire
+        # that adds ~20% of spurious energy and does not fall with N); from spread origins they land evenly.
+        jit = sampler.next_2d()
+        s = s + V3d((F64(jit.x) - 0.5) * o.pitch, (F64(jit.y) - 0.5) * o.pitch, 0.0)
     if g.direct:
         # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
         # WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
@@ -360,17 +451,41 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
     q = V3d(o.f * cv.x / cv.z, o.f * cv.y / cv.z, o.z_inf + o.f * o.f / cv.z)
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
-    slab = (q.z > o.z_lo) & (q.z <= o.z_hi)  # this plane's slab (several recording planes)
-    elsewhere = ok & ~slab
-    ok &= slab
+    pos = None
+    if o.planes:  # several recording planes: the plane in front of the image point, where the ray crosses it
+        pos, rec, found, shifted = mi.UInt32(0), V3d(s), mi.Bool(False), mi.Bool(False)
+        for k, (z_k, lo, hi, Hk, Wk, Wk_u, ring, off) in enumerate(o.planes):
+            xk = s + ((o.z_wrp - z_k) / cos_t) * dirs
+            j = dr.clip(dr.round(xk.x / o.pitch + (Wk - 1.0) * 0.5), 0.0, Wk - 1.0)
+            i = dr.clip(dr.round((Hk - 1.0) * 0.5 - xk.y / o.pitch), 0.0, Hk - 1.0)
+            centre = V3d((j - (Wk - 1.0) * 0.5) * o.pitch, ((Hk - 1.0) * 0.5 - i) * o.pitch, z_k)
+            here = ok & ~found & (q.z > lo) & (q.z <= hi)
+            pos = dr.select(here, off + (mi.UInt32(i) % ring) * Wk_u + mi.UInt32(j), pos)
+            rec = dr.select(here, centre, rec)
+            shifted |= here  # every recorded ray left its pixel away from the centre
+            found |= here
+        ok &= found
+        s = rec
     q = dr.select(ok, q, s)
     r = dr.norm(q - s)
     weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
+    if o.planes:
+        # A ray recorded where it crosses a deeper plane left that pixel from a point spread over the pixel, not
+        # from its centre, so near the cone's edge the image points it samples are those of a cone blurred by
+        # the pixel: keep those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them
+        # inside its cone), which makes the estimate unbiased again (docs/physics.md).
+        cos_c = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
+        frac = _pixel_fraction_in_cone(mi, q - s, o.cos_max, o.pitch)
+        keep = ~shifted | (frac > 0)
+        ok &= keep
+        weight = dr.select(shifted, dr.select(keep, (o.omega / F64(o.N)) * r / cos_c / dr.maximum(frac, 1e-3), 0.0),
+                           weight)
+        cos_t = dr.select(shifted, cos_c, cos_t)  # the per-color cone test below, seen from the centre
     parts = []
     for c in range(len(g.ks)):
         inside = cos_t >= o.cos_lim[c] - 1e-15
         amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
-        kr = o.sign * o.ks[c] * r
+        kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r
         phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
         sn, cs = dr.sincos(phase)
         parts += [amp * cs, amp * sn]
@@ -381,12 +496,11 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
         j, i = j - o.Wb * dr.floor(j / o.Wb), i - o.Hb * dr.floor(i / o.Hb)  # periodic wrap (DESIGN §4)
         idx = mi.UInt32(i) * o.Wbu + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
-    # 3 capped, 4 sampled by path tracing, 5 recorded by another plane, bits 8.. delta bounces.
-    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok & ~elsewhere) << 1) | (mi.UInt32(wp.escaped) << 2)
-              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (mi.UInt32(elsewhere) << 5)
-              | (wp.n_delta << 8))
-    dr.eval(parts, idx, status)  # the one kernel: rays, wave paths, contributions
-    if not want_cells:  # sum each pixel's N rays (the rays are pixel-major)
+    # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
+    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
+              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
+    dr.eval(parts, idx, status, pos)  # the one kernel: rays, wave paths, contributions
+    if not want_cells and pos is None:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
         dr.eval(parts)
     if device.type == "cuda":
@@ -395,13 +509,14 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
            for c in range(len(g.ks))}
     if want_cells:
         out["idx"] = _to_torch(idx, device).to(torch.int64)
+    if pos is not None:
+        out["pos"] = _to_torch(pos, device).to(torch.int64)
     # The ray counts, reduced where the rays are (one small read back per tile).
     st = _to_torch(status, device).to(torch.int64)
     ok_t = (st & 1).bool()
     nd = st >> 8
     counts = torch.stack([*[((st >> b) & 1).sum() for b in range(5)], (ok_t & (nd > 0)).sum(),
-                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(()),
-                          ((st >> 5) & 1).sum()]).tolist()
+                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(())]).tolist()
     stats.rays += R
     stats.valid += counts[0]
     stats.behind_plane += counts[1]
@@ -410,5 +525,4 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     stats.path_samples += counts[4] * settings.amp_spp
     stats.delta_paths += counts[5]
     stats.max_delta_seen = max(stats.max_delta_seen, counts[6])
-    stats.other_plane += counts[7]
     return out

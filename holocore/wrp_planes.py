@@ -10,8 +10,9 @@ z_wrp, the last plane: everything behind).
 Placement minimises the luminance-weighted mean squared distance of the image points (the analysis' depth
 samples) to their planes: the best plane for a group of points lies one margin in front of the group's
 frontmost point, so the candidates are the samples themselves and a small dynamic programme is exact.
-Rays are shared between the planes so that the field's total noise is least for the rays spent
-(:meth:`WrpPlanes.ray_shares`), and ``auto`` picks the K with the least rays for a given noise.
+The rays still start on the WRP (one trace for all planes): each ray's contribution is recorded where it
+crosses the plane that records its image point, so K planes cost one trace and K - 1 ASMs, and ``auto`` adds
+planes while they cut the noise.
 """
 
 from __future__ import annotations
@@ -73,27 +74,6 @@ class WrpPlanes:
             sel = d[(d > lo) & (d <= hi)]
             out.append(float(np.sum(np.maximum(z - sel, self.margin_m) ** 2)))
         return out
-
-    def ray_shares(self, depths_m: Sequence[float]) -> tuple[float, ...]:
-        """Rays per pixel of each plane relative to the most demanding one (max 1). The field's noise energy
-        is sum_k E_k / N_k for N_k rays per pixel on plane k; for a given number of rays it is smallest with
-        N_k proportional to sqrt(E_k) (a Lagrange multiplier). A plane with no sample gets 1/8 (points the
-        sparse analysis missed still need rays)."""
-        e = np.sqrt(np.asarray(self.noise_energy(depths_m)))
-        if self.count == 1 or e.max() <= 0:
-            return tuple(1.0 for _ in self.z_m)
-        return tuple(float(max(v / e.max(), 0.125)) for v in e)
-
-    def cost(self, depths_m: Sequence[float], *, shape_hw: tuple[int, int], pitch_m: float,
-             theta_max: float) -> float:
-        """Rays x noise energy (the product a plane count minimises) with rays shared by :meth:`ray_shares`,
-        each plane's grid widened by its border: (sum_k s_k P_k) (sum_k E_k / s_k), P_k its pixels."""
-        H, W = shape_hw
-        e = self.noise_energy(depths_m)
-        s = self.ray_shares(depths_m)
-        pix = [(H + 2 * b) * (W + 2 * b) for b in (self.border_px(k, pitch_m=pitch_m, theta_max=theta_max)
-                                                   for k in range(self.count))]
-        return sum(sk * pk for sk, pk in zip(s, pix)) * sum(ek / sk for ek, sk in zip(e, s))
 
     def farthest_distance_m(self, depths_m: Sequence[float]) -> float:
         """The largest distance from an image point (hologram depths) to the plane that records it."""
@@ -167,17 +147,18 @@ def place_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, 
 
 
 def choose_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, z_wrp_m: float, margin_m: float,
-                  shape_hw: tuple[int, int], pitch_m: float, theta_max: float,
                   max_count: int = MAX_WRP_PLANES) -> WrpPlanes:
-    """``auto``: the plane count with the least rays for a given field noise (see :meth:`WrpPlanes.cost`);
-    a count that gains less than 10% over a smaller one is not taken (every plane also costs one ASM of
-    the whole field)."""
-    best, best_cost = None, math.inf
-    for k in range(1, max(1, min(max_count, MAX_WRP_PLANES)) + 1):
+    """``auto``: one trace feeds every plane, so more planes only lower the noise (:meth:`WrpPlanes.noise_energy`,
+    summed); each costs one ASM of the field and a scratch copy of it, so a plane is added only while it cuts
+    the noise by at least 15%."""
+    best = place_planes(depths_m, weights, z_wrp_m=z_wrp_m, margin_m=margin_m, count=1)
+    best_e = sum(best.noise_energy(depths_m))
+    for k in range(2, max(1, min(max_count, MAX_WRP_PLANES)) + 1):
         planes = place_planes(depths_m, weights, z_wrp_m=z_wrp_m, margin_m=margin_m, count=k)
-        if best is not None and planes.count <= best.count:
-            continue
-        c = planes.cost(depths_m, shape_hw=shape_hw, pitch_m=pitch_m, theta_max=theta_max)
-        if c < 0.9 * best_cost:
-            best, best_cost = planes, c
+        if planes.count <= best.count:
+            break
+        e = sum(planes.noise_energy(depths_m))
+        if e > 0.85 * best_e:
+            break
+        best, best_e = planes, e
     return best

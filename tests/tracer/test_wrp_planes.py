@@ -46,12 +46,10 @@ def test_more_planes_never_cost_more_and_extra_planes_are_dropped():
 
 
 def test_auto_takes_planes_for_depth_and_one_for_a_flat_scene():
-    kw = dict(z_wrp_m=Z_WRP, margin_m=MARGIN, shape_hw=(1080, 1920), pitch_m=8e-6, theta_max=0.04)
+    kw = dict(z_wrp_m=Z_WRP, margin_m=MARGIN)
     deep = choose_planes([0.0905] * 5 + [0.086] * 20 + [0.0815] * 40, None, **kw)
     flat = choose_planes([Z_WRP - MARGIN] * 30, None, **kw)
-    assert deep.count == 3 and flat.count == 1
-    shares = deep.ray_shares([0.0905] * 5 + [0.086] * 20 + [0.0815] * 40)
-    assert max(shares) == 1.0 and all(0 < s <= 1 for s in shares)
+    assert deep.count >= 3 and flat.count == 1
 
 
 def test_bad_plane_options_are_refused():
@@ -111,9 +109,9 @@ def test_two_planes_estimate_the_same_field_with_far_less_noise(two_depths):
     noise2 = np.sum(np.abs(a2 - b2) ** 2) / 2
     s1 = np.real(np.vdot(a1, b1))
     s2 = np.real(np.vdot(a2, b2))
-    # The same rays per pixel: the far card's noise falls by (6 / 1)^2, the near card's stays (both halves
-    # of the view hold the same light), so the total falls well over 8x. (The deeper plane's grid is wider
-    # by its border, here 24 px on a 48 px grid; at 1080x1920 that costs 5%: bench/bench_wrp_planes.py.)
+    # The same rays (one trace from the WRP feeds both planes): the far card's noise falls by (6 / 1)^2, the
+    # near card's stays (both halves of the view hold the same light), so the total falls well over 8x.
+    assert m2["stats"]["rays"] == m1["stats"]["rays"]
     assert noise2 < noise1 / 8, (noise1, noise2)
     assert s2 == pytest.approx(s1, rel=0.25)  # the same signal energy
     # the same field: the correlation of the two means, corrected for their remaining noise
