@@ -224,6 +224,8 @@ function jobBody() {
   const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
                  encoder: $("encoder").value };
   if ($("spp").value) body.spp = Number($("spp").value);
+  const planes = $("wrp-planes").value;
+  body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
   if ($("display").value.trim()) body.display = $("display").value.trim();
   return body;
 }
