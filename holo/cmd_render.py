@@ -40,7 +40,7 @@ def render(
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
     method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
-    wrp_planes: str = typer.Option("1", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
+    wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
                                                              "the scene depth; the plan says where)."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
@@ -155,7 +155,7 @@ def plan(
     as_json: bool = typer.Option(False, "--json", help="Print JSON."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
     force_all_effects: bool = typer.Option(False, "--force-all-effects"),
-    wrp_planes: str = typer.Option("1", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
+    wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
                                                              "the scene depth; the plan says where)."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:

@@ -37,7 +37,7 @@ class RenderOptions:
     method: Literal["wrp", "direct"] = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
-    wrp_planes: Union[int, Literal["auto"]] = 1  # recording planes (holocore.wrp_planes); "auto": from the depth
+    wrp_planes: Union[int, Literal["auto"]] = "auto"  # recording planes (holocore.wrp_planes); "auto": from the depth
     stratified: bool = True  # each pixel's rays stratified over the cone (holocore.tracer); False: independent
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field

@@ -39,7 +39,7 @@ class JobRequest(BaseModel):
     iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
     method: Literal["wrp", "direct"] = "wrp"
     wrp_planes: Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]] = Field(
-        default=1, description="Wave recording planes: 1..8, or 'auto' (chosen from the scene depth).")
+        default="auto", description="Wave recording planes: 1..8, or 'auto' (chosen from the scene depth).")
     display: Optional[str] = Field(default=None, pattern=NAME_PATTERN, description="Display the job is for.")
 
     @model_validator(mode="after")

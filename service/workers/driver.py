@@ -140,8 +140,7 @@ def run_job(job_dir: Path) -> dict:
               "--preset", spec["preset"], "--method", spec["method"], "--progress-jsonl", prog["render"]]
     if spec.get("spp") is not None:
         render += ["--spp", str(spec["spp"])]
-    if spec.get("wrp_planes", 1) != 1:
-        render += ["--wrp-planes", str(spec["wrp_planes"])]
+    render += ["--wrp-planes", str(spec.get("wrp_planes", 1))]  # jobs stored before the option rendered 1
     timings["render_s"] = _run("render", render, job_dir)
     encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec["encoder"],
               "--progress-jsonl", prog["encode"]]
