@@ -158,7 +158,7 @@ def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, de
     import torch
 
     from holocore.io import ScratchArray
-    from holocore.propagation import asm
+    from holocore.propagation import asm, clear_cache
 
     H, W = optics.resolution_hw
     lams = [optics.wavelengths_m[c] for c in lit_idx]
@@ -180,8 +180,11 @@ def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, de
         for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
             d = borders[k] - borders[k - 1]
             Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
-            for a in range(0, n_f, fp):
-                e = min(n_f, a + fp)
+            # The chunk planner sized fp for the WRP's grid; this plane's grid is wider, and the sum with the
+            # plane in front is held too: fewer frames per chunk.
+            step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
+            for a in range(0, n_f, step):
+                e = min(n_f, a + step)
                 for ci, lam in enumerate(lams):
                     u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
                     v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
@@ -193,6 +196,7 @@ def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, de
                         scratch[k - 1].add_rows(a, [ci], 0, v[:, None])
                     del u, v
             scratch[k].close()
+            clear_cache()  # this plane pair's transfer functions and padding workspaces are not used again
         if planes.count > 1:
             timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
     finally:
