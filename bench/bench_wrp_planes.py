@@ -80,7 +80,7 @@ def main(argv=None) -> int:
             print(f"K={K!s:>4} ({len(planes)} planes) N={n:4d}: SLM SNR {_db(snr):6.2f} dB, WRP SNR "
                   f"{_db(snr_wrp):6.2f} dB, rays {rows[-1]['rays']:.3g}, {min(secs):.1f} s", flush=True)
     ref = means[plane_opts[0]][-1]  # the one-plane mean at the most rays
-    lines = [f"# Several wave recording planes: rays for equal SLM-field accuracy",
+    lines = ["# Several wave recording planes: rays for equal SLM-field accuracy",
              "", f"Machine: {platform.machine()}, {platform.processor() or 'cpu'}, Python {platform.python_version()}; "
              f"{datetime.date.today()}. Demo scene (`holo demo`), paper display (f = 50 mm, 8 µm, 640/516.5/455.4 nm, "
              f"z_inf 80 mm) at {H}x{W}, {a.frames} frames, preset {a.preset}.",

@@ -125,8 +125,7 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
         pass
     t0 = time.monotonic()
     field, meta = _field(stack)
-    f_m, p_m = float(meta["focal_length_m"]), float(meta["pitch_m"])
-    lam_min = min(float(v) for v in meta["wavelengths_m"])
+    f_m = float(meta["focal_length_m"])
     tmp = out.with_name(f".{out.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
