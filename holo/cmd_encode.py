@@ -38,7 +38,8 @@ def encode(
     lut: Optional[Path] = typer.Option(None, "--lut", help="Per-wavelength 8-bit lookup table: JSON "
                                                            "{\"luts\": [{\"wavelength_nm\", \"table\"}]} or .npy "
                                                            "[C, 256] / [256]."),
-    device: str = typer.Option("auto", help="auto (CUDA when available) | cpu | cuda | cuda:N"),
+    device: Optional[str] = typer.Option(None, help="auto (CUDA when available) | cpu | cuda | cuda:N; default: "
+                                                    "HOLO_DEVICE, else auto."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
 ) -> None:
     """Encode a render's WRP field into a phase-only stack: phase [F, C, H, W] in [0, 2pi) and 8-bit frames."""
@@ -49,17 +50,13 @@ def encode(
     if not result.is_file():
         fail(f"result not found: {result}")
 
-    import torch
-
     from holocore import encoding
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
+    from holocore.device import torch_device
+
     try:
-        dev = torch.device(device)
-    except RuntimeError as exc:
-        fail(f"--device: {exc}")
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        fail("--device cuda asked for, but torch sees no CUDA device")
+        dev = torch_device(device)  # --device, else HOLO_DEVICE, else auto (one rule for every command)
+    except (ValueError, RuntimeError) as exc:
+        fail(str(exc))
     if not memory_limit_gb > 0:
         fail(f"--memory-limit-gb must be > 0, got {memory_limit_gb}")
     from holocore.encoding_stream import encode_file, read_meta

@@ -192,3 +192,19 @@ def test_small_results_still_save_and_load(tmp_path):
                                                                         "wavelengths_m": [1]})
     s, w, m = load_result(tmp_path / "r.npz")
     assert np.array_equal(w, 2 * a) and np.array_equal(NpyMember(tmp_path / "r.npz", "wrp_field").read_fc(0, 1, 0), w[:, 0])
+
+
+def test_encode_takes_its_device_from_holo_device_like_render(tmp_path, monkeypatch):
+    """`holo encode` without --device follows HOLO_DEVICE (one rule for every command): a bad value is one line."""
+    from typer.testing import CliRunner
+
+    from holo.app import app
+
+    res_path = tmp_path / "RESULT.npz"
+    f = np.zeros((1, 1, 8, 8), np.complex64)
+    save_result(res_path, slm_field=f, wrp_field=f, meta={"focal_length_m": 0.05, "z_inf_m": 0.08, "z_wrp_m": 0.081,
+                                                          "pitch_m": 8e-6, "wavelengths_m": [5.2e-7]})
+    monkeypatch.setenv("HOLO_DEVICE", "gpu")
+    out = CliRunner().invoke(app, ["encode", str(res_path), "--out", str(tmp_path / "S.npz"), "--iterations", "1"])
+    assert out.exit_code != 0
+    assert "HOLO_DEVICE must be auto, cpu, cuda or cuda:N" in out.output and "Traceback" not in out.output
