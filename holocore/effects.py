@@ -196,10 +196,9 @@ def make_plan(
                      f"to the WRP by the ASM")
     elif wrp_planes_asked == "auto":
         words.append("one wave recording plane (auto: more planes would not lower the noise much at this depth)")
-    where = "per WRP pixel"
     n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max)
     ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
-    words.append(f"{n} rays {where} ({'given' if spp is not None else 'chosen from the scene depth'}): the "
+    words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
                  f"Monte Carlo noise about {ratio:.2g}x its signal power; {p['amp_spp']} radiance sample(s) per "
                  f"image point")

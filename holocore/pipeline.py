@@ -85,9 +85,9 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     if options.method == "direct" or options.wrp_planes == 1:
         planes = WrpPlanes((ana.z_wrp_m,), margin)
     elif options.wrp_planes == "auto":
-        planes = choose_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin)
+        planes = choose_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin)
     else:
-        planes = place_planes(depths, None, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
+        planes = place_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
     # The noise target is set by the farthest image point from the plane that records it.
     radius_px = ana.subhologram_radius_px if planes.count == 1 or not depths else \
         planes.farthest_distance_m(depths) * px_per_m
@@ -142,9 +142,6 @@ class _MemorySink:
     def read_traced(self, f0, f1, c):
         return self.traced[f0:f1, c]
 
-    def write_traced(self, f0, c, block):
-        self.traced[f0:f0 + block.shape[0], c] = block
-
     def write_other(self, f0, block):
         self.other[f0:f0 + block.shape[0]] = block
 
@@ -190,8 +187,7 @@ def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, de
                     v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
                     v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
                     if k - 1 == 0:
-                        c = lit_idx[ci]
-                        sink.write_traced(f0 + a, c, sink.read_traced(f0 + a, f0 + e, c) + v)
+                        sink.add_rows(f0 + a, [lit_idx[ci]], 0, v[:, None])
                     else:
                         scratch[k - 1].add_rows(a, [ci], 0, v[:, None])
                     del u, v
@@ -223,9 +219,6 @@ class _FileSink:
 
     def read_traced(self, f0, f1, c):
         return self.scratch.read_fc(f0, f1, c)
-
-    def write_traced(self, f0, c, block):
-        self.scratch.write_rows(f0, [c], 0, block[:, None])
 
     def write_other(self, f0, block):
         self.stream.write(block)

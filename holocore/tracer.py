@@ -176,7 +176,6 @@ def trace_field(
         raise ValueError("several recording planes need plane_z_m == z_wrp_m and on_plane_rows")
     geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
                          plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp,
-                         bank_hw=None if bank_phasors is None else tuple(bank_phasors[0].shape[1:]),
                          planes=planes if multi else None, ring_rows=rows_per_tile)
     if device is not None:
         dev = torch.device(device)
@@ -194,25 +193,22 @@ def trace_field(
                            seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev)
         _park_drjit_workers()
         t1 = time.perf_counter()
+        block = None
         if bands is not None:  # several planes: every ray's contribution into its plane's rows
             bands.deposit(tile, cells)
             for k, a, blk in bands.flush(r1 if ti + 1 < len(tiles) else None):
                 on_plane_rows(k, a, blk.expand(frames, *blk.shape[1:]))
-            del tile
         elif cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
             block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
         else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
             base = torch.stack([tile[c] for c in range(C)], dim=1)
             acc = _accumulate_frames(cells, tile["idx"], base, settings.spp)  # [P, C, F]
             block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
-        if bands is not None:
-            pass
-        elif on_tile is not None:
+        if block is not None and on_tile is not None:
             on_tile(r0, r1, block)
-            del tile, block
-        else:
+        elif block is not None:
             out[:, :, r0:r1] += block
-            del tile, block
+        del tile, block
         stats.seconds_trace += t1 - t0
         stats.seconds_accumulate += time.perf_counter() - t1
         if progress is not None:
@@ -280,7 +276,6 @@ class _Geometry:
     z_wrp: float
     z_mid: float
     direct: bool  # the plane lies behind the WRP (the SLM): rays start where they cross the WRP
-    bank_hw: tuple  # the random-phase bank's grid (the SLM's); a deeper plane's grid is wider
     planes: Optional[tuple]  # several recording planes: (z, lo, hi, border) front to back, plane 0 the WRP
     ring_heights: tuple  # rows of each plane's ring buffer (see _PlaneBands)
     ring_offsets: tuple  # first slot of each plane's ring in the flat table
@@ -299,7 +294,7 @@ class _Geometry:
 
     @classmethod
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
-             bank_hw=None, planes=None, ring_rows: int = 1) -> "_Geometry":
+             planes=None, ring_rows: int = 1) -> "_Geometry":
         thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
         # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
         thetas = [min(t, math.radians(89.0)) for t in thetas]
@@ -310,8 +305,8 @@ class _Geometry:
         heights = tuple(ring_rows + 2 * b + 1 for _z, _lo, _hi, b in pl) if pl else ()
         sizes = [h * (W + 2 * b) for h, (_z, _lo, _hi, b) in zip(heights, pl or ())]
         offsets = tuple(int(v) for v in np.cumsum([0] + sizes[:-1])) if pl else ()
-        return cls(bank_hw=tuple(bank_hw or shape_hw), planes=pl, ring_heights=heights, ring_offsets=offsets,
-                   ring_total=int(sum(sizes)),H=shape_hw[0], W=shape_hw[1], pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
+        return cls(planes=pl, ring_heights=heights, ring_offsets=offsets, ring_total=int(sum(sizes)),
+                   H=H, W=W, pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
                    z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
                    f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
                    rot=tuple(map(float, hmap._rot.ravel())), rot_inv=tuple(map(float, hmap._rot_inv.ravel())),
@@ -345,7 +340,6 @@ def _opaque(mi, g: _Geometry) -> SimpleNamespace:
     o.planes = tuple((f64(z), f64(lo), f64(hi), f64(g.H + 2 * b), f64(g.W + 2 * b), u32(g.W + 2 * b),
                       u32(g.ring_heights[k]), u32(g.ring_offsets[k])) for k, (z, lo, hi, b) in enumerate(g.planes or ()))
     o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
-    o.Hb, o.Wb, o.Wbu = f64(g.bank_hw[0]), f64(g.bank_hw[1]), dr.opaque(mi.UInt32, g.bank_hw[1])
     o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
     o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))
     return o
@@ -453,7 +447,7 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
     pos = None
     if o.planes:  # several recording planes: the plane in front of the image point, where the ray crosses it
-        pos, rec, found, shifted = mi.UInt32(0), V3d(s), mi.Bool(False), mi.Bool(False)
+        pos, rec, found = mi.UInt32(0), V3d(s), mi.Bool(False)
         for k, (z_k, lo, hi, Hk, Wk, Wk_u, ring, off) in enumerate(o.planes):
             xk = s + ((o.z_wrp - z_k) / cos_t) * dirs
             j = dr.clip(dr.round(xk.x / o.pitch + (Wk - 1.0) * 0.5), 0.0, Wk - 1.0)
@@ -462,25 +456,22 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
             here = ok & ~found & (q.z > lo) & (q.z <= hi)
             pos = dr.select(here, off + (mi.UInt32(i) % ring) * Wk_u + mi.UInt32(j), pos)
             rec = dr.select(here, centre, rec)
-            shifted |= here  # every recorded ray left its pixel away from the centre
             found |= here
         ok &= found
         s = rec
     q = dr.select(ok, q, s)
     r = dr.norm(q - s)
-    weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
     if o.planes:
-        # A ray recorded where it crosses a deeper plane left that pixel from a point spread over the pixel, not
-        # from its centre, so near the cone's edge the image points it samples are those of a cone blurred by
-        # the pixel: keep those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them
-        # inside its cone), which makes the estimate unbiased again (docs/physics.md).
-        cos_c = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
+        # A recorded ray crossed its plane's pixel at a point spread over the pixel (its origin was), not at the
+        # centre, so near the cone's edge the image points it samples are those of a cone blurred by the pixel:
+        # keep those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them inside its
+        # cone), which makes the estimate unbiased again (docs/physics.md). Angles are seen from the centre.
+        cos_t = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
         frac = _pixel_fraction_in_cone(mi, q - s, o.cos_max, o.pitch)
-        keep = ~shifted | (frac > 0)
-        ok &= keep
-        weight = dr.select(shifted, dr.select(keep, (o.omega / F64(o.N)) * r / cos_c / dr.maximum(frac, 1e-3), 0.0),
-                           weight)
-        cos_t = dr.select(shifted, cos_c, cos_t)  # the per-color cone test below, seen from the centre
+        ok &= frac > 0
+        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t / dr.maximum(frac, 1e-3), 0.0)
+    else:
+        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
     parts = []
     for c in range(len(g.ks)):
         inside = cos_t >= o.cos_lim[c] - 1e-15
@@ -491,10 +482,10 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
         parts += [amp * cs, amp * sn]
     idx = None
     if want_cells:
-        j = dr.round(q.x / o.pitch + (o.Wb - 1.0) * 0.5)
-        i = dr.round((o.Hb - 1.0) * 0.5 - q.y / o.pitch)
-        j, i = j - o.Wb * dr.floor(j / o.Wb), i - o.Hb * dr.floor(i / o.Hb)  # periodic wrap (DESIGN §4)
-        idx = mi.UInt32(i) * o.Wbu + mi.UInt32(j)
+        j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
+        i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
+        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
+        idx = mi.UInt32(i) * o.W + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
     # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
     status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)

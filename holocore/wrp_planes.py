@@ -7,8 +7,8 @@ band-limited ASM. Plane 0 is the WRP (z_wrp, in front of everything); planes 1..
 Plane k records the image points with hologram depth z in (z_k+1 - margin, z_k - margin] (plane 0: up to
 z_wrp, the last plane: everything behind).
 
-Placement minimises the luminance-weighted mean squared distance of the image points (the analysis' depth
-samples) to their planes: the best plane for a group of points lies one margin in front of the group's
+Placement minimises the mean squared distance of the image points (the analysis' depth
+samples, luminance-weighted quantiles) to their planes: the best plane for a group of points lies one margin in front of the group's
 frontmost point, so the candidates are the samples themselves and a small dynamic programme is exact.
 The rays still start on the WRP (one trace for all planes): each ray's contribution is recorded where it
 crosses the plane that records its image point, so K planes cost one trace and K - 1 ASMs, and ``auto`` adds
@@ -67,49 +67,41 @@ class WrpPlanes:
     def noise_energy(self, depths_m: Sequence[float]) -> list[float]:
         """Per plane, sum of r^2 over the (luminance-quantile) depth samples it records, r their distance to
         it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (DESIGN §4)."""
-        d = np.asarray(depths_m, dtype=np.float64)
-        out = []
-        for k, z in enumerate(self.z_m):
-            lo, hi = self.slab(k)
-            sel = d[(d > lo) & (d <= hi)]
-            out.append(float(np.sum(np.maximum(z - sel, self.margin_m) ** 2)))
-        return out
+        k, r = self._assign(depths_m)
+        return [float(v) for v in np.bincount(k, np.maximum(r, self.margin_m) ** 2, minlength=self.count)]
 
     def farthest_distance_m(self, depths_m: Sequence[float]) -> float:
         """The largest distance from an image point (hologram depths) to the plane that records it."""
-        d = np.asarray(depths_m, dtype=np.float64)
-        if d.size == 0:
-            return 0.0
-        return float(np.max(self._distances(d)))
+        _k, r = self._assign(depths_m)
+        return float(r.max()) if r.size else 0.0
 
-    def _distances(self, d: np.ndarray) -> np.ndarray:
-        out = np.full(d.shape, np.nan)
+    def _assign(self, depths_m: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """For the depths inside some slab: the plane that records each, and its distance to that plane."""
+        d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
+        ks, rs = [], []
         for k, z in enumerate(self.z_m):
             lo, hi = self.slab(k)
-            sel = (d > lo) & (d <= hi)
-            out[sel] = z - d[sel]
-        return np.where(np.isnan(out), 0.0, out)
+            sel = d[(d > lo) & (d <= hi)]
+            ks.append(np.full(sel.size, k))
+            rs.append(z - sel)
+        return np.concatenate(ks).astype(np.int64), np.concatenate(rs)
 
 
-def place_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, z_wrp_m: float, margin_m: float,
-                 count: int) -> WrpPlanes:
-    """``count`` planes (the first at z_wrp_m) minimising sum w (z_plane - z)^2 over the depth samples.
+def place_planes(depths_m: Sequence[float], *, z_wrp_m: float, margin_m: float, count: int) -> WrpPlanes:
+    """``count`` planes (the first at z_wrp_m) minimising sum (z_plane - z)^2 over the depth samples.
 
-    depths_m: hologram depths of image points (m); weights: their luminance (None: equal). Fewer planes come
-    back when the samples cannot use more (a plane needs points behind it, and distinct positions)."""
+    depths_m: hologram depths of image points (m), luminance-weighted quantiles (so each counts once). Fewer
+    planes come back when the samples cannot use more (a plane needs points behind it, and distinct positions)."""
     if not 1 <= count <= MAX_WRP_PLANES:
         raise ValueError(f"wrp planes must be 1..{MAX_WRP_PLANES}, got {count}")
-    d = np.asarray(depths_m, dtype=np.float64)
-    w = np.ones_like(d) if weights is None else np.asarray(weights, dtype=np.float64)
-    keep = np.isfinite(d) & np.isfinite(w) & (w >= 0) & (d < z_wrp_m)
-    d, w = d[keep], w[keep]
+    d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
+    d = d[np.isfinite(d) & (d < z_wrp_m)]
     if count == 1 or d.size == 0:
         return WrpPlanes((float(z_wrp_m),), float(margin_m))
-    order = np.argsort(-d, kind="stable")  # front to back
-    d, w = d[order], w[order]
+    d = np.sort(d)[::-1]  # front to back
     n = d.size
     # Prefix sums: the cost of samples i..j-1 recorded on a plane at P is S0 P^2 - 2 S1 P + S2.
-    c0, c1, c2 = (np.concatenate([[0.0], np.cumsum(w * d ** p)]) for p in (0, 1, 2))
+    c0, c1, c2 = (np.concatenate([[0.0], np.cumsum(d ** p)]) for p in (0, 1, 2))
 
     def cost(i: int, j: int, P: float) -> float:
         s0, s1, s2 = c0[j] - c0[i], c1[j] - c1[i], c2[j] - c2[i]
@@ -146,15 +138,15 @@ def place_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, 
     return WrpPlanes(tuple(z), float(margin_m))
 
 
-def choose_planes(depths_m: Sequence[float], weights: Sequence[float] | None, *, z_wrp_m: float, margin_m: float,
+def choose_planes(depths_m: Sequence[float], *, z_wrp_m: float, margin_m: float,
                   max_count: int = MAX_WRP_PLANES) -> WrpPlanes:
     """``auto``: one trace feeds every plane, so more planes only lower the noise (:meth:`WrpPlanes.noise_energy`,
     summed); each costs one ASM of the field and a scratch copy of it, so a plane is added only while it cuts
     the noise by at least 15%."""
-    best = place_planes(depths_m, weights, z_wrp_m=z_wrp_m, margin_m=margin_m, count=1)
+    best = place_planes(depths_m, z_wrp_m=z_wrp_m, margin_m=margin_m, count=1)
     best_e = sum(best.noise_energy(depths_m))
     for k in range(2, max(1, min(max_count, MAX_WRP_PLANES)) + 1):
-        planes = place_planes(depths_m, weights, z_wrp_m=z_wrp_m, margin_m=margin_m, count=k)
+        planes = place_planes(depths_m, z_wrp_m=z_wrp_m, margin_m=margin_m, count=k)
         if planes.count <= best.count:
             break
         e = sum(planes.noise_energy(depths_m))

@@ -24,7 +24,7 @@ def _slab_of(planes: WrpPlanes, z: float) -> list[int]:
 
 def test_planes_sit_one_margin_in_front_of_each_cluster_and_slabs_partition():
     depths = [0.0905] * 5 + [0.086] * 20 + [0.0815] * 40
-    planes = place_planes(depths, None, z_wrp_m=Z_WRP, margin_m=MARGIN, count=3)
+    planes = place_planes(depths, z_wrp_m=Z_WRP, margin_m=MARGIN, count=3)
     assert planes.z_m[0] == Z_WRP
     assert planes.z_m[1:] == pytest.approx((0.087, 0.0825))
     for z in np.linspace(0.07, Z_WRP, 400):  # every depth is recorded by exactly one plane
@@ -37,18 +37,18 @@ def test_planes_sit_one_margin_in_front_of_each_cluster_and_slabs_partition():
 
 def test_more_planes_never_cost_more_and_extra_planes_are_dropped():
     depths = [0.0905] * 5 + [0.086] * 20 + [0.0815] * 40
-    e = [sum(place_planes(depths, None, z_wrp_m=Z_WRP, margin_m=MARGIN, count=k).noise_energy(depths))
+    e = [sum(place_planes(depths, z_wrp_m=Z_WRP, margin_m=MARGIN, count=k).noise_energy(depths))
          for k in (1, 2, 3)]
     assert e[0] > e[1] > e[2]
     # the WRP and one plane a margin in front of each of the three depths; no more
-    assert place_planes(depths, None, z_wrp_m=Z_WRP, margin_m=MARGIN, count=8).count == 4
-    assert place_planes([], None, z_wrp_m=Z_WRP, margin_m=MARGIN, count=4).count == 1  # a black scene
+    assert place_planes(depths, z_wrp_m=Z_WRP, margin_m=MARGIN, count=8).count == 4
+    assert place_planes([], z_wrp_m=Z_WRP, margin_m=MARGIN, count=4).count == 1  # a black scene
 
 
 def test_auto_takes_planes_for_depth_and_one_for_a_flat_scene():
     kw = dict(z_wrp_m=Z_WRP, margin_m=MARGIN)
-    deep = choose_planes([0.0905] * 5 + [0.086] * 20 + [0.0815] * 40, None, **kw)
-    flat = choose_planes([Z_WRP - MARGIN] * 30, None, **kw)
+    deep = choose_planes([0.0905] * 5 + [0.086] * 20 + [0.0815] * 40, **kw)
+    flat = choose_planes([Z_WRP - MARGIN] * 30, **kw)
     assert deep.count >= 3 and flat.count == 1
 
 
