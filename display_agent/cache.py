@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
 
-from display_agent.stack import Stack, StackError, open_stack
+from holocore.formats import Stack, StackError, open_stack
 
 __all__ = ["CacheEntry", "StackCache", "safe_job_id"]
 

@@ -26,7 +26,7 @@ from display_agent.phasemap import PhaseMapping
 from display_agent.playback import Player
 from display_agent.service_client import BadStack, CorruptDownload, ServiceClient, ServiceError, TransientError
 from display_agent.slm.base import SLM, open_slm
-from display_agent.stack import Stack
+from holocore.formats import Stack
 
 __all__ = ["Agent"]
 

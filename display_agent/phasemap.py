@@ -1,7 +1,8 @@
 """Phase -> SLM gray level, per colour (DESIGN.md §2).
 
 The service stores the phase before any table. The default level is ``round(phase / 2pi * 256) mod 256``
-(the semantics of ``holocore.io.phase_to_u8``). Two per-wavelength calibrations are supported:
+(``holocore.formats.phase_to_u8``; the levels and the table files are read by ``holocore.formats``). Two
+per-wavelength calibrations are supported:
 
 - a lookup table: level -> gray, 256 entries per colour. Files use the encoder's format
   (docs/encoding.md): JSON ``{"luts": [{"wavelength_nm": 640.0, "table": [256 ints]}, ...]}`` matched to
@@ -13,68 +14,17 @@ The service stores the phase before any table. The default level is ``round(phas
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
 import numpy as np
 
-__all__ = ["PhaseMapping", "phase_levels", "load_lut_file"]
+from holocore.formats import LutEntry, load_lut_file, phase_levels
 
-_TWO_PI = 2.0 * np.pi
+__all__ = ["PhaseMapping"]
+
 _MATCH_NM = 1.0
-
-
-def phase_levels(phase: np.ndarray, *, levels_per_2pi: int = 256) -> np.ndarray:
-    """uint8 levels ``round(phase / 2pi * L) mod L`` (float64 arithmetic, as ``holocore.io.phase_to_u8``)."""
-    if not (2 <= int(levels_per_2pi) <= 256):
-        raise ValueError(f"levels_per_2pi must be in [2, 256], got {levels_per_2pi}")
-    p = np.asarray(phase, dtype=np.float64)
-    if not np.all(np.isfinite(p)):
-        raise ValueError("phase holds NaN or infinite values")
-    lv = int(levels_per_2pi)
-    return (np.round(p / _TWO_PI * lv).astype(np.int64) % lv).astype(np.uint8)
-
-
-def _check_table(name: str, table: object) -> np.ndarray:
-    arr = np.asarray(table)
-    if arr.shape != (256,):
-        raise ValueError(f"{name} must hold 256 entries, got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must hold finite numbers")
-    if np.any(arr != np.round(arr)) or arr.min() < 0 or arr.max() > 255:
-        raise ValueError(f"{name} entries must be integers in [0, 255]")
-    return arr.astype(np.uint8)
-
-
-def load_lut_file(path: Union[str, Path]) -> list[tuple[Optional[float], np.ndarray]]:
-    """Read a calibration file -> [(wavelength_nm or None, uint8[256]), ...] (None: any colour / by index)."""
-    path = Path(path)
-    try:
-        if path.suffix.lower() == ".npy":
-            arr = np.load(path, allow_pickle=False)
-            if arr.ndim == 1:
-                return [(None, _check_table(f"{path}", arr))]
-            if arr.ndim == 2:
-                return [(None, _check_table(f"{path}[{c}]", arr[c])) for c in range(arr.shape[0])]
-            raise ValueError(f"{path}: a .npy lookup table must be [256] or [C, 256], got shape {arr.shape}")
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read lookup table {path}: {exc}") from exc
-    entries = doc.get("luts") if isinstance(doc, dict) else None
-    if not isinstance(entries, list) or not entries:
-        raise ValueError(f"{path}: a JSON lookup table needs a non-empty list 'luts' of "
-                         "{\"wavelength_nm\": float, \"table\": [256 integers]}")
-    out: list[tuple[Optional[float], np.ndarray]] = []
-    for i, e in enumerate(entries):
-        if not isinstance(e, dict):
-            raise ValueError(f"{path}: luts[{i}] must be an object")
-        wl = e.get("wavelength_nm")
-        if wl is not None and not (isinstance(wl, (int, float)) and np.isfinite(wl) and wl > 0):
-            raise ValueError(f"{path}: luts[{i}].wavelength_nm must be a positive number, got {wl!r}")
-        out.append((None if wl is None else float(wl), _check_table(f"{path}: luts[{i}].table", e.get("table"))))
-    return out
 
 
 @dataclass(frozen=True)
@@ -84,7 +34,7 @@ class PhaseMapping:
     ``tables``: from :func:`load_lut_file` (None: no table). ``levels_per_2pi``: one scale for all colours
     or one per colour (used only without tables)."""
 
-    tables: Optional[tuple[tuple[Optional[float], np.ndarray], ...]] = None
+    tables: Optional[tuple[LutEntry, ...]] = None
     levels_per_2pi: Union[int, tuple[int, ...]] = 256
     source: str = "default"
 

@@ -19,7 +19,7 @@ from typing import Any, Optional
 import httpx
 
 from display_agent.cache import StackCache, safe_job_id
-from display_agent.stack import Stack, StackError, open_stack
+from holocore.formats import Stack, StackError, open_stack
 
 __all__ = ["ServiceError", "TransientError", "CorruptDownload", "BadStack", "ServiceClient", "FetchResult"]
 

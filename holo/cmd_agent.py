@@ -105,7 +105,7 @@ def agent(
 
 def _load_local(stack: Path, lut: Optional[Path], levels_per_2pi: Optional[str]):
     from display_agent.phasemap import PhaseMapping
-    from display_agent.stack import StackError, open_stack
+    from holocore.formats import StackError, open_stack
 
     try:
         st = open_stack(stack)

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from display_agent.phasemap import PhaseMapping, load_lut_file, phase_levels
+from display_agent.phasemap import PhaseMapping
+from holocore.formats import load_lut_file, phase_levels
 from holocore.io import phase_to_u8
 from tests.agent.helpers import WAVELENGTHS_M, make_phase
 

@@ -12,7 +12,7 @@ import pytest
 
 from display_agent.backoff import Backoff
 from display_agent.cache import StackCache, safe_job_id
-from display_agent.stack import StackError, open_stack, sha256_file
+from holocore.formats import StackError, open_stack
 from holocore.io import file_sha256, save_stack
 from tests.agent.helpers import WAVELENGTHS_M, make_phase
 
@@ -26,7 +26,7 @@ def stack_file(tmp_path):
 
 def test_open_stack_accepts_a_service_stack(stack_file):
     st = open_stack(stack_file, expected_sha256=file_sha256(stack_file))
-    assert st.shape == (2, 3, 12, 10) and st.sha256 == sha256_file(stack_file)
+    assert st.shape == (2, 3, 12, 10) and st.sha256 == file_sha256(stack_file)
     assert st.wavelengths_m == WAVELENGTHS_M and st.phase.dtype == np.float32
 
 
@@ -92,7 +92,7 @@ def test_cache_install_lookup_evict_and_damage(tmp_path, stack_file):
     for i in range(3):
         src = tmp_path / f"in{i}.npz"
         save_stack(src, phase=make_phase((1, 3, 4, 4), seed=10 + i), meta={"wavelengths_m": WAVELENGTHS_M})
-        sha = sha256_file(src)
+        sha = file_sha256(src)
         shas.append(sha)
         e = cache.install(f"job{i}", src, sha256=sha, etag=f'"{sha}"')
         assert e.path.name == f"{sha}.npz" and not src.exists()  # moved, not copied

@@ -1,14 +1,14 @@
-"""Opening and checking a STACK.npz (the service's artifact, format of holocore/io.py) with numpy alone.
+"""STACK.npz (from `holo encode`): ``phase`` float32 ``[F, C, H, W]`` in [0, 2pi), ``frames_u8`` uint8 of the
+same shape, ``meta`` (the render's meta carried forward plus the encoder's under ``"encoder"``).
 
-A stack is accepted only if: the file opens as an npz without pickles, ``phase`` is float [F, C, H, W] with
-finite values in [0, 2pi], ``frames_u8`` is uint8 of the same shape, ``meta`` is JSON whose
-``wavelengths_m`` lists C positive wavelengths. Anything else raises :class:`StackError`: the agent never
-shows such a file.
+:func:`save_stack` / :func:`load_stack` write and read one; :func:`open_stack` reads one from elsewhere (a
+download, a cache) and accepts it only if: the file opens as an npz without pickles, ``phase`` is float
+[F, C, H, W] with finite values in [0, 2pi], ``frames_u8`` is uint8 of the same shape, ``meta`` is JSON whose
+``wavelengths_m`` lists C positive wavelengths. Anything else raises :class:`StackError`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import zipfile
 from dataclasses import dataclass, field
@@ -17,9 +17,32 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-__all__ = ["StackError", "Stack", "open_stack", "sha256_file"]
+from holocore.formats.hashing import file_sha256
+from holocore.formats.levels import phase_to_u8
+from holocore.formats.npz import atomic_savez, require_fchw
 
-_MAX_BYTES_DEFAULT = 4 << 30
+__all__ = ["save_stack", "load_stack", "Stack", "StackError", "open_stack", "check_stack", "MAX_STACK_BYTES"]
+
+MAX_STACK_BYTES = 4 << 30
+
+
+def save_stack(path: str | Path, *, phase: np.ndarray, meta: dict, frames_u8: np.ndarray | None = None) -> None:
+    """Save a phase stack [F, C, H, W] (wrapped to [0, 2pi), float32) with its 8-bit frames and meta."""
+    ph = np.mod(np.asarray(phase, dtype=np.float64), 2 * np.pi).astype(np.float32)
+    ph[ph >= np.float32(2 * np.pi)] = 0.0  # float32 rounding of values just under 2pi
+    require_fchw("phase", ph)
+    u8 = phase_to_u8(ph) if frames_u8 is None else np.asarray(frames_u8, dtype=np.uint8)
+    if u8.shape != ph.shape:
+        raise ValueError(f"frames_u8 shape {u8.shape} differs from phase shape {ph.shape}")
+    atomic_savez(Path(path), phase=ph, frames_u8=u8, meta=np.array(json.dumps(meta)))
+
+
+def load_stack(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Load STACK.npz -> (phase, frames_u8, meta)."""
+    with np.load(path, allow_pickle=False) as z:
+        if "phase" not in z or "frames_u8" not in z or "meta" not in z:
+            raise ValueError(f"{path} is not a phase stack (needs phase, frames_u8, meta)")
+        return z["phase"], z["frames_u8"], json.loads(str(z["meta"]))
 
 
 class StackError(ValueError):
@@ -45,17 +68,8 @@ class Stack:
         return [float(w) for w in self.meta["wavelengths_m"]]
 
 
-def sha256_file(path: Union[str, Path]) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
-               max_bytes: int = _MAX_BYTES_DEFAULT) -> Stack:
+               max_bytes: int = MAX_STACK_BYTES) -> Stack:
     """Load and check a STACK.npz; ``expected_sha256`` (hex) must match the file if given."""
     path = Path(path)
     try:
@@ -64,7 +78,7 @@ def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
         raise StackError(f"cannot read stack {path}: {exc}") from exc
     if size > max_bytes:
         raise StackError(f"stack {path} is {size} bytes, over the {max_bytes}-byte limit")
-    digest = sha256_file(path)
+    digest = file_sha256(path)
     if expected_sha256 is not None and digest != expected_sha256.lower():
         raise StackError(f"stack {path.name}: sha256 {digest[:16]}.. differs from the expected "
                          f"{expected_sha256[:16]}..")
@@ -84,11 +98,12 @@ def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
         meta: Any = json.loads(str(meta_raw))
     except (json.JSONDecodeError, TypeError) as exc:
         raise StackError(f"stack {path.name}: meta is not JSON: {exc}") from exc
-    _check(path.name, phase, frames, meta)
+    check_stack(path.name, phase, frames, meta)
     return Stack(path=path, sha256=digest, phase=phase.astype(np.float32, copy=False), frames_u8=frames, meta=meta)
 
 
-def _check(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> None:
+def check_stack(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> None:
+    """StackError (naming ``name``) unless phase, frames_u8 and meta form a consistent stack."""
     if phase.ndim != 4 or min(phase.shape, default=0) < 1:
         raise StackError(f"stack {name}: phase must be a non-empty [F, C, H, W], got shape {phase.shape}")
     if not np.issubdtype(phase.dtype, np.floating):
