@@ -1,32 +1,18 @@
-"""The encoder's propagation operator and its optimiser, for one color and a block of frames (DESIGN.md §6).
+"""The phase-only encoder's optimiser, for one color and a block of frames (DESIGN.md §6).
 
-Operator. A_z u = crop( IFFT{ M . FFT{pad(u)} } ), M = H_z . K: the band-limited ASM transfer function
-(``propagation.transfer_function``; Matsushima & Shimobaba 2009, Eq. 13) times K, the recording cone's disc
-(``supervision="cone"``: a display with a Fourier filter) or 1 (``"full"``: everything the SLM sends). The
-inverse DFT is a forward one, IFFT(X) = conj(FFT(conj X)) / N, so no ifft is ever called (torch 2.13's CPU
-ifft2 is wrong on some grids, see ``propagation.ifft2``); the last conjugation rides on the crop copy.
-A_-z = A_z^H for the full band (H_-z = conj H_z on the propagating components), so the ideal SLM field
-u0 = A_-z U_t and the gradient use the same two multipliers.
-
-Padding (why less than 2x is exact). A plane wave of spatial frequency (f_x, f_y) travels with direction
-cosines (lambda f_x, lambda f_y) (the angular spectrum, Goodman, Introduction to Fourier Optics, Eq. 3-59), so
-over a distance z it moves sideways by z lambda f_x / sqrt(1 - lambda^2 (f_x^2 + f_y^2)). On the SLM's grid
-|f_x|, |f_y| <= 1/(2p): with s = lambda / (2p) the spread is at most
-
-    r = z s / sqrt(1 - 2 s^2)   (the cone alone: z s / sqrt(1 - s^2); s^2 << 1 gives lambda z / (2p))
-
-The ASM is a circular convolution on the padded period N_p. An output pixel inside the H x W window receives
-from input pixels at most r away; a wrapped contribution lands inside the window only if N_p < n + r. So
-N_p >= n + r (+ a few pixels for the tails of the hard band edge) is exact, and when n >= r it also keeps
-Eq. 13's limit, tan(theta_lim) = N_p p / (2 z), beyond the band (N_p >= 2r). We take the smallest 7-smooth
-size >= n + r + 8 + n/64, and never more than the 2x grid of ``propagation.padded_shape``.
+The operator A_z (band-limited ASM on the encoder's padded grid, its adjoint, and why less than 2x padding is
+exact) is :mod:`holocore.encoding_op`; ``Operator``, ``encoder_grid`` and ``spread_px`` are re-exported here.
 
 Loss and gradient, per (frame, color) b, with t the unit-norm band-limited target and p = A_z u:
 a = <t, p>, e = ||p||^2, rho^2 = |a|^2 / e, q = (e / HW)^w (w: ``efficiency_weight``), objective
 O = 1 - q rho^2 (w = 0: E = 1 - rho^2). Its Wirtinger gradient is dO/dp* = -(q/e)(a t - (1 - w) rho^2 p), so
 dO/du* = A^H dO/dp* and, with u = exp(i phi), dO/dphi = 2 Im(conj(u) dO/du*). Written out this way one
-iteration is two padded FFT pairs (forward, adjoint) and a few passes over the H x W grid: no autograd tape.
-The gradient is scaled by HW so that Adam's eps stays negligible at every size (Adam is otherwise scale-free).
+iteration is four padded ``fft2`` (Eqs. 1-2 of :mod:`holocore.encoding_op`), two multiplies on the padded grid
+and seven passes over H x W: cos and sin, u = exp(i phi) straight into the FFT input, the crop copy of J p, the two dots per item,
+dO/dp* straight into the adjoint's input, the gradient, fused Adam. No autograd tape. The WRP-side fields
+(t, p, dO/dp*) are held flipped (J; the dots do not depend on the order), the SLM side (phi, u, the gradient)
+in natural order. The gradient is scaled by 2 HW so that Adam's eps stays negligible at every size (Adam is
+otherwise scale-free).
 
 Adam, per element (Kingma & Ba 2015; the same update as ``torch.optim.Adam``). Each (frame, color) has its
 own stop rule: every 10 iterations its field SNR, 10 log10((1 - O) / O) dB, is compared with the value 30
@@ -44,81 +30,14 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from holocore.propagation import PitchLike, _pitch_pair, _smooth_at_least, padded_shape, transfer_function
-from holocore.randomfield import passband_mask
+from holocore.encoding_op import Operator, encoder_grid, flip, spread_px
+
+__all__ = ["Operator", "encoder_grid", "spread_px", "inner_energy", "optimise", "SgdOutcome"]
 
 CHECK_EVERY = 10  # iterations between stop-rule checks
 WINDOW_CHECKS = 3  # the stop rule compares with the value this many checks (30 iterations) before
 _BETAS = (0.9, 0.999)
 _EPS = 1e-8
-
-
-def spread_px(z_m: float, wavelength_m: float, pitch_m: PitchLike) -> int:
-    """Sideways reach r (pixels) of the full-band ASM over |z|: ceil(|z| s / (p sqrt(1 - 2 s^2))), s = lambda/2p
-    (module docstring); -1 when the band contains evanescent corners (2 s^2 >= 1): no finite bound."""
-    py, px = _pitch_pair(pitch_m)
-    p = min(py, px)
-    s = wavelength_m / (2.0 * p)
-    if 2.0 * s * s >= 1.0:
-        return -1
-    return int(math.ceil(abs(z_m) * s / (p * math.sqrt(1.0 - 2.0 * s * s)) - 1e-9))
-
-
-def encoder_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike) -> tuple[int, int]:
-    """Padded FFT grid (rows, cols) of the encoder's ASM: the smallest 7-smooth n + r + 8 + n/64, at most 2x."""
-    full = padded_shape(shape_hw, 2)
-    r = spread_px(z_m, wavelength_m, pitch_m)
-    if r < 0:
-        return full
-    return tuple(min(_smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore
-
-
-class Operator:
-    """A_z for one color on a fixed H x W window and padded grid, with reusable zero-padded workspaces."""
-
-    def __init__(self, shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike, *,
-                 cone: bool, device: torch.device, grid: Optional[tuple[int, int]] = None) -> None:
-        self.h, self.w = shape_hw
-        self.hp, self.wp = grid or encoder_grid(shape_hw, z_m, wavelength_m, pitch_m)
-        tf = transfer_function((self.hp, self.wp), z_m, wavelength_m, pitch_m, device=device)
-        if cone:
-            tf.mul_(torch.from_numpy(passband_mask((self.hp, self.wp), wavelength_m, pitch_m)).to(device))
-        # IFFT(S M) = conj(FFT(conj(S) conj(M))) / N: the multipliers hold conj(M) / N (and M / N for A^H).
-        self.mult = tf.conj_physical_().div_(self.hp * self.wp)
-        self.mult_adj = self.mult.conj().resolve_conj()
-        self._ws: dict[str, torch.Tensor] = {}
-        self._owner: Optional["Operator"] = None
-
-    def share_buffers(self, other: "Operator") -> None:
-        """Use ``other``'s workspaces (same grid): one set per color, whatever the number of operators."""
-        assert (self.hp, self.wp) == (other.hp, other.wp)
-        self._owner = other
-
-    def workspace(self, name: str, b: int, device: torch.device) -> torch.Tensor:
-        """Zero-padded [b, Hp, Wp] buffer ``name`` ('in', 'adj' or 'spec'); only [:, :H, :W] is ever written
-        into the input ones, so the rest stays zero."""
-        ws = (self._owner or self)._ws
-        buf = ws.get(name)
-        if buf is None or buf.shape[0] < b:
-            buf = ws[name] = torch.zeros((b, self.hp, self.wp), dtype=torch.complex64, device=device)
-        return buf[:b]
-
-    def window(self, name: str, b: int, device: torch.device) -> torch.Tensor:
-        """The [b, H, W] window of workspace ``name``: write an input there and call :meth:`apply`."""
-        return self.workspace(name, b, device)[:, :self.h, :self.w]
-
-    def apply(self, name: str, b: int, device: torch.device, *, adjoint: bool = False) -> torch.Tensor:
-        """A (or A^H) of what workspace ``name`` holds; a new [b, H, W] tensor."""
-        spec = self.workspace("spec", b, device)
-        torch.fft.fft2(self.workspace(name, b, device), out=spec)
-        spec.conj_physical_().mul_(self.mult_adj if adjoint else self.mult)
-        return torch.conj_physical(torch.fft.fft2(spec)[..., :self.h, :self.w])
-
-    def __call__(self, u: torch.Tensor, *, adjoint: bool = False) -> torch.Tensor:
-        """A u (or A^H u) for u complex64 [B, H, W]; a new [B, H, W] tensor."""
-        b = u.shape[0]
-        self.window("in", b, u.device).copy_(u)
-        return self.apply("in", b, u.device, adjoint=adjoint)
 
 
 def inner_energy(t: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -189,17 +108,18 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
     dev = phi0.device
     idx = torch.from_numpy(active).to(dev)
     phi = phi0.index_select(0, idx).contiguous()
-    t = t_unit.index_select(0, idx).contiguous()
+    t = flip(t_unit.index_select(0, idx))  # J t: the WRP side is held flipped (encoding_op, Eq. 1)
     opt = _adam(phi, lr, None)
     w_eff = float(efficiency_weight)
     with torch.no_grad():
-        cos, sin = torch.empty_like(phi), torch.empty_like(phi)
+        p = torch.empty_like(t)
+        cos, sin, grad = torch.empty_like(phi), torch.empty_like(phi), torch.empty_like(phi)
         for it in range(1, iterations + 1):
             n = phi.shape[0]
             torch.cos(phi, out=cos)
             torch.sin(phi, out=sin)
-            torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the workspace
-            p = op.apply("in", n, dev)
+            torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the FFT input
+            p.copy_(op.apply("in", n, dev))  # J A u (the crop copy; the padded result is freed)
             a, e = inner_energy(t, p)
             e = e.clamp_min(1e-30)
             rho2 = (a.real.square() + a.imag.square()) / e
@@ -207,12 +127,13 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
             obj = 1.0 - q * rho2
             if it == 1:
                 loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
-            c1 = (-(q / e) * a * hw)[:, None, None]  # dO/dp* = c1 t + c2 p, times HW
-            c2 = ((q / e) * (1.0 - w_eff) * rho2 * hw).to(p.dtype)[:, None, None]
+            c1 = (-2.0 * hw * (q / e) * a)[:, None, None]  # 2 HW dO/dp* = c1 t + c2 p, flipped like t and p
+            c2 = (2.0 * hw * (q / e) * (1.0 - w_eff) * rho2)[:, None, None]  # real: a cheaper multiply
             torch.mul(p, c2, out=op.window("adj", n, dev)).addcmul_(t, c1)
-            gu = op.apply("adj", n, dev, adjoint=True)
-            grad = torch.mul(cos, gu.imag)  # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g)
-            phi.grad = grad.addcmul_(sin, gu.real, value=-1.0).mul_(2.0)
+            gu = op.apply("adj", n, dev, adjoint=True)  # 2 HW dO/du*, natural order (Eq. 2)
+            # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g); the 2 rides on c1, c2
+            phi.grad = torch.mul(cos, gu.imag, out=grad).addcmul_(sin, gu.real, value=-1.0)
+            del gu
             opt.step()
             iters[active] = it
             if it % CHECK_EVERY and it != iterations:
@@ -239,7 +160,7 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
                 opt = _adam(phi, lr, {k: (v.index_select(0, sel).contiguous() if v.dim() else v.clone())
                                       for k, v in state.items()})
                 t = t.index_select(0, sel).contiguous()
-                cos, sin = cos[: len(sel)], sin[: len(sel)]
+                p, cos, sin, grad = p[: len(sel)], cos[: len(sel)], sin[: len(sel)], grad[: len(sel)]
         if active.size:
             phi_out.index_copy_(0, idx, phi)
     return SgdOutcome(phi_out, iters, conv, trace, loss_init)

@@ -364,12 +364,65 @@ def test_stop_rule_in_decibels():
     assert np.all(snr(long.loss) - snr(stopped.loss) < 0.5), snr(long.loss) - snr(stopped.loss)
 
 
+def _plain_operator(shape_hw, z, lam, pitch, grid, cone):
+    """The plain padded ASM operator of DESIGN §5 in complex128 numpy: crop(IFFT(M FFT(pad u))) and its
+    adjoint crop(IFFT(conj(M) FFT(pad g))), M the band-limited transfer function (times the cone's disc)."""
+    from holocore.propagation import transfer_function
+    from holocore.randomfield import passband_mask
+
+    m = transfer_function(grid, z, lam, pitch, dtype=torch.complex128).numpy()
+    if cone:
+        m = m * passband_mask(grid, lam, pitch)
+    h, w = shape_hw
+
+    def run(u, mult):
+        pad = np.zeros(u.shape[:-2] + tuple(grid), np.complex128)
+        pad[..., :h, :w] = u
+        return np.fft.ifft2(np.fft.fft2(pad) * mult)[..., :h, :w]  # numpy's ifft2 (the torch bug is torch's)
+
+    return (lambda u: run(u, m)), (lambda g: run(g, m.conj()))
+
+
+@pytest.mark.parametrize("cone", [True, False])
+@pytest.mark.parametrize("shape, grid", [((24, 37), None), ((19, 30), (45, 49))])
+def test_encoder_operator_is_the_plain_padded_asm(cone, shape, grid):
+    """The encoder's two-forward-DFT operator (encoding_op, Eqs. 1-2: no conjugation, no ifft, flipped WRP
+    side) equals the plain padded ASM and its adjoint: to complex128 rounding in complex128, to complex64
+    rounding in complex64, on even, odd and non-square grids; and <A u, v> = <u, A^H v>."""
+    from holocore.encoding_op import Operator, flip
+
+    z, lam = 1e-3, 640e-9
+    g = torch.Generator().manual_seed(3)
+    u = torch.randn(2, *shape, dtype=torch.complex128, generator=g)
+    v = torch.randn(2, *shape, dtype=torch.complex128, generator=g)
+    op = Operator(shape, z, lam, P, cone=cone, device=torch.device("cpu"), grid=grid, dtype=torch.complex128)
+    fwd, adj = _plain_operator(shape, z, lam, P, (op.hp, op.wp), cone)
+    au, ahv = fwd(u.numpy()), adj(v.numpy())
+    scale = float(np.abs(au).max())
+    assert np.abs(op(u).numpy() - au).max() < 1e-12 * scale
+    assert np.abs(op(v, adjoint=True).numpy() - ahv).max() < 1e-12 * float(np.abs(ahv).max())
+    # the hot path: natural u in -> J A u out; J g in -> A^H g out
+    op.window("in", 2, u.device).copy_(u)
+    assert np.abs(op.apply("in", 2, u.device).numpy() - flip(torch.from_numpy(au)).numpy()).max() < 1e-12 * scale
+    op.window("in", 2, u.device).copy_(flip(v))
+    assert np.abs(op.apply("in", 2, u.device, adjoint=True).numpy() - ahv).max() < 1e-12 * float(np.abs(ahv).max())
+    # adjoint identity in complex128
+    lhs, rhs = np.vdot(v.numpy(), op(u).numpy()), np.vdot(op(v, adjoint=True).numpy(), u.numpy())
+    assert abs(lhs - rhs) < 1e-12 * float(u.norm() * v.norm())
+    # complex64: the same operator to float32 rounding
+    op32 = Operator(shape, z, lam, P, cone=cone, device=torch.device("cpu"), grid=grid)
+    assert np.abs(op32(u.to(torch.complex64)).numpy() - au).max() < 2e-6 * float(u.abs().max()) * math.sqrt(u[0].numel())
+    assert np.abs(op32(v.to(torch.complex64), adjoint=True).numpy() - ahv).max() < 2e-6 * float(v.abs().max()) * math.sqrt(v[0].numel())
+
+
 @pytest.mark.parametrize("cone", [True, False])
 @pytest.mark.parametrize("w", [0.0, 0.3])
 def test_written_out_gradient_is_autograds(cone, w):
-    """The optimiser's hand-written gradient of O = 1 - (e/HW)^w |<t,p>|^2/e equals torch autograd's, and the
-    operator's adjoint is its adjoint."""
+    """The optimiser's hand-written gradient of O = 1 - (e/HW)^w |<t,p>|^2/e equals torch autograd's through
+    the plain padded ASM, and the operator's adjoint is its adjoint."""
     from holocore.encoding_sgd import Operator, inner_energy
+    from holocore.propagation import transfer_function
+    from holocore.randomfield import passband_mask
 
     h, wd = 24, 32
     op = Operator((h, wd), 1e-3, 520e-9, P, cone=cone, device=torch.device("cpu"))
@@ -380,10 +433,16 @@ def test_written_out_gradient_is_autograds(cone, w):
     t = y / y.abs().square().sum(dim=(-2, -1), keepdim=True).sqrt()
     phi = torch.randn(2, h, wd, generator=g)
     ph = phi.clone().requires_grad_(True)
+    m = transfer_function((op.hp, op.wp), 1e-3, 520e-9, P)
+    if cone:
+        m = m * torch.from_numpy(passband_mask((op.hp, op.wp), 520e-9, P))
     padded = torch.nn.functional.pad(torch.polar(torch.ones_like(ph), ph), (0, op.wp - wd, 0, op.hp - h))
-    p = torch.fft.fft2(torch.fft.fft2(padded).conj() * op.mult).conj()[..., :h, :wd]
+    # IFFT(X) = conj(FFT(conj X)) / N: the reference never calls torch's ifft either
+    p = torch.fft.fft2((torch.fft.fft2(padded) * m).conj()).conj()[..., :h, :wd] / (op.hp * op.wp)
     a, e = (t.conj() * p).sum(dim=(-2, -1)), p.abs().square().sum(dim=(-2, -1))
     (1 - (e / (h * wd)) ** w * a.abs().square() / e).sum().backward()
+    from holocore.encoding_sgd import optimise
+
     with torch.no_grad():
         u = torch.polar(torch.ones_like(phi), phi)
         p = op(u)
@@ -393,3 +452,9 @@ def test_written_out_gradient_is_autograds(cone, w):
                 adjoint=True)
         grad = 2 * (u.conj() * gu).imag
     assert float((grad - ph.grad).abs().max()) < 1e-5 * float(ph.grad.abs().max())
+    # the optimiser's own first step uses that gradient: Adam's first step is lr * sign(grad) (|grad| >> eps)
+    out = optimise(phi, t, op, lit=np.ones(2, bool), iterations=1, lr=0.01, stop_db=0.0, tol=None,
+                   efficiency_weight=w)
+    big = ph.grad.abs() > 1e-3 * float(ph.grad.abs().max())
+    step = (out.phase - phi)[big]
+    assert torch.allclose(step, -0.01 * torch.sign(ph.grad[big]), atol=1e-5)
