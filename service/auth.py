@@ -74,12 +74,9 @@ def create_token(db: Database, *, scopes: Iterable[str], name: str = "", owner: 
         raise ValueError("expiry must be more than 0 s and at most 10 years")
     token_id = secrets.token_hex(6)
     token = f"{_PREFIX}{token_id}_{secrets.token_urlsafe(32)}"
-    import json
-
     now = time.time()
-    db.execute("INSERT INTO tokens (id, hash, name, scopes, created_at, owner, expires_at) VALUES (?, ?, ?, ?, ?, "
-               "?, ?)", (token_id, _hash(token), name, json.dumps(scopes), now, owner,
-                         None if expires_in_s is None else now + expires_in_s))
+    db.insert_token(token_id=token_id, token_hash=_hash(token), name=name, scopes=scopes, created_at=now, owner=owner,
+                    expires_at=None if expires_in_s is None else now + expires_in_s)
     return token_id, token
 
 
@@ -87,7 +84,7 @@ def verify_token(db: Database, token: Optional[str]) -> Optional[Principal]:
     """The token's principal, or None for an unknown, malformed, expired or revoked token."""
     if not token or len(token) > 200 or not token.startswith(_PREFIX):
         return None
-    row = db.one("SELECT id, name, scopes, revoked, owner, expires_at FROM tokens WHERE hash = ?", (_hash(token),))
+    row = db.token_by_hash(_hash(token))
     if row is None or row["revoked"] or (row["expires_at"] is not None and row["expires_at"] <= time.time()):
         return None
     return Principal(token_id=row["id"], name=row["name"], scopes=frozenset(row["scopes"]),
@@ -95,9 +92,8 @@ def verify_token(db: Database, token: Optional[str]) -> Optional[Principal]:
 
 
 def revoke_token(db: Database, token_id: str) -> bool:
-    return db.execute("UPDATE tokens SET revoked = 1 WHERE id = ?", (token_id,)) > 0
+    return db.revoke_token(token_id)
 
 
 def list_tokens(db: Database) -> list[dict]:
-    return db.query("SELECT id, name, scopes, created_at, revoked, COALESCE(owner, 'default') AS owner, expires_at "
-                    "FROM tokens ORDER BY created_at")
+    return db.list_tokens()

@@ -180,6 +180,44 @@ class Database:
             counts[r["state"]] = r["n"]
         return counts
 
+    def running_jobs(self) -> list[dict]:
+        return self.query("SELECT * FROM jobs WHERE state = 'running'")
+
+    def succeeded_jobs_with_key(self, cache_key: str, limit: int = 5) -> list[dict]:
+        """The newest succeeded jobs with content address ``cache_key`` (newest first)."""
+        return self.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
+                          "ORDER BY finished_at DESC LIMIT ?", (cache_key, int(limit)))
+
+    # ---- idempotency keys ------------------------------------------------------------------------------
+    def get_idempotency(self, token_id: str, key: str) -> Optional[dict]:
+        """The record of ``key`` used by token ``token_id`` ({"body_hash", "job_id", ...}), or None."""
+        return self.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?", (token_id, key))
+
+    @staticmethod
+    def insert_idempotency(conn: sqlite3.Connection, *, token_id: str, key: str, body_hash: str, job_id: str,
+                           created_at: float) -> None:
+        """Record an idempotency key inside the transaction ``conn`` (IntegrityError if the key exists)."""
+        conn.execute("INSERT INTO idempotency (token_id, key, body_hash, job_id, created_at) VALUES (?, ?, ?, ?, ?)",
+                     (token_id, key, body_hash, job_id, created_at))
+
+    # ---- tokens ----------------------------------------------------------------------------------------
+    def insert_token(self, *, token_id: str, token_hash: str, name: str, scopes: list[str], created_at: float,
+                     owner: str, expires_at: Optional[float]) -> None:
+        self.execute("INSERT INTO tokens (id, hash, name, scopes, created_at, owner, expires_at) VALUES "
+                     "(?, ?, ?, ?, ?, ?, ?)", (token_id, token_hash, name, json.dumps(scopes), created_at, owner,
+                                               expires_at))
+
+    def token_by_hash(self, token_hash: str) -> Optional[dict]:
+        return self.one("SELECT id, name, scopes, revoked, owner, expires_at FROM tokens WHERE hash = ?",
+                        (token_hash,))
+
+    def revoke_token(self, token_id: str) -> bool:
+        return self.execute("UPDATE tokens SET revoked = 1 WHERE id = ?", (token_id,)) > 0
+
+    def list_tokens(self) -> list[dict]:
+        return self.query("SELECT id, name, scopes, created_at, revoked, COALESCE(owner, 'default') AS owner, "
+                          "expires_at FROM tokens ORDER BY created_at")
+
     # ---- scenes ----------------------------------------------------------------------------------------
     def get_scene(self, scene_id: str) -> Optional[dict]:
         return self.one("SELECT * FROM scenes WHERE id = ?", (scene_id,))
@@ -201,6 +239,10 @@ class Database:
             params["_ps"] = where_plan_state
         return self.execute(sql, params) > 0
 
+    def requeue_running_plans(self) -> int:
+        """Scene plans left running (by a server that stopped) go back to pending; returns how many."""
+        return self.execute("UPDATE scenes SET plan_state = 'pending' WHERE plan_state = 'running'")
+
     def add_scene_owner(self, scene_id: str, owner: str) -> bool:
         """Record that ``owner`` uploaded ``scene_id``; False when it had already."""
         return self.execute("INSERT OR IGNORE INTO scene_owners (scene_id, owner, created_at) VALUES (?, ?, ?)",
@@ -221,6 +263,9 @@ class Database:
                      (name, time.time(), owner, token_id))
         self.execute("UPDATE displays SET owner = ? WHERE name = ? AND owner IS NULL", (owner, name))
         return self.display_owner(name)
+
+    def set_display_owner(self, name: str, owner: str) -> bool:
+        return self.execute("UPDATE displays SET owner = ? WHERE name = ?", (owner, name)) > 0
 
     def heartbeat(self, name: str, *, agent_version: str, showing: Optional[dict], state: str, message: str,
                   token_id: str) -> None:

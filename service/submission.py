@@ -1,20 +1,38 @@
-"""What a job submission must pass before anything is created (limits, the scene and display being the
-submitter's, sane optics, memory that fits), and which earlier result a submission would reuse. One home for
-both, used by ``POST /v1/jobs`` and its dry run ``POST /v1/jobs/estimate``."""
+"""The service's job logic, apart from HTTP: what a submission must pass before anything is created (limits,
+the scene and display being the submitter's, sane optics, memory that fits), which earlier result it would
+reuse, and the submission itself (idempotency keys, content-addressed reuse, the new job row). Used by
+``POST /v1/jobs`` and its dry run ``POST /v1/jobs/estimate``; the SQL is service/db.py's."""
 
 from __future__ import annotations
 
+import hashlib
+import re
+import secrets
+import sqlite3
+import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
-from service.models import (JobRequest, effective_optics, job_limit_errors, memory_admission_error,
-                            optics_sanity_errors)
+from service.jobfiles import JobSpec
+from service.models import (JobRequest, cache_key, effective_optics, estimate_cost, job_limit_errors,
+                            memory_admission_error, optics_sanity_errors)
 
-__all__ = ["admit_job", "reusable_job"]
+__all__ = ["admit_job", "reusable_job", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
+
+IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
+
+
+@dataclass(frozen=True)
+class Submitted:
+    """The outcome of a submit: the job's row, and whether it is an earlier submit's (same idempotency key)."""
+
+    job: dict[str, Any]
+    replayed: bool = False
 
 
 def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dict:
@@ -42,10 +60,71 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
 
 def reusable_job(ctx: ServiceContext, key: str) -> Optional[dict]:
     """The newest succeeded job with the content address ``key`` whose artifacts all still match their hashes."""
-    for prev in ctx.db.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
-                             "ORDER BY finished_at DESC LIMIT 5", (key,)):
+    for prev in ctx.db.succeeded_jobs_with_key(key, limit=5):
         d = Path(prev["artifact_dir"] or "")
         others = [(d / name, info.get("sha256")) for name, info in (prev["artifacts"] or {}).items()]
         if all(artifact_intact(p, sha) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
             return prev
     return None
+
+
+def job_spec(req: JobRequest) -> JobSpec:
+    """The job's stored options (its ``spec``): the effective optics and the request's render options."""
+    return JobSpec(optics=effective_optics(req).model_dump(mode="json"), preset=req.preset, frames=req.frames,
+                   spp=req.spp, encoder=req.encoder, iterations=req.iterations, method=req.method,
+                   wrp_planes=req.wrp_planes)
+
+
+def _job(ctx: ServiceContext, job_id: str) -> dict:
+    row = ctx.db.get_job(job_id)
+    if row is None:
+        raise ApiError(404, f"no job {job_id!r}")
+    return row
+
+
+def _replay(ctx: ServiceContext, prior: Optional[dict], body_hash: str) -> Submitted:
+    if prior is None or prior["body_hash"] != body_hash:
+        raise ApiError(422, "Idempotency-Key was used before with a different request body")
+    return Submitted(_job(ctx, prior["job_id"]), replayed=True)
+
+
+def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
+               idempotency_key: Optional[str] = None) -> Submitted:
+    """Queue a render job for ``principal`` (or record it succeeded at once, reusing an identical earlier result
+    whose artifacts are intact). The same ``idempotency_key`` with the same body gives the first job back
+    (``replayed``); with another body, ApiError 422. Admission failures are :func:`admit_job`'s."""
+    if idempotency_key is not None and not IDEMPOTENCY_KEY.match(idempotency_key):
+        raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
+    scene = admit_job(ctx, req, principal)
+    body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
+    if idempotency_key is not None:
+        prior = ctx.db.get_idempotency(principal.token_id, idempotency_key)
+        if prior is not None:
+            return _replay(ctx, prior, body_hash)
+    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
+    job_id = "j" + secrets.token_hex(10)
+    now = time.time()
+    row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
+           "spec": job_spec(req).model_dump(mode="json"), "cache_key": key, "created_at": now,
+           "estimate": estimate_cost(req, scene_plan=scene["plan"]), "token_id": principal.token_id,
+           "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
+           "plan": {"summary": (scene["plan"] or {}).get("summary", []),
+                    "source": "scene plan at default optics" if scene["plan"] else "pending"}}
+    prev = reusable_job(ctx, key)
+    if prev is not None:
+        row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
+                   stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],
+                   artifacts=prev["artifacts"], reused_from=prev["reused_from"] or prev["id"],
+                   timings={"reused": True}, progress={"step": "done", "stage": "reused", "done": 1, "total": 1,
+                                                       "fraction": 1.0})
+    try:
+        with ctx.db.tx() as conn:
+            ctx.db.insert_job(row, conn)
+            if idempotency_key is not None:
+                ctx.db.insert_idempotency(conn, token_id=principal.token_id, key=idempotency_key,
+                                          body_hash=body_hash, job_id=job_id, created_at=now)
+    except sqlite3.IntegrityError:  # a concurrent request with the same key won
+        return _replay(ctx, ctx.db.get_idempotency(principal.token_id, idempotency_key or ""), body_hash)
+    ctx.metrics.jobs_submitted.labels(reused=str(prev is not None).lower()).inc()
+    ctx.wake_scheduler()
+    return Submitted(_job(ctx, job_id))

@@ -1,11 +1,12 @@
-"""Request dependencies: the service context and bearer-token authentication with scopes."""
+"""Request dependencies: the service context and bearer-token authentication with scopes, with the aliases
+routes declare them by (``ctx: Ctx``, ``principal: ReadScope``)."""
 
 from __future__ import annotations
 
 import threading
 import time
 from collections import deque
-from typing import Callable, Optional
+from typing import Annotated, Callable, Optional
 
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -14,13 +15,18 @@ from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal, allows, verify_token
 
-__all__ = ["get_ctx", "require"]
+__all__ = ["get_ctx", "context", "require", "Ctx", "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
 
 _bearer = HTTPBearer(auto_error=False, description="A token from `holo token create`.")
 _CHALLENGE = {"WWW-Authenticate": 'Bearer realm="holo"'}
 
 
 def get_ctx(request: Request) -> ServiceContext:
+    return request.app.state.ctx
+
+
+async def context(request: Request) -> ServiceContext:
+    """The service context as a dependency (async: answered on the event loop, no thread-pool trip)."""
     return request.app.state.ctx
 
 
@@ -87,3 +93,10 @@ def require(scope: str) -> Callable[..., Principal]:
 
     dependency.__name__ = f"require_{scope}"
     return dependency
+
+
+Ctx = Annotated[ServiceContext, Depends(context)]
+ReadScope = Annotated[Principal, Depends(require("read"))]
+SubmitScope = Annotated[Principal, Depends(require("submit"))]
+AgentScope = Annotated[Principal, Depends(require("agent"))]
+AdminScope = Annotated[Principal, Depends(require("admin"))]

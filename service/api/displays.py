@@ -9,14 +9,13 @@ from __future__ import annotations
 import re
 import time
 
-from fastapi import APIRouter, Depends, Path as PathParam, Request
+from fastapi import APIRouter, Path as PathParam
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.api.deps import get_ctx, require
+from service.api.deps import AdminScope, AgentScope, Ctx, ReadScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
-from service.auth import Principal
 from service.models import NAME_PATTERN, DisplayList, Heartbeat
 
 __all__ = ["router"]
@@ -31,10 +30,10 @@ class DisplayOwner(BaseModel):
 
 
 @router.post("/v1/displays/{name}/heartbeat", status_code=204, response_class=Response, responses=PROBLEM_RESPONSES)
-def heartbeat(body: Heartbeat, request: Request, name: str = PathParam(pattern=NAME_PATTERN),
-              principal: Principal = Depends(require("agent"))) -> Response:
+def heartbeat(body: Heartbeat, ctx: Ctx, principal: AgentScope,
+              name: str = PathParam(pattern=NAME_PATTERN)) -> Response:
     """A display agent says it is alive and what it shows (scope agent or admin; the display's owner only)."""
-    db = get_ctx(request).db
+    db = ctx.db
     holder = db.claim_display(name, principal.owner, principal.token_id)
     if not principal.sees(holder):
         raise ApiError(403, f"display {name!r} is registered to another owner; only its agents send its heartbeats")
@@ -46,20 +45,20 @@ def heartbeat(body: Heartbeat, request: Request, name: str = PathParam(pattern=N
 
 
 @router.put("/v1/displays/{name}", status_code=204, response_class=Response, responses=PROBLEM_RESPONSES)
-def assign_display(body: DisplayOwner, request: Request, name: str = PathParam(pattern=NAME_PATTERN),
-                   principal: Principal = Depends(require("admin"))) -> Response:
+def assign_display(body: DisplayOwner, ctx: Ctx, principal: AdminScope,
+                   name: str = PathParam(pattern=NAME_PATTERN)) -> Response:
     """Register a display to an owner, or move it to another (admin)."""
-    db = get_ctx(request).db
+    db = ctx.db
     db.claim_display(name, body.owner, principal.token_id)
-    db.execute("UPDATE displays SET owner = ? WHERE name = ?", (body.owner, name))
+    db.set_display_owner(name, body.owner)
     return Response(status_code=204)
 
 
 @router.get("/v1/displays", response_model=DisplayList, responses=PROBLEM_RESPONSES)
-def list_displays(request: Request, principal: Principal = Depends(require("read"))):
+def list_displays(ctx: Ctx, principal: ReadScope):
     """The displays of this token's owner (every display for admin), with their last heartbeat."""
     now = time.time()
-    rows = get_ctx(request).db.list_displays(owner=None if principal.is_admin else principal.owner)
+    rows = ctx.db.list_displays(owner=None if principal.is_admin else principal.owner)
     return {"displays": [{"name": r["name"], "last_seen": iso(r["last_seen"]), "age_s": round(now - r["last_seen"], 3),
                           "agent_version": r["agent_version"], "showing": r["showing"], "state": r["state"],
                           "message": r["message"], "owner": r["owner"] or "default"} for r in rows]}

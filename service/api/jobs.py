@@ -4,35 +4,29 @@ artifacts (stack with ETag/Range, 8-bit frames zip, preview PNG)."""
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import json
-import re
-import secrets
-import sqlite3
 import time
 from pathlib import Path
 from typing import Literal, Optional
 
-from fastapi import APIRouter, Depends, Header, Path as PathParam, Query, Request
+from fastapi import APIRouter, Header, Path as PathParam, Query, Request
 from fastapi.responses import JSONResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from service.api.context import ServiceContext
-from service.api.deps import get_ctx, require
+from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
-from service.models import (ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest, cache_key, effective_optics,
-                            estimate_cost)
-from service.submission import admit_job, reusable_job
+from service import submission
+from service.models import ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest
 
 __all__ = ["router", "job_out"]
 
 router = APIRouter(tags=["jobs"])
-_IDEM = re.compile(r"^[\x21-\x7e]{1,200}$")
 _ARTIFACTS = {"stack": ("stack.npz", "application/octet-stream"), "frames": ("frames.zip", "application/zip"),
               "preview": ("preview.png", "image/png")}
 
@@ -70,89 +64,43 @@ def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
 @router.post("/v1/jobs", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
 def submit_job(
     req: JobRequest,
-    request: Request,
+    ctx: Ctx,
+    principal: SubmitScope,
     idempotency_key: Optional[str] = Header(default=None, alias="Idempotency-Key",
                                             description="Repeat a submit safely: same key + same body = same job."),
-    principal: Principal = Depends(require("submit")),
 ):
     """Queue a render job (202 + Location). An identical earlier result (same scene content, optics, options
     and code version) is reused at once; ``estimate`` gives the predicted seconds."""
-    ctx = get_ctx(request)
-    if idempotency_key is not None and not _IDEM.match(idempotency_key):
-        raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
-    scene = admit_job(ctx, req, principal)
-    body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
-    if idempotency_key is not None:
-        prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
-                           (principal.token_id, idempotency_key))
-        if prior is not None:
-            if prior["body_hash"] != body_hash:
-                raise ApiError(422, "Idempotency-Key was used before with a different request body")
-            return _accepted(_get(ctx, prior["job_id"]), replayed=True)
-    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
-    spec = {"optics": effective_optics(req).model_dump(mode="json"), "preset": req.preset, "frames": req.frames,
-            "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations, "method": req.method,
-            "wrp_planes": req.wrp_planes}
-    job_id = "j" + secrets.token_hex(10)
-    now = time.time()
-    row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id, "spec": spec,
-           "cache_key": key, "created_at": now, "estimate": estimate_cost(req, scene_plan=scene["plan"]),
-           "token_id": principal.token_id, "owner": principal.owner,
-           "artifact_dir": str(ctx.settings.jobs_dir / job_id), "plan": {"summary": (scene["plan"] or {}).get(
-               "summary", []), "source": "scene plan at default optics" if scene["plan"] else "pending"}}
-    prev = reusable_job(ctx, key)
-    if prev is not None:
-        row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
-                   stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],
-                   artifacts=prev["artifacts"], reused_from=prev["reused_from"] or prev["id"],
-                   timings={"reused": True}, progress={"step": "done", "stage": "reused", "done": 1, "total": 1,
-                                                       "fraction": 1.0})
-    try:
-        with ctx.db.tx() as conn:
-            ctx.db.insert_job(row, conn)
-            if idempotency_key is not None:
-                conn.execute("INSERT INTO idempotency (token_id, key, body_hash, job_id, created_at) "
-                             "VALUES (?, ?, ?, ?, ?)", (principal.token_id, idempotency_key, body_hash, job_id, now))
-    except sqlite3.IntegrityError:  # a concurrent request with the same key won
-        prior = ctx.db.one("SELECT * FROM idempotency WHERE token_id = ? AND key = ?",
-                           (principal.token_id, idempotency_key))
-        if prior is None or prior["body_hash"] != body_hash:
-            raise ApiError(422, "Idempotency-Key was used before with a different request body") from None
-        return _accepted(_get(ctx, prior["job_id"]), replayed=True)
-    ctx.metrics.jobs_submitted.labels(reused=str(prev is not None).lower()).inc()
-    ctx.wake_scheduler()
-    return _accepted(_get(ctx, job_id))
+    done = submission.submit_job(ctx, req, principal, idempotency_key)
+    return _accepted(done.job, replayed=done.replayed)
 
 
 @router.get("/v1/jobs", response_model=JobList, responses=PROBLEM_RESPONSES)
 async def list_jobs(
-    request: Request,
+    ctx: Ctx,
+    principal: ReadScope,
     state: Optional[Literal["queued", "running", "succeeded", "failed", "cancelled"]] = None,
     display: Optional[str] = Query(default=None, pattern=NAME_PATTERN),
     scene_id: Optional[str] = Query(default=None, pattern=ID_PATTERN),
     limit: int = Query(default=50, ge=1, le=500),
-    principal: Principal = Depends(require("read")),
 ):
     """Jobs, newest first, filtered by state, display and scene."""
-    rows = get_ctx(request).db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit,
+    rows = ctx.db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit,
                                          owner=None if principal.is_admin else principal.owner)
     return JSONResponse({"jobs": [job_out(r) for r in rows]})
 
 
 @router.get("/v1/jobs/{job_id}", response_model=JobOut, responses=PROBLEM_RESPONSES)
-async def get_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-                  principal: Principal = Depends(require("read"))):
+async def get_job(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """A job's state, progress, timings, plan and error."""
     # Polled by clients and agents: answered on the event loop (one indexed read) without re-validating the
     # body against JobOut (job_out builds exactly that shape; the schema tests check it).
-    return JSONResponse(job_out(_get(get_ctx(request), job_id, principal)))
+    return JSONResponse(job_out(_get(ctx, job_id, principal)))
 
 
 @router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
-def cancel_job(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-               principal: Principal = Depends(require("submit"))):
+def cancel_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """Cancel a queued or running job (a running render's process group is killed)."""
-    ctx = get_ctx(request)
     row = _get(ctx, job_id, principal)
     if not ctx.db.update_job(job_id, where_state=("queued", "running"), state="cancelled", finished_at=time.time()):
         raise ApiError(409, f"job {job_id} is already {_get(ctx, job_id)['state']}; only queued or running jobs "
@@ -169,11 +117,10 @@ def _sse(event: str, data: dict) -> str:
 
 @router.get("/v1/jobs/{job_id}/events", responses={200: {"content": {"text/event-stream": {}},
                                                          "description": "Server-sent events"}, **PROBLEM_RESPONSES})
-async def job_events(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-                     principal: Principal = Depends(require("read"))):
+async def job_events(request: Request, ctx: Ctx, principal: ReadScope,
+                     job_id: str = PathParam(pattern=ID_PATTERN)):
     """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
     job reaches succeeded, failed or cancelled."""
-    ctx = get_ctx(request)
     await run_in_threadpool(_get, ctx, job_id, principal)
 
     async def stream():
@@ -206,8 +153,7 @@ async def job_events(request: Request, job_id: str = PathParam(pattern=ID_PATTER
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
-def _artifact(request: Request, job_id: str, kind: str, principal: Principal):
-    ctx = get_ctx(request)
+def _artifact(request: Request, ctx: ServiceContext, job_id: str, kind: str, principal: Principal):
     row = _get(ctx, job_id, principal)
     if row["state"] != "succeeded":
         raise ApiError(409, f"job {job_id} is {row['state']}; its artifacts exist once it has succeeded")
@@ -230,23 +176,20 @@ _FILE_RESPONSES = {206: {"description": "Partial content (Range)"}, 304: {"descr
 
 @router.get("/v1/jobs/{job_id}/stack", responses={200: {"content": {"application/octet-stream": {}}},
                                                    **_FILE_RESPONSES})
-def get_stack(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-              principal: Principal = Depends(require("read"))):
+def get_stack(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """STACK.npz: ``ETag`` is the sha256 of the file (also in ``X-Content-SHA256``); honours ``If-None-Match``,
     ``Range`` and ``If-Range``."""
-    return _artifact(request, job_id, "stack", principal)
+    return _artifact(request, ctx, job_id, "stack", principal)
 
 
 @router.get("/v1/jobs/{job_id}/frames.zip", responses={200: {"content": {"application/zip": {}}},
                                                         **_FILE_RESPONSES})
-def get_frames(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-               principal: Principal = Depends(require("read"))):
+def get_frames(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """The 8-bit SLM frames as PNGs ``f{frame:03d}_c{color}.png`` in a zip."""
-    return _artifact(request, job_id, "frames", principal)
+    return _artifact(request, ctx, job_id, "frames", principal)
 
 
 @router.get("/v1/jobs/{job_id}/preview.png", responses={200: {"content": {"image/png": {}}}, **_FILE_RESPONSES})
-def get_preview(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-                principal: Principal = Depends(require("read"))):
+def get_preview(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """What an eye sees (`holo view`, 4 mm pupil, focused mid-volume, frames averaged), made by the worker."""
-    return _artifact(request, job_id, "preview", principal)
+    return _artifact(request, ctx, job_id, "preview", principal)

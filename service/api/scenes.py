@@ -17,13 +17,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional
 
-from fastapi import APIRouter, Depends, File, Form, Path as PathParam, Request, UploadFile
+from fastapi import APIRouter, File, Form, Path as PathParam, UploadFile
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from holocore.bundle import BundleError, BundleLimits, validate_bundle
 from service.api.context import ServiceContext
-from service.api.deps import get_ctx, require
+from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.models import ID_PATTERN, SceneOut
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
@@ -85,16 +85,15 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
              responses={200: {"model": SceneOut, "description": "The same bundle was uploaded before"},
                         **PROBLEM_RESPONSES})
 async def upload_scene(
-    request: Request,
+    ctx: Ctx,
+    principal: SubmitScope,
     bundle: Optional[UploadFile] = File(default=None, description="The whole bundle as one zip."),
     files: Optional[list[UploadFile]] = File(default=None, description="Files; each filename is its path "
                                                                        "relative to the bundle root."),
     entry: Optional[str] = Form(default=None, max_length=1024, description="The scene XML, relative to the root "
                                                                           "(needed when there are several)."),
-    principal=Depends(require("submit")),
 ) -> JSONResponse:
     """Upload a scene bundle; answers its id, content hash, validation report and (later) effect plan."""
-    ctx = get_ctx(request)
     if bundle is not None and files:
         raise ApiError(422, "send either 'bundle' (one zip) or 'files', not both")
     if bundle is None and not files:
@@ -114,9 +113,8 @@ async def upload_scene(
 
 
 @router.get("/v1/scenes/{scene_id}", response_model=SceneOut, responses=PROBLEM_RESPONSES)
-def get_scene(request: Request, scene_id: str = PathParam(pattern=ID_PATTERN), principal=Depends(require("read"))):
+def get_scene(ctx: Ctx, principal: ReadScope, scene_id: str = PathParam(pattern=ID_PATTERN)):
     """A scene's validation report and its effect plan (``plan_state``: pending, running, ready, failed)."""
-    ctx = get_ctx(request)
     row = ctx.db.get_scene(scene_id)
     if row is None or not (principal.is_admin or ctx.db.scene_owned_by(scene_id, principal.owner)):
         raise ApiError(404, f"no scene {scene_id!r}")

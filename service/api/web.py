@@ -26,10 +26,11 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-from fastapi import APIRouter, Depends, Path as PathParam, Request
+from fastapi import APIRouter, Path as PathParam, Request
 from fastapi.responses import JSONResponse, Response
 
-from service.api.deps import get_ctx, require
+from service.api.context import ServiceContext
+from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import Principal
@@ -120,7 +121,7 @@ def web_file(request: Request, name: str) -> Response:
 
 # ---- small API routes the page needs -------------------------------------------------------------------------
 @router.get("/v1/whoami", tags=["tokens"], responses=PROBLEM_RESPONSES)
-async def whoami(principal: Principal = Depends(require("read"))) -> dict:
+async def whoami(principal: ReadScope) -> dict:
     """The calling token's owner, name and scopes (what the page may offer)."""
     from service.auth import allows
 
@@ -129,7 +130,7 @@ async def whoami(principal: Principal = Depends(require("read"))) -> dict:
 
 
 @router.get("/v1/display-profiles", tags=["displays"], responses=PROBLEM_RESPONSES)
-def display_profiles(principal: Principal = Depends(require("read"))) -> dict:  # noqa: ARG001
+def display_profiles(principal: ReadScope) -> dict:  # noqa: ARG001
     """The built-in display profiles (holocore.display) and the optics each gives a job."""
     from holocore.display import BUILTIN_DISPLAYS, DEFAULT_DISPLAY, OPTICS_FIELDS
 
@@ -143,11 +144,10 @@ def display_profiles(principal: Principal = Depends(require("read"))) -> dict:  
 
 
 @router.post("/v1/jobs/estimate", tags=["jobs"], responses=PROBLEM_RESPONSES)
-def estimate_job(req: JobRequest, request: Request, principal: Principal = Depends(require("submit"))) -> dict:
+def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
     """What ``POST /v1/jobs`` with this body would predict, after the same checks (limits, the scene and display
     being this owner's, sane optics, memory); nothing is created. ``reuses`` names the earlier job whose result
     an identical submit would reuse at once."""
-    ctx = get_ctx(request)
     scene = admit_job(ctx, req, principal)
     optics = effective_optics(req)
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
@@ -160,8 +160,8 @@ def estimate_job(req: JobRequest, request: Request, principal: Principal = Depen
 
 
 # ---- pictures -------------------------------------------------------------------------------------------------
-def _job(request: Request, job_id: str, principal: Principal) -> dict:
-    row = get_ctx(request).db.get_job(job_id)
+def _job(ctx: ServiceContext, job_id: str, principal: Principal) -> dict:
+    row = ctx.db.get_job(job_id)
     if row is None or not principal.sees(row.get("owner")):
         raise ApiError(404, f"no job {job_id!r}")
     if row["state"] != "succeeded":
@@ -190,11 +190,10 @@ def _pictures(doc: dict) -> list[dict]:
 
 
 @router.get("/v1/jobs/{job_id}/pictures", tags=["jobs"], responses=PROBLEM_RESPONSES)
-def job_pictures(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-                 principal: Principal = Depends(require("read"))):
+def job_pictures(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """The job's focal sweep (far to near, with each focus depth in mm and in words) and view grid (eye
     offsets in mm), each picture with its URL and SHA-256."""
-    row = _job(request, job_id, principal)
+    row = _job(ctx, job_id, principal)
     _, doc = _index(row)
     for r in _pictures(doc):
         r["url"] = f"/v1/jobs/{job_id}/pictures/{r['file']}"
@@ -204,11 +203,10 @@ def job_pictures(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
 @router.get("/v1/jobs/{job_id}/pictures/{name}", tags=["jobs"],
             responses={200: {"content": {"image/png": {}}}, 304: {"description": "Not modified"},
                        **PROBLEM_RESPONSES})
-def job_picture(request: Request, job_id: str = PathParam(pattern=ID_PATTERN),
-                name: str = PathParam(pattern=r"^(sweep|view)-\d{2}\.png$"),
-                principal: Principal = Depends(require("read"))):
+def job_picture(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN),
+                name: str = PathParam(pattern=r"^(sweep|view)-\d{2}\.png$")):
     """One picture of the sweep or grid, checked against the SHA-256 its index records."""
-    row = _job(request, job_id, principal)
+    row = _job(ctx, job_id, principal)
     folder, doc = _index(row)
     info: Optional[dict] = next((r for r in _pictures(doc) if r["file"] == name), None)
     path = folder / name

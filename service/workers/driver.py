@@ -26,9 +26,10 @@ import zipfile
 from pathlib import Path
 from typing import Any, Optional
 
-__all__ = ["main", "STEPS", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm"]
+from service.jobfiles import STEPS, ArtifactInfo, JobFile, RunStatus, Step, read_job_file
 
-STEPS = ("render", "encode", "package", "preview", "pictures")
+__all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm", "run_job"]
+
 EXIT_FAILED = 3
 EXIT_RETRY = 75
 
@@ -71,7 +72,7 @@ class StepFailed(Exception):
         self.retryable = retryable
 
 
-def _run(step: str, args: list[str], job_dir: Path, module: str = "holo") -> float:
+def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> float:
     """Run ``python -m MODULE ARGS`` (default: holo) as a child (same process group); returns seconds taken."""
     write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
     t0 = time.monotonic()
@@ -131,21 +132,21 @@ def _peak_rss_bytes() -> int:
     return int(kib) * 1024
 
 
-def run_job(job_dir: Path) -> dict:
-    spec = json.loads((job_dir / "job.json").read_text())
+def run_job(job_dir: Path) -> RunStatus:
+    spec: JobFile = read_job_file(job_dir)
     timings: dict[str, float] = {}
     warnings: list[str] = []
     prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
-    render = ["render", spec["scene_path"], "--out", "result.npz", "--optics-json", "optics.json",
-              "--preset", spec["preset"], "--method", spec["method"], "--progress-jsonl", prog["render"]]
-    if spec.get("spp") is not None:
-        render += ["--spp", str(spec["spp"])]
-    render += ["--wrp-planes", str(spec.get("wrp_planes", 1))]  # jobs stored before the option rendered 1
+    render = ["render", spec.scene_path, "--out", "result.npz", "--optics-json", "optics.json",
+              "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", prog["render"]]
+    if spec.spp is not None:
+        render += ["--spp", str(spec.spp)]
+    render += ["--wrp-planes", str(spec.wrp_planes)]  # jobs stored before the option: 1 (JobOptions)
     timings["render_s"] = _run("render", render, job_dir)
-    encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec["encoder"],
+    encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec.encoder,
               "--progress-jsonl", prog["encode"]]
-    if spec.get("iterations") is not None:
-        encode += ["--iterations", str(spec["iterations"])]
+    if spec.iterations is not None:
+        encode += ["--iterations", str(spec.iterations)]
     timings["encode_s"] = _run("encode", encode, job_dir)
 
     write_json_atomic(job_dir / "step.json", {"step": "package", "index": 2, "t": time.time()})
@@ -172,16 +173,15 @@ def run_job(job_dir: Path) -> dict:
             raise
         warnings.append(f"no pictures: {exc}")
     timings["peak_rss_bytes"] = _peak_rss_bytes()
-    if not spec.get("keep_result", True):
+    if not spec.keep_result:
         (job_dir / "result.npz").unlink(missing_ok=True)
     plan = meta.get("plan") or {}
-    artifacts = {name: {"sha256": file_sha256(job_dir / name), "bytes": (job_dir / name).stat().st_size}
+    artifacts = {name: ArtifactInfo(sha256=file_sha256(job_dir / name), bytes=(job_dir / name).stat().st_size)
                  for name in ("stack.npz", "frames.zip", "preview.png") if (job_dir / name).is_file()}
-    return {"ok": True, "stack_sha256": artifacts["stack.npz"]["sha256"],
-            "stack_bytes": artifacts["stack.npz"]["bytes"], "shape_fchw": list(phase.shape), "artifacts": artifacts,
-            "timings": timings, "plan": {"summary": plan.get("summary", []), "plan": plan,
-                                         "render_timings": meta.get("timings")},
-            "warnings": warnings}
+    return RunStatus(ok=True, stack_sha256=artifacts["stack.npz"].sha256, stack_bytes=artifacts["stack.npz"].bytes,
+                     shape_fchw=list(phase.shape), artifacts=artifacts, timings=timings,
+                     plan={"summary": plan.get("summary", []), "plan": plan, "render_timings": meta.get("timings")},
+                     warnings=warnings)
 
 
 def main(argv: Optional[list[str]] = None) -> int:
@@ -197,18 +197,18 @@ def main(argv: Optional[list[str]] = None) -> int:
         status = run_job(job_dir)
         code = 0
     except StepFailed as exc:
-        status = {"ok": False, "error": str(exc), "retryable": exc.retryable}
+        status = RunStatus(ok=False, error=str(exc), retryable=exc.retryable)
         code = EXIT_RETRY if exc.retryable else EXIT_FAILED
     except Exception as exc:  # noqa: BLE001 - report anything else as a failure of this run
-        status = {"ok": False, "error": f"worker error: {type(exc).__name__}: {exc}"[:1000], "retryable": False}
+        status = RunStatus(ok=False, error=f"worker error: {type(exc).__name__}: {exc}"[:1000], retryable=False)
         code = EXIT_FAILED
-    status["total_s"] = time.time() - t0
-    status["uid"] = os.getuid()  # who ran it (a sandbox slot's uid when the service sandboxes jobs)
     try:  # which run this is: a stale run (after a restart) must not pass for the current one
-        status["attempt"] = json.loads((job_dir / "job.json").read_text()).get("attempt")
-    except (OSError, ValueError):
-        status["attempt"] = None
-    write_json_atomic(job_dir / "status.json", status)
+        attempt = json.loads((job_dir / "job.json").read_text()).get("attempt")
+    except (OSError, ValueError, AttributeError):
+        attempt = None
+    # uid: who ran it (a sandbox slot's uid when the service sandboxes jobs)
+    doc = {**status.to_json(), "total_s": time.time() - t0, "uid": os.getuid(), "attempt": attempt}
+    write_json_atomic(job_dir / "status.json", doc)
     return code
 
 

@@ -16,12 +16,9 @@ and is not trusted for integrity: the artifacts' hashes and sizes are the schedu
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import os
 import shutil
-import stat
 import threading
 import time
 from pathlib import Path
@@ -29,94 +26,18 @@ from typing import Optional
 
 from holocore.errors import scrub_message
 from service.db import Database
+from service.jobfiles import JobFile, JobSpec, RunStatus, read_run_status
 from service.settings import ServiceSettings
-from service.workers.driver import EXIT_FAILED, STEPS, write_json_atomic
+from service.workers.driver import EXIT_FAILED, write_json_atomic
 from service.workers.engine import (Engine, Handle, RunAs, give_tree, group_alive, kill_group, kill_uids,
                                     reclaim_tree, resolve_sandbox, secure_data_dir)
+from service.workers.runfiles import ARTIFACTS, RUN_FILES, hash_artifacts, read_progress
 
-__all__ = ["Scheduler", "read_progress", "STEP_WEIGHTS"]
+__all__ = ["Scheduler"]
 
 log = logging.getLogger("holo.service.scheduler")
 
-STEP_WEIGHTS = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
-# Where each stage of `holo render` ends, as a fraction of the render step (stages it reports, in order).
-_RENDER_STAGE_END = {"analysis": 0.1, "bank": 0.15, "cache": 0.3, "trace": 0.9, "propagate": 1.0}
-_RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
-              *(f"{s}.log" for s in STEPS))
-ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
 _SANDBOX_ONLY = ("scene", "home", "tmp")  # what a sandboxed run gets in its job dir, removed after it
-
-
-def hash_artifacts(job_dir: Path) -> dict[str, dict]:
-    """{name: {"sha256", "bytes"}} of the job's artifacts, hashed here: plain files only (no symlink is
-    followed, no file with other hard links counts)."""
-    out: dict[str, dict] = {}
-    for name in ARTIFACTS:
-        try:
-            fd = os.open(job_dir / name, os.O_RDONLY | os.O_NOFOLLOW)
-        except OSError:
-            continue
-        with os.fdopen(fd, "rb") as fh:
-            st = os.fstat(fh.fileno())
-            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
-                continue
-            h, n = hashlib.sha256(), 0
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-                n += len(chunk)
-        out[name] = {"sha256": h.hexdigest(), "bytes": n}
-    return out
-
-
-def _last_json_line(path: Path) -> Optional[dict]:
-    try:
-        with open(path, "rb") as fh:
-            fh.seek(0, os.SEEK_END)
-            size = fh.tell()
-            fh.seek(max(0, size - 4096))
-            lines = fh.read().strip().splitlines()
-    except OSError:
-        return None
-    for line in reversed(lines):
-        try:
-            doc = json.loads(line)
-            if isinstance(doc, dict):
-                return doc
-        except ValueError:
-            continue
-    return None
-
-
-def read_progress(job_dir: Path) -> Optional[dict]:
-    """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
-    try:
-        step = json.loads((job_dir / "step.json").read_text())["step"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    if step not in STEP_WEIGHTS:
-        return None
-    line = _last_json_line(job_dir / f"progress-{step}.jsonl") or {}
-    done, total = line.get("done", 0), line.get("total", 0)
-    within = min(1.0, done / total) if isinstance(done, int) and isinstance(total, int) and total > 0 else 0.0
-    stage = line.get("stage")
-    if step == "render" and stage in _RENDER_STAGE_END:
-        ends = list(_RENDER_STAGE_END.values())
-        i = list(_RENDER_STAGE_END).index(stage)
-        start = ends[i - 1] if i else 0.0
-        within = start + (ends[i] - start) * within
-    base = sum(STEP_WEIGHTS[s] for s in STEPS[:STEPS.index(step)])
-    return {"step": step, "stage": str(line.get("stage", step)), "done": done if isinstance(done, int) else 0,
-            "total": total if isinstance(total, int) else 0,
-            "fraction": round(min(0.999, base + STEP_WEIGHTS[step] * within), 4)}
-
-
-def _read_status(job_dir: Path, attempt: int) -> Optional[dict]:
-    """The run's status.json, if it was written by run ``attempt`` (not by a stale earlier run)."""
-    try:
-        doc = json.loads((job_dir / "status.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) and doc.get("attempt") == attempt else None
 
 
 def _peak_bytes(row: dict) -> int:
@@ -200,7 +121,7 @@ class Scheduler:
 
     def recover(self) -> None:
         """Finish, requeue or fail the jobs a previous server left running."""
-        for row in self.db.query("SELECT * FROM jobs WHERE state = 'running'"):
+        for row in self.db.running_jobs():
             job_dir = Path(row["artifact_dir"] or self.settings.jobs_dir / row["id"])
             pid = row["worker_pid"]
             if pid and _pid_is_our_driver(pid, job_dir):
@@ -211,8 +132,8 @@ class Scheduler:
                     reclaim_tree(job_dir, remove=_SANDBOX_ONLY)
             except OSError:
                 log.exception("job %s: could not take its dir back", row["id"])
-            status = _read_status(job_dir, row["attempts"])
-            if status and status.get("ok"):
+            status = read_run_status(job_dir, row["attempts"])
+            if status is not None and status.ok:
                 self._succeed(row["id"], row["attempts"], status, job_dir)
             elif row["attempts"] >= self.settings.max_attempts:
                 self._fail(row["id"], row["attempts"], f"interrupted (server restart or worker crash) on each of "
@@ -221,7 +142,7 @@ class Scheduler:
                 log.warning("job %s: requeued after a server restart", row["id"])
                 self.db.update_job(row["id"], where_state=("running",), state="queued", started_at=None,
                                    worker_pid=None, progress=None)
-        self.db.execute("UPDATE scenes SET plan_state = 'pending' WHERE plan_state = 'running'")
+        self.db.requeue_running_plans()
 
     # ---- the loop --------------------------------------------------------------------------------------
     def _loop(self) -> None:
@@ -314,13 +235,13 @@ class Scheduler:
             if run_as is not None:
                 os.chmod(job_dir, 0o700)
                 reclaim_tree(job_dir, remove=_SANDBOX_ONLY)
-            for name in _RUN_FILES:  # a fresh run: nothing of a previous attempt may look like this one's
+            for name in RUN_FILES:  # a fresh run: nothing of a previous attempt may look like this one's
                 (job_dir / name).unlink(missing_ok=True)
-            spec = row["spec"]
+            spec = JobSpec.model_validate(row["spec"])
             scene = self.db.get_scene(row["scene_id"])
             if scene is None:
                 raise FileNotFoundError(f"scene {row['scene_id']} is gone")
-            write_json_atomic(job_dir / "optics.json", spec["optics"])
+            write_json_atomic(job_dir / "optics.json", spec.optics)
             scene_path = self.settings.scenes_dir / scene["id"] / "bundle" / scene["entry"]
             if run_as is not None:  # the job reads its own copy only (scenes/ is closed to it)
                 shutil.copytree(self.settings.scenes_dir / scene["id"] / "bundle",
@@ -328,10 +249,9 @@ class Scheduler:
                 scene_path = job_dir / "scene" / scene["entry"]
                 for sub in ("home", "tmp"):
                     (job_dir / sub).mkdir(exist_ok=True)
-            write_json_atomic(job_dir / "job.json", {**{k: v for k, v in spec.items() if k != "optics"},
-                                                     "job_id": job_id, "attempt": attempt,
-                                                     "scene_path": str(scene_path),
-                                                     "keep_result": self.settings.keep_result})
+            job_file = JobFile(**spec.options(), job_id=job_id, attempt=attempt, scene_path=str(scene_path),
+                               keep_result=self.settings.keep_result)
+            write_json_atomic(job_dir / "job.json", job_file.model_dump(mode="json"))
             if run_as is not None:
                 give_tree(job_dir, run_as)
                 handle = self.engine.launch(job_id, attempt, job_dir, run_as=run_as)
@@ -381,15 +301,16 @@ class Scheduler:
         self._progress.pop(job_id, None)
         if h.run_as is not None:  # the driver is gone: nothing of its uid survives it, its dir is ours again
             self._take_back(job_id, h)
-        status = _read_status(h.job_dir, h.attempt)
-        if rc == 0 and status and status.get("ok"):
+        status = read_run_status(h.job_dir, h.attempt)
+        error = status.error if status is not None else None
+        if rc == 0 and status is not None and status.ok:
             self._succeed(job_id, h.attempt, status, h.job_dir)
-        elif rc == EXIT_FAILED or (status is not None and status.get("retryable") is False):
-            self._fail(job_id, h.attempt, (status or {}).get("error") or f"worker exited with code {rc}")
+        elif rc == EXIT_FAILED or (status is not None and status.retryable is False):
+            self._fail(job_id, h.attempt, error or f"worker exited with code {rc}")
         else:
             if h.pid is not None:  # leftovers of a killed driver (its CLIs share the group)
                 self.engine.kill(h, grace_s=0)
-            why = (status or {}).get("error") or (f"worker killed by signal {-rc}" if rc < 0
+            why = error or (f"worker killed by signal {-rc}" if rc < 0
                                                    else f"worker exited with code {rc}")
             if h.attempt >= self.settings.max_attempts:
                 self._fail(job_id, h.attempt, f"{why} (gave up after {h.attempt} attempts)")
@@ -401,27 +322,27 @@ class Scheduler:
                 self.wake()
 
     # ---- outcomes --------------------------------------------------------------------------------------
-    def _succeed(self, job_id: str, attempt: int, status: dict, job_dir: Path) -> None:
+    def _succeed(self, job_id: str, attempt: int, status: RunStatus, job_dir: Path) -> None:
         artifacts = hash_artifacts(job_dir)  # our own hashes: status.json is the worker's word only
         stack = artifacts.get("stack.npz")
         if stack is None:
             self._fail(job_id, attempt, "the run reported success but left no stack.npz")
             return
-        if status.get("stack_sha256") != stack["sha256"]:
+        if status.stack_sha256 != stack["sha256"]:
             self._fail(job_id, attempt, "integrity check failed: stack.npz does not have the SHA-256 its worker "
                                         "reported; the job can be submitted again")
             return
         row = self.db.get_job(job_id)
         timings = dict((row or {}).get("timings") or {})
-        timings.update(status.get("timings") or {})
+        timings.update(status.timings)
         timings["engine"] = self.engine.name
         now = time.time()
         if row and row.get("started_at"):
             timings["run_s"] = round(now - row["started_at"], 3)
             timings["queued_s"] = round(row["started_at"] - row["created_at"], 3)
-        plan = status.get("plan")
-        if status.get("warnings"):
-            plan = {**(plan or {}), "warnings": status["warnings"]}
+        plan = status.plan
+        if status.warnings:
+            plan = {**(plan or {}), "warnings": list(status.warnings)}
         changed = self.db.update_job(
             job_id, where_state=("running",), state="succeeded", finished_at=now, stack_sha256=stack["sha256"],
             stack_bytes=stack["bytes"], timings=timings, plan=plan, error=None, artifacts=artifacts,

@@ -22,7 +22,7 @@ from service.models import JobRequest, cache_key, estimate_cost, job_limit_error
 from service.settings import JobLimits, UploadLimits
 from service.uploads import UploadError, _copy_with_budget, bundle_root, safe_member_path, unpack_zip
 from service.workers.driver import preview_focus_mm
-from service.workers.scheduler import read_progress
+from service.workers.runfiles import read_progress
 from tests.service.helpers import REPO
 
 @pytest.mark.parametrize("name, ok", [
@@ -241,3 +241,37 @@ def test_jobs_run_together_only_while_their_memory_estimates_fit(tmp_path):
     del sched.running["j1"], sched.running["j2"]
     sched.tick()
     assert launched[-1] == "j3"  # alone, 900 MB
+
+def test_render_stages_are_the_ones_holo_render_reports():
+    """The scheduler splits the render step by the stages `holo render` emits (issue 12: it once expected
+    "bank" and "cache", which nothing emits)."""
+    import re
+    from typing import get_args
+
+    from service.jobfiles import RenderStage
+    from service.workers.runfiles import RENDER_STAGE_END
+
+    assert tuple(RENDER_STAGE_END) == get_args(RenderStage)
+    src = "".join((REPO / "holocore" / f).read_text() for f in ("pipeline.py", "tracer.py"))
+    emitted = set(re.findall(r'progress\("([a-z-]+)"', src))
+    assert emitted == set(get_args(RenderStage)), emitted
+
+def test_job_files_of_earlier_versions_still_read(tmp_path):
+    from service.jobfiles import JobSpec, read_job_file, read_run_status
+
+    old_spec = {"optics": {"frames": 2}, "preset": "fast", "frames": None, "spp": None, "encoder": "sgd",
+                "iterations": None, "method": "wrp"}  # before wrp_planes
+    assert JobSpec.model_validate(old_spec).wrp_planes == 1
+    (tmp_path / "job.json").write_text(json.dumps({**{k: v for k, v in old_spec.items() if k != "optics"},
+                                                   "job_id": "j1", "scene_path": "/s/scene.xml",
+                                                   "keep_result": True}))  # before attempts were recorded
+    job = read_job_file(tmp_path)
+    assert (job.job_id, job.attempt, job.wrp_planes, job.preset) == ("j1", None, 1, "fast")
+    (tmp_path / "status.json").write_text(json.dumps({"ok": True, "stack_sha256": "a" * 64, "stack_bytes": 10,
+                                                      "timings": {"render_s": 1.5, "peak_rss_bytes": 7},
+                                                      "plan": {"summary": []}, "total_s": 2.0, "attempt": 1}))
+    st = read_run_status(tmp_path, 1)
+    assert st.ok and st.warnings == [] and st.timings["peak_rss_bytes"] == 7
+    assert read_run_status(tmp_path, 2) is None  # a stale run's status
+    (tmp_path / "status.json").write_text("[1, 2]")
+    assert read_run_status(tmp_path, 1) is None

@@ -1,0 +1,108 @@
+"""The files a job's run is made of, typed: the job's options as stored (``jobs.spec``), ``job.json`` (what the
+scheduler asks the driver to do), ``status.json`` (how the driver says the run ended) and the steps and render
+stages the progress files name. Shared by the API (which stores the spec), the scheduler and the driver; light
+imports only (pydantic). Files written by earlier versions still read: fields added since have defaults."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union, get_args
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+__all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
+           "RunStatus", "read_job_file", "read_run_status"]
+
+Step = Literal["render", "encode", "package", "preview", "pictures"]
+STEPS: tuple[Step, ...] = get_args(Step)
+# The stages `holo render` reports (holocore.pipeline: "analysis" once, "trace" per tile, "propagate" per frame
+# chunk), in order. Ray banks and the ambient cache are built between "analysis" and the first "trace" tile
+# and report nothing of their own.
+RenderStage = Literal["analysis", "trace", "propagate"]
+RENDER_STAGES: tuple[RenderStage, ...] = get_args(RenderStage)
+
+Preset = Literal["fast", "balanced", "reference"]
+Encoder = Literal["sgd", "dpac"]
+Method = Literal["wrp", "direct"]
+WrpPlanes = Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]]
+
+
+class JobOptions(BaseModel):
+    """What a job renders and encodes, besides the optics (a checked ``JobRequest``'s fields)."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore")
+    preset: Preset = "balanced"
+    frames: Optional[int] = None
+    spp: Optional[int] = None
+    encoder: Encoder = "sgd"
+    iterations: Optional[int] = None
+    method: Method = "wrp"
+    wrp_planes: WrpPlanes = 1  # jobs stored before the option rendered one plane
+
+    def options(self) -> dict[str, Any]:
+        """The options alone (no optics, no run fields)."""
+        return self.model_dump(mode="json", include=set(JobOptions.model_fields))
+
+
+class JobSpec(JobOptions):
+    """A job's ``spec`` column (shown as its ``options``): the options and the effective optics (OpticsConfig
+    as JSON)."""
+
+    optics: dict[str, Any]
+
+
+class JobFile(JobOptions):
+    """``JOB_DIR/job.json``: one run (attempt) of a job, as the scheduler hands it to the driver."""
+
+    job_id: str
+    attempt: Optional[int] = None  # files from before attempts were recorded
+    scene_path: str
+    keep_result: bool = True
+
+
+class ArtifactInfo(BaseModel):
+    model_config = ConfigDict(frozen=True)
+    sha256: str
+    bytes: int
+
+
+class RunStatus(BaseModel):
+    """``JOB_DIR/status.json``, the driver's word on how a run ended (never trusted for integrity: the scheduler
+    hashes the artifacts itself)."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore")
+    ok: bool = False
+    error: Optional[str] = None
+    retryable: Optional[bool] = None
+    stack_sha256: Optional[str] = None
+    stack_bytes: Optional[int] = None
+    shape_fchw: Optional[list[int]] = None
+    artifacts: dict[str, ArtifactInfo] = Field(default_factory=dict)
+    timings: dict[str, Union[int, float]] = Field(default_factory=dict)
+    plan: Optional[dict[str, Any]] = None
+    warnings: list[str] = Field(default_factory=list)
+    total_s: Optional[float] = None
+    uid: Optional[int] = None
+    attempt: Optional[int] = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The fields that were set, as JSON (what status.json holds)."""
+        return self.model_dump(mode="json", exclude_unset=True)
+
+
+def read_job_file(job_dir: Path) -> JobFile:
+    """``job_dir/job.json`` (OSError, ValueError when missing or not a job file)."""
+    return JobFile.model_validate(json.loads((job_dir / "job.json").read_text()))
+
+
+def read_run_status(job_dir: Path, attempt: Optional[int] = None) -> Optional[RunStatus]:
+    """``job_dir/status.json`` if it is a run status (written by run ``attempt`` when given: not by a stale
+    earlier run), else None."""
+    try:
+        status = RunStatus.model_validate(json.loads((job_dir / "status.json").read_text()))
+    except (OSError, ValueError, ValidationError):
+        return None
+    if attempt is not None and status.attempt != attempt:
+        return None
+    return status

@@ -1,0 +1,86 @@
+"""What the scheduler reads of a run's directory: progress (``step.json`` and ``progress-<step>.jsonl``),
+``status.json`` (typed in service/jobfiles.py) and the artifacts' hashes, computed here."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+from pathlib import Path
+from typing import Optional
+
+from service.jobfiles import STEPS, RenderStage, Step
+
+__all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_artifacts", "read_progress"]
+
+ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
+RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
+             *(f"{s}.log" for s in STEPS))
+# Share of the whole run of each step with progress (pictures, the last, is not counted).
+STEP_WEIGHTS: dict[Step, float] = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
+# Where each stage of `holo render` ends, as a fraction of the render step (the stages it reports, in order).
+RENDER_STAGE_END: dict[RenderStage, float] = {"analysis": 0.1, "trace": 0.9, "propagate": 1.0}
+
+
+def hash_artifacts(job_dir: Path) -> dict[str, dict]:
+    """{name: {"sha256", "bytes"}} of the job's artifacts, hashed here: plain files only (no symlink is
+    followed, no file with other hard links counts)."""
+    out: dict[str, dict] = {}
+    for name in ARTIFACTS:
+        try:
+            fd = os.open(job_dir / name, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue
+        with os.fdopen(fd, "rb") as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+                continue
+            h, n = hashlib.sha256(), 0
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+                n += len(chunk)
+        out[name] = {"sha256": h.hexdigest(), "bytes": n}
+    return out
+
+
+def _last_json_line(path: Path) -> Optional[dict]:
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            size = fh.tell()
+            fh.seek(max(0, size - 4096))
+            lines = fh.read().strip().splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        try:
+            doc = json.loads(line)
+            if isinstance(doc, dict):
+                return doc
+        except ValueError:
+            continue
+    return None
+
+
+def read_progress(job_dir: Path) -> Optional[dict]:
+    """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
+    try:
+        step = json.loads((job_dir / "step.json").read_text())["step"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if step not in STEP_WEIGHTS:
+        return None
+    line = _last_json_line(job_dir / f"progress-{step}.jsonl") or {}
+    done, total = line.get("done", 0), line.get("total", 0)
+    within = min(1.0, done / total) if isinstance(done, int) and isinstance(total, int) and total > 0 else 0.0
+    stage = line.get("stage")
+    if step == "render" and stage in RENDER_STAGE_END:
+        ends = list(RENDER_STAGE_END.values())
+        i = list(RENDER_STAGE_END).index(stage)
+        start = ends[i - 1] if i else 0.0
+        within = start + (ends[i] - start) * within
+    base = sum(STEP_WEIGHTS[s] for s in STEPS[:STEPS.index(step)])
+    return {"step": step, "stage": str(line.get("stage", step)), "done": done if isinstance(done, int) else 0,
+            "total": total if isinstance(total, int) else 0,
+            "fraction": round(min(0.999, base + STEP_WEIGHTS[step] * within), 4)}
