@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any, Literal, Optional, Union, get_args
+from typing import Annotated, Any, Literal, Optional, TypedDict, Union, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 __all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
-           "RunStatus", "read_job_file", "read_run_status"]
+           "RunStatus", "Progress", "read_job_file", "read_run_status"]
 
 Step = Literal["render", "encode", "package", "preview", "pictures"]
 STEPS: tuple[Step, ...] = get_args(Step)
@@ -89,6 +89,17 @@ class RunStatus(BaseModel):
     def to_json(self) -> dict[str, Any]:
         """The fields that were set, as JSON (what status.json holds)."""
         return self.model_dump(mode="json", exclude_unset=True)
+
+
+class Progress(TypedDict):
+    """A job's ``progress`` (database column, API field, SSE ``progress`` event): the step, the stage it last
+    reported, its counts, and the fraction of the whole run done."""
+
+    step: str
+    stage: str
+    done: int
+    total: int
+    fraction: float
 
 
 def read_job_file(job_dir: Path) -> JobFile:

@@ -13,6 +13,7 @@ from fastapi import APIRouter, Header, Path as PathParam, Query, Request
 from fastapi.responses import JSONResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from service import submission
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.files import file_response
@@ -21,7 +22,6 @@ from service.api.scenes import iso
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
-from service import submission
 from service.models import ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest
 
 __all__ = ["router", "job_out"]

@@ -10,7 +10,7 @@ import stat
 from pathlib import Path
 from typing import Optional
 
-from service.jobfiles import STEPS, RenderStage, Step
+from service.jobfiles import STEPS, Progress, RenderStage, Step
 
 __all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_artifacts", "read_progress"]
 
@@ -63,7 +63,7 @@ def _last_json_line(path: Path) -> Optional[dict]:
     return None
 
 
-def read_progress(job_dir: Path) -> Optional[dict]:
+def read_progress(job_dir: Path) -> Optional[Progress]:
     """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
     try:
         step = json.loads((job_dir / "step.json").read_text())["step"]
@@ -81,6 +81,6 @@ def read_progress(job_dir: Path) -> Optional[dict]:
         start = ends[i - 1] if i else 0.0
         within = start + (ends[i] - start) * within
     base = sum(STEP_WEIGHTS[s] for s in STEPS[:STEPS.index(step)])
-    return {"step": step, "stage": str(line.get("stage", step)), "done": done if isinstance(done, int) else 0,
-            "total": total if isinstance(total, int) else 0,
-            "fraction": round(min(0.999, base + STEP_WEIGHTS[step] * within), 4)}
+    return Progress(step=step, stage=str(line.get("stage", step)), done=done if isinstance(done, int) else 0,
+                    total=total if isinstance(total, int) else 0,
+                    fraction=round(min(0.999, base + STEP_WEIGHTS[step] * within), 4))
