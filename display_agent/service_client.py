@@ -9,7 +9,6 @@ the cache. ``If-None-Match`` with the cached ETag turns a re-download into a 304
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import logging
 import re
 from dataclasses import dataclass
@@ -19,7 +18,7 @@ from typing import Any, Optional
 import httpx
 
 from display_agent.cache import StackCache, safe_job_id
-from holocore.formats import Stack, StackError, open_stack
+from holocore.formats import Stack, StackError, file_sha256, open_stack
 
 __all__ = ["ServiceError", "TransientError", "CorruptDownload", "BadStack", "ServiceClient", "FetchResult"]
 
@@ -178,11 +177,7 @@ class ServiceClient:
 
     def _verify_and_install(self, job_id: str, cache: StackCache, part: Path, part_etag: Path, *, etag: str,
                             header_sha: Optional[str], expected: Optional[str], resumed_from: int) -> FetchResult:
-        h = hashlib.sha256()
-        with open(part, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-        digest = h.hexdigest()
+        digest = file_sha256(part)
         claims = {"ETag": _etag_hex(etag), "X-Content-SHA256": header_sha, "job stack_sha256": expected}
         claims = {k: v for k, v in claims.items() if v}
         if not claims:
