@@ -61,3 +61,31 @@ def test_glass_slab_brings_the_image_closer(dots):
     assert abs(z - expect) < 0.5 * dof, (z, expect, dof)
     # the shift t(1 - 1/n) is 1.1 depths of field here: the image is measurably closer than without the slab
     assert z - z_holo(zc) > 0.5 * dof
+
+
+def _signal_and_noise(loaded, optics_, spp: int):
+    """(signal, noise) power of the WRP field from two independent ray seeds: Re<U1, U2> is an unbiased
+    estimate of |E U|^2, and |U1 - U2|^2 / 2 of the Monte Carlo noise."""
+    import numpy as np
+
+    f = [render_loaded(loaded, optics_, RenderOptions(preset="balanced", spp=spp, wrp_planes=1, ray_seed=seed))
+         .wrp_field.astype(np.complex128) for seed in (11, 12)]
+    return float(np.real(np.vdot(f[0], f[1]))), float(np.sum(np.abs(f[0] - f[1]) ** 2) / 2)
+
+
+def test_rays_through_a_glass_ball_add_up_coherently(tmp_path):
+    # The paper's glass scene (a ball imaging a dotted card into the air in front of it, 0.72 m) at the paper
+    # display with virtual infinity at 4 mm. The rays of one card point reach the WRP through different parts
+    # of the ball, where their apparent distances differ by ~0.4 % (a piston of tens of radians in k r): unless
+    # each point keeps one depth, its sub-hologram decorrelates. Measured before the fix: noise 157x the
+    # signal, against the plan's ~1x; after it, 0.5x, as for a card seen directly.
+    from holocore.display import PAPER
+    from holocore.paper_scenes import write_paper_scene
+    from holocore.scene import load_scene
+
+    loaded = load_scene(write_paper_scene("glass", tmp_path / "glass"))
+    opt = PAPER.optics(resolution_hw=(64, 96), frames=2, z_inf_mm=4.0)
+    signal, noise = _signal_and_noise(loaded, opt, 256)
+    plan = render_loaded(loaded, opt, RenderOptions(preset="balanced", spp=256, wrp_planes=1)).meta["plan"]
+    assert plan["coherent_delta"]
+    assert signal > 0 and noise / signal < 2.0 * max(1.0, plan["noise_to_signal"]), (noise / signal, plan)
