@@ -8,11 +8,11 @@ a = <t, p>, e = ||p||^2, rho^2 = |a|^2 / e, q = (e / HW)^w (w: ``efficiency_weig
 O = 1 - q rho^2 (w = 0: E = 1 - rho^2). Its Wirtinger gradient is dO/dp* = -(q/e)(a t - (1 - w) rho^2 p), so
 dO/du* = A^H dO/dp* and, with u = exp(i phi), dO/dphi = 2 Im(conj(u) dO/du*). Written out this way one
 iteration is four padded ``fft2`` (Eqs. 1-2 of :mod:`holocore.encoding_op`), two multiplies on the padded grid
-and seven passes over H x W: cos and sin, u = exp(i phi) straight into the FFT input, the crop copy of J p, the two dots per item,
-dO/dp* straight into the adjoint's input, the gradient, fused Adam. No autograd tape. The WRP-side fields
-(t, p, dO/dp*) are held flipped (J; the dots do not depend on the order), the SLM side (phi, u, the gradient)
-in natural order. The gradient is scaled by 2 HW so that Adam's eps stays negligible at every size (Adam is
-otherwise scale-free).
+and ten passes over H x W: cos, sin, u = exp(i phi) straight into the FFT input, the crop copy of J p, the
+dots (one BLAS dot each), dO/dp* straight into the adjoint's input (two), the gradient (two), fused Adam.
+No autograd tape. The WRP-side fields (t, p, dO/dp*) are held flipped (J; the dots do not depend on the
+order), the SLM side (phi, u, the gradient) in natural order. The gradient is scaled by 2 HW so that Adam's
+eps stays negligible at every size (Adam is otherwise scale-free).
 
 Adam, per element (Kingma & Ba 2015; the same update as ``torch.optim.Adam``). Each (frame, color) has its
 own stop rule: every 10 iterations its field SNR, 10 log10((1 - O) / O) dB, is compared with the value 30
