@@ -8,8 +8,8 @@ against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x
 floor: the same run times (a) one iteration of the encoder's optimiser on a block of ``frames`` frames of one
 color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
 padded grid, (c) the same on the 2x grid of DESIGN §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
-(row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); interleaved, best of
-``repeats``.
+(row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
+``encoding_op.heap_reuse`` and (b) again under it; interleaved, best of ``repeats``.
 error: E (and the field SNR 10 log10((1-E)/E)) every 10 iterations with no stop rule, where the 0.05 dB rule
 stops, for both supervisions. rss: writes a synthetic RESULT (a random smooth complex field; no render) and
 runs `holo encode` under /usr/bin/time -v. Run one at a time; each prints a markdown block.
@@ -18,6 +18,7 @@ runs `holo encode` under /usr/bin/time -v. Run one at a time; each prints a mark
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -27,6 +28,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import torch
@@ -35,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from holocore.encoding_block import encode_block  # noqa: E402
+from holocore.encoding_op import heap_reuse  # noqa: E402
 from holocore.encoding_sgd import Operator, encoder_grid, optimise, spread_px  # noqa: E402
 from holocore.propagation import padded_shape  # noqa: E402
 from holocore.randomfield import passband_mask, random_field  # noqa: E402
@@ -99,10 +102,23 @@ def floor(args) -> None:
             s = torch.fft.fft(torch.fft.fft(x_win, n=op.wp, dim=-1), n=op.hp, dim=-2)  # H nonzero rows only
             torch.fft.fft(torch.fft.fft(s, dim=-2)[..., :hw[0], :], dim=-1)  # only the H rows kept
 
-    best = {"iter": math.inf, "own": math.inf, "2x": math.inf, "pruned": math.inf}
+    def pairs_heap():  # the same with the allocator setting the optimiser runs under (encoding_op.heap_reuse)
+        with heap_reuse():
+            pairs(x_own)
+            t0 = time.perf_counter()
+            pairs(x_own)
+            return time.perf_counter() - t0
+
+    def iteration_mmap():  # the optimiser without heap_reuse: every FFT output on fresh pages
+        with mock.patch("holocore.encoding_sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
+            return one_iteration()
+
+    best = {k: math.inf for k in ("iter", "iter_mmap", "own", "own_heap", "2x", "pruned")}
     one_iteration(), pairs(x_own), pairs(x_2x), pruned()  # warm up (plans, caches, workspaces)
     for _ in range(args.repeats):
         best["iter"] = min(best["iter"], one_iteration())
+        best["iter_mmap"] = min(best["iter_mmap"], iteration_mmap())
+        best["own_heap"] = min(best["own_heap"], pairs_heap())
         for key, fn in (("own", lambda: pairs(x_own)), ("2x", lambda: pairs(x_2x)), ("pruned", pruned)):
             t0 = time.perf_counter()
             fn()
@@ -112,12 +128,16 @@ def floor(args) -> None:
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())})\n")
     print(f"{hw[0]}x{hw[1]}, {args.frames} frame(s) of one color ({lam * 1e9:.1f} nm), z_wrp {args.z_mm} mm: "
           f"spread r = {r} px, encoder grid {op.hp}x{op.wp} (2x grid {g2[0]}x{g2[1]})\n")
-    print("| | seconds | per frame | / floor on own grid | / floor on 2x grid |\n|---|---|---|---|---|")
-    for key, name in (("iter", "one SGD iteration"), ("own", "floor: 2 x (fft2 + ifft2), own grid"),
+    print("| | seconds | per frame | / floor on own grid | / same, heap reuse | / floor on 2x grid |\n"
+          "|---|---|---|---|---|---|")
+    for key, name in (("iter", "one SGD iteration"), ("iter_mmap", "one SGD iteration without heap reuse"),
+                      ("own", "floor: 2 x (fft2 + ifft2), own grid"),
+                      ("own_heap", "floor: the same under heap reuse"),
                       ("pruned", "pruned: the same from 1-D FFTs (zero rows skipped)"),
                       ("2x", "floor: 2 x (fft2 + ifft2), 2x grid")):
         v = best[key]
-        print(f"| {name} | {v:.3f} | {v / args.frames:.3f} | {v / best['own']:.2f} | {v / best['2x']:.2f} |")
+        print(f"| {name} | {v:.3f} | {v / args.frames:.3f} | {v / best['own']:.2f} | {v / best['own_heap']:.2f} "
+              f"| {v / best['2x']:.2f} |")
     print(json.dumps({"hw": hw, "frames": args.frames, "grid": [op.hp, op.wp], "best_s": best}))
 
 

@@ -30,7 +30,7 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from holocore.encoding_op import Operator, encoder_grid, flip, spread_px
+from holocore.encoding_op import Operator, encoder_grid, flip, heap_reuse, spread_px
 
 __all__ = ["Operator", "encoder_grid", "spread_px", "inner_energy", "optimise", "SgdOutcome"]
 
@@ -111,7 +111,7 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
     t = flip(t_unit.index_select(0, idx))  # J t: the WRP side is held flipped (encoding_op, Eq. 1)
     opt = _adam(phi, lr, None)
     w_eff = float(efficiency_weight)
-    with torch.no_grad():
+    with torch.no_grad(), heap_reuse(dev.type == "cpu"):
         p = torch.empty_like(t)
         cos, sin, grad = torch.empty_like(phi), torch.empty_like(phi), torch.empty_like(phi)
         for it in range(1, iterations + 1):
