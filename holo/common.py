@@ -49,6 +49,7 @@ class OpticsOptions:
     frames: Optional[int] = None
     fit_camera_fov: bool = False
     seed: Optional[int] = None
+    frame_phases: Optional[str] = None
     optics_json: Optional[Path] = None
 
     def resolve(self, **command_defaults: Any) -> tuple["DisplayProfile", "OpticsConfig"]:
@@ -66,7 +67,8 @@ class OpticsOptions:
         given = {"resolution_hw": parse_hw(self.resolution) if self.resolution else None,
                  "pitch_um": self.pitch_um, "wavelengths_nm": _parse_wavelengths(self.wavelengths_nm),
                  "z_inf_mm": self.z_inf_mm, "focal_length_mm": self.focal_length_mm, "frames": self.frames,
-                 "fit_camera_fov": True if self.fit_camera_fov else None, "seed": self.seed}
+                 "fit_camera_fov": True if self.fit_camera_fov else None, "seed": self.seed,
+                 "frame_phases": self.frame_phases}
         defaults = {k: v for k, v in command_defaults.items() if given.get(k) is None}
         if "resolution_hw" in defaults and isinstance(defaults["resolution_hw"], str):
             defaults["resolution_hw"] = parse_hw(defaults["resolution_hw"])
@@ -117,6 +119,8 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
     ("fit_camera_fov", bool, typer.Option(False, "--fit-camera-fov", help="Derive f from the scene camera's "
                                           "field of view filling the SLM width, instead of the display's f.")),
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
+    ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="coded (default: the frames' random "
+                                                 "phases cancel each other's speckle) or independent (paper Eq. 4).")),
     ("optics_json", Optional[Path], typer.Option(None, "--optics-json", help="OpticsConfig fields as a JSON "
                                                  "file (over the profile, under the options above).")),
 )

@@ -93,13 +93,14 @@ def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
 
 def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_inf_m: float, z_wrp_m: float,
                  pitch_m: float, wavelengths_m: Sequence[float], frames: int, planes: int = 8,
-                 seed: int = 0, z_range_m: Optional[tuple[float, float]] = None,
+                 seed: int = 0, z_range_m: Optional[tuple[float, float]] = None, coded: bool = True,
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(SLM field, WRP field) complex64 [F, C, H, W], plane depths (m) and pixels per plane, from RGB-D.
 
     ``rgb`` [3, H, W] linear radiance, ``zc`` [H, W] eye-camera depth (m; <= 0 or non-finite: nothing hit,
     put on the farthest plane). ``z_range_m`` (far, near): hologram depths outside it (pixels that mix a
-    surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``).
+    surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``coded``: the
+    frames' random phases are coded (:func:`holocore.randomfield.phase_bank`), as the renderer's by default.
     """
     import torch
 
@@ -137,7 +138,8 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]  # s_c, the sine of theta_max
     for c, lam in enumerate(wavelengths_m):
         amp = torch.from_numpy((np.sqrt(img[channel_of(float(lam))]) * cone[c] / max(cone)).astype(np.float32))
-        ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed))
+        ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed),
+                        coded_frames=frames if coded and frames > 1 else None)
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
         for i, z in enumerate(zs):
             if counts[i] == 0:
@@ -176,7 +178,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     slm, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=pl["focal_length_m"], z_inf_m=optics.z_inf_m,
                                         z_wrp_m=ana.z_wrp_m, pitch_m=optics.pitch_m,
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
-                                        seed=optics.seed,
+                                        seed=optics.seed, coded=optics.frame_phases == "coded",
                                         z_range_m=None if ana.z_far_holo_m is None else (ana.z_far_holo_m,
                                                                                           ana.z_near_holo_m))
     timings["propagate_s"] = time.perf_counter() - t2

@@ -10,7 +10,7 @@ display profiles (:mod:`holocore.display`) build an OpticsConfig; this model sta
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -66,6 +66,12 @@ class OpticsConfig(BaseModel):
     )
     frames: int = Field(default=8, ge=1, le=MAX_FRAMES, description=f"Time-multiplexed frames (1..{MAX_FRAMES}).")
     seed: int = Field(default=0, ge=0, lt=2**63, description="Seed of every random choice (rays, phase bank).")
+    frame_phases: Literal["coded", "independent"] = Field(
+        default="coded",
+        description="Random phases of the frames: 'coded' (one random field plus a per-cell code ramp, so that "
+                    "the cross terms of nearby image cells cancel in the frame average: less speckle; "
+                    "holocore.randomfield) or 'independent' (one random field per frame, the paper's Eq. 4).",
+    )
     wrp_margin_px: float = Field(
         default=4.0, ge=0.0, le=1000.0, allow_inf_nan=False,
         description="WRP margin in pixel footprints: no image point closer than this many p/tan(theta_max).",

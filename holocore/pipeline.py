@@ -103,6 +103,12 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
             "field_of_view": fov, "planes": planes}
 
 
+def coded_frames(optics: OpticsConfig) -> Optional[int]:
+    """The ``coded_frames`` argument of :func:`holocore.randomfield.phase_bank` for these optics: the frame count
+    when the frames' phases are coded (the default), None when they are independent."""
+    return optics.frames if optics.frame_phases == "coded" and optics.frames > 1 else None
+
+
 def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
            wavelengths_m=None):
     """exp(i phi_m) per color as [F, H, W] views of one cell-major tensor ([H, W, C, F] in memory): the tracer
@@ -121,7 +127,7 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0
     for c, lam in enumerate(lams):
         for m in range(F):
             ph = phase_bank(1, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device,
-                            first_frame=first_frame + m)[0]
+                            first_frame=first_frame + m, coded_frames=coded_frames(optics))[0]
             cells[:, :, c, m] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64)
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 

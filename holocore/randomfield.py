@@ -13,17 +13,31 @@ and each wavelength gets its own independent bank.
 
 Note: r_m is band-limited; the phase-only field exp(i phi_m) is not exactly (taking the argument spreads
 its spectrum), which is the paper's choice and ours.
+
+Coded frames (``coded_frames=F``, the renderer's default; docs/physics.md, "Coded frame phases"). Independent
+frames leave speckle of contrast 1/sqrt(F) in the F-frame average: two image cells a, b inside one eye's
+resolution spot interfere with the cross term sum_m exp(i (phi_m(a) - phi_m(b))), a random walk of F steps.
+Coded frames take one random field psi = phi_0 and give frame m
+
+    phi_m(x) = psi(x) + 2 pi m c(x) / F,   c(i, j) = (i + a j) mod F,
+
+so the cross term is exp(i (psi(a) - psi(b))) sum_m exp(2 pi i m (c(a) - c(b)) / F) = 0 exactly whenever
+c(a) != c(b): for every pair of cells closer than the lattice's shortest same-code distance (5.1 cells for
+F = 24 with a = 5, chosen to make that distance as long as possible), in every view and at every focus, since
+the cancellation happens in the frame average, after any linear propagation. Each frame alone is psi plus a
+phase grating: as random as psi.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence, Union
+from functools import lru_cache
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import torch
 
-__all__ = ["passband_radius", "passband_mask", "random_field", "phase_bank"]
+__all__ = ["passband_radius", "passband_mask", "random_field", "phase_bank", "frame_codes", "code_multiplier"]
 
 PitchLike = Union[float, Sequence[float]]
 _STREAM_TAG = 0x4F1E1D  # separates these streams from other users of the same seed
@@ -103,14 +117,54 @@ def random_field(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pi
                                                                                pitch_m, seed)])).to(device)
 
 
+@lru_cache(maxsize=None)
+def code_multiplier(frames: int) -> tuple[int, float]:
+    """(a, distance): the multiplier a of the code c(i, j) = (i + a j) mod F whose shortest nonzero same-code
+    offset (di, dj) (di + a dj = 0 mod F) is longest, and that length in cells (the radius inside which all cross
+    terms of coded frames cancel). F = 1: (0, inf)."""
+    F = int(frames)
+    if F < 2:
+        return 0, math.inf
+    best = (1, 0.0)
+    for a in range(1, F):
+        shortest = float(F)  # (F, 0) is always a same-code offset
+        for dj in range(1, F + 1):
+            di = (-a * dj) % F
+            shortest = min(shortest, math.hypot(di, dj), math.hypot(di - F, dj))
+        if shortest > best[1] + 1e-12:
+            best = (a, shortest)
+    return best
+
+
+def frame_codes(shape_hw: tuple[int, int], frames: int) -> np.ndarray:
+    """The code c(i, j) = (i + a j) mod F of every cell (int64 [H, W]; module docstring), a = code_multiplier(F)."""
+    h, w = (int(v) for v in shape_hw)
+    a, _ = code_multiplier(frames)
+    return (np.arange(h)[:, None] + a * np.arange(w)[None, :]) % max(1, int(frames))
+
+
 def phase_bank(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, seed: int,
-               device: Union[str, torch.device] = "cpu", first_frame: int = 0) -> torch.Tensor:
+               device: Union[str, torch.device] = "cpu", first_frame: int = 0,
+               coded_frames: Optional[int] = None) -> torch.Tensor:
     """Random phase maps phi_m = arg r_m, float32 [F, H, W] in [0, 2pi) (paper Eq. 4), periodic on H x W.
 
     ``seed`` >= 0; the stream is derived from (seed, wavelength, frame index), so the same arguments give the
     same bank on any device and each wavelength an independent one. ``first_frame``: frames first_frame..
-    first_frame+frames-1 of the same bank (a chunk of a longer one, equal to its slice).
+    first_frame+frames-1 of the same bank (a chunk of a longer one, equal to its slice). ``coded_frames=F``:
+    the frames of an F-frame coded bank instead (module docstring; frame 0 is the same in both).
     """
+    if coded_frames is not None and int(coded_frames) > 1:
+        F = int(coded_frames)
+        _check_bank(F, seed)
+        if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
+            raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} coded frames")
+        psi = np.mod(np.angle(next(_frames(1, shape_hw, wavelength_m, pitch_m, seed, 0))), 2.0 * np.pi)
+        step = (2.0 * np.pi / F) * frame_codes(shape_hw, F)
+        out = np.empty((int(frames), *psi.shape), dtype=np.float32)
+        for k, m in enumerate(range(int(first_frame), int(first_frame) + int(frames))):
+            out[k] = np.mod(psi + m * step, 2.0 * np.pi)
+        out[out >= np.float32(2.0 * np.pi)] = 0.0
+        return torch.from_numpy(out).to(device)
     phases = []
     for r in _frames(frames, shape_hw, wavelength_m, pitch_m, seed, first_frame):
         phi = np.mod(np.angle(r), 2.0 * np.pi).astype(np.float32)
