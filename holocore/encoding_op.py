@@ -91,8 +91,8 @@ def heap_reuse(enabled: bool = True) -> Iterator[None]:
     """Inside: glibc's malloc serves large blocks from its heap, so the padded FFT outputs that every
     :meth:`Operator.apply` allocates reuse the pages freed by the previous ones instead of fresh mmap'd pages
     (which the kernel faults in and zeroes: at 1536 x 2400 x 2 that is ~10 ms of a ~20 ms ``fft2`` on CPU;
-    ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the values glibc's dynamic rule
-    reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are returned
+    ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the largest values glibc's dynamic
+    rule reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are returned
     (malloc_trim). A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself)."""
     libc = _glibc() if enabled else None
     if libc is None or not libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30):
@@ -178,6 +178,11 @@ class Operator:
     def __call__(self, u: torch.Tensor, *, adjoint: bool = False) -> torch.Tensor:
         """A u (or A^H u) for u [B, H, W] in natural order; a new contiguous [B, H, W] tensor."""
         b = u.shape[0]
-        self.window("in", b, u.device).copy_(flip(u) if adjoint else u)
+        win = self.window("in", b, u.device)
+        if adjoint:
+            for i in range(b):  # J u frame by frame: a temporary of one frame, not of the block
+                win[i].copy_(flip(u[i]))
+        else:
+            win.copy_(u)
         out = self.apply("in", b, u.device, adjoint=adjoint)
         return out.contiguous() if adjoint else flip(out)
