@@ -93,7 +93,8 @@ def heap_reuse(enabled: bool = True) -> Iterator[None]:
     (which the kernel faults in and zeroes: at 1536 x 2400 x 2 that is ~10 ms of a ~20 ms ``fft2`` on CPU;
     ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the largest values glibc's dynamic
     rule reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are returned
-    (malloc_trim). A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself)."""
+    (malloc_trim). The setting is process-wide: overlapping uses from several threads only lose the speed-up.
+    A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself)."""
     libc = _glibc() if enabled else None
     if libc is None or not libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30):
         yield

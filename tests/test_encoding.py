@@ -459,3 +459,21 @@ def test_written_out_gradient_is_autograds(cone, w):
     big = ph.grad.abs() > 1e-3 * float(ph.grad.abs().max())
     step = (out.phase - phi)[big]
     assert torch.allclose(step, -0.01 * torch.sign(ph.grad[big]), atol=1e-5)
+
+
+def test_heap_reuse_changes_no_number(monkeypatch):
+    """The optimiser's allocator setting (encoding_op.heap_reuse) is a speed matter only: the stack is the same
+    bit for bit without it, and the context can be entered twice in a row."""
+    import contextlib
+
+    from holocore import encoding_sgd
+    from holocore.encoding_op import heap_reuse
+
+    target = _small_target(frames=2)
+    kw = dict(z_wrp_m=Z, wavelengths_m=LAMS, pitch_m=P, iterations=40)
+    with_reuse = enc.encode_sgd(target, **kw)
+    with heap_reuse(), heap_reuse(False):
+        pass
+    monkeypatch.setattr(encoding_sgd, "heap_reuse", lambda enabled=True: contextlib.nullcontext())
+    without = enc.encode_sgd(target, **kw)
+    assert np.array_equal(with_reuse.phase, without.phase) and np.array_equal(with_reuse.loss, without.loss)
