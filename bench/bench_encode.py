@@ -38,9 +38,9 @@ sys.path.insert(0, str(ROOT))
 
 from holocore.encoding_block import encode_block  # noqa: E402
 from holocore.encoding_op import heap_reuse  # noqa: E402
-from holocore.encoding_sgd import Operator, encoder_grid, optimise, spread_px  # noqa: E402
+from holocore.encoding_sgd import Operator, optimise, spread_px  # noqa: E402
 from holocore.propagation import padded_shape  # noqa: E402
-from holocore.randomfield import passband_mask, random_field  # noqa: E402
+from holocore.randomfield import random_field  # noqa: E402
 
 P = 8e-6
 LAMS = [640e-9, 516.5e-9, 455.4e-9]

@@ -16,8 +16,9 @@ shift theorem, ramp[k] = exp(+2 pi i k.s / N) moves the kernel by -s):
     forward:  C F{ M2 . F{P u} }     = J A_z u,      M2 = ramp . M / |N|                      (1)
     adjoint:  C F{ M3 . F{P J g} }   = A_z^H g,      M3 = ramp . R(conj M) / |N|              (2)
 
-(1): F{M2 F x}[j] = |N| (T_-s k (*) x)[-j] = (k (*) x)[s - j]. (2): substituting m' = s - m in the sum over the
-window gives the kernel k3[n] = k*[-(n + s)] with k* = IFFT(conj M), whose DFT is M3. So the optimiser keeps
+(1): IFFT(ramp M) = k shifted by -s, k[n + s], so F{M2 F x}[j] = (k[. + s] (*) x)[-j] = (k (*) x)[s - j].
+(2): substituting m' = s - m in the sum over the window gives the kernel k3[n] = k*[-(n + s)] with
+k* = IFFT(conj M), whose DFT is M3. So the optimiser keeps
 the WRP-side fields (target, prediction, dO/dp*) in the flipped order J and the SLM-side ones (phase,
 gradient) in the natural order: no flip, no conjugation and no ifft in the loop, only the crop. (1) and (2)
 hold for any M; the equality with the plain operator and the adjoint identity are tested in complex128.
