@@ -10,6 +10,7 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel
 
+from holocore.config import theta_max_rad
 from holocore.mapping import HologramMap
 from holocore.mitsuba_env import mitsuba
 from holocore.tracer import channel_of
@@ -189,8 +190,8 @@ def analyze(
     lum = lum + _emitted_rgb(scene, seed)
     colors_lit = [bool(lum[channel_of(lam)] > 0) for lam in wavelengths_m]
 
-    theta_min = min(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
-    theta_max = max(min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m)
+    theta_min = min(theta_max_rad(lam, pitch_m) for lam in wavelengths_m)
+    theta_max = max(theta_max_rad(lam, pitch_m) for lam in wavelengths_m)
     margin = margin_px * pitch_m / math.tan(theta_min)
     depths = np.concatenate([zc_first, zc_img, _small_shape_depths(scene, hmap, dirs_c, n_side)])
     depths = depths[np.isfinite(depths) & (depths > 0)]

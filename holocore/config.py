@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM"]
+__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad"]
 
 MAX_SIDE_PX = 16384
 """Largest SLM or WRP side accepted, in pixels (a 16k×16k complex64 field is 2 GiB)."""
@@ -22,6 +22,13 @@ MAX_FRAMES = 256
 """Largest number of time-multiplexed frames accepted."""
 DISPLAY_FOCAL_LENGTH_MM = 50.0
 """The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm; DESIGN §3)."""
+
+def theta_max_rad(wavelength_m: float, pitch_m: float) -> float:
+    """Half-angle of the recordable cone (rad), arcsin(lambda / 2p), pi/2 when lambda >= 2p (DESIGN §4; paper
+    Sec. 4.3). The one place this formula lives."""
+    s = float(wavelength_m) / (2.0 * float(pitch_m))
+    return math.pi / 2 if s >= 1.0 else math.asin(s)
+
 
 Wavelength = Annotated[float, Field(gt=100.0, lt=3000.0, allow_inf_nan=False)]
 
@@ -159,6 +166,5 @@ class OpticsConfig(BaseModel):
         return math.degrees(2.0 * math.atan(self.width * self.pitch_m / (2.0 * self.focal_length_m(scene_fov_x_deg))))
 
     def theta_max(self, wavelength_m: float) -> float:
-        """Half-angle of the recordable cone (rad): arcsin(lambda / 2p), pi/2 when lambda >= 2p (DESIGN §4)."""
-        s = wavelength_m / (2.0 * self.pitch_m)
-        return math.pi / 2 if s >= 1.0 else math.asin(s)
+        """Half-angle of the recordable cone (rad): :func:`theta_max_rad` at this pitch (DESIGN §4)."""
+        return theta_max_rad(wavelength_m, self.pitch_m)

@@ -6,6 +6,9 @@ camera frame has +x towards the image's left, so xc = -x_camera. A point maps to
     x = f xc / zc,   y = f yc / zc,   z = z_inf + f^2 / zc        (DESIGN §3)
 
 The map is projective, so straight rays stay straight: a hologram ray maps to a world ray through two points.
+
+The formulas are written once, in :func:`camera_to_holo_xyz` and :func:`holo_to_camera_xyz`, on plain arithmetic:
+the numpy methods of :class:`HologramMap` and the tracer's Dr.Jit kernel (float64 arrays) call the same two.
 """
 
 from __future__ import annotations
@@ -14,9 +17,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HologramMap"]
+__all__ = ["HologramMap", "camera_to_holo_xyz", "holo_to_camera_xyz"]
 
 _FLIP_X = np.diag([-1.0, 1.0, 1.0])
+
+
+def camera_to_holo_xyz(xc, yc, zc, *, f, z_inf):
+    """T (DESIGN §3, paper Eq. 3): eye-camera (xc, yc, zc > 0) -> hologram (x, y, z), metres. Works on floats,
+    numpy arrays and Dr.Jit arrays alike (only +, *, /)."""
+    return f * xc / zc, f * yc / zc, z_inf + f * f / zc
+
+
+def holo_to_camera_xyz(x, y, z, *, f, z_inf):
+    """T^-1: hologram (x, y, z > z_inf) -> eye-camera (xc, yc, zc), metres; as :func:`camera_to_holo_xyz`."""
+    zc = f * f / (z - z_inf)
+    return x * zc / f, y * zc / f, zc
 
 
 @dataclass(frozen=True)
@@ -42,6 +57,21 @@ class HologramMap:
         object.__setattr__(self, "_rot_inv", np.linalg.inv(rot @ _FLIP_X))
         object.__setattr__(self, "_origin", m[:3, 3].copy())
 
+    @property
+    def rotation(self) -> np.ndarray:
+        """Eye-camera (xc right, yc up, zc forward) -> world directions, 3x3 (a copy)."""
+        return self._rot.copy()
+
+    @property
+    def rotation_inv(self) -> np.ndarray:
+        """World -> eye-camera directions, 3x3 (a copy)."""
+        return self._rot_inv.copy()
+
+    @property
+    def origin(self) -> np.ndarray:
+        """The eye (the sensor's position) in world coordinates, m (a copy)."""
+        return self._origin.copy()
+
     @classmethod
     def from_sensor(cls, sensor, *, focal_length_m: float, z_inf_m: float) -> "HologramMap":
         """Build T from a Mitsuba sensor (its to_world transform)."""
@@ -60,37 +90,26 @@ class HologramMap:
         w = np.asarray(v, dtype=np.float64) @ self._rot.T
         return w / np.linalg.norm(w, axis=-1, keepdims=True)
 
-    def world_dir_to_camera(self, v: np.ndarray) -> np.ndarray:
-        return np.asarray(v, dtype=np.float64) @ self._rot_inv.T
-
     # ---- T and its inverse ----------------------------------------------------------------------------
     def camera_to_holo(self, c: np.ndarray) -> np.ndarray:
         """Eye-camera points (zc > 0) -> hologram points [..., 3] (DESIGN §3)."""
         c = np.asarray(c, dtype=np.float64)
-        f = self.focal_length_m
-        zc = c[..., 2]
-        return np.stack([f * c[..., 0] / zc, f * c[..., 1] / zc, self.z_inf_m + f * f / zc], axis=-1)
+        return np.stack(camera_to_holo_xyz(c[..., 0], c[..., 1], c[..., 2], f=self.focal_length_m, z_inf=self.z_inf_m),
+                        axis=-1)
 
     def holo_to_camera(self, q: np.ndarray) -> np.ndarray:
         """Hologram points with z > z_inf -> eye-camera points."""
         q = np.asarray(q, dtype=np.float64)
-        f = self.focal_length_m
-        zc = f * f / (q[..., 2] - self.z_inf_m)
-        return np.stack([q[..., 0] * zc / f, q[..., 1] * zc / f, zc], axis=-1)
+        return np.stack(holo_to_camera_xyz(q[..., 0], q[..., 1], q[..., 2], f=self.focal_length_m, z_inf=self.z_inf_m),
+                        axis=-1)
 
     def world_to_holo(self, p: np.ndarray) -> np.ndarray:
         return self.camera_to_holo(self.world_to_camera(p))
 
-    def holo_to_world(self, q: np.ndarray) -> np.ndarray:
-        return self.camera_to_world(self.holo_to_camera(q))
-
     def holo_depth_m(self, zc: np.ndarray | float) -> np.ndarray:
         """Hologram z of eye-camera depth zc (m)."""
-        return self.z_inf_m + self.focal_length_m**2 / np.asarray(zc, dtype=np.float64)
-
-    def camera_depth_m(self, z_holo: np.ndarray | float) -> np.ndarray:
-        """Eye-camera depth of hologram z (m); inverse of holo_depth_m."""
-        return self.focal_length_m**2 / (np.asarray(z_holo, dtype=np.float64) - self.z_inf_m)
+        return camera_to_holo_xyz(0.0, 0.0, np.asarray(zc, dtype=np.float64), f=self.focal_length_m,
+                                  z_inf=self.z_inf_m)[2]
 
     def holo_rays_to_camera(self, x: np.ndarray, u: np.ndarray, *, z_mid: float) -> tuple[np.ndarray, np.ndarray]:
         """Hologram rays (points x on a plane z > z_inf, unit directions u towards -z) -> eye-camera rays.

@@ -29,7 +29,8 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 import torch
 
-from holocore.mapping import HologramMap
+from holocore.config import theta_max_rad
+from holocore.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
 from holocore.mitsuba_env import mitsuba
 
 __all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cell_major", "combined_cells"]
@@ -297,7 +298,7 @@ class _Geometry:
     @classmethod
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
              planes=None, ring_rows: int = 1) -> "_Geometry":
-        thetas = [min(math.pi / 2, math.asin(min(1.0, lam / (2 * pitch_m)))) for lam in wavelengths_m]
+        thetas = [theta_max_rad(lam, pitch_m) for lam in wavelengths_m]
         # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
         thetas = [min(t, math.radians(89.0)) for t in thetas]
         th_max = max(thetas)
@@ -311,8 +312,8 @@ class _Geometry:
                    H=H, W=W, pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
                    z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
                    f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
-                   rot=tuple(map(float, hmap._rot.ravel())), rot_inv=tuple(map(float, hmap._rot_inv.ravel())),
-                   origin=tuple(map(float, hmap._origin)), cos_max=math.cos(th_max),
+                   rot=tuple(map(float, hmap.rotation.ravel())), rot_inv=tuple(map(float, hmap.rotation_inv.ravel())),
+                   origin=tuple(map(float, hmap.origin)), cos_max=math.cos(th_max),
                    omega=2.0 * math.pi * (1.0 - math.cos(th_max)), spp=spp,
                    ks=tuple(2.0 * math.pi / lam for lam in wavelengths_m),
                    cos_lim=tuple(math.cos(t) for t in thetas), chans=tuple(channel_of(lam) for lam in wavelengths_m),
@@ -332,8 +333,7 @@ def _mat(mi, m: tuple, v):
 
 
 def _holo_to_camera(mi, g, q):
-    zc = g.f * g.f / (q.z - g.z_inf)
-    return mi.Vector3d(q.x * zc / g.f, q.y * zc / g.f, zc)
+    return mi.Vector3d(*holo_to_camera_xyz(q.x, q.y, q.z, f=g.f, z_inf=g.z_inf))
 
 
 def _opaque(mi, g: _Geometry) -> SimpleNamespace:
@@ -453,7 +453,7 @@ def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, 
                           radiance_cache=radiance_cache)
     # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
     cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
-    q = V3d(o.f * cv.x / cv.z, o.f * cv.y / cv.z, o.z_inf + o.f * o.f / cv.z)
+    q = V3d(*camera_to_holo_xyz(cv.x, cv.y, cv.z, f=o.f, z_inf=o.z_inf))
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
     pos = None
     if o.planes:  # several recording planes: the plane in front of the image point, where the ray crosses it

@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+from holocore.effects import inventory
 from holocore.mitsuba_env import mitsuba
 
 __all__ = ["WavePaths", "trace_wave_paths"]
@@ -84,7 +85,7 @@ def trace_wave_paths(
     ctx = mi.BSDFContext()
     Delta, Smooth = mi.BSDFFlags.Delta, mi.BSDFFlags.Smooth
 
-    any_mixed = _has_mixed_bsdf(mi, scene)
+    any_mixed = bool(inventory(scene).mixed_delta)  # effects.inventory: the one test of delta + smooth lobes
     # Kernel parameters, not constants: one compiled kernel for every depth setting.
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
     helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
@@ -254,18 +255,6 @@ def trace_wave_paths(
         surf = dict(st["surf"], thr=st["thr"])
     return WavePaths(valid=ok, d=d, radiance=L, n_delta=st["nd"], escaped=st["escaped"], capped=st["capped"],
                      sampled=ok & ~st["cached"], surface=surf)
-
-
-def _has_mixed_bsdf(mi, scene) -> bool:
-    """Whether any shape's BSDF has both delta and smooth lobes (plastic and the like)."""
-    for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is None:
-            continue
-        f = int(bsdf.flags())
-        if f & int(mi.BSDFFlags.Delta) and f & int(mi.BSDFFlags.Smooth):
-            return True
-    return False
 
 
 def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):

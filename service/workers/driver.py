@@ -115,12 +115,11 @@ def frames_zip(stack_path: Path, out: Path) -> int:
 
 
 def preview_focus_mm(meta: dict) -> float:
-    """Focus of the preview: the middle of the image volume in hologram space (linear in dioptres), mm."""
-    a = meta.get("analysis") or {}
-    near, far = a.get("z_near_holo_m"), a.get("z_far_holo_m")
-    if isinstance(near, (int, float)) and isinstance(far, (int, float)):
-        return 0.5 * (near + far) * 1e3
-    return float(meta["z_inf_m"]) * 1e3
+    """Focus of the preview: the middle of the image volume in hologram space (linear in dioptres), mm
+    (holocore.evaluate.focus_planes_m with one plane; z_inf without an analysis)."""
+    from holocore.evaluate import focus_planes_m
+
+    return focus_planes_m(meta, 1)[0] * 1e3
 
 
 def _peak_rss_bytes() -> int:
