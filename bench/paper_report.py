@@ -12,10 +12,10 @@ Stages (each writes a JSON under --out, the report is rebuilt from all JSONs pre
   Mitsuba thin-lens ground truth on 4 focus planes (near / middle / far of the image volume and the depth of the
   mirror or glass image) x 3 views (left, centre, right), none of them the focal stack's own planes unless by
   chance (the table gives each plane's distance to the nearest stack plane). Keeps the images of Fig. 7.
-* ``conv``: convergence map (Fig. 5): two-stage, fast and direct at several spp, each rendered once with 24
-  frames (frame m's random phase and paths do not depend on how many frames are rendered, so F = 3, 8 are the
-  first F frames, checked by tests/test_paper_report.py; F = 1 is the first random-phase frame, whereas a
-  1-frame render skips the random phase, DESIGN §8), centre view, 3 focus planes. Convergence =
+* ``conv``: convergence map (Fig. 5): two-stage, fast and direct at several spp, rendered with 3, 8 and 24
+  frames (coded frame phases depend on the frame count, so a prefix of a 24-frame render is not an F-frame
+  render; checked by tests/test_paper_report.py; F = 1 is the 24-frame render's first frame, one random-phase
+  frame, whereas a 1-frame render skips the random phase, DESIGN §8), centre view, 3 focus planes. Convergence =
   PSNR(vs ground truth) / PSNR(converged reference vs ground truth), the reference a two-stage render at
   ``--ref-spp`` with 24 frames; the 80 % contour is drawn. PSNR against the reference's first F frames (Monte
   Carlo error alone) is kept too.
@@ -335,21 +335,33 @@ class Runner:
         a = self.args
         loaded = self.load(scene)
         self.warm(loaded)
-        ref, t_ref = self.render(loaded, 24, "balanced", a.ref_spp)
-        meta = ref.meta
+        def fields(preset: str, spp: int, method: str = "wrp"):
+            """({F: the F-frame SLM field}, seconds of the 24-frame render, its meta): F = 3, 8, 24 rendered on
+            their own (coded frame phases depend on the frame count), F = 1 the 24-frame render's first frame (one
+            random-phase frame, the same in every bank; a 1-frame render has no random phase)."""
+            out, t24, meta24 = {}, 0.0, None
+            for F in sorted(set(FRAMES) - {1}):
+                res, t = self.render(loaded, F, preset, spp, method=method)
+                out[F] = res.slm_field
+                if F == 24:
+                    t24, meta24 = t, res.meta
+                del res
+            out[1] = out[24][:1]
+            return out, t24, meta24
+
+        ref, t_ref, meta = fields("balanced", a.ref_spp)
         pupil = default_pupil_m(meta, view_deg=a.view_deg)
         zs = focus_planes_m(meta, 3)
         truth = GroundTruth(loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
         gts = [truth.channels(focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
         ms = [margin_px(meta, (self.H, self.W), focus_z_m=z, pupil_m=pupil, view=(0.0, 0.0)) for z in zs]
-        ref_views = {F: [eye_view(ref.slm_field[:F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
-                     for F in FRAMES}
+        ref_views = {F: [eye_view(ref[F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs] for F in FRAMES}
         del ref
 
         def scores(fld):
             out = {}
             for F in FRAMES:
-                recs = [eye_view(fld[:F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
+                recs = [eye_view(fld[F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
                 out[F] = {"psnr_gt_db": float(np.mean([score_cell(r, g, m)[0] for r, g, m in zip(recs, gts, ms)])),
                           "psnr_ref_db": float(np.mean([score_cell(r, g, m)[0]
                                                         for r, g, m in zip(recs, ref_views[F], ms)]))}
@@ -363,9 +375,9 @@ class Runner:
             method, preset = key.split("/")
             name = {"wrp/balanced": "ours", "wrp/fast": "fast", "direct/balanced": "direct"}[key]
             for spp in a.conv_spp:
-                res, t = self.render(loaded, 24, preset, spp, method=method)
-                sc = scores(res.slm_field)
-                del res
+                fld, t, _meta = fields(preset, spp, method)
+                sc = scores(fld)
+                del fld
                 for F in FRAMES:
                     rows.append({"method": name, "spp": spp, "frames": F, "render_s_24": t, **sc[F],
                                  "ratio": convergence_ratio(sc[F]["psnr_gt_db"], norm)})

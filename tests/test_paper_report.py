@@ -55,11 +55,26 @@ def tiny(tmp_path_factory):
     return loaded, r3, r2
 
 
-def test_frame_prefix_is_the_fewer_frame_render(tiny):
-    # The convergence map renders 24 frames once and scores the first F: for F >= 2 that is what an F-frame render
-    # gives (a 1-frame render has no random-phase bank, DESIGN §8, so the map's F = 1 is one random-phase frame).
-    _, r3, r2 = tiny
-    np.testing.assert_allclose(r3.slm_field[:2], r2.slm_field, rtol=1e-4, atol=1e-5 * np.abs(r2.slm_field).max())
+def test_frames_the_convergence_map_may_share(tiny):
+    # The convergence map's F = 1 is the first frame of its 24-frame render: frame 0 is the same random-phase
+    # frame in every bank (a 1-frame render has no random-phase bank, DESIGN §8). Coded frame phases depend on the
+    # frame count beyond frame 0, so F = 3, 8 are rendered on their own; with independent phases a prefix would do.
+    loaded, r3, r2 = tiny
+    from holocore.pipeline import RenderOptions, render_loaded
+
+    tol = dict(rtol=1e-4, atol=1e-5 * np.abs(r2.slm_field).max())
+    np.testing.assert_allclose(r3.slm_field[:1], r2.slm_field[:1], **tol)
+    assert np.abs(r3.slm_field[1] - r2.slm_field[1]).max() > 0.1 * np.abs(r2.slm_field[1]).max()
+    ind = {F: render_loaded(loaded, _optics(F, "independent"),
+                            RenderOptions(preset="balanced", spp=4)).slm_field for F in (2, 3)}
+    np.testing.assert_allclose(ind[3][:2], ind[2], rtol=1e-4, atol=1e-5 * np.abs(ind[2]).max())
+
+
+def _optics(frames: int, frame_phases: str):
+    from holocore.display import PAPER
+
+    return PAPER.optics(resolution_hw=(36, 48), frames=frames, z_inf_mm=4.0).model_copy(
+        update={"frame_phases": frame_phases})
 
 
 def test_reference_against_itself_and_cue_depth(rep, tiny):
