@@ -175,7 +175,8 @@ def make_plan(
     cache_exact = not view_dep
     if use_cache:
         words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
-                                                    else "approximate on glossy surfaces"))
+                                                    else "used on diffuse surfaces; glossy surfaces are path "
+                                                         "traced (their highlights move with the view)"))
     lit = list(colors_lit) if colors_lit is not None else [True] * n_colors
     if force_all:
         lit = [True] * n_colors

@@ -148,10 +148,11 @@ def trace_wave_paths(
         is_em = si.shape.is_emitter()
         st["escaped"] = st["escaped"] | (active & chain0 & ~si.is_valid())
         # The fast variant: a chain vertex without delta lobes (or an emitter) is P for sure; where the cache
-        # holds P's cell, P's radiance is one lookup and the path ends there.
+        # holds P's cell, P's radiance is one lookup and the path ends there. The cache holds view-independent
+        # radiance per unit diffuse albedo, so a glossy P (a highlight that moves with the view) is path traced.
         has = mi.Bool(False)
         if radiance_cache is not None:
-            sure_p = in_chain & (~mi.has_flag(bflags, Delta) | is_em)
+            sure_p = in_chain & (~mi.has_flag(bflags, Delta) | is_em) & ~mi.has_flag(bflags, mi.BSDFFlags.Glossy)
             emission = si.emitter(scene).eval(si, sure_p)
             albedo = bsdf.eval_diffuse_reflectance(si, sure_p)
             L_c, has = radiance_cache.lookup(si, albedo, emission, sure_p)
