@@ -29,7 +29,7 @@ from service.db import Database
 from service.jobfiles import JobFile, JobSpec, RunStatus, read_run_status
 from service.settings import ServiceSettings
 from service.workers.driver import EXIT_FAILED, write_json_atomic
-from service.workers.engine import (Engine, Handle, RunAs, give_tree, group_alive, kill_group, kill_uids,
+from service.workers.engine import (Engine, Handle, RunAs, give_tree, kill_group, kill_uids,
                                     reclaim_tree, resolve_sandbox, secure_data_dir)
 from service.workers.runfiles import ARTIFACTS, RUN_FILES, hash_artifacts, read_progress
 
