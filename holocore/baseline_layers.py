@@ -139,7 +139,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     for c, lam in enumerate(wavelengths_m):
         amp = torch.from_numpy((np.sqrt(img[channel_of(float(lam))]) * cone[c] / max(cone)).astype(np.float32))
         ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed),
-                        coded_frames=frames if coded and frames > 1 else None)
+                        coded_frames=frames if coded else None)
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
         for i, z in enumerate(zs):
             if counts[i] == 0:

@@ -106,7 +106,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
 def coded_frames(optics: OpticsConfig) -> Optional[int]:
     """The ``coded_frames`` argument of :func:`holocore.randomfield.phase_bank` for these optics: the frame count
     when the frames' phases are coded (the default), None when they are independent."""
-    return optics.frames if optics.frame_phases == "coded" and optics.frames > 1 else None
+    return optics.frames if optics.frame_phases == "coded" else None
 
 
 def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
@@ -117,7 +117,7 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0
     frame (no [F, H, W] temporaries)."""
     import torch
 
-    from holocore.randomfield import phase_bank
+    from holocore.randomfield import phase_frames
 
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
@@ -125,9 +125,9 @@ def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0
     C = len(lams)
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
     for c, lam in enumerate(lams):
-        for m in range(F):
-            ph = phase_bank(1, shape_hw, lam, optics.pitch_m, seed=optics.seed, device=device,
-                            first_frame=first_frame + m, coded_frames=coded_frames(optics))[0]
+        for m, phi in enumerate(phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed,
+                                             first_frame=first_frame, coded_frames=coded_frames(optics))):
+            ph = torch.from_numpy(phi).to(device)
             cells[:, :, c, m] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64)
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 

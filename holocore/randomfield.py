@@ -32,12 +32,13 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import Optional, Sequence, Union
+from typing import Iterator, Optional, Sequence, Union
 
 import numpy as np
 import torch
 
-__all__ = ["passband_radius", "passband_mask", "random_field", "phase_bank", "frame_codes", "code_multiplier"]
+__all__ = ["passband_radius", "passband_mask", "random_field", "phase_bank", "phase_frames", "frame_codes",
+           "code_multiplier"]
 
 PitchLike = Union[float, Sequence[float]]
 _STREAM_TAG = 0x4F1E1D  # separates these streams from other users of the same seed
@@ -143,6 +144,27 @@ def frame_codes(shape_hw: tuple[int, int], frames: int) -> np.ndarray:
     return (np.arange(h)[:, None] + a * np.arange(w)[None, :]) % max(1, int(frames))
 
 
+def phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, seed: int,
+                 first_frame: int = 0, coded_frames: Optional[int] = None) -> Iterator[np.ndarray]:
+    """The maps of :func:`phase_bank` one frame at a time (float32 [H, W] in [0, 2pi), on the CPU): a caller that
+    stores each frame elsewhere holds no [F, H, W] temporary, and a coded bank's psi and codes are made once."""
+    if coded_frames is not None and int(coded_frames) > 1:
+        F = int(coded_frames)
+        _check_bank(F, seed)
+        if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
+            raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} coded frames")
+        psi = np.mod(np.angle(next(_frames(1, shape_hw, wavelength_m, pitch_m, seed, 0))), 2.0 * np.pi)
+        step = (2.0 * np.pi / F) * frame_codes(shape_hw, F)
+        maps = (np.mod(psi + m * step, 2.0 * np.pi) for m in range(int(first_frame), int(first_frame) + int(frames)))
+    else:
+        maps = (np.mod(np.angle(r), 2.0 * np.pi) for r in _frames(frames, shape_hw, wavelength_m, pitch_m, seed,
+                                                                  first_frame))
+    for phi in maps:
+        phi = phi.astype(np.float32)
+        phi[phi >= np.float32(2.0 * np.pi)] = 0.0  # float32 rounding of values just under 2pi
+        yield phi
+
+
 def phase_bank(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, seed: int,
                device: Union[str, torch.device] = "cpu", first_frame: int = 0,
                coded_frames: Optional[int] = None) -> torch.Tensor:
@@ -153,21 +175,6 @@ def phase_bank(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitc
     first_frame+frames-1 of the same bank (a chunk of a longer one, equal to its slice). ``coded_frames=F``:
     the frames of an F-frame coded bank instead (module docstring; frame 0 is the same in both).
     """
-    if coded_frames is not None and int(coded_frames) > 1:
-        F = int(coded_frames)
-        _check_bank(F, seed)
-        if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
-            raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} coded frames")
-        psi = np.mod(np.angle(next(_frames(1, shape_hw, wavelength_m, pitch_m, seed, 0))), 2.0 * np.pi)
-        step = (2.0 * np.pi / F) * frame_codes(shape_hw, F)
-        out = np.empty((int(frames), *psi.shape), dtype=np.float32)
-        for k, m in enumerate(range(int(first_frame), int(first_frame) + int(frames))):
-            out[k] = np.mod(psi + m * step, 2.0 * np.pi)
-        out[out >= np.float32(2.0 * np.pi)] = 0.0
-        return torch.from_numpy(out).to(device)
-    phases = []
-    for r in _frames(frames, shape_hw, wavelength_m, pitch_m, seed, first_frame):
-        phi = np.mod(np.angle(r), 2.0 * np.pi).astype(np.float32)
-        phi[phi >= np.float32(2.0 * np.pi)] = 0.0  # float32 rounding of values just under 2pi
-        phases.append(phi)
+    phases = list(phase_frames(frames, shape_hw, wavelength_m, pitch_m, seed=seed, first_frame=first_frame,
+                               coded_frames=coded_frames))
     return torch.from_numpy(np.stack(phases)).to(device)

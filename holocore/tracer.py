@@ -294,7 +294,6 @@ class _Geometry:
     chans: tuple
     depth_step: float  # m: depth grid of image points behind delta vertices, min over colors of DOF / 8
 
-
     @classmethod
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
              planes=None, ring_rows: int = 1) -> "_Geometry":
