@@ -82,6 +82,17 @@ def _name(shape, i: int) -> str:
     return sid if sid else f"{shape.class_name().lower()}#{i}"
 
 
+def is_mixed_delta(flags) -> bool:
+    """Whether BSDF flags hold delta and smooth lobes together (plastic and the like): the one test of it."""
+    mi = mitsuba()
+    return bool(mi.has_flag(flags, mi.BSDFFlags.Delta) and mi.has_flag(flags, mi.BSDFFlags.Smooth))
+
+
+def has_mixed_delta(scene) -> bool:
+    """Whether any shape's BSDF mixes delta and smooth lobes (a cheap loop over the shapes, no inventory)."""
+    return any(sh.bsdf() is not None and is_mixed_delta(sh.bsdf().flags()) for sh in scene.shapes())
+
+
 def inventory(scene) -> SceneInventory:
     mi = mitsuba()
     F = mi.BSDFFlags
@@ -99,13 +110,11 @@ def inventory(scene) -> SceneInventory:
         types[b.class_name()] += 1
         fl = b.flags()
         has = lambda flag: mi.has_flag(fl, flag)  # noqa: E731
-        delta = has(F.Delta)
-        smooth = has(F.Smooth)
         if has(F.DeltaTransmission):
             inv.dielectrics.append(name)
-        elif has(F.DeltaReflection) and not smooth:
+        elif has(F.DeltaReflection) and not has(F.Smooth):
             inv.mirrors.append(name)
-        if delta and smooth:
+        if is_mixed_delta(fl):
             inv.mixed_delta.append(name)
         if has(F.Glossy):
             inv.glossy.append(name)

@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-from holocore.effects import inventory
+from holocore.effects import has_mixed_delta
 from holocore.mitsuba_env import mitsuba
 
 __all__ = ["WavePaths", "trace_wave_paths"]
@@ -85,7 +85,7 @@ def trace_wave_paths(
     ctx = mi.BSDFContext()
     Delta, Smooth = mi.BSDFFlags.Delta, mi.BSDFFlags.Smooth
 
-    any_mixed = bool(inventory(scene).mixed_delta)  # effects.inventory: the one test of delta + smooth lobes
+    any_mixed = has_mixed_delta(scene)
     # Kernel parameters, not constants: one compiled kernel for every depth setting.
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
     helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
