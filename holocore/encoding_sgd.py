@@ -30,6 +30,7 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
+import holocore.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
 from holocore.encoding_op import Operator, encoder_grid, flip, heap_reuse, spread_px
 
 __all__ = ["Operator", "encoder_grid", "spread_px", "inner_energy", "optimise", "SgdOutcome"]

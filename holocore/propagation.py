@@ -22,6 +22,8 @@ from typing import Sequence, Union
 
 import torch
 
+import holocore.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
+
 __all__ = ["asm", "ifft2", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
 
 PitchLike = Union[float, Sequence[float]]

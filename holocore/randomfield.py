@@ -37,6 +37,8 @@ from typing import Iterator, Optional, Sequence, Union
 import numpy as np
 import torch
 
+import holocore.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
+
 __all__ = ["passband_radius", "passband_mask", "random_field", "phase_bank", "phase_frames", "frame_codes",
            "code_multiplier"]
 

@@ -323,3 +323,19 @@ def test_inverse_fft_is_right_at_padded_production_sizes(shape):
     ref = np.fft.ifft2(x.astype(np.complex128))
     assert rel_l2(ifft2(torch.from_numpy(x)).numpy(), ref) <= 1e-6
     assert rel_l2(ifft2(torch.from_numpy(x.astype(np.complex128))).numpy(), ref) <= 1e-12
+
+
+def test_sqrt_is_accurate_and_the_same_in_every_fresh_process():
+    """torch's CPU sqrt runs on MKL's vector math over two threads; when its first call raced, about one process
+    in three computed the worker thread's half in a low-accuracy mode (2e5 ulp in float64), so one seed gave a
+    service job a stack that differed from the CLI's. holocore.torch_runtime starts MKL on one thread first."""
+    import subprocess
+    import sys
+    code = ("import numpy as np, torch, holocore.propagation as p; torch.set_num_threads(2); "
+            "a = torch.linspace(1e9, 3e12, 96 * 96, dtype=torch.float64); r = np.sqrt(a.numpy()); "
+            "print(int(np.abs((torch.sqrt(a).numpy() - r) / np.spacing(r)).max()), "
+            "p.transfer_function((96, 96), 0.004, 640e-9, 8e-6, dtype=torch.complex128).abs().sum().item())")
+    outs = [subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
+            for _ in range(8)]
+    assert all(int(o[0]) <= 1 for o in outs), outs  # worst error in ulp, in each process
+    assert len({o[1] for o in outs}) == 1, outs  # the same transfer function everywhere
