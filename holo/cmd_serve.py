@@ -62,8 +62,9 @@ def serve(
     from service.api.context import DataDirBusy
     from service.server import serve as run
     from service.workers.engine import SandboxUnavailable
+    from service.workers.ray_engine import RayUnavailable
 
     try:
         run(settings, log_level=log_level)
-    except (DataDirBusy, SandboxUnavailable) as exc:
+    except (DataDirBusy, SandboxUnavailable, RayUnavailable) as exc:
         fail(str(exc), code=1)

@@ -25,7 +25,12 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     if resolve_sandbox(settings) is not None:  # raises SandboxUnavailable when --sandbox on cannot be honoured
         os.umask(0o077)  # what the server creates is its own; folders sandbox users enter are opened explicitly
-    app = create_app(settings)
+    engine = None
+    if settings.engine == "ray":  # connected before serving, so an unreachable cluster is a one-line error
+        from service.workers.ray_engine import RayEngine
+
+        engine = RayEngine(settings)
+    app = create_app(settings, engine=engine)
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level,
                             timeout_graceful_shutdown=3, proxy_headers=False, server_header=False,
                             http=header_timeout_protocol(settings.header_timeout_s),

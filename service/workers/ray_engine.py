@@ -16,13 +16,14 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Optional
 
 from service.settings import ServiceSettings
 from service.workers.engine import Handle
 
-__all__ = ["RayEngine", "run_driver"]
+__all__ = ["RayEngine", "RayUnavailable", "connect", "run_driver"]
 
 log = logging.getLogger("holo.service.ray")
 
@@ -62,6 +63,41 @@ def _restore_signal_handlers(handlers: dict) -> None:
             signal.signal(sig, handler)
 
 
+class RayUnavailable(RuntimeError):
+    """The Ray cluster could not be reached (one line: the address and Ray's last error)."""
+
+
+CONNECT_ATTEMPTS = 3
+CONNECT_BACKOFF_S = 3.0
+
+
+def connect(ray, address: str) -> None:
+    """``ray.init`` with a few attempts: a head that is still starting, or a Ray Client server that failed to
+    start for one connection (seen on a loaded 2-core machine), is not a reason to refuse to serve."""
+    for attempt in range(1, CONNECT_ATTEMPTS + 1):
+        # ray.init installs a SIGTERM handler that just exits (no graceful shutdown: running jobs would not
+        # be requeued nor the data dir unlocked); keep the server's own handlers
+        keep = _signal_handlers()
+        try:
+            ray.init(address=address, namespace="holo", ignore_reinit_error=True, log_to_driver=False,
+                     logging_level=logging.WARNING)
+            return
+        except Exception as exc:  # noqa: BLE001 - Ray raises ConnectionError, RuntimeError, grpc errors
+            last = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+            try:
+                ray.shutdown()
+            except Exception:  # noqa: BLE001 - nothing left to close
+                pass
+            if attempt == CONNECT_ATTEMPTS:
+                raise RayUnavailable(f"cannot connect to the Ray cluster at {address} after {attempt} attempts: "
+                                     f"{last}") from None
+            log.warning("ray engine: connecting to %s failed (attempt %d of %d: %s); retrying", address, attempt,
+                        CONNECT_ATTEMPTS, last)
+            time.sleep(CONNECT_BACKOFF_S * attempt)
+        finally:
+            _restore_signal_handlers(keep)
+
+
 class RayEngine:
     """Runs job drivers as Ray tasks (``ray.init(address=settings.ray_address)``)."""
 
@@ -74,14 +110,7 @@ class RayEngine:
         address = settings.ray_address or "auto"
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report leaves the lab unless asked for
         if not ray.is_initialized():
-            # ray.init installs a SIGTERM handler that just exits (no graceful shutdown: running jobs would not
-            # be requeued nor the data dir unlocked); keep the server's own handlers
-            keep = _signal_handlers()
-            try:
-                ray.init(address=address, namespace="holo", ignore_reinit_error=True, log_to_driver=False,
-                         logging_level=logging.WARNING)
-            finally:
-                _restore_signal_handlers(keep)
+            connect(ray, address)
         self._task = ray.remote(max_retries=0)(run_driver)
         self._gpus = settings.ray_gpus_per_job
         log.info("ray engine: connected to %s (%s GPUs per job)", address, self._gpus)
