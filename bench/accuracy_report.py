@@ -4,7 +4,7 @@ truth (DESIGN.md §7) and against a high-spp reference field, with the predicted
 For each scene the sweep varies rays per pixel (spp), frames (1, 3, 8, 24), the method (two-stage "wrp",
 "direct", "fast" = two-stage with the ambient cache, and the RGB-D "layers" baseline) and the phase-only
 encoder's iterations. Every point is timed (best of ``--repeats``, warm kernels), predicted with
-:func:`holocore.estimate.estimate_seconds` (rates calibrated on the same scene by this script, and the committed
+:func:`holocore.plan.estimate.estimate_seconds` (rates calibrated on the same scene by this script, and the committed
 default for comparison), and evaluated on 3 focus planes x 3 x 3 views (a subset of the paper's 5 x 7 x 7)
 against the ground truth and against the reference field's view with the same frames (same random phases:
 what is left is Monte Carlo error).
@@ -190,9 +190,9 @@ class SceneRun:
     """Everything for one scene: optics, ground truth, reference field, calibrations, rows."""
 
     def __init__(self, spec: SceneSpec, shape_hw: tuple[int, int], repeats: int, log) -> None:
-        from holocore.config import OpticsConfig
-        from holocore.estimate import calibrate, load_calibration
-        from holocore.scene import load_scene
+        from holocore.display.optics import OpticsConfig
+        from holocore.plan.estimate import calibrate, load_calibration
+        from holocore.scene.load import load_scene
 
         self.spec, self.repeats, self.log = spec, repeats, log
         self.loaded = load_scene(spec.path)
@@ -216,7 +216,7 @@ class SceneRun:
 
     # ground truth and reference ------------------------------------------------------------------
     def prepare(self, ref_frames: int = 24) -> None:
-        from holocore.groundtruth import GroundTruth
+        from holocore.evaluate.groundtruth import GroundTruth
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
@@ -229,7 +229,11 @@ class SceneRun:
         self.cells = self._cells()
 
     def _cells(self):
-        from holocore.evaluate import default_pupil_m, focus_planes_m, view_offsets_m
+        from holocore.evaluate.scoring import (
+            default_pupil_m,
+            focus_planes_m,
+            view_offsets_m,
+        )
 
         pupil = default_pupil_m(self.meta, view_deg=self.spec.view_deg)
         zs = focus_planes_m(self.meta, FOCUS_PLANES)
@@ -237,7 +241,7 @@ class SceneRun:
         return pupil, zs, views
 
     def score(self, field_slm: np.ndarray) -> dict:
-        from holocore.evaluate import compare, eye_view, lit_margin_px
+        from holocore.evaluate.scoring import compare, eye_view, lit_margin_px
 
         pupil, zs, views = self.cells
         F = field_slm.shape[0]
@@ -262,15 +266,15 @@ class SceneRun:
 
     # points ----------------------------------------------------------------------------------------
     def ours(self, method: str, preset: str, spp: int, frames: int, sweep: str, encoder_iterations=None) -> dict:
-        from holocore.estimate import estimate_seconds
         from holocore.pipeline import RenderOptions, render_loaded
+        from holocore.plan.estimate import estimate_seconds
 
         optics = self.optics(frames)
         options = RenderOptions(preset=preset, method=method, spp=spp)
         res, t = _best(self.repeats, lambda: render_loaded(self.loaded, optics, options))
         field_slm, label, iters = res.slm_field, f"{method}/{preset}", 0
         if encoder_iterations is not None:
-            from holocore.encoding import encode_sgd
+            from holocore.encode.encoder import encode_sgd
 
             iters = int(encoder_iterations)
             enc, te = _best(self.repeats, lambda: encode_sgd(
@@ -289,8 +293,8 @@ class SceneRun:
         return self._add(row)
 
     def layers(self, spp: int, frames: int, planes: int, sweep: str) -> dict:
-        from holocore.baseline_layers import render_layers
-        from holocore.estimate import estimate_layers_seconds
+        from holocore.baselines.layers import render_layers
+        from holocore.plan.estimate import estimate_layers_seconds
 
         optics = self.optics(frames)
         res, t = _best(self.repeats, lambda: render_layers(self.loaded, optics, planes=planes, spp=spp))
@@ -317,8 +321,8 @@ class SceneRun:
         return row
 
     def run(self) -> None:
+        from holocore.baselines.layers import render_layers
         from holocore.pipeline import RenderOptions, render_loaded
-        from holocore.baseline_layers import render_layers
 
         # Warm-up: compile every kernel once.
         small = self.OpticsConfig(**{**self.base, "resolution_hw": (24, 32), "frames": 2})
@@ -353,7 +357,7 @@ class SceneRun:
     def depth_regions(self) -> dict:
         """Near card (left) and mirror image (right): normalised correlation of each region with the sharp
         ground truth (near focus for the card, far focus for the mirror image), centre view."""
-        from holocore.evaluate import eye_view, lit_margin_px
+        from holocore.evaluate.scoring import eye_view, lit_margin_px
 
         pupil, _, _ = self.cells
         ana = self.meta["analysis"]
@@ -497,8 +501,8 @@ def picture(runs: list[SceneRun], path: Path) -> None:
     """Centre views: ground truth | best two-stage | best layers, at the near and far focus of each scene."""
     from PIL import Image, ImageDraw
 
-    from holocore.evaluate import compare, eye_view, to_rgb
-    from holocore.preview import to_png8
+    from holocore.evaluate.preview import to_png8
+    from holocore.evaluate.scoring import compare, eye_view, to_rgb
 
     tiles_rows = []
     for run in runs:
@@ -618,7 +622,7 @@ def write_markdown(runs: list[SceneRun], rows: list[dict], path: Path, *, argv: 
         diff = f"{o['psnr_gt_db'] - lay['psnr_gt_db']:+.2f}" if o and lay else "-"
         lines.append(f"| {e['scene']} | {e['budget_s']:g} | {desc(o)} | {desc(lay)} | {diff} |")
     lines += ["", "## Cost estimate", "",
-              f"Estimated before each run by `holocore.estimate.estimate_seconds` (layers: `estimate_layers_seconds`) "
+              f"Estimated before each run by `holocore.plan.estimate.estimate_seconds` (layers: `estimate_layers_seconds`) "
               f"with rates calibrated on the same scene by `calibrate(quick=True)`: estimate / measured between "
               f"{ratios.min():.2f} and {ratios.max():.2f} (median {np.median(ratios):.2f}); {within:.0%} of the "
               f"{len(rows)} points within 30 %. With the committed default calibration (demo scene): "

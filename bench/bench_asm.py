@@ -1,4 +1,4 @@
-"""Time holocore.propagation.asm against a bare torch.fft.fft2 + ifft2 pair on the same padded grid.
+"""Time holocore.optics.propagation.asm against a bare torch.fft.fft2 + ifft2 pair on the same padded grid.
 
 complex64 on the CPU, warm-up excluded (the transfer function is cached by then, as in real use), median of
 repeats, interleaved so that machine load hits both alike. Writes bench/results/asm.md and asm.png.
@@ -22,7 +22,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from holocore.propagation import asm, padded_shape  # noqa: E402
+from holocore.optics.propagation import asm, padded_shape  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results"
 
@@ -73,7 +73,7 @@ def write_results(rows: list[dict], repeats: int, load: tuple[float, float]) -> 
         f"- date: {dt.datetime.now().astimezone().strftime('%Y-%m-%d %H:%M %Z')}",
         f"- machine: {cpu_name()}, {os.cpu_count()} logical cores, torch threads {threads}, {platform.system()}",
         f"- torch {torch.__version__}, Python {platform.python_version()}",
-        f"- method: `holocore.propagation.asm` (zero-pad 2x, band-limited transfer function, crop) vs "
+        f"- method: `holocore.optics.propagation.asm` (zero-pad 2x, band-limited transfer function, crop) vs "
         f"`torch.fft.ifft2(torch.fft.fft2(x))` on an already padded tensor; warm-up excluded, "
         f"median of {repeats} interleaved repeats.",
         f"- 1-minute load average: {load[0]:.2f} before, {load[1]:.2f} after (on a shared machine, a busy core "

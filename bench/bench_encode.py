@@ -36,11 +36,11 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from holocore.encoding_block import encode_block  # noqa: E402
-from holocore.encoding_op import heap_reuse  # noqa: E402
-from holocore.encoding_sgd import Operator, optimise, spread_px  # noqa: E402
-from holocore.propagation import padded_shape  # noqa: E402
-from holocore.randomfield import random_field  # noqa: E402
+from holocore.encode.block import encode_block  # noqa: E402
+from holocore.encode.operator import heap_reuse  # noqa: E402
+from holocore.encode.sgd import Operator, optimise, spread_px  # noqa: E402
+from holocore.optics.propagation import padded_shape  # noqa: E402
+from holocore.trace.randomfield import random_field  # noqa: E402
 
 P = 8e-6
 LAMS = [640e-9, 516.5e-9, 455.4e-9]
@@ -110,7 +110,7 @@ def floor(args) -> None:
             return time.perf_counter() - t0
 
     def iteration_mmap():  # the optimiser without heap_reuse: every FFT output on fresh pages
-        with mock.patch("holocore.encoding_sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
+        with mock.patch("holocore.encode.sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
             return one_iteration()
 
     best = {k: math.inf for k in ("iter", "iter_mmap", "own", "own_heap", "2x", "pruned")}

@@ -1,5 +1,5 @@
 """Peak RSS of `holo render`, `holo encode` and `holo view` on the demo scene at a few sizes, beside the memory
-model (holocore.memory_estimate). Writes bench/results/memory.md. Usage:
+model (holocore.plan.memory_estimate). Writes bench/results/memory.md. Usage:
 ``.venv/bin/python bench/bench_memory.py [--sizes 135x240x8,270x480x8,1080x1920x24:render+view]`` (H x W x frames,
 3 colors; ``:STAGE+STAGE`` runs only those stages at that size: without encode, view reads the render's RESULT)."""
 
@@ -29,8 +29,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="135x240x8,270x480x8,1080x1920x24:render+view")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "memory.md")
     args = ap.parse_args()
-    from holocore.demo_scene import write_demo_scene
-    from holocore.memory_estimate import estimate_memory
+    from holocore.plan.memory_estimate import estimate_memory
+    from holocore.scene.demo import write_demo_scene
 
     holo = [sys.executable, "-m", "holo"]
     rows = []

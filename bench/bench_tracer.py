@@ -49,9 +49,9 @@ def _timed_interleaved(fns: dict, repeats=5) -> dict:
 
 
 def _setup(scene_path, H, W, frames, f_mm=20.0, wavelengths=(640.0, 516.5, 455.4)):
-    from holocore.config import OpticsConfig
+    from holocore.display.optics import OpticsConfig
     from holocore.pipeline import RenderOptions, plan_scene
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     loaded = load_scene(scene_path)
     optics = OpticsConfig(resolution_hw=(H, W), frames=frames, focal_length_mm=f_mm, wavelengths_nm=wavelengths)
@@ -61,9 +61,9 @@ def _setup(scene_path, H, W, frames, f_mm=20.0, wavelengths=(640.0, 516.5, 455.4
 
 def bench_frames(scene_path, H, W, spp):
     """Whole trace (tracing + accumulation) for 1 and 24 frames, same rays."""
-    from holocore.mitsuba_env import mitsuba
     from holocore.pipeline import _banks
-    from holocore.tracer import TraceSettings, trace_field
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.trace.hologram_rays import TraceSettings, trace_field
 
     mi = mitsuba()
     fns = {}
@@ -87,8 +87,8 @@ def bench_frames(scene_path, H, W, spp):
 def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
     import drjit as dr
 
-    from holocore.mitsuba_env import mitsuba
-    from holocore.tracer import TraceSettings, trace_field
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.trace.hologram_rays import TraceSettings, trace_field
 
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 1)
@@ -131,7 +131,7 @@ def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
 
 
 def _view_img(field, meta, z_focus):
-    from holocore.preview import view_rgb
+    from holocore.evaluate.preview import view_rgb
 
     return view_rgb(field, meta, focus_z_m=z_focus, pupil_diameter_m=4e-3)
 
@@ -148,10 +148,10 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
     """
     import torch
 
-    from holocore.mitsuba_env import mitsuba
+    from holocore.optics.propagation import asm
     from holocore.pipeline import _banks
-    from holocore.propagation import asm
-    from holocore.tracer import TraceSettings, trace_field
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.trace.hologram_rays import TraceSettings, trace_field
 
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 4, wavelengths=(516.5,))
@@ -190,10 +190,10 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
 
 
 def bench_fast_vs_full(scene_path, H, W, ref_spp):
-    from holocore.config import OpticsConfig
-    from holocore.metrics import psnr
+    from holocore.display.optics import OpticsConfig
+    from holocore.evaluate.metrics import psnr
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     loaded = load_scene(scene_path)
     optics = OpticsConfig(resolution_hw=(H, W), frames=4, focal_length_mm=20.0, wavelengths_nm=(640.0, 516.5, 455.4))
@@ -236,7 +236,7 @@ def main() -> None:
         return
     if not SHARED.is_dir():
         sys.exit(f"shared scenes not found at {SHARED}: the benchmarks run on ../shared/scenes")
-    from holocore.mitsuba_env import variant
+    from holocore.runtime.mitsuba_env import variant
 
     cbox = SHARED / "cbox-mirror-glass" / "cbox.xml"
     only = set(args.only or ["frames", "mitsuba", "direct", "fast"])
@@ -254,7 +254,7 @@ def main() -> None:
         print("wrp vs direct:", json.dumps(res["direct"]))
     if "fast" in only:
         room = ROOT / "out" / "bench_scene"
-        from holocore.demo_scene import write_demo_scene
+        from holocore.scene.demo import write_demo_scene
 
         # 256^2 (quick: 128^2): large enough that tracing, not the fixed per-render steps, sets the time
         m = 128 if args.quick else 256
@@ -309,7 +309,7 @@ def plot(res: dict) -> None:
 
 
 def write_markdown(res: dict) -> None:
-    lines = [f"# Tracer benchmarks\n", f"Machine: {res['machine']}; variant {res['variant']}; {res['date']}.",
+    lines = ["# Tracer benchmarks\n", f"Machine: {res['machine']}; variant {res['variant']}; {res['date']}.",
              "Regenerate: `.venv/bin/python bench/bench_tracer.py`.\n", "| benchmark | measured | goal |",
              "|---|---|---|"]
     if "frames" in res:
@@ -344,7 +344,7 @@ def write_markdown(res: dict) -> None:
                   f"({m['mitsuba_camera_view_samples_per_s']:.3g} samples/s). A WRP ray is one wave path: ray "
                   "generation through T^-1, the coherent delta chain with float64 differentials, the incoherent "
                   "path from its image point, and its complex contribution, all in one Dr.Jit kernel "
-                  "(`holocore/wavekernel.py`)."]
+                  "(`holocore/trace/kernel.py`)."]
     if "direct" in res:
         d = res["direct"]
         lines += ["", "## Two-stage vs direct: Monte Carlo noise of the SLM field", "",

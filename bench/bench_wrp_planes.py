@@ -50,10 +50,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
 
-    from holocore.demo_scene import write_demo_scene
-    from holocore.display import display_optics, load_display
+    from holocore.display.profiles import display_optics, load_display
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.scene.demo import write_demo_scene
+    from holocore.scene.load import load_scene
 
     H, W = (int(v) for v in a.resolution.lower().split("x"))
     optics = display_optics(load_display("paper"), overrides={"resolution_hw": (H, W), "frames": a.frames})

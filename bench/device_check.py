@@ -104,7 +104,7 @@ def main() -> None:
 
     work = args.work or Path(tempfile.mkdtemp(prefix="holo-device-check-"))
     work.mkdir(parents=True, exist_ok=True)
-    from holocore.demo_scene import write_demo_scene
+    from holocore.scene.demo import write_demo_scene
 
     scene = write_demo_scene(work / "scene").parent
     env = {**os.environ, "HOLO_DEVICE": device, "PYTHONUNBUFFERED": "1",

@@ -22,8 +22,8 @@ SHARED = REPO.parent / "shared" / "scenes"
 
 
 def scenes(tmp: Path) -> list[tuple[str, Path, str]]:
-    from holocore.demo_scene import write_demo_scene
-    from holocore.paper_scenes import write_paper_scene
+    from holocore.scene.demo import write_demo_scene
+    from holocore.scene.paper import write_paper_scene
 
     out = []
     write_demo_scene(tmp / "demo")

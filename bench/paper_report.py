@@ -1,5 +1,5 @@
 """The paper's figures (Figs. 5, 6, 7) and an equal-time table, regenerated on the project's paper scenes
-(holocore/paper_scenes.py) at the paper display's pitch (8 µm), f = 50 mm, laser lines and 24 frames, on a
+(holocore/scene/paper.py) at the paper display's pitch (8 µm), f = 50 mm, laser lines and 24 frames, on a
 reduced part of the SLM (default 135x240 px; see the README this writes for why and where z_inf lies).
 
 Stages (each writes a JSON under --out, the report is rebuilt from all JSONs present):
@@ -7,8 +7,8 @@ Stages (each writes a JSON under --out, the report is rebuilt from all JSONs pre
 * ``equal``: per scene, every method gets the same wall-time budget ``--budget-s`` for 24 phase-only frames:
   ours = two-stage render (preset balanced) + the SGD phase-only encoder, spp chosen from 16- and 64-spp timing runs
   to fill the budget; fast = the same with preset fast; layers = the RGB-D layer baseline + the same encoder;
-  focal stack = `holocore.baseline_focal_stack` (its Mitsuba targets included), Adam iterations chosen from a
-  timing probe to fill the budget. Scored with holocore.evaluate's machinery (eye_view + compare) against
+  focal stack = `holocore.baselines.focal_stack` (its Mitsuba targets included), Adam iterations chosen from a
+  timing probe to fill the budget. Scored with holocore.evaluate.scoring's machinery (eye_view + compare) against
   Mitsuba thin-lens ground truth on 4 focus planes (near / middle / far of the image volume and the depth of the
   mirror or glass image) x 3 views (left, centre, right), none of them the focal stack's own planes unless by
   chance (the table gives each plane's distance to the nearest stack plane). Keeps the images of Fig. 7.
@@ -71,7 +71,7 @@ def convergence_ratio(psnr_db: float, ref_psnr_db: float) -> float:
 def image_focus_m(scene: str, meta: dict) -> Optional[float]:
     """Hologram depth (m) of the image that carries the scene's cue: the mirror image, the glass ball's image,
     the glossy highlight, the middle card (z = z_inf + f^2 / zc)."""
-    from holocore.paper_scenes import PAPER_SCENES, scene_facts
+    from holocore.scene.paper import PAPER_SCENES, scene_facts
 
     if scene not in PAPER_SCENES:
         return None
@@ -85,7 +85,7 @@ def image_focus_m(scene: str, meta: dict) -> Optional[float]:
 def cell_grid(scene: str, meta: dict, *, view_deg: float) -> tuple[list[tuple[str, float]], list[tuple[str, tuple]]]:
     """Focus planes [(name, z)] (near, middle, far of the image volume, and the cue's image) and views
     [(name, (ex, ey))] (left, centre, right at +-view_deg)."""
-    from holocore.evaluate import focus_planes_m
+    from holocore.evaluate.scoring import focus_planes_m
 
     near, mid, far = focus_planes_m(meta, 3)
     focus = [("near", near), ("middle", mid), ("far", far)]
@@ -97,16 +97,16 @@ def cell_grid(scene: str, meta: dict, *, view_deg: float) -> tuple[list[tuple[st
 
 
 def margin_px(meta: dict, shape_hw: tuple[int, int], *, focus_z_m: float, pupil_m: float, view: tuple) -> int:
-    """holocore.evaluate.lit_margin_px, capped so that at least 16 px stay (tiny test sizes)."""
-    from holocore.evaluate import lit_margin_px
+    """holocore.evaluate.scoring.lit_margin_px, capped so that at least 16 px stay (tiny test sizes)."""
+    from holocore.evaluate.scoring import lit_margin_px
 
     m = lit_margin_px(meta, focus_z_m=focus_z_m, pupil_diameter_m=pupil_m, view_offset_m=view)
     return int(min(m, max(0, (min(shape_hw) - 16) // 2)))
 
 
 def score_cell(recon: np.ndarray, truth: np.ndarray, m: int) -> tuple[float, float, float]:
-    """(PSNR dB, SSIM, scale) of holocore.evaluate.compare on the lit part (border m px left out)."""
-    from holocore.evaluate import compare
+    """(PSNR dB, SSIM, scale) of holocore.evaluate.scoring.compare on the lit part (border m px left out)."""
+    from holocore.evaluate.scoring import compare
 
     H, W = recon.shape[-2:]
     sc = compare(recon[:, m:H - m, m:W - m], truth[:, m:H - m, m:W - m])
@@ -128,21 +128,21 @@ class Runner:
         self.work.mkdir(parents=True, exist_ok=True)
 
     def optics(self, frames: int):
-        from holocore.display import PAPER
+        from holocore.display.profiles import PAPER
 
         return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm)
 
     def load(self, scene: str):
-        from holocore.paper_scenes import write_paper_scene
-        from holocore.scene import load_scene
+        from holocore.scene.load import load_scene
+        from holocore.scene.paper import write_paper_scene
 
         return load_scene(write_paper_scene(scene, self.work / scene))
 
     def warm(self, loaded, methods=("wrp/balanced", "wrp/fast", "direct/balanced")) -> None:
         """Compile every kernel once (tiny size), so no timed run pays for JIT compilation."""
-        from holocore.baseline_layers import render_layers
-        from holocore.display import PAPER
-        from holocore.encoding import encode_sgd
+        from holocore.baselines.layers import render_layers
+        from holocore.display.profiles import PAPER
+        from holocore.encode.encoder import encode_sgd
         from holocore.pipeline import RenderOptions, render_loaded
 
         small = PAPER.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm)
@@ -154,7 +154,7 @@ class Runner:
         render_layers(loaded, small, planes=2, spp=4)
 
     def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp"):
-        from holocore.display import PAPER
+        from holocore.display.profiles import PAPER
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
@@ -164,7 +164,7 @@ class Runner:
         return r, time.perf_counter() - t0
 
     def encode(self, res):
-        from holocore.encoding import encode_sgd
+        from holocore.encode.encoder import encode_sgd
 
         m = res.meta
         t0 = time.perf_counter()
@@ -173,8 +173,8 @@ class Runner:
         return enc, time.perf_counter() - t0
 
     def layers(self, loaded, frames: int):
-        from holocore.baseline_layers import render_layers
-        from holocore.display import PAPER
+        from holocore.baselines.layers import render_layers
+        from holocore.display.profiles import PAPER
 
         t0 = time.perf_counter()
         r = render_layers(loaded, self.optics(frames), planes=self.args.layer_planes, spp=self.args.layer_spp,
@@ -185,7 +185,7 @@ class Runner:
     def fs_spacing(meta: dict) -> Optional[float]:
         """The paper's 1.25 mm plane spacing where its 5 planes fit between z_inf and the WRP, else None (5
         planes uniform over the image volume: the glass scene's volume is 3.2 mm deep, its WRP 4.6 mm from z_inf)."""
-        from holocore.baseline_focal_stack import stack_plane_depths
+        from holocore.baselines.focal_stack import stack_plane_depths
 
         ana = meta["analysis"]
         try:
@@ -196,8 +196,8 @@ class Runner:
             return None
 
     def focal_stack(self, loaded, frames: int, iterations: int, spacing_m: Optional[float] = 1.25e-3):
-        from holocore.baseline_focal_stack import render_focal_stack
-        from holocore.display import PAPER
+        from holocore.baselines.focal_stack import render_focal_stack
+        from holocore.display.profiles import PAPER
 
         t0 = time.perf_counter()
         r = render_focal_stack(loaded, self.optics(frames), iterations=iterations, gt_spp=self.args.fs_gt_spp,
@@ -209,7 +209,10 @@ class Runner:
         count, from two short runs (0 and 2 iterations) on a random target. Probed at the real frame count: a
         2-frame probe scaled linearly gave the mirror's stack 192 s of a 90 s budget (memory traffic grows faster
         than the frames)."""
-        from holocore.baseline_focal_stack import optimise_focal_stack, stack_plane_depths
+        from holocore.baselines.focal_stack import (
+            optimise_focal_stack,
+            stack_plane_depths,
+        )
 
         ana = meta["analysis"]
         zs = stack_plane_depths(z_inf_m=meta["z_inf_m"], z_far_m=ana["z_far_holo_m"], z_near_m=ana["z_near_holo_m"],
@@ -226,8 +229,8 @@ class Runner:
 
     # ---- the equal-time comparison and Fig. 7 ----------------------------------------------------------------
     def equal(self, scene: str) -> dict:
-        from holocore.evaluate import default_pupil_m, eye_view
-        from holocore.groundtruth import GroundTruth
+        from holocore.evaluate.groundtruth import GroundTruth
+        from holocore.evaluate.scoring import default_pupil_m, eye_view
 
         a, F, B = self.args, self.args.frames, self.args.budget_s
         loaded = self.load(scene)
@@ -329,8 +332,8 @@ class Runner:
 
     # ---- Fig. 5 ------------------------------------------------------------------------------------------------
     def conv(self, scene: str) -> dict:
-        from holocore.evaluate import default_pupil_m, eye_view, focus_planes_m
-        from holocore.groundtruth import GroundTruth
+        from holocore.evaluate.groundtruth import GroundTruth
+        from holocore.evaluate.scoring import default_pupil_m, eye_view, focus_planes_m
 
         a = self.args
         loaded = self.load(scene)
@@ -489,8 +492,8 @@ def image_grid(eq: dict, npz: Path, path: Path, *, zoom: int = 1) -> None:
     Each tile: the reconstruction times its least-squares scale, white = the ground truth's 99th percentile."""
     from PIL import Image, ImageDraw
 
-    from holocore.evaluate import to_rgb
-    from holocore.preview import to_png8
+    from holocore.evaluate.preview import to_png8
+    from holocore.evaluate.scoring import to_rgb
 
     with np.load(npz) as z:
         imgs = {k.replace("__", "|"): z[k] for k in z.files}
@@ -551,8 +554,8 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
     if first:
         H, W = first["shape_hw"]
         L += ["## Setup", "",
-              f"Paper display (holocore.display.PAPER): pitch 8 µm, f = 50 mm, 640.0 / 516.5 / 455.4 nm, 24 frames "
-              f"(coded frame phases, the default: holocore.randomfield; the layers use the same bank), "
+              f"Paper display (holocore.display.profiles.PAPER): pitch 8 µm, f = 50 mm, 640.0 / 516.5 / 455.4 nm, 24 frames "
+              f"(coded frame phases, the default: holocore.trace.randomfield; the layers use the same bank), "
               f"Fourier filter (the encoder supervises the recording cone). Reduced here to a **{H}x{W}** part of the "
               f"SLM (the paper's 1080x1920): the paper scenes' cues sit in the middle of the view, and at {H}x{W} the "
               f"view (±{math.degrees(math.atan(W * 8e-6 / 2 / 0.05)):.2f}° x ±{math.degrees(math.atan(H * 8e-6 / 2 / 0.05)):.2f}°) "
@@ -561,14 +564,14 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
               f"**Virtual infinity at z_inf = {args.z_inf_mm:g} mm** instead of the paper's 80 mm: an image point z from "
               "the SLM collects light from z (NA + |e|/f) / p pixels around it, so at 80 mm a 1.6 mm pupil's view of "
               f"a {W}-px-wide SLM would be vignetted everywhere; at {args.z_inf_mm:g} mm the border left out of the "
-              "scores (holocore.evaluate.lit_margin_px) is about 30 px. The depth structure beyond z_inf is the paper's "
+              "scores (holocore.evaluate.scoring.lit_margin_px) is about 30 px. The depth structure beyond z_inf is the paper's "
               "(z = z_inf + f^2 / zc: 0.5 m at +5 mm, 0.9 m at +2.78 mm, 2 m at +1.25 mm, 10 m at +0.25 mm).", "",
-              "Scoring: holocore.evaluate (eye_view: pupil-filtered, propagated, frame-averaged; compare: one "
+              "Scoring: holocore.evaluate.scoring (eye_view: pupil-filtered, propagated, frame-averaged; compare: one "
               "least-squares brightness scale, white at the ground truth's 99th percentile, PSNR / SSIM on the lit "
-              "part) against Mitsuba thin-lens ground truth through the same pupil (holocore.groundtruth). Pupil: "
-              "holocore.evaluate.default_pupil_m at ±0.5° views (1.61 mm, the focal stack's own pupil too). Every "
+              "part) against Mitsuba thin-lens ground truth through the same pupil (holocore.evaluate.groundtruth). Pupil: "
+              "holocore.evaluate.scoring.default_pupil_m at ±0.5° views (1.61 mm, the focal stack's own pupil too). Every "
               "hologram scored in the equal-time table is phase-only (what the SLM can show): ours, fast and layers "
-              "go through the same SGD encoder (holocore.encoding.encode_sgd, complex supervision in the cone, fixed "
+              "go through the same SGD encoder (holocore.encode.encoder.encode_sgd, complex supervision in the cone, fixed "
               "iterations), whose time counts in their budget; the focal stack is phase-only by construction.", ""]
     if eqs:
         L += ["## Equal time (24 frames, phase-only)", "",

@@ -24,7 +24,13 @@ from display_agent.focus.client import FocusController, FocusError
 from display_agent.hooks import HookError, make_hook
 from display_agent.phasemap import PhaseMapping
 from display_agent.playback import Player
-from display_agent.service_client import BadStack, CorruptDownload, ServiceClient, ServiceError, TransientError
+from display_agent.service_client import (
+    BadStack,
+    CorruptDownload,
+    ServiceClient,
+    ServiceError,
+    TransientError,
+)
 from display_agent.slm.base import SLM, open_slm
 from holocore.formats import Stack
 

@@ -37,9 +37,9 @@ def layers(
         fail(f"--spp must be in 1..65536, got {spp}")
     if not scene.exists():
         fail(f"scene not found: {scene}")
-    from holocore.baseline_layers import render_layers
+    from holocore.baselines.layers import render_layers
     from holocore.io import save_result
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     t0 = time.perf_counter()
     try:
@@ -96,9 +96,9 @@ def focal_stack(
         fail(f"scene not found: {scene}")
     import torch
 
-    from holocore.baseline_focal_stack import render_focal_stack, stack_of
+    from holocore.baselines.focal_stack import render_focal_stack, stack_of
     from holocore.io import save_result, save_stack
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"

@@ -47,7 +47,8 @@ def calibrate(
             fail(f"--optics-json {optics_json}: expected a JSON object of OpticsConfig fields")
     if not 1 <= repeats <= 10:
         fail(f"--repeats must be in 1..10, got {repeats}")
-    from holocore.estimate import calibrate as run, save_calibration
+    from holocore.plan.estimate import calibrate as run
+    from holocore.plan.estimate import save_calibration
 
     t0 = time.perf_counter()
 
@@ -99,7 +100,11 @@ def paper(ctx: typer.Context) -> None:
 @bench_app.command("show-calibration")
 def show_calibration(path: Optional[Path] = typer.Option(None, "--path", help="A calibration JSON file.")) -> None:
     """Print the calibration the estimate uses (the user's, else the committed default)."""
-    from holocore.estimate import DEFAULT_CALIBRATION, load_calibration, user_calibration_path
+    from holocore.plan.estimate import (
+        DEFAULT_CALIBRATION,
+        load_calibration,
+        user_calibration_path,
+    )
 
     try:
         cal = load_calibration(path)

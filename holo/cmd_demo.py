@@ -17,7 +17,7 @@ def register(app: typer.Typer) -> None:
 
 DEMO_RESOLUTION = "384x512"
 DEMO_FRAMES = 4
-# The paper scenes (holocore.paper_scenes): their focus cues lie in the central half of the paper display's
+# The paper scenes (holocore.scene.paper): their focus cues lie in the central half of the paper display's
 # view, which a 540 x 960 part of its SLM shows; virtual infinity at 10 mm (not 80) so that a 4 mm pupil's views
 # of that part are lit by the SLM all over (an image point z from the SLM gathers light from z NA / p pixels
 # around). Depths beyond z_inf are the paper's either way: z = z_inf + f^2 / zc.
@@ -33,7 +33,7 @@ def demo(
                                                     "--scene glossy, whose highlight the fast preset's "
                                                     "view-independent cache cannot show)"),
     scene: Optional[str] = typer.Option(
-        None, "--scene", help="One of the paper's scenes with depth (holocore.paper_scenes): depth (cards at "
+        None, "--scene", help="One of the paper's scenes with depth (holocore.scene.paper): depth (cards at "
                               "0.5, 0.9 and 10 m), mirror (a plane mirror's image 2 m away), glass (a glass "
                               "ball's image, Fig. 1), glossy (a highlight that moves with the view). Default: "
                               "the table-top demo scene."),
@@ -44,11 +44,11 @@ def demo(
     of the SLM with 4 frames, so that it runs in seconds. With --scene NAME: that paper scene on a 540x960 part
     of the SLM (all of its focus cues), 4 frames, virtual infinity at 10 mm so the views are lit all over;
     --resolution, --frames and --z-inf-mm give the whole paper display (1080x1920, 24 frames, 80 mm)."""
-    from holocore.demo_scene import write_demo_scene
+    from holocore.evaluate.preview import focal_sweep_png
     from holocore.io import save_result
-    from holocore.paper_scenes import PAPER_SCENES, write_paper_scene
     from holocore.pipeline import RenderOptions, render
-    from holocore.preview import focal_sweep_png
+    from holocore.scene.demo import write_demo_scene
+    from holocore.scene.paper import PAPER_SCENES, write_paper_scene
 
     if scene is not None and scene not in PAPER_SCENES:
         fail(f"--scene must be one of {', '.join(PAPER_SCENES)}, got {scene!r}")

@@ -19,7 +19,7 @@ def display_profile(
     out: Optional[Path] = typer.Option(None, "--out", help="Write the profile to this .json or .toml file."),
 ) -> None:
     """Print a display profile with the eyepiece's field of view and depth scale; --out writes it as a file."""
-    from holocore.display import DisplayError, load_display, save_display
+    from holocore.display.profiles import DisplayError, load_display, save_display
 
     try:
         prof = load_display(display)

@@ -50,8 +50,8 @@ def encode(
     if not result.is_file():
         fail(f"result not found: {result}")
 
-    from holocore import encoding
-    from holocore.device import torch_device
+    from holocore.encode import encoder as encoding
+    from holocore.runtime.device import torch_device
 
     try:
         dev = torch_device(device)  # --device, else HOLO_DEVICE, else auto (one rule for every command)
@@ -59,7 +59,7 @@ def encode(
         fail(str(exc))
     if not memory_limit_gb > 0:
         fail(f"--memory-limit-gb must be > 0, got {memory_limit_gb}")
-    from holocore.encoding_stream import encode_file, read_meta
+    from holocore.encode.stream import encode_file, read_meta
 
     try:
         meta = read_meta(result)

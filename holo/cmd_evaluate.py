@@ -50,11 +50,12 @@ def evaluate(
     if not scene.exists():
         fail(f"scene not found: {scene}")
 
-    from holocore.evaluate import evaluate as run_eval, write_outputs
-    from holocore.fieldsource import open_slm_field
-    from holocore.groundtruth import GroundTruth
-    from holocore.membudget import memory_budget_bytes
-    from holocore.scene import load_scene
+    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.scoring import evaluate as run_eval
+    from holocore.evaluate.scoring import write_outputs
+    from holocore.optics.fieldsource import open_slm_field
+    from holocore.runtime.membudget import memory_budget_bytes
+    from holocore.scene.load import load_scene
 
     t0 = time.perf_counter()
     try:

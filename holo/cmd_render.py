@@ -54,8 +54,8 @@ def render(
 ) -> None:
     """Render a scene into WRP and SLM wave fields (RESULT.npz) for a display (default: the paper's)."""
     profile, optics_cfg = optics.resolve()
-    from holocore.device import select_device
-    from holocore.membudget import memory_budget_bytes
+    from holocore.runtime.device import select_device
+    from holocore.runtime.membudget import memory_budget_bytes
 
     try:
         select_device(device)
@@ -81,11 +81,18 @@ def render(
         fail(str(exc))
     console = Console(stderr=True)
     if estimate:
-        from holocore.estimate import estimate_seconds, load_calibration, user_calibration_path
         from holocore.pipeline import plan_scene
-        from holocore.scene import load_scene
-
-        from holocore.estimate_probe import estimate_with_probe, probe_scene, process_age_s
+        from holocore.plan.estimate import (
+            estimate_seconds,
+            load_calibration,
+            user_calibration_path,
+        )
+        from holocore.plan.estimate_probe import (
+            estimate_with_probe,
+            probe_scene,
+            process_age_s,
+        )
+        from holocore.scene.load import load_scene
 
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
             loaded = load_scene(scene)
@@ -105,7 +112,7 @@ def render(
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
         console.print(f"estimated warm render time: {secs:.1f} s ({source})")
-        from holocore.memory_estimate import estimate_memory
+        from holocore.plan.memory_estimate import estimate_memory
 
         mem = estimate_memory(height_px=optics_cfg.height, width_px=optics_cfg.width,
                               colors=len(optics_cfg.wavelengths_nm), frames=optics_cfg.frames)
@@ -165,7 +172,7 @@ def plan(
     if not scene.exists():
         fail(f"scene not found: {scene}")
     from holocore.pipeline import RenderOptions, plan_scene
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     try:
         loaded = load_scene(scene)
@@ -173,7 +180,7 @@ def plan(
                                                           wrp_planes=parse_wrp_planes(wrp_planes)))
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
-    from holocore.display import display_meta
+    from holocore.display.profiles import display_meta
 
     doc = {"plan": json.loads(pl["plan"].model_dump_json()), "summary": pl["plan"].summary,
            "analysis": json.loads(pl["analysis"].model_dump_json()),

@@ -34,13 +34,13 @@ def _parse_xy(text: str) -> tuple[float, float]:
 
 
 def _load(path: Path, quantized: bool, equal_power: bool):
-    """A chunked SLM field source (:func:`holocore.fieldsource.open_slm_field`) of a STACK.npz or a RESULT.npz.
+    """A chunked SLM field source (:func:`holocore.optics.fieldsource.open_slm_field`) of a STACK.npz or a RESULT.npz.
 
     A stack's frame f, color c is lit with the relative laser power P[f, c] its encoder recorded
     (``meta["encoder"]["illumination"]``: the scene's colour balance), unless ``equal_power``."""
     import zipfile
 
-    from holocore.fieldsource import open_slm_field
+    from holocore.optics.fieldsource import open_slm_field
 
     try:
         return open_slm_field(path, quantized=quantized, equal_power=equal_power)
@@ -108,9 +108,9 @@ def view(
     import numpy as np
     from PIL import Image, ImageDraw
 
-    from holocore.device import select_device
-    from holocore.membudget import memory_budget_bytes
-    from holocore.preview import focus_depths, to_png8, views_rgb
+    from holocore.evaluate.preview import focus_depths, to_png8, views_rgb
+    from holocore.runtime.device import select_device
+    from holocore.runtime.membudget import memory_budget_bytes
 
     try:
         dev = select_device(device)
@@ -153,7 +153,7 @@ def view(
                 sheet.paste(tile, ((i % cols) * W, (i // cols) * (H + _LABEL_PX)))
             sheet.save(out)
     F = field.shape[0]
-    from holocore.preview import depth_words
+    from holocore.evaluate.preview import depth_words
 
     focus = [f"{z * 1e3:.3f} mm ({depth_words(z, meta)})" for z in depths]
     where = focus[0] if len(focus) == 1 else f"from {focus[0]} to {focus[-1]} in {len(focus)} views"

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional
 import typer
 
 if TYPE_CHECKING:
-    from holocore.config import OpticsConfig
-    from holocore.display import DisplayProfile
+    from holocore.display.optics import OpticsConfig
+    from holocore.display.profiles import DisplayProfile
 
 __all__ = ["fail", "optics_from_options", "progress_writer", "parse_hw", "OpticsOptions", "with_optics_options",
            "OPTICS_OPTIONS"]
@@ -56,7 +56,7 @@ class OpticsOptions:
         """(profile, optics): the display profile (default ``paper``), then ``command_defaults`` (a command's
         own defaults, e.g. the demo's small SLM, used where the user gave nothing), then --optics-json, then
         the explicit options. Bad input exits with one line (code 2)."""
-        from holocore.display import DisplayError, display_optics, load_display
+        from holocore.display.profiles import DisplayError, display_optics, load_display
 
         if self.fit_camera_fov and self.focal_length_mm is not None:
             fail("give --focal-length-mm or --fit-camera-fov, not both (each determines the eyepiece f)")

@@ -1,7 +1,7 @@
 """From a scene and the optics to the WRP and SLM fields (DESIGN.md §1): load -> plan -> analyse -> trace ->
 propagate. This is what `holo render` and the service's workers call.
 
-Memory is bounded by a budget (:mod:`holocore.membudget`: keyword, HOLO_MEMORY_BUDGET_MB, default 8 GiB) that
+Memory is bounded by a budget (:mod:`holocore.runtime.membudget`: keyword, HOLO_MEMORY_BUDGET_MB, default 8 GiB) that
 sizes chunks of frames: the tracer runs one pass per chunk of frames whose random-phase bank fits (one pass
 for every frame when it fits, as it does at 1080x1920 x 3 x 24 in 8 GiB; each pass retraces the same rays, so
 the result does not depend on the chunking), and the propagation runs per chunk of frames and color.
@@ -22,8 +22,8 @@ from typing import Any, Callable, Literal, Optional, Union
 import numpy as np
 
 from holocore import __version__
-from holocore.config import OpticsConfig
-from holocore.display import DisplayProfile
+from holocore.display.optics import OpticsConfig
+from holocore.display.profiles import DisplayProfile
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
@@ -37,13 +37,13 @@ class RenderOptions:
     method: Literal["wrp", "direct"] = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
-    wrp_planes: Union[int, Literal["auto"]] = "auto"  # recording planes (holocore.wrp_planes); "auto": from the depth
-    stratified: bool = True  # each pixel's rays stratified over the cone (holocore.tracer); False: independent
+    wrp_planes: Union[int, Literal["auto"]] = "auto"  # recording planes (holocore.plan.wrp_planes); "auto": from the depth
+    stratified: bool = True  # each pixel's rays stratified over the cone (holocore.trace.hologram_rays); False: independent
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
 
     def __post_init__(self) -> None:
-        from holocore.wrp_planes import MAX_WRP_PLANES
+        from holocore.plan.wrp_planes import MAX_WRP_PLANES
 
         if self.method not in ("wrp", "direct"):
             raise ValueError(f"method must be 'wrp' or 'direct', got {self.method!r}")
@@ -66,11 +66,11 @@ class RenderResult:
 def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> dict:
     """The effect plan and the analysis of a loaded scene, without tracing the hologram. ``field_of_view``
     compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it."""
-    from holocore.analysis import analyze
-    from holocore.display import field_of_view_report
-    from holocore.effects import inventory, make_plan
-    from holocore.mapping import HologramMap
-    from holocore.wrp_planes import WrpPlanes, choose_planes, place_planes
+    from holocore.display.profiles import field_of_view_report
+    from holocore.plan.analysis import analyze
+    from holocore.plan.effects import inventory, make_plan
+    from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
+    from holocore.trace.mapping import HologramMap
 
     f = optics.focal_length_m(loaded.fov_x_deg)
     fov = field_of_view_report(optics, loaded.fov_x_deg)
@@ -104,7 +104,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
 
 
 def coded_frames(optics: OpticsConfig) -> Optional[int]:
-    """The ``coded_frames`` argument of :func:`holocore.randomfield.phase_bank` for these optics: the frame count
+    """The ``coded_frames`` argument of :func:`holocore.trace.randomfield.phase_bank` for these optics: the frame count
     when the frames' phases are coded (the default), None when they are independent."""
     return optics.frames if optics.frame_phases == "coded" else None
 
@@ -112,12 +112,12 @@ def coded_frames(optics: OpticsConfig) -> Optional[int]:
 def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
            wavelengths_m=None):
     """exp(i phi_m) per color as [F, H, W] views of one cell-major tensor ([H, W, C, F] in memory): the tracer
-    gathers every frame of every color of a cell at once (tracer.combined_cells). Frames first_frame..
+    gathers every frame of every color of a cell at once (hologram_rays.combined_cells). Frames first_frame..
     first_frame+frames-1 (default: all of optics.frames), colors ``wavelengths_m`` (default: all), built frame by
     frame (no [F, H, W] temporaries)."""
     import torch
 
-    from holocore.randomfield import phase_frames
+    from holocore.trace.randomfield import phase_frames
 
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
@@ -154,14 +154,14 @@ class _MemorySink:
 
 def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings) -> None:
     """Trace the recording planes into the sink's traced field (frames f0..f0+n_f): one trace from the WRP
-    records every ray on the plane in front of its image point (holocore.tracer, ``planes``); each deeper
+    records every ray on the plane in front of its image point (holocore.trace.hologram_rays, ``planes``); each deeper
     plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
     ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
     ``trace_plane(spec, on_plane_rows)`` runs the trace."""
     import torch
 
     from holocore.io import ScratchArray
-    from holocore.propagation import asm, clear_cache
+    from holocore.optics.propagation import asm, clear_cache
 
     H, W = optics.resolution_hw
     lams = [optics.wavelengths_m[c] for c in lit_idx]
@@ -244,7 +244,7 @@ _ASM_GRIDS = 3
 
 def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
     """(frames per trace pass, frames per propagation chunk, estimated peak bytes)."""
-    from holocore.membudget import frames_per_chunk
+    from holocore.runtime.membudget import frames_per_chunk
 
     hp, wp = pad_hw
     plane = 8 * H * W  # one complex64 frame of one color
@@ -272,11 +272,11 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     (sink, meta)."""
     import torch
 
-    from holocore.membudget import memory_budget_bytes as _budget
-    from holocore.mitsuba_env import compute_device, mitsuba, variant
-    from holocore.propagation import asm, padded_shape
-    from holocore.radiance_cache import build_cache
-    from holocore.tracer import TraceSettings, TraceStats, trace_field
+    from holocore.optics.propagation import asm, padded_shape
+    from holocore.runtime.membudget import memory_budget_bytes as _budget
+    from holocore.runtime.mitsuba_env import compute_device, mitsuba, variant
+    from holocore.trace.hologram_rays import TraceSettings, TraceStats, trace_field
+    from holocore.trace.radiance_cache import build_cache
 
     mi = mitsuba()
     dev = compute_device()
@@ -409,7 +409,7 @@ def render(scene_path: str | Path, optics: OpticsConfig, options: RenderOptions 
            progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None,
            memory_budget_bytes: Optional[int] = None) -> RenderResult:
     """Check and load a scene bundle, then :func:`render_loaded`."""
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     return render_loaded(load_scene(scene_path), optics, options, progress=progress, display=display,
                          memory_budget_bytes=memory_budget_bytes)
@@ -421,7 +421,7 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
     """Render ``scene`` (a bundle path or a loaded scene) straight into RESULT.npz at ``out_path`` in bounded
     memory (the same file :func:`holocore.io.save_result` writes, equal fields); returns the meta."""
     from holocore.io import RESULT_META_KEYS, NpzWriter
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     loaded = load_scene(scene) if isinstance(scene, (str, Path)) else scene
     with NpzWriter(out_path) as writer:
@@ -440,7 +440,7 @@ def _display_meta(display: Optional[DisplayProfile], optics: OpticsConfig) -> di
     """``display_profile`` (None: optics given directly, no profile) and ``display`` for a result's meta."""
     if display is None:
         return {"display_profile": None, "display": None}
-    from holocore.display import display_meta
+    from holocore.display.profiles import display_meta
 
     return display_meta(display, optics)
 

@@ -1,6 +1,6 @@
 """Request and response bodies of the HTTP API (pydantic; these make the OpenAPI schema at /docs).
 
-Only light imports here: ``holocore.config`` is pydantic and math, nothing heavy (DESIGN.md §1).
+Only light imports here: ``holocore.display.optics`` is pydantic and math, nothing heavy (DESIGN.md §1).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from holocore.config import OpticsConfig
-from holocore.memory_estimate import MemoryEstimate, estimate_memory
+from holocore.display.optics import OpticsConfig
+from holocore.plan.memory_estimate import MemoryEstimate, estimate_memory
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
@@ -188,7 +188,7 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
 
 
 # Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
-# between the preset's bounds; see holocore/effects.py PRESETS).
+# between the preset's bounds; see holocore/plan/effects.py PRESETS).
 _TYPICAL_SPP = {"fast": 16, "balanced": 128, "reference": 1024}
 
 
@@ -199,7 +199,7 @@ def _spp(req: JobRequest) -> int:
 def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict[str, Any]:
     """Predicted seconds of a job, shown at submit time.
 
-    The render and the SGD encoder come from ``holocore.estimate`` (rates calibrated on this machine by
+    The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
     sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
     14 s for starting the job's four processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
@@ -219,7 +219,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
     try:
-        from holocore.estimate import estimate_seconds, features
+        from holocore.plan.estimate import estimate_seconds, features
 
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method)
         radius = ana.get("subhologram_radius_px")
@@ -235,7 +235,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
 
 
 def job_memory(req: JobRequest) -> MemoryEstimate:
-    """Predicted peak bytes of the job's render, encode and preview (holocore.memory_estimate)."""
+    """Predicted peak bytes of the job's render, encode and preview (holocore.plan.memory_estimate)."""
     o = effective_optics(req)
     return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
 

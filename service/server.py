@@ -19,7 +19,6 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
     logging.basicConfig(level=getattr(logging, log_level.upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from service.http_timeouts import header_timeout_protocol
-
     from service.workers.engine import resolve_sandbox
 
     settings.data_dir.mkdir(parents=True, exist_ok=True)

@@ -19,8 +19,15 @@ from service.api.problems import ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
 from service.jobfiles import JobSpec
-from service.models import (JobRequest, cache_key, effective_optics, estimate_cost, job_limit_errors,
-                            memory_admission_error, optics_sanity_errors)
+from service.models import (
+    JobRequest,
+    cache_key,
+    effective_optics,
+    estimate_cost,
+    job_limit_errors,
+    memory_admission_error,
+    optics_sanity_errors,
+)
 
 __all__ = ["admit_job", "reusable_job", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
 

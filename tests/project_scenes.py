@@ -7,7 +7,7 @@ with the same assertions. ``HOLO_NO_SHARED=1`` pretends that ``../shared`` is ab
 =====================  ==============================================  ==========================================
 shared bundle          what the tests use it for                       the project's stand-in
 =====================  ==============================================  ==========================================
-cbox-mirror-glass      mirror and glass spheres in a diffuse room, OBJ  :func:`holocore.demo_scene.write_cbox_scene`
+cbox-mirror-glass      mirror and glass spheres in a diffuse room, OBJ  :func:`holocore.scene.demo.write_cbox_scene`
                        meshes, one area light                          (same layout, ids and plugin kinds)
 veach-bidir            glass (id "Glass"), a glossy metal, diffuse,     :func:`write_glossy_glass_room`
                        two area lights
@@ -134,7 +134,7 @@ _WRITERS: dict[str, Callable[[Path], Path]] = {
 def write_project_scene(name: str, folder: Path) -> Path:
     """Write the project's stand-in for the shared bundle ``name`` into ``folder``; returns its scene XML."""
     if name == "cbox-mirror-glass":
-        from holocore.demo_scene import write_cbox_scene
+        from holocore.scene.demo import write_cbox_scene
 
         return write_cbox_scene(folder)
     if name not in _WRITERS:

@@ -1,4 +1,4 @@
-"""The focal-stack baseline (holocore.baseline_focal_stack; issue 13 item 3): phase-only frames optimised on the
+"""The focal-stack baseline (holocore.baselines.focal_stack; issue 13 item 3): phase-only frames optimised on the
 frame-averaged amplitude of a focal stack reconstruct each plane sharp at its own focus and blurred at the
 other's, the loss falls, and the RESULT (and STACK) go through `holo view` and `holo evaluate`'s code paths."""
 
@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from holocore.baseline_focal_stack import optimise_focal_stack, stack_of, stack_plane_depths
+from holocore.baselines.focal_stack import (
+    optimise_focal_stack,
+    stack_of,
+    stack_plane_depths,
+)
 
 P, F_M, LAM = 8e-6, 0.05, 516.5e-9
 
@@ -72,7 +76,7 @@ def test_each_plane_is_sharp_at_its_own_focus_and_the_loss_falls():
     assert len(fit.loss) == 151 and fit.loss[-1] < 0.1 * fit.loss[0]
     assert all(np.isfinite(fit.loss)) and fit.loss[-1] < fit.loss[75] < fit.loss[0]
 
-    from holocore.evaluate import eye_view
+    from holocore.evaluate.scoring import eye_view
 
     meta = {"focal_length_m": F_M, "pitch_m": P, "z_inf_m": zi, "wavelengths_m": [LAM]}
     u = np.exp(1j * fit.phase).astype(np.complex64)
@@ -115,10 +119,10 @@ def _two_plane_bundle(folder):
 
 @pytest.fixture(scope="module")
 def fs_result(tmp_path_factory):
-    from holocore.baseline_focal_stack import render_focal_stack
-    from holocore.display import PAPER, display_optics
+    from holocore.baselines.focal_stack import render_focal_stack
+    from holocore.display.profiles import PAPER, display_optics
     from holocore.io import save_result
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     root = tmp_path_factory.mktemp("fs")
     scene = _two_plane_bundle(root / "scene")
@@ -145,10 +149,10 @@ def test_render_focal_stack_puts_its_planes_at_the_cards(fs_result):
 
 def test_the_result_and_its_stack_load_in_view_and_evaluate(fs_result, tmp_path):
     from holo.app import app
-    from holocore.evaluate import evaluate, eye_view, load_slm_field
-    from holocore.groundtruth import GroundTruth
+    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.scoring import evaluate, eye_view, load_slm_field
     from holocore.io import save_stack
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     root, scene, res = fs_result
     phase, smeta = stack_of(res)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from holocore.bundle import BundleError, BundleLimits, validate_bundle
+from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
 
 SCENE = '<scene version="3.0.0"><sensor type="perspective"/>{body}</scene>'
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from holocore.bundle import BundleError, BundleLimits, validate_bundle
+from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
 from tests.project_scenes import SCENE_SOURCES
 
 SCENE = """<scene version="3.0.0">

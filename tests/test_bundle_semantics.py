@@ -7,15 +7,20 @@ from __future__ import annotations
 import os
 import random
 import shutil
+import struct
 import subprocess
 import sys
-import struct
 import zlib
 from pathlib import Path
 
 import pytest
 
-from holocore.bundle import BundleError, content_sha256, entry_source, validate_bundle
+from holocore.scene.bundle import (
+    BundleError,
+    content_sha256,
+    entry_source,
+    validate_bundle,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SENSOR = '<sensor type="perspective"><float name="fov" value="40"/></sensor>'
@@ -114,14 +119,14 @@ def test_integrator_is_stripped_keeping_lines(tmp_path):
     assert any("path_guiding_integrator" in s for s in report.ignored)
     text = entry_source(report)
     assert "integrator" not in text and text.count("\n") == (root / "scene.xml").read_text().count("\n")
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     loaded = load_scene(root)
     assert loaded.scene.integrator() is None and len(loaded.scene.shapes()) == 1
 
 
 def test_mitsuba_errors_name_the_users_file_and_line(tmp_path):
-    from holocore.scene import SceneLoadError, load_scene
+    from holocore.scene.load import SceneLoadError, load_scene
 
     root = tmp_path / "bundle"
     root.mkdir()
@@ -172,7 +177,7 @@ def _tricky_bundle(rng: random.Random, root: Path, outside: Path) -> None:
 _TRACED = r"""
 import os, sys
 sys.path.insert(0, sys.argv[1])
-from holocore.scene import load_scene
+from holocore.scene.load import load_scene
 load_scene(sys.argv[2])  # warm-up: imports, plugins, kernels
 for b in sys.argv[3:]:
     print("BEGIN", b, flush=True)
@@ -229,14 +234,14 @@ def test_preloaded_plugins_never_resolve_through_a_scene_folder(tmp_path):
                                      f'{{ FILE *f = fopen("{marker}", "w"); if (f) fclose(f); }}\n')
     subprocess.run(["gcc", "-shared", "-fPIC", "-o", str(root / "plugins" / "sphere.so"), str(tmp_path / "evil.c")],
                    check=True)
-    ours = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.scene import load_scene; "
+    ours = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.scene.load import load_scene; "
             "load_scene(sys.argv[2], check_bundle=False)")
     proc = subprocess.run([sys.executable, "-c", ours, str(REPO), str(root)], capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-1000:]
     assert not marker.exists()
     # the control: Mitsuba's own load_file, without the preloading, runs the planted code (the attack is real)
-    bare = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.mitsuba_env import mitsuba; "
+    bare = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.runtime.mitsuba_env import mitsuba; "
             "mitsuba().load_file(sys.argv[2] + '/scene.xml')")
     subprocess.run([sys.executable, "-c", bare, str(REPO), str(root)], capture_output=True, text=True, timeout=300)
     assert marker.exists()

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holocore.demo_scene import write_demo_scene
+from holocore.scene.demo import write_demo_scene
 
 HOLO = [sys.executable, "-m", "holo"]
 
@@ -49,7 +49,9 @@ def test_render_writes_a_numpy_readable_result(demo, tmp_path):
     assert any("mirror" in s for s in meta["plan"]["summary"])
     stages = [json.loads(line)["stage"] for line in progress.read_text().splitlines()]
     assert "trace" in stages and "propagate" in stages
-    from service.jobfiles import RENDER_STAGES  # the stages the service's progress expects (issue 12)
+    from service.jobfiles import (
+        RENDER_STAGES,  # the stages the service's progress expects (issue 12)
+    )
 
     assert set(stages) <= set(RENDER_STAGES), stages
 

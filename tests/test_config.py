@@ -7,7 +7,7 @@ import math
 import pytest
 from pydantic import ValidationError
 
-from holocore.config import MAX_SIDE_PX, OpticsConfig
+from holocore.display.optics import MAX_SIDE_PX, OpticsConfig
 
 
 def test_paper_defaults_and_si_views():

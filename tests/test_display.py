@@ -13,10 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
-from holocore.display import (PAPER, DisplayError, DisplayProfile, display_optics, field_of_view_report,
-                              load_display, save_display)
-from holocore.mapping import HologramMap
+from holocore.display.optics import OpticsConfig
+from holocore.display.profiles import (
+    PAPER,
+    DisplayError,
+    DisplayProfile,
+    display_optics,
+    field_of_view_report,
+    load_display,
+    save_display,
+)
+from holocore.trace.mapping import HologramMap
 
 HOLO = [sys.executable, "-m", "holo"]
 
@@ -41,7 +48,7 @@ def test_paper_display_is_the_default_and_maps_depth_as_the_paper_shows_it():
     for camera_fov in (10.0, 40.0, 70.0):
         assert o.focal_length_m(camera_fov) == pytest.approx(0.050)
     assert OpticsConfig().focal_length_m(70.0) == pytest.approx(0.050)  # the library default is the same display
-    # T (holocore/mapping.py): 10 m, 0.9 m and 0.5 m in front of the eye land at z_inf + 0.25, 2.8 and 5 mm
+    # T (holocore/trace/mapping.py): 10 m, 0.9 m and 0.5 m in front of the eye land at z_inf + 0.25, 2.8 and 5 mm
     hmap = HologramMap(cam_to_world=np.eye(4), focal_length_m=o.focal_length_m(70.0), z_inf_m=o.z_inf_m)
     q = hmap.world_to_holo(np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 0.9], [0.0, 0.0, 0.5]]))
     dz_mm = (q[:, 2] - o.z_inf_m) * 1e3
@@ -185,7 +192,7 @@ def test_render_plan_demo_and_baseline_share_one_optics_option_set():
 @pytest.fixture(scope="module")
 def wide_scene(tmp_path_factory) -> Path:
     """The project's demo scene seen by a 70 degree camera, as wide as a downloaded interior's."""
-    from holocore.demo_scene import write_demo_scene
+    from holocore.scene.demo import write_demo_scene
 
     return write_demo_scene(tmp_path_factory.mktemp("wide") / "scene", fov_deg=70.0)
 

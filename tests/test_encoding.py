@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from holocore import encoding as enc
+from holocore.encode import encoder as enc
+from holocore.evaluate.metrics import fit_brightness, psnr
 from holocore.io import load_stack, phase_to_u8
-from holocore.metrics import fit_brightness, psnr
-from holocore.randomfield import random_field
-from holocore.viewing import simulate_view
+from holocore.optics.viewing import simulate_view
+from holocore.trace.randomfield import random_field
 
 P = 8e-6
 LAMS = [640e-9, 520e-9]
@@ -251,9 +251,9 @@ def test_bad_targets_are_refused():
 def traced(tmp_path_factory):
     """The demo scene at 48 x 64 with the eyepiece scaled down (z_inf 1 mm, f 5 mm): the WRP lies 2.3 mm from
     the SLM, so the unreachable border is 12 px and the interior keeps 24 x 40 px."""
-    from holocore.config import OpticsConfig
-    from holocore.demo_scene import write_demo_scene
+    from holocore.display.optics import OpticsConfig
     from holocore.pipeline import RenderOptions, render
+    from holocore.scene.demo import write_demo_scene
 
     xml = write_demo_scene(tmp_path_factory.mktemp("demo") / "scene")
     optics = OpticsConfig(resolution_hw=(48, 64), frames=2, z_inf_mm=1.0, focal_length_mm=5.0, seed=1)
@@ -307,7 +307,7 @@ def test_blocks_of_frames_give_the_unchunked_stack():
 
 
 def test_streamed_file_encoding_equals_the_in_memory_one(tmp_path):
-    from holocore.encoding_stream import encode_file
+    from holocore.encode.stream import encode_file
     from holocore.io import save_result
 
     target = _small_target(frames=3)
@@ -367,8 +367,8 @@ def test_stop_rule_in_decibels():
 def _plain_operator(shape_hw, z, lam, pitch, grid, cone):
     """The plain padded ASM operator of DESIGN §5 in complex128 numpy: crop(IFFT(M FFT(pad u))) and its
     adjoint crop(IFFT(conj(M) FFT(pad g))), M the band-limited transfer function (times the cone's disc)."""
-    from holocore.propagation import transfer_function
-    from holocore.randomfield import passband_mask
+    from holocore.optics.propagation import transfer_function
+    from holocore.trace.randomfield import passband_mask
 
     m = transfer_function(grid, z, lam, pitch, dtype=torch.complex128).numpy()
     if cone:
@@ -389,7 +389,7 @@ def test_encoder_operator_is_the_plain_padded_asm(cone, shape, grid):
     """The encoder's two-forward-DFT operator (encoding_op, Eqs. 1-2: no conjugation, no ifft, flipped WRP
     side) equals the plain padded ASM and its adjoint: to complex128 rounding in complex128, to complex64
     rounding in complex64, on even, odd and non-square grids; and <A u, v> = <u, A^H v>."""
-    from holocore.encoding_op import Operator, flip
+    from holocore.encode.operator import Operator, flip
 
     z, lam = 1e-3, 640e-9
     g = torch.Generator().manual_seed(3)
@@ -421,9 +421,9 @@ def test_encoder_operator_is_the_plain_padded_asm(cone, shape, grid):
 def test_written_out_gradient_is_autograds(cone, w):
     """The optimiser's hand-written gradient of O = 1 - (e/HW)^w |<t,p>|^2/e equals torch autograd's through
     the plain padded ASM, and the operator's adjoint is its adjoint."""
-    from holocore.encoding_sgd import Operator, inner_energy
-    from holocore.propagation import transfer_function
-    from holocore.randomfield import passband_mask
+    from holocore.encode.sgd import Operator, inner_energy
+    from holocore.optics.propagation import transfer_function
+    from holocore.trace.randomfield import passband_mask
 
     h, wd = 24, 32
     op = Operator((h, wd), 1e-3, 520e-9, P, cone=cone, device=torch.device("cpu"))
@@ -442,7 +442,7 @@ def test_written_out_gradient_is_autograds(cone, w):
     p = torch.fft.fft2((torch.fft.fft2(padded) * m).conj()).conj()[..., :h, :wd] / (op.hp * op.wp)
     a, e = (t.conj() * p).sum(dim=(-2, -1)), p.abs().square().sum(dim=(-2, -1))
     (1 - (e / (h * wd)) ** w * a.abs().square() / e).sum().backward()
-    from holocore.encoding_sgd import optimise
+    from holocore.encode.sgd import optimise
 
     with torch.no_grad():
         u = torch.polar(torch.ones_like(phi), phi)
@@ -466,8 +466,8 @@ def test_heap_reuse_changes_no_number(monkeypatch):
     bit for bit without it, and the context can be entered twice in a row."""
     import contextlib
 
-    from holocore import encoding_sgd
-    from holocore.encoding_op import heap_reuse
+    from holocore.encode import sgd as encoding_sgd
+    from holocore.encode.operator import heap_reuse
 
     target = _small_target(frames=2)
     kw = dict(z_wrp_m=Z, wavelengths_m=LAMS, pitch_m=P, iterations=40)

@@ -1,12 +1,17 @@
-"""The probe-based estimate (holocore.estimate_probe): its arithmetic, and a real probe of a project scene."""
+"""The probe-based estimate (holocore.plan.estimate_probe): its arithmetic, and a real probe of a project scene."""
 
 from __future__ import annotations
 
 import pytest
 
-from holocore.config import OpticsConfig
-from holocore.estimate_probe import Probe, estimate_with_probe, probe_scene, process_age_s
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions
+from holocore.plan.estimate_probe import (
+    Probe,
+    estimate_with_probe,
+    probe_scene,
+    process_age_s,
+)
 
 
 def test_prediction_adds_start_up_compile_and_the_scenes_own_ray_cost():
@@ -28,8 +33,8 @@ def test_prediction_adds_start_up_compile_and_the_scenes_own_ray_cost():
 
 
 def test_a_real_probe_measures_positive_costs(tmp_path):
-    from holocore.demo_scene import write_demo_scene
-    from holocore.scene import load_scene
+    from holocore.scene.demo import write_demo_scene
+    from holocore.scene.load import load_scene
 
     write_demo_scene(tmp_path / "scene")
     loaded = load_scene(tmp_path / "scene")

@@ -13,15 +13,25 @@ import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
-from holocore.evaluate import (compare, default_pupil_m, eye_view, focus_planes_m, lit_margin_px, load_slm_field,
-                               view_offsets_m)
-from holocore.groundtruth import GroundTruth, focus_distance_m, pupil_diffraction
+from holocore.display.optics import OpticsConfig
+from holocore.evaluate.groundtruth import (
+    GroundTruth,
+    focus_distance_m,
+    pupil_diffraction,
+)
+from holocore.evaluate.scoring import (
+    compare,
+    default_pupil_m,
+    eye_view,
+    focus_planes_m,
+    lit_margin_px,
+    load_slm_field,
+    view_offsets_m,
+)
 
 HOLO = [sys.executable, "-m", "holo"]
 LAM = 516.5e-9
@@ -53,9 +63,9 @@ DOT = np.array([0.002, 0.001, 0.5])  # eye-camera metres: right, up, ahead
 
 
 def _dot_render(radius_m: float, spp: int, *, square: bool = False):
-    from holocore.mitsuba_env import mitsuba
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import from_mitsuba_scene
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.load import from_mitsuba_scene
 
     mi = mitsuba()
     fov = 2 * math.degrees(math.atan(W * P / (2 * F_M)))
@@ -198,9 +208,9 @@ def test_grid_helpers():
 @pytest.fixture(scope="module")
 def cards(tmp_path_factory):
     from bench.accuracy_report import write_mirror_cards
-    from holocore.baseline_layers import render_layers
+    from holocore.baselines.layers import render_layers
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     h, w, f = 64, 96, 0.03
     fov = 2 * math.degrees(math.atan(w * P / (2 * f)))
@@ -244,7 +254,7 @@ def test_near_and_far_focus_like_the_ground_truth_and_layers_misplace_the_mirror
 @pytest.fixture(scope="module")
 def cbox(scene_bundle):
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     loaded = load_scene(scene_bundle("cbox-mirror-glass"))
     optics = OpticsConfig(resolution_hw=(48, 64), frames=8, z_inf_mm=2.0, fit_camera_fov=True)  # the whole box
@@ -253,7 +263,7 @@ def cbox(scene_bundle):
 
 
 def test_cbox_frames_average_speckle_and_layers_keep_colour_balance(cbox):
-    from holocore.baseline_layers import render_layers
+    from holocore.baselines.layers import render_layers
 
     loaded, optics, res = cbox
     gt = GroundTruth(loaded, res.meta, shape_hw=(48, 64), spp=128)
@@ -299,7 +309,7 @@ def test_holo_evaluate_and_baseline_cli(cbox, tmp_path, scene_bundle):
 
 
 def test_a_phase_stack_is_lit_with_its_laser_powers(cbox, tmp_path):
-    from holocore.encoding import encode_sgd, save_encoded
+    from holocore.encode.encoder import encode_sgd, save_encoded
 
     _, _, res = cbox
     enc = encode_sgd(res.wrp_field[:2], z_wrp_m=res.meta["z_wrp_m"], wavelengths_m=res.meta["wavelengths_m"],
@@ -313,8 +323,13 @@ def test_a_phase_stack_is_lit_with_its_laser_powers(cbox, tmp_path):
 
 # ---- the cost estimate --------------------------------------------------------------------------------------
 def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
-    from holocore.estimate import estimate_breakdown, estimate_layers_seconds, estimate_seconds, load_calibration
     from holocore.pipeline import RenderOptions
+    from holocore.plan.estimate import (
+        estimate_breakdown,
+        estimate_layers_seconds,
+        estimate_seconds,
+        load_calibration,
+    )
 
     cal = load_calibration()
     o = OpticsConfig(resolution_hw=(96, 128), frames=8)
@@ -332,7 +347,7 @@ def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
         load_calibration(broken)
     with pytest.raises(ValueError, match="encode_iterations"):
         estimate_seconds(o, RenderOptions(), encode_iterations=-1, calibration=cal)
-    from holocore.estimate import calibrate
+    from holocore.plan.estimate import calibrate
 
     with pytest.raises(ValueError, match="z_inf_mm"):  # refused before anything is rendered
         calibrate(optics={"z_inf_mm": -4.0})
@@ -344,10 +359,15 @@ def test_the_estimate_counts_the_work_the_render_does(tmp_path):
     term then grows as its count does: the trace linearly in rays, the ASM as F C P log2 P. (How close the
     predicted seconds come to a measured run depends on the machine and its load: bench/estimate_vs_measured.py
     measures that, results in bench/results/estimate_vs_measured.md.)"""
-    from holocore.demo_scene import write_demo_scene
-    from holocore.estimate import DEFAULT_CALIBRATION, estimate_breakdown, features, load_calibration
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.plan.estimate import (
+        DEFAULT_CALIBRATION,
+        estimate_breakdown,
+        features,
+        load_calibration,
+    )
+    from holocore.scene.demo import write_demo_scene
+    from holocore.scene.load import load_scene
 
     cal = load_calibration(DEFAULT_CALIBRATION)
     rates = cal["rates"]
@@ -384,7 +404,7 @@ def test_the_estimate_counts_the_work_the_render_does(tmp_path):
 
 
 def test_render_estimate_cli(tmp_path):
-    from holocore.demo_scene import write_demo_scene
+    from holocore.scene.demo import write_demo_scene
 
     scene = write_demo_scene(tmp_path / "demo")
     p = run("render", scene, "--out", tmp_path / "never.npz", "--estimate", "--resolution", "96x128")

@@ -1,4 +1,4 @@
-"""The world-to-hologram map T (DESIGN.md §3, paper Eq. 3; holocore.mapping): the worked example of DESIGN §3,
+"""The world-to-hologram map T (DESIGN.md §3, paper Eq. 3; holocore.trace.mapping): the worked example of DESIGN §3,
 straight rays stay straight, T^-1 T = identity, Mitsuba's mirrored camera x, and the Dr.Jit kernel's use of the
 same formulas."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holocore.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
+from holocore.trace.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
 
 F, Z_INF = 0.05, 0.08
 
@@ -76,7 +76,7 @@ def test_camera_x_is_mirrored_from_mitsubas():
 
 def test_the_kernel_uses_the_same_formulas():
     # the tracer evaluates T on Dr.Jit float64 arrays through the same two functions
-    from holocore.mitsuba_env import mitsuba
+    from holocore.runtime.mitsuba_env import mitsuba
 
     mi = mitsuba()
     zc = np.array([0.2, 0.9, 10.0, 1e4])

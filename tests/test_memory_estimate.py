@@ -1,11 +1,11 @@
-"""The memory model (holocore.memory_estimate): it reproduces the peaks it was measured at, grows with the
+"""The memory model (holocore.plan.memory_estimate): it reproduces the peaks it was measured at, grows with the
 number of field samples H W C F, and refuses nonsense."""
 
 from __future__ import annotations
 
 import pytest
 
-from holocore.memory_estimate import MEASURED_PEAKS, STAGES, estimate_memory
+from holocore.plan.memory_estimate import MEASURED_PEAKS, STAGES, estimate_memory
 
 
 def test_measured_points_are_reproduced():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from holocore.metrics import fit_brightness, psnr, speckle_contrast, ssim
+from holocore.evaluate.metrics import fit_brightness, psnr, speckle_contrast, ssim
 
 
 def smooth_image(shape=(64, 80), seed=0) -> np.ndarray:

@@ -43,10 +43,10 @@ def test_convergence_ratio(rep):
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    from holocore.display import PAPER
-    from holocore.paper_scenes import write_paper_scene
+    from holocore.display.profiles import PAPER
     from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
+    from holocore.scene.paper import write_paper_scene
 
     loaded = load_scene(write_paper_scene("mirror", tmp_path_factory.mktemp("mirror")))
     opt = PAPER.optics(resolution_hw=(36, 48), frames=3, z_inf_mm=4.0)
@@ -71,14 +71,14 @@ def test_frames_the_convergence_map_may_share(tiny):
 
 
 def _optics(frames: int, frame_phases: str):
-    from holocore.display import PAPER
+    from holocore.display.profiles import PAPER
 
     return PAPER.optics(resolution_hw=(36, 48), frames=frames, z_inf_mm=4.0).model_copy(
         update={"frame_phases": frame_phases})
 
 
 def test_reference_against_itself_and_cue_depth(rep, tiny):
-    from holocore.evaluate import default_pupil_m, eye_view
+    from holocore.evaluate.scoring import default_pupil_m, eye_view
 
     _, r3, _ = tiny
     meta = r3.meta

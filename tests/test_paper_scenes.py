@@ -1,4 +1,4 @@
-"""The paper scenes with depth (holocore.paper_scenes; issue 13 item 2) at the paper display (f = 50 mm, 8 µm,
+"""The paper scenes with depth (holocore.scene.paper; issue 13 item 2) at the paper display (f = 50 mm, 8 µm,
 z_inf 80 mm): their depths land where T says, the mirror image lies at the reflected object's apparent depth,
 the glass ball images its card at the paraxial thick-lens position, the glossy highlight moves with the view,
 and each renders finite and lit. Physics, not shapes: expectations are computed here from the geometry."""
@@ -12,8 +12,13 @@ import pytest
 from typer.testing import CliRunner
 
 from holo.app import app
-from holocore.display import PAPER, display_optics
-from holocore.paper_scenes import PAPER_SCENES, paper_fov_x_deg, scene_facts, write_paper_scene
+from holocore.display.profiles import PAPER, display_optics
+from holocore.scene.paper import (
+    PAPER_SCENES,
+    paper_fov_x_deg,
+    scene_facts,
+    write_paper_scene,
+)
 
 F_M = 0.05
 Z_INF = 0.08
@@ -31,7 +36,7 @@ def folders(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def loaded(folders):
-    from holocore.scene import load_scene
+    from holocore.scene.load import load_scene
 
     return {name: load_scene(folder) for name, folder in folders.items()}
 
@@ -44,7 +49,7 @@ def _plan(ld, **overrides):
 
 def _eye_rays(ld, tans: np.ndarray):
     """World rays from the eye (the sensor's origin) along eye-camera directions (tan_x, tan_y, 1)."""
-    from holocore.mapping import HologramMap
+    from holocore.trace.mapping import HologramMap
 
     hmap = HologramMap.from_sensor(ld.sensor, focal_length_m=F_M, z_inf_m=Z_INF)
     d_cam = np.concatenate([tans, np.ones((len(tans), 1))], axis=1)
@@ -54,8 +59,8 @@ def _eye_rays(ld, tans: np.ndarray):
 
 
 def _chain(ld, tans, seed=3):
-    from holocore.mitsuba_env import mitsuba
-    from holocore.wavetrace import trace_chain
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.trace.reference_chain import trace_chain
 
     o, v, d_cam = _eye_rays(ld, tans)
     integ = mitsuba().load_dict({"type": "path", "max_depth": 4})
@@ -105,7 +110,7 @@ def test_mirror_image_lies_at_the_apparent_depth_of_the_reflected_object(loaded)
     np.testing.assert_allclose(zc_img, zc_expect, rtol=1e-4)
     assert np.all(np.abs(z_holo(zc_img) - z_holo(zc_expect)) < 1e-6)
     # The mirror surface itself is ~0.5 m away: hologram depths 5 mm and 1.25 mm beyond z_inf
-    from holocore.mitsuba_env import mitsuba
+    from holocore.runtime.mitsuba_env import mitsuba
 
     mi = mitsuba()
     o, v, _ = _eye_rays(loaded["mirror"], tans)
@@ -159,7 +164,7 @@ def _highlight_column(img: np.ndarray) -> float:
 
 
 def test_glossy_highlight_moves_with_the_view(loaded):
-    from holocore.groundtruth import render_ground_truth
+    from holocore.evaluate.groundtruth import render_ground_truth
 
     facts = scene_facts("glossy")
     ld = loaded["glossy"]
@@ -217,7 +222,7 @@ def test_fast_preset_keeps_the_glossy_highlight(loaded):
     # neither, so the fast preset path traces glossy image points. Without that its highlight vanished (the plate
     # shows only its diffuse part and cache blotches: 7.5 dB against ground truth where balanced scored 12.6 dB at
     # 68x120). The fast view must match the balanced one (relative error after one brightness scale).
-    from holocore.evaluate import eye_view
+    from holocore.evaluate.scoring import eye_view
     from holocore.pipeline import RenderOptions, render_loaded
 
     optics = display_optics(PAPER, overrides={"resolution_hw": (40, 72), "frames": 2, "z_inf_mm": 4.0})

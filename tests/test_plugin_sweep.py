@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holocore.bundle import ALLOWED_PLUGINS
+from holocore.scene.bundle import ALLOWED_PLUGINS
 
 CAMERA = ('<sensor type="perspective"><float name="fov" value="17.5"/><transform name="to_world">'
           '<lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>{film}</sensor>')
@@ -190,9 +190,9 @@ def _one_line(msg: str) -> bool:
 
 @pytest.mark.parametrize("key", sorted(BODIES), ids=lambda k: f"{k[0]}-{k[1]}")
 def test_every_admitted_plugin_renders_or_is_refused_clearly(tmp_path, key):
-    from holocore.bundle import validate_bundle
-    from holocore.config import OpticsConfig
+    from holocore.display.optics import OpticsConfig
     from holocore.pipeline import RenderOptions, render
+    from holocore.scene.bundle import validate_bundle
 
     root = _write(tmp_path / "b", key)
     report = validate_bundle(root)  # every admitted plugin passes the bundle check itself
@@ -219,8 +219,8 @@ def test_every_admitted_plugin_renders_or_is_refused_clearly(tmp_path, key):
 
 def _mitsuba_path(root: Path) -> np.ndarray:
     """Per-channel sum of Mitsuba's path render (64 spp, depth 8) of the scene's own camera view."""
-    from holocore.mitsuba_env import mitsuba
-    from holocore.scene import load_scene
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.load import load_scene
 
     mi = mitsuba()
     img = np.array(mi.render(load_scene(root).scene, spp=64, integrator=mi.load_dict({"type": "path",

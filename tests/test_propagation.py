@@ -1,4 +1,4 @@
-"""Band-limited ASM (holocore.propagation) against analytic Gaussian beams and direct Rayleigh-Sommerfeld sums.
+"""Band-limited ASM (holocore.optics.propagation) against analytic Gaussian beams and direct Rayleigh-Sommerfeld sums.
 
 Accuracy targets: relative L2 error <= 1e-4 in complex64 wherever the sampling allows (DESIGN §5). Each
 geometry below states why its sampling allows it.
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from holocore import propagation
-from holocore.propagation import asm, padded_shape, transfer_function
-from holocore.rs_reference import grid_coordinates, rs_direct
+from holocore.optics import propagation
+from holocore.optics.propagation import asm, padded_shape, transfer_function
+from holocore.optics.rs_reference import grid_coordinates, rs_direct
 
 
 def rel_l2(a, b) -> float:
@@ -316,7 +316,7 @@ def test_inverse_fft_is_right_at_padded_production_sizes(shape):
     """The inverse DFT every module uses (propagation.ifft2) against numpy in float64, on the padded grids of
     1024 x 1024 and 1080 x 1920 SLMs, batched and not (torch's own CPU ifft2 fails on unbatched 2048^2
     complex64 with two threads)."""
-    from holocore.propagation import ifft2
+    from holocore.optics.propagation import ifft2
 
     rng = np.random.default_rng(5)
     x = (rng.normal(size=shape) + 1j * rng.normal(size=shape)).astype(np.complex64)
@@ -328,10 +328,10 @@ def test_inverse_fft_is_right_at_padded_production_sizes(shape):
 def test_sqrt_is_accurate_and_the_same_in_every_fresh_process():
     """torch's CPU sqrt runs on MKL's vector math over two threads; when its first call raced, about one process
     in three computed the worker thread's half in a low-accuracy mode (2e5 ulp in float64), so one seed gave a
-    service job a stack that differed from the CLI's. holocore.torch_runtime starts MKL on one thread first."""
+    service job a stack that differed from the CLI's. holocore.runtime.torch_runtime starts MKL on one thread first."""
     import subprocess
     import sys
-    code = ("import numpy as np, torch, holocore.propagation as p; torch.set_num_threads(2); "
+    code = ("import numpy as np, torch, holocore.optics.propagation as p; torch.set_num_threads(2); "
             "a = torch.linspace(1e9, 3e12, 96 * 96, dtype=torch.float64); r = np.sqrt(a.numpy()); "
             "print(int(np.abs((torch.sqrt(a).numpy() - r) / np.spacing(r)).max()), "
             "p.transfer_function((96, 96), 0.004, 640e-9, 8e-6, dtype=torch.complex128).abs().sum().item())")

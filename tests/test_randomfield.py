@@ -9,7 +9,12 @@ import pytest
 import torch
 from scipy import stats
 
-from holocore.randomfield import passband_mask, passband_radius, phase_bank, random_field
+from holocore.trace.randomfield import (
+    passband_mask,
+    passband_radius,
+    phase_bank,
+    random_field,
+)
 
 LAM, P = 516.5e-9, 8e-6
 
@@ -125,7 +130,7 @@ def test_invalid_inputs(kwargs, match):
 
 # ---- coded frames (docs/physics.md, "Coded frame phases") ----------------------------------------------------
 def test_coded_frames_cancel_every_cross_term_within_the_code_distance():
-    from holocore.randomfield import code_multiplier, frame_codes
+    from holocore.trace.randomfield import code_multiplier, frame_codes
 
     F, shape = 24, (40, 48)
     a, dist = code_multiplier(F)

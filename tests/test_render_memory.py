@@ -10,10 +10,18 @@ import numpy as np
 import pytest
 import torch
 
-from holocore.config import OpticsConfig
-from holocore.demo_scene import write_demo_scene
-from holocore.io import NpyMember, NpzWriter, ScratchArray, load_result, load_stack, save_result, save_stack
-from holocore.membudget import ENV, frames_per_chunk, memory_budget_bytes
+from holocore.display.optics import OpticsConfig
+from holocore.io import (
+    NpyMember,
+    NpzWriter,
+    ScratchArray,
+    load_result,
+    load_stack,
+    save_result,
+    save_stack,
+)
+from holocore.runtime.membudget import ENV, frames_per_chunk, memory_budget_bytes
+from holocore.scene.demo import write_demo_scene
 
 SMALL = 256 << 20  # the smallest budget: one frame per trace pass and per propagation chunk
 
@@ -130,10 +138,10 @@ def _stack(tmp_path, F=5, C=3, H=40, W=48):
 
 
 def test_chunked_views_equal_the_unchunked_ones(tmp_path):
-    from holocore.evaluate import eye_view, load_slm_field
-    from holocore.fieldsource import open_slm_field
-    from holocore.preview import views_rgb
-    from holocore.viewing import simulate_view
+    from holocore.evaluate.preview import views_rgb
+    from holocore.evaluate.scoring import eye_view, load_slm_field
+    from holocore.optics.fieldsource import open_slm_field
+    from holocore.optics.viewing import simulate_view
 
     path, meta = _stack(tmp_path)
     full, meta2, kind = load_slm_field(path)  # the whole field in memory (the old path)
@@ -162,14 +170,14 @@ def test_chunked_views_equal_the_unchunked_ones(tmp_path):
 
 
 def test_phase_bank_chunks_are_slices_of_the_whole():
-    from holocore.randomfield import phase_bank
+    from holocore.trace.randomfield import phase_bank
 
     whole = phase_bank(6, (16, 20), 520e-9, 8e-6, seed=3)
     assert torch.equal(phase_bank(2, (16, 20), 520e-9, 8e-6, seed=3, first_frame=4), whole[4:])
 
 
 def test_device_choice(monkeypatch):
-    from holocore import device
+    from holocore.runtime import device
 
     monkeypatch.delenv(device.ENV, raising=False)
     assert device.requested_device() == "auto"

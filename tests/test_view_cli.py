@@ -56,7 +56,7 @@ def _point_field(frames: int = 2) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def result_npz(tmp_path_factory):
-    from holocore.encoding import ideal_slm_field
+    from holocore.encode.encoder import ideal_slm_field
 
     wrp = _point_field()
     slm = ideal_slm_field(wrp, z_wrp_m=Z_WRP, wavelengths_m=LAMS, pitch_m=P).numpy()

@@ -8,10 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from holocore.metrics import speckle_contrast
-from holocore.randomfield import phase_bank
-from holocore.rs_reference import grid_coordinates
-from holocore.viewing import depth_of_field_m, pupil_mask, simulate_view, stack_to_field
+from holocore.evaluate.metrics import speckle_contrast
+from holocore.optics.rs_reference import grid_coordinates
+from holocore.optics.viewing import (
+    depth_of_field_m,
+    pupil_mask,
+    simulate_view,
+    stack_to_field,
+)
+from holocore.trace.randomfield import phase_bank
 
 LAM, P, N, F_EYE = 0.5e-6, 4e-6, 512, 20e-3  # sin(theta_max) = lambda / 2p = 0.0625; a 2 mm window
 

@@ -2,6 +2,12 @@
 
 The line protocol is documented in docs/focus_protocol.md."""
 
-from display_agent.focus.client import FocusController, FocusDisconnected, FocusError, FocusStatus, FocusTimeout
+from display_agent.focus.client import (
+    FocusController,
+    FocusDisconnected,
+    FocusError,
+    FocusStatus,
+    FocusTimeout,
+)
 
 __all__ = ["FocusController", "FocusError", "FocusTimeout", "FocusDisconnected", "FocusStatus"]

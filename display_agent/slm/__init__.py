@@ -3,6 +3,6 @@
 ``open_slm(spec)``: ``sim:DIR`` (records what it shows), ``window[:MONITOR]`` (fullscreen pygame window),
 ``null`` (shows nothing, counts frames)."""
 
-from display_agent.slm.base import SLM, SLMError, NullSLM, open_slm
+from display_agent.slm.base import SLM, NullSLM, SLMError, open_slm
 
 __all__ = ["SLM", "SLMError", "NullSLM", "open_slm"]

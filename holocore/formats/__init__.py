@@ -6,9 +6,24 @@ imports these; ``holocore.io`` re-exports the file functions for the core."""
 from holocore.formats.hashing import file_sha256
 from holocore.formats.levels import phase_levels, phase_to_u8
 from holocore.formats.lut import LutEntry, check_lut_table, load_lut_file
-from holocore.formats.npz import NpyMember, NpzWriter, PieceSource, atomic_savez, npz_members, read_npz_meta
+from holocore.formats.npz import (
+    NpyMember,
+    NpzWriter,
+    PieceSource,
+    atomic_savez,
+    npz_members,
+    read_npz_meta,
+)
 from holocore.formats.result import RESULT_META_KEYS, load_result, save_result
-from holocore.formats.stack import MAX_STACK_BYTES, Stack, StackError, check_stack, load_stack, open_stack, save_stack
+from holocore.formats.stack import (
+    MAX_STACK_BYTES,
+    Stack,
+    StackError,
+    check_stack,
+    load_stack,
+    open_stack,
+    save_stack,
+)
 
 __all__ = [
     "file_sha256", "phase_levels", "phase_to_u8", "LutEntry", "check_lut_table", "load_lut_file", "NpyMember",

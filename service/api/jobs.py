@@ -9,7 +9,8 @@ import time
 from pathlib import Path
 from typing import Literal, Optional
 
-from fastapi import APIRouter, Header, Path as PathParam, Query, Request
+from fastapi import APIRouter, Header, Query, Request
+from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 

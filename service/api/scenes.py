@@ -1,7 +1,7 @@
 """``POST /v1/scenes`` (upload a bundle) and ``GET /v1/scenes/{id}`` (its report and effect plan).
 
 An upload is unpacked into a staging folder (zip-bomb guard, no path leaves it), checked with
-``holocore.bundle.validate_bundle`` before Mitsuba ever sees it, and stored content-addressed under
+``holocore.scene.bundle.validate_bundle`` before Mitsuba ever sees it, and stored content-addressed under
 ``scenes/<id>/bundle``: the same files with the same entry give the same id. The effect plan is computed
 later by a worker subprocess (``holo plan --json``); the scene shows ``plan_state`` pending until then.
 """
@@ -17,11 +17,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional
 
-from fastapi import APIRouter, File, Form, Path as PathParam, UploadFile
+from fastapi import APIRouter, File, Form, UploadFile
+from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from holocore.bundle import BundleError, BundleLimits, validate_bundle
+from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError

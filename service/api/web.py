@@ -26,7 +26,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-from fastapi import APIRouter, Path as PathParam, Request
+from fastapi import APIRouter, Request
+from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, Response
 
 from service.api.context import ServiceContext
@@ -35,7 +36,13 @@ from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
-from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics, estimate_cost
+from service.models import (
+    ID_PATTERN,
+    JobRequest,
+    cache_key,
+    effective_optics,
+    estimate_cost,
+)
 from service.submission import admit_job, reusable_job
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
@@ -131,8 +138,12 @@ async def whoami(principal: ReadScope) -> dict:
 
 @router.get("/v1/display-profiles", tags=["displays"], responses=PROBLEM_RESPONSES)
 def display_profiles(principal: ReadScope) -> dict:  # noqa: ARG001
-    """The built-in display profiles (holocore.display) and the optics each gives a job."""
-    from holocore.display import BUILTIN_DISPLAYS, DEFAULT_DISPLAY, OPTICS_FIELDS
+    """The built-in display profiles (holocore.display.profiles) and the optics each gives a job."""
+    from holocore.display.profiles import (
+        BUILTIN_DISPLAYS,
+        DEFAULT_DISPLAY,
+        OPTICS_FIELDS,
+    )
 
     out = []
     for p in BUILTIN_DISPLAYS.values():

@@ -26,7 +26,14 @@ import zipfile
 from pathlib import Path
 from typing import Any, Optional
 
-from service.jobfiles import STEPS, ArtifactInfo, JobFile, RunStatus, Step, read_job_file
+from service.jobfiles import (
+    STEPS,
+    ArtifactInfo,
+    JobFile,
+    RunStatus,
+    Step,
+    read_job_file,
+)
 
 __all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm", "run_job"]
 
@@ -116,8 +123,8 @@ def frames_zip(stack_path: Path, out: Path) -> int:
 
 def preview_focus_mm(meta: dict) -> float:
     """Focus of the preview: the middle of the image volume in hologram space (linear in dioptres), mm
-    (holocore.evaluate.focus_planes_m with one plane; z_inf without an analysis)."""
-    from holocore.evaluate import focus_planes_m
+    (holocore.evaluate.scoring.focus_planes_m with one plane; z_inf without an analysis)."""
+    from holocore.evaluate.scoring import focus_planes_m
 
     return focus_planes_m(meta, 1)[0] * 1e3
 

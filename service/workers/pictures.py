@@ -2,7 +2,7 @@
 reconstruction, as PNGs with a JSON index, made by a worker when the job finishes (never inside a request).
 
 Run as ``python -m service.workers.pictures STACK.npz --out DIR`` (the job driver's ``pictures`` step). It uses
-holocore's viewing code, as ``holo view --sweep`` does (holocore.preview: ``focus_depths``, ``view_rgb``,
+holocore's viewing code, as ``holo view --sweep`` does (holocore.evaluate.preview: ``focus_depths``, ``view_rgb``,
 ``to_png8``):
 
 - sweep: ``--sweep N`` views (default 9) with a 4 mm pupil, focused from far to near across the scene's image
@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
-from holocore.preview import depth_words
+from holocore.evaluate.preview import depth_words
 
 __all__ = ["make_pictures", "picture_key", "PICTURES_VERSION", "depth_words"]
 
@@ -98,7 +98,7 @@ def light_radius_m(field, meta: dict, *, share: float = 0.8) -> float:
 def _save(views, white: float, out: Path, names: list[str]) -> list[dict]:
     from PIL import Image
 
-    from holocore.preview import to_png8
+    from holocore.evaluate.preview import to_png8
 
     rows = []
     for v, name in zip(views, names):
@@ -111,8 +111,8 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     """Write the sweep and grid PNGs and ``index.json`` into ``out``; returns the index."""
     import numpy as np
 
-    from holocore.preview import focus_depths, view_rgb
-    from holocore.viewing import depth_of_field_m
+    from holocore.evaluate.preview import focus_depths, view_rgb
+    from holocore.optics.viewing import depth_of_field_m
 
     stack_sha = _sha256(stack)
     params = {"sweep": sweep, "pupil_mm": pupil_mm, "grid": GRID}

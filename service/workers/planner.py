@@ -16,10 +16,18 @@ import sys
 import threading
 from typing import Optional
 
-from holocore.errors import scrub_message
+from holocore.scene.errors import scrub_message
 from service.db import Database
 from service.settings import ServiceSettings
-from service.workers.engine import RunAs, driver_env, give_tree, kill_group, kill_uids, resolve_sandbox, sandbox_env
+from service.workers.engine import (
+    RunAs,
+    driver_env,
+    give_tree,
+    kill_group,
+    kill_uids,
+    resolve_sandbox,
+    sandbox_env,
+)
 
 __all__ = ["Planner"]
 

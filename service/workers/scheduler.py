@@ -24,13 +24,22 @@ import time
 from pathlib import Path
 from typing import Optional
 
-from holocore.errors import scrub_message
+from holocore.scene.errors import scrub_message
 from service.db import Database
 from service.jobfiles import JobFile, JobSpec, RunStatus, read_run_status
 from service.settings import ServiceSettings
 from service.workers.driver import EXIT_FAILED, write_json_atomic
-from service.workers.engine import (Engine, Handle, RunAs, give_tree, kill_group, kill_uids,
-                                    reclaim_tree, resolve_sandbox, secure_data_dir)
+from service.workers.engine import (
+    Engine,
+    Handle,
+    RunAs,
+    give_tree,
+    kill_group,
+    kill_uids,
+    reclaim_tree,
+    resolve_sandbox,
+    secure_data_dir,
+)
 from service.workers.runfiles import ARTIFACTS, RUN_FILES, hash_artifacts, read_progress
 
 __all__ = ["Scheduler"]

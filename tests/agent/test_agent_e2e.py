@@ -16,8 +16,17 @@ import numpy as np
 from PIL import Image
 
 from holocore.io import load_stack, phase_to_u8, save_stack
-from tests.agent.helpers import (HOLO, WAVELENGTHS_M, StackServer, env, job, make_phase, slm_shows, stop_proc,
-                                 wait_for)
+from tests.agent.helpers import (
+    HOLO,
+    WAVELENGTHS_M,
+    StackServer,
+    env,
+    job,
+    make_phase,
+    slm_shows,
+    stop_proc,
+    wait_for,
+)
 
 TOKEN = "agent-token-1"
 TABLES = np.stack([255 - np.arange(256), (np.arange(256) * 7) % 256, (np.arange(256) + 100) % 256]).astype(np.uint8)

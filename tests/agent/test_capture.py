@@ -9,11 +9,21 @@ import time
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from holocore.io import load_stack, phase_to_u8, save_stack
-from tests.agent.helpers import (HOLO, WAVELENGTHS_M, env, free_port, make_phase, read_sim_log, slm_shows,
-                                 start_focus_sim, stop_proc, wait_for)
-from PIL import Image
+from tests.agent.helpers import (
+    HOLO,
+    WAVELENGTHS_M,
+    env,
+    free_port,
+    make_phase,
+    read_sim_log,
+    slm_shows,
+    start_focus_sim,
+    stop_proc,
+    wait_for,
+)
 
 F, C = 3, 3
 

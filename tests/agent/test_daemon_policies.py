@@ -10,8 +10,18 @@ import pytest
 from display_agent.config import load_config
 from display_agent.daemon import Agent
 from holocore.io import save_stack
-from tests.agent.helpers import (WAVELENGTHS_M, StackServer, free_port, job, make_phase, read_sim_log, slm_shows,
-                                 start_focus_sim, stop_proc, wait_for)
+from tests.agent.helpers import (
+    WAVELENGTHS_M,
+    StackServer,
+    free_port,
+    job,
+    make_phase,
+    read_sim_log,
+    slm_shows,
+    start_focus_sim,
+    stop_proc,
+    wait_for,
+)
 
 TOKEN = "tok"
 F, C = 2, 3

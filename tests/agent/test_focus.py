@@ -7,9 +7,20 @@ import time
 
 import pytest
 
-from display_agent.focus import FocusController, FocusDisconnected, FocusError, FocusTimeout
+from display_agent.focus import (
+    FocusController,
+    FocusDisconnected,
+    FocusError,
+    FocusTimeout,
+)
 from display_agent.focus.protocol import format_request, parse_kv, parse_reply
-from tests.agent.helpers import free_port, read_sim_log, start_focus_sim, stop_proc, wait_for
+from tests.agent.helpers import (
+    free_port,
+    read_sim_log,
+    start_focus_sim,
+    stop_proc,
+    wait_for,
+)
 
 
 def test_protocol_lines():

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from display_agent.cache import StackCache
-from display_agent.service_client import (BadStack, CorruptDownload, ServiceClient, ServiceError,
-                                          TransientError)
+from display_agent.service_client import (
+    BadStack,
+    CorruptDownload,
+    ServiceClient,
+    ServiceError,
+    TransientError,
+)
 from holocore.io import file_sha256, load_stack, save_stack
 from tests.agent.helpers import WAVELENGTHS_M, StackServer, free_port, job, make_phase
 

@@ -18,7 +18,7 @@ from PIL import Image
 
 from holocore.io import load_stack
 from service.client import iter_sse
-from tests.service.helpers import REPO, SMALL_JOB, upload, wait_state
+from tests.service.helpers import REPO, SMALL_JOB, upload
 
 pytestmark = pytest.mark.scenes
 

@@ -504,7 +504,7 @@ def test_a_job_too_big_for_the_workers_is_refused_at_submit(server_factory, scen
                                      "encoder": "dpac"})
         assert r.status_code == 422, r.text
         detail = r.json()["detail"]
-        from holocore.memory_estimate import estimate_memory
+        from holocore.plan.memory_estimate import estimate_memory
 
         need = estimate_memory(height_px=1080, width_px=1920, colors=3, frames=24).peak_bytes / 1e9
         assert f"needs about {need:.1f} GB" in detail and "workers have 4.0 GB" in detail and "lower" in detail, detail

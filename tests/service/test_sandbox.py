@@ -138,7 +138,7 @@ def sbx():
     try:
         server.start()
         scene_dir = root / "scene"
-        from holocore.demo_scene import write_demo_scene
+        from holocore.scene.demo import write_demo_scene
 
         write_demo_scene(scene_dir)
         with server.client("submit") as c:

@@ -14,16 +14,23 @@ import zipfile
 
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from service.api.files import Unsatisfiable, parse_range
 from service.auth import allows, create_token, revoke_token, verify_token
 from service.db import Database
 from service.models import JobRequest, cache_key, estimate_cost, job_limit_errors
 from service.settings import JobLimits, UploadLimits
-from service.uploads import UploadError, _copy_with_budget, bundle_root, safe_member_path, unpack_zip
+from service.uploads import (
+    UploadError,
+    _copy_with_budget,
+    bundle_root,
+    safe_member_path,
+    unpack_zip,
+)
 from service.workers.driver import preview_focus_mm
 from service.workers.runfiles import read_progress
 from tests.service.helpers import REPO
+
 
 @pytest.mark.parametrize("name, ok", [
     ("scene.xml", "scene.xml"), ("./a//b/./c.obj", "a/b/c.obj"), ("a\\b.obj", "a/b.obj"),
@@ -252,7 +259,7 @@ def test_render_stages_are_the_ones_holo_render_reports():
     from service.workers.runfiles import RENDER_STAGE_END
 
     assert tuple(RENDER_STAGE_END) == get_args(RenderStage)
-    src = "".join((REPO / "holocore" / f).read_text() for f in ("pipeline.py", "tracer.py"))
+    src = "".join((REPO / "holocore" / f).read_text() for f in ("pipeline.py", "trace/hologram_rays.py"))
     emitted = set(re.findall(r'progress\("([a-z-]+)"', src))
     assert emitted == set(get_args(RenderStage)), emitted
 

@@ -16,13 +16,13 @@ import os
 import re
 import shutil
 import time
-import tomllib
 import zipfile
 from fnmatch import fnmatch
 from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
+import tomllib
 
 from service.api.web import WEB_DIR
 from tests.service.helpers import REPO, SMALL_JOB, wait_for, wait_state
@@ -36,7 +36,7 @@ CHROMEDRIVER = shutil.which("chromedriver")
 def _xss_bundle(tmp: Path) -> bytes:
     """A zip with the demo scene in a folder named like markup, and a text file beside it (so the folder is
     kept as part of the entry's name)."""
-    from holocore.demo_scene import write_demo_scene
+    from holocore.scene.demo import write_demo_scene
 
     folder = tmp / "bundle"
     write_demo_scene(folder / XSS_FOLDER)

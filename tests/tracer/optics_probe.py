@@ -23,7 +23,7 @@ def dot_texture(path: Path, *, n: int = 256, spacing: int = 16, radius: int = 1)
 def intensity(field_wrp: np.ndarray, *, z_wrp: float, z_focus: float, wavelength_m: float, pitch_m: float,
               focal_length_m: float, pupil_m: float = 8e-3, color: int = 0) -> np.ndarray:
     """Frame-averaged intensity [H, W] with the eye focused at hologram depth z_focus, from a WRP field."""
-    from holocore.viewing import simulate_view
+    from holocore.optics.viewing import simulate_view
 
     u = torch.from_numpy(np.ascontiguousarray(field_wrp[:, color:color + 1]))
     out = simulate_view(u, wavelengths_m=[wavelength_m], pitch_m=pitch_m, focal_length_m=focal_length_m,

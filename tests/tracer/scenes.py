@@ -6,7 +6,7 @@ from typing import Any
 
 
 def T():
-    from holocore.mitsuba_env import mitsuba
+    from holocore.runtime.mitsuba_env import mitsuba
 
     return mitsuba().ScalarTransform4f()
 
@@ -27,8 +27,8 @@ def emitting_plane(z: float, *, size: float = 5.0, radiance: float = 1.0, textur
 
 
 def scene(**shapes) -> Any:
-    from holocore.mitsuba_env import mitsuba
-    from holocore.scene import from_mitsuba_scene
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.load import from_mitsuba_scene
 
     mi = mitsuba()
     d = {"type": "scene", "sensor": shapes.pop("sensor", camera())}

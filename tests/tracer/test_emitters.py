@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render
 
 WAVELENGTHS_NM = (640.0, 516.5, 455.4)  # channels 0, 1, 2 (tracer.channel_of)
@@ -55,7 +55,7 @@ def _scene_xml(body: str, *, wall: bool = True) -> str:
 
 def _write_image(path: Path, rgb: tuple[float, float, float], *, hw: tuple[int, int] = (8, 16)) -> None:
     """A small image of one color, every second pixel dark (a spatially varying texture)."""
-    from holocore.mitsuba_env import mitsuba
+    from holocore.runtime.mitsuba_env import mitsuba
 
     mi = mitsuba()
     img = np.zeros((*hw, 3), dtype=np.float32)
@@ -114,7 +114,7 @@ def _write_case(folder: Path, kind: str) -> Path:
 
 def _mitsuba_lit(xml: Path) -> tuple[bool, bool, bool]:
     """Which RGB channels Mitsuba's own path tracer shows light in."""
-    from holocore.mitsuba_env import mitsuba
+    from holocore.runtime.mitsuba_env import mitsuba
 
     mi = mitsuba()
     scene = mi.load_file(str(xml))

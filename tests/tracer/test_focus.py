@@ -8,9 +8,15 @@ from __future__ import annotations
 
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.optics_probe import best_focus, depth_of_field, dot_texture, fov_deg, intensity
+from tests.tracer.optics_probe import (
+    best_focus,
+    depth_of_field,
+    dot_texture,
+    fov_deg,
+    intensity,
+)
 from tests.tracer.scenes import T, camera, emitting_plane, scene
 
 LAM = 516.5e-9

@@ -79,9 +79,9 @@ def test_rays_through_a_glass_ball_add_up_coherently(tmp_path):
     # of the ball, where their apparent distances differ by ~0.4 % (a piston of tens of radians in k r): unless
     # each point keeps one depth, its sub-hologram decorrelates. Measured before the fix: noise 157x the
     # signal, against the plan's ~1x; after it, 0.5x, as for a card seen directly.
-    from holocore.display import PAPER
-    from holocore.paper_scenes import write_paper_scene
-    from holocore.scene import load_scene
+    from holocore.display.profiles import PAPER
+    from holocore.scene.load import load_scene
+    from holocore.scene.paper import write_paper_scene
 
     loaded = load_scene(write_paper_scene("glass", tmp_path / "glass"))
     opt = PAPER.optics(resolution_hw=(64, 96), frames=2, z_inf_mm=4.0)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.scenes import T, camera, emitting_plane, scene
+from tests.tracer.scenes import T, camera, scene
 
 OPT = OpticsConfig(resolution_hw=(40, 40), wavelengths_nm=(516.5,), focal_length_mm=20.0, frames=6, seed=3)
 
@@ -55,9 +55,9 @@ def test_frames_share_the_traced_paths():
 
     import torch
 
-    from holocore.mapping import HologramMap
-    from holocore.mitsuba_env import mitsuba
-    from holocore.tracer import TraceSettings, trace_field
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.trace.hologram_rays import TraceSettings, trace_field
+    from holocore.trace.mapping import HologramMap
 
     loaded = _scene()
     H, W = OPT.resolution_hw

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, plan_scene, render_loaded
-from holocore.scene import load_scene
+from holocore.scene.load import load_scene
 from tests.project_scenes import SCENE_SOURCES
 from tests.tracer.scenes import T, camera, scene
 

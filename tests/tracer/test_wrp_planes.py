@@ -1,4 +1,4 @@
-"""Several wave recording planes (issue 14 item 3, holocore.wrp_planes): placement, the slabs, and the physics
+"""Several wave recording planes (issue 14 item 3, holocore.plan.wrp_planes): placement, the slabs, and the physics
 (the same field as one plane, with Monte Carlo noise that falls as the squared distance to the plane)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from holocore.config import OpticsConfig
+from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from holocore.wrp_planes import WrpPlanes, choose_planes, place_planes
+from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
 from tests.tracer.optics_probe import fov_deg
 from tests.tracer.scenes import T, camera, scene
 

@@ -1,0 +1,325 @@
+"""The focal-stack baseline the paper compares with (Sec. 5.2, "FS"; Choi et al. 2022, time-multiplexed neural
+holography): phase-only SGD of F frames on the amplitude of a focal stack.
+
+1. Targets: K focus planes z_k across the image volume (the paper's 5 at 1.25 mm spacing by default, centred
+   on the scene's image volume and never beyond optical infinity), one Mitsuba thin-lens render per plane of
+   what the eye sees focused there through its pupil D (:class:`holocore.evaluate.groundtruth.GroundTruth`: the
+   ground truth `holo evaluate` scores against, diffraction-limited by the pupil). Per laser line the channel
+   that holds it; all targets share one white level (their ``white_percentile``; emitters above it clip).
+2. Model: frame m's SLM field exp(i phi_m), propagated from the SLM (z = 0) to z_k with the band-limited ASM
+   (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, DESIGN §5) through the same pupil disc
+   (:func:`holocore.optics.viewing.pupil_mask`; the centre view), |.|^2 averaged over the F frames: exactly the
+   centre view `holo view` and `holo evaluate` simulate.
+3. Loss (per colour c, all planes): sum_k || s_c sqrt(mean_m I_{m,k}) - sqrt(T_k) ||^2 / (K H W), Adam on the
+   phases of all frames together (time multiplexing: only the frame average is supervised), s_c the
+   least-squares scale of the previous iteration (variable projection; no gradient through it). Each plane is
+   back-propagated on its own, so memory holds one plane's graph.
+4. Output: a phase-only stack. The colours are balanced by the laser power: colour c is lit with power
+   P_c = (s_c / max s)^2, so that each colour's frame average matches its target's brightness. The RESULT's
+   ``slm_field`` is sqrt(P_c) exp(i phi) (what `holo view` and `holo evaluate` read), its ``wrp_field`` that
+   field propagated to the WRP; :func:`stack_of` gives the same as a STACK (phase and
+   ``meta["encoder"]["illumination"]``).
+
+``meta["method"] == "focal-stack"``; the renderer's analysis is in the meta, so evaluation picks the same
+focus planes as for a render.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any, Callable, Optional, Sequence
+
+import numpy as np
+
+from holocore.display.optics import OpticsConfig
+
+__all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "stack_plane_depths",
+           "optimise_focal_stack", "FocalStackFit", "render_focal_stack", "stack_of"]
+
+DEFAULT_PLANES = 5
+DEFAULT_SPACING_M = 1.25e-3  # the paper's 5 planes at 1.25 mm spacing within 80-85 mm
+MAX_PLANES = 64
+MAX_ITERATIONS = 100_000
+_EPS = 1e-10  # inside sqrt(I): a finite gradient where no light arrives
+
+
+def _check_int(name: str, value: object, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= int(value) <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {value!r}")
+    return int(value)
+
+
+def _check_pos(name: str, value: object) -> float:
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return v
+
+
+def stack_plane_depths(*, z_inf_m: float, z_far_m: Optional[float], z_near_m: Optional[float],
+                       planes: int = DEFAULT_PLANES, spacing_m: Optional[float] = DEFAULT_SPACING_M,
+                       z_limit_m: Optional[float] = None) -> np.ndarray:
+    """Hologram depths (m, far to near) of the focal stack's planes.
+
+    ``spacing_m`` given: ``planes`` planes that far apart, centred on the image volume [z_far, z_near], moved
+    as a whole to stay nearer than the WRP ``z_limit_m`` (exclusive) and never beyond optical infinity
+    (z >= z_inf; ValueError when both cannot hold). ``spacing_m`` None: ``planes`` planes uniform from z_far to
+    z_near (one plane: the middle). No volume known (a black scene): centred at z_inf + (planes - 1) spacing / 2.
+    """
+    planes = _check_int("planes", planes, 1, MAX_PLANES)
+    zi = _check_pos("z_inf_m", z_inf_m)
+    far = zi if z_far_m is None else float(z_far_m)
+    near = far if z_near_m is None else float(z_near_m)
+    far, near = min(far, near), max(far, near)
+    if spacing_m is None:
+        zs = np.array([0.5 * (far + near)]) if planes == 1 else np.linspace(far, near, planes)
+    else:
+        s = _check_pos("spacing_m", spacing_m)
+        mid = 0.5 * (far + near) if z_far_m is not None else zi + 0.5 * (planes - 1) * s
+        zs = mid + (np.arange(planes) - 0.5 * (planes - 1)) * s
+        if z_limit_m is not None and zs[-1] >= float(z_limit_m):
+            zs = zs - (zs[-1] - float(z_limit_m)) - 1e-3 * s
+        if zs[0] < zi:
+            zs = zs + (zi - zs[0])
+        if z_limit_m is not None and zs[-1] >= float(z_limit_m):
+            raise ValueError(f"{planes} planes {s * 1e3:g} mm apart do not fit between optical infinity "
+                             f"({zi * 1e3:.4f} mm) and the WRP ({float(z_limit_m) * 1e3:.4f} mm): use fewer planes "
+                             "or a smaller spacing")
+    return zs.astype(np.float64)
+
+
+class FocalStackFit:
+    """What :func:`optimise_focal_stack` returns: phases [F, C, H, W] in [0, 2pi), per-colour scales s_c
+    (target ~ s_c^2 x frame-averaged intensity of the unit-amplitude SLM), loss per iteration (summed over
+    colours, each normalised by its target's energy) and seconds spent."""
+
+    def __init__(self, phase: np.ndarray, scale: np.ndarray, loss: list[float], seconds: float) -> None:
+        self.phase = phase
+        self.scale = scale
+        self.loss = loss
+        self.seconds = seconds
+
+    @property
+    def illumination(self) -> np.ndarray:
+        """Relative laser power per colour [C], the brightest 1: (s_c / max s)^2."""
+        s = np.asarray(self.scale, dtype=np.float64)
+        top = float(s.max()) if s.size and s.max() > 0 else 1.0
+        return (s / top) ** 2
+
+
+def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wavelengths_m: Sequence[float],
+                         pitch_m: float, focal_length_m: float, pupil_diameter_m: float, frames: int,
+                         iterations: int = 200, lr: float = 0.05, seed: int = 0, device: str = "cpu",
+                         progress: Optional[Callable[[str, int, int], None]] = None) -> FocalStackFit:
+    """Optimise ``frames`` phase-only SLM frames per colour so that their frame-averaged intensity at each
+    plane (SLM at z = 0 -> ASM to ``plane_z_m[k]`` through the centred pupil of ``pupil_diameter_m``) matches
+    ``targets[k]`` ([K, C, H, W], intensities >= 0, one channel per wavelength) up to one scale per colour.
+
+    Adam on the phases (learning rate ``lr``, ``iterations`` steps), initialised uniform in [0, 2pi) from
+    ``seed`` (a different draw per frame and colour). See the module docstring for the loss.
+    """
+    import torch
+
+    from holocore.optics.propagation import padded_shape, transfer_function
+    from holocore.optics.viewing import pupil_mask
+
+    T = np.asarray(targets, dtype=np.float64)
+    if T.ndim != 4:
+        raise ValueError(f"targets must be [K, C, H, W], got shape {T.shape}")
+    if not np.all(np.isfinite(T)) or T.min() < 0:
+        raise ValueError("targets must be finite intensities >= 0")
+    K, C, H, W = T.shape
+    zs = [float(z) for z in plane_z_m]
+    if len(zs) != K or not all(math.isfinite(z) for z in zs):
+        raise ValueError(f"plane_z_m must be {K} finite depths (one per target plane), got {plane_z_m!r}")
+    lams = [_check_pos("wavelengths_m", v) for v in wavelengths_m]
+    if len(lams) != C:
+        raise ValueError(f"{len(lams)} wavelengths for {C} target channels")
+    p = _check_pos("pitch_m", pitch_m)
+    f = _check_pos("focal_length_m", focal_length_m)
+    D = _check_pos("pupil_diameter_m", pupil_diameter_m)
+    frames = _check_int("frames", frames, 1, 4096)
+    iterations = _check_int("iterations", iterations, 0, MAX_ITERATIONS)
+    lr = _check_pos("lr", lr)
+    dev = torch.device(device)
+    hp, wp = padded_shape((H, W))
+    t0 = time.perf_counter()
+    gen = torch.Generator(device="cpu").manual_seed(int(seed) % (2**63))
+    phase_out = np.zeros((frames, C, H, W), dtype=np.float32)
+    scales = np.zeros(C, dtype=np.float64)
+    loss_total = np.zeros(iterations + 1, dtype=np.float64)
+    for c, lam in enumerate(lams):
+        amp = torch.from_numpy(np.sqrt(T[:, c])).to(dev, torch.float32)  # [K, H, W]
+        energy = float(amp.square().sum()) or 1.0
+        mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, device=dev).to(torch.float32)
+        filt = [transfer_function((hp, wp), z, lam, p, device=dev) * mask for z in zs]
+        phi = (torch.rand((frames, H, W), generator=gen, dtype=torch.float32) * (2 * math.pi)).to(dev)
+        phi.requires_grad_(True)
+        opt = torch.optim.Adam([phi], lr=lr)
+
+        def spectrum() -> "torch.Tensor":
+            return torch.fft.fft2(torch.polar(torch.ones_like(phi), phi), s=(hp, wp))  # [F, Hp, Wp]
+
+        def recon(spec: "torch.Tensor", k: int) -> "torch.Tensor":
+            # inverse DFT as conj(FFT(conj(.))) / N, out of place (see holocore.optics.propagation.ifft2 for why)
+            v = torch.conj(torch.fft.fft2(torch.conj(spec * filt[k])))[..., :H, :W] / (hp * wp)
+            return (v.real.square() + v.imag.square()).mean(dim=0)  # frame average [H, W]
+
+        with torch.no_grad():  # the first scale: least squares on the initial reconstruction
+            sp = spectrum()
+            r = [torch.sqrt(recon(sp, k) + _EPS) for k in range(K)]
+            num = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
+            den = sum(float(rk.square().sum()) for rk in r)
+        s = num / den if den > 0 else 1.0
+        for it in range(iterations + 1):
+            opt.zero_grad(set_to_none=True)
+            num = den = loss_sum = 0.0
+            last = it == iterations  # the final loss only, no step
+            with torch.set_grad_enabled(not last):
+                sp = spectrum()
+            for k in range(K):  # one plane's graph at a time (the shared spectrum kept); gradients add up
+                with torch.set_grad_enabled(not last):
+                    rk = torch.sqrt(recon(sp, k) + _EPS)
+                    lk = (s * rk - amp[k]).square().sum() / (K * H * W)
+                if not last:
+                    lk.backward(retain_graph=k < K - 1)
+                rd = rk.detach()
+                num += float((rd * amp[k]).sum())
+                den += float(rd.square().sum())
+                loss_sum += float(lk.detach())
+            loss_total[it] += loss_sum * (K * H * W) / energy
+            if not last:
+                opt.step()
+                s = num / den if den > 0 else s
+                if progress is not None:
+                    progress("focal-stack", c * iterations + it + 1, C * iterations)
+        with torch.no_grad():
+            phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
+        scales[c] = s
+    return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
+                         seconds=time.perf_counter() - t0)
+
+
+def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAULT_PLANES,
+                       spacing_m: Optional[float] = DEFAULT_SPACING_M, plane_z_m: Optional[Sequence[float]] = None,
+                       pupil_diameter_m: Optional[float] = None, iterations: int = 200, lr: float = 0.05,
+                       gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
+                       progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
+    """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
+
+    Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
+    with ``planes`` and ``spacing_m``. ``pupil_diameter_m``: the eye's pupil of the targets and of the model
+    (default: the one `holo evaluate` uses by default, :func:`holocore.evaluate.scoring.default_pupil_m` at +-0.5 deg).
+    ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
+    their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
+    ``optics`` and the renderer's own scene analysis; ``display`` is recorded in the meta as the renderer does.
+    """
+    import torch
+
+    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.scoring import default_pupil_m
+    from holocore.optics.propagation import asm
+    from holocore.pipeline import (
+        RenderOptions,
+        RenderResult,
+        _display_meta,
+        _versions,
+        plan_scene,
+    )
+    from holocore.runtime.mitsuba_env import variant
+
+    gt_spp = _check_int("gt_spp", gt_spp, 1, 1 << 16)
+    wp = float(white_percentile)
+    if not (math.isfinite(wp) and 50.0 <= wp <= 100.0):
+        raise ValueError(f"white_percentile must be in 50..100, got {white_percentile!r}")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
+    ana = pl["analysis"]
+    f = pl["focal_length_m"]
+    timings["analysis_s"] = time.perf_counter() - t0
+    if plane_z_m is not None:
+        zs = np.asarray([float(z) for z in plane_z_m], dtype=np.float64)
+        if zs.size < 1 or zs.size > MAX_PLANES or not np.all(np.isfinite(zs)) or np.any(zs < optics.z_inf_m):
+            raise ValueError(f"plane_z_m must hold 1..{MAX_PLANES} finite depths at or beyond z_inf "
+                             f"({optics.z_inf_m * 1e3:g} mm), got {list(plane_z_m)!r}")
+    else:
+        zs = stack_plane_depths(z_inf_m=optics.z_inf_m, z_far_m=ana.z_far_holo_m, z_near_m=ana.z_near_holo_m,
+                                planes=planes, spacing_m=spacing_m, z_limit_m=ana.z_wrp_m)
+    if zs.max() >= ana.z_wrp_m:
+        raise ValueError(f"a focal-stack plane at {zs.max() * 1e3:.4f} mm lies at or beyond the WRP "
+                         f"({ana.z_wrp_m * 1e3:.4f} mm)")
+    base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
+                 "wavelengths_m": list(optics.wavelengths_m)}
+    D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
+    D = _check_pos("pupil_diameter_m", D)
+    H, W = optics.resolution_hw
+    t1 = time.perf_counter()
+    truth = GroundTruth(loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
+    targets = np.stack([truth.channels(focus_z_m=float(z), pupil_diameter_m=D) for z in zs])  # [K, C, H, W]
+    white = float(np.percentile(targets, wp))
+    if not white > 0:
+        white = float(targets.max()) if targets.max() > 0 else 1.0
+    targets = np.clip(targets / white, 0.0, 1.0)
+    timings["targets_s"] = time.perf_counter() - t1
+    if progress:
+        progress("targets", 1, 1)
+    fit = optimise_focal_stack(targets, zs, wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m,
+                               focal_length_m=f, pupil_diameter_m=D, frames=optics.frames, iterations=iterations,
+                               lr=lr, seed=optics.seed, device=device, progress=progress)
+    timings["optimise_s"] = fit.seconds
+    t2 = time.perf_counter()
+    power = fit.illumination
+    slm = (np.exp(1j * fit.phase.astype(np.float32)) * np.sqrt(power).astype(np.float32)[None, :, None, None]
+           ).astype(np.complex64)
+    wrp = np.empty_like(slm)
+    for c, lam in enumerate(optics.wavelengths_m):
+        wrp[:, c] = asm(torch.from_numpy(np.ascontiguousarray(slm[:, c])), ana.z_wrp_m, float(lam),
+                        optics.pitch_m).numpy()
+    timings["propagate_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+    F, C = slm.shape[:2]
+    hist = fit.loss
+    step = max(1, len(hist) // 200)
+    meta: dict[str, Any] = {
+        **base_meta, "z_wrp_m": ana.z_wrp_m, "shape_fchw": [F, C, H, W],
+        "method": "focal-stack", "preset": None, "scene": str(loaded.entry),
+        "scene_sha256": getattr(loaded.bundle, "sha256", None),
+        "optics": json.loads(optics.model_dump_json()),
+        "analysis": json.loads(ana.model_dump_json()),
+        "focal_stack": {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
+                        "spacing_m": None if plane_z_m is not None else spacing_m,
+                        "pupil_diameter_m": D, "iterations": iterations, "lr": lr, "gt_spp": gt_spp,
+                        "white_percentile": wp, "target_white": white, "scale": [float(v) for v in fit.scale],
+                        "illumination": [float(v) for v in power], "loss_first": hist[0], "loss_final": hist[-1],
+                        "loss_every": step, "loss": hist[::step], "phase_only": True},
+        "plan": {"summary": [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
+                             f"Mitsuba thin-lens targets through a {D * 1e3:.3g} mm pupil at {gt_spp} spp, "
+                             f"{F} phase-only frame(s) per colour optimised together ({iterations} Adam steps) on "
+                             f"the frame-averaged amplitude, colours balanced by laser power",
+                             pl["field_of_view"]["summary"]]},
+        "field_of_view": pl["field_of_view"], **_display_meta(display, optics),
+        "stats": {}, "timings": timings, "versions": _versions(variant()),
+    }
+    return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
+
+
+def stack_of(result: Any) -> tuple[np.ndarray, dict]:
+    """(phase [F, C, H, W] in [0, 2pi), STACK meta) of a focal-stack result: the phase of its SLM field and
+    its meta with ``encoder`` = {"method": "focal-stack", "illumination": P [F, C]} (the laser powers `holo view`
+    and `holo evaluate` light a stack with)."""
+    slm = np.asarray(result.slm_field)
+    meta = dict(result.meta)
+    fs = meta.get("focal_stack")
+    if meta.get("method") != "focal-stack" or not fs:
+        raise ValueError("not a focal-stack result (meta['method'] must be 'focal-stack')")
+    phase = np.mod(np.angle(slm), 2 * np.pi).astype(np.float32)
+    F = slm.shape[0]
+    meta["encoder"] = {"method": "focal-stack", "illumination": [list(map(float, fs["illumination"]))] * F,
+                       "iterations": fs["iterations"]}
+    return phase, meta

@@ -1,0 +1,167 @@
+"""The phase-only encoder's optimiser, for one color and a block of frames (DESIGN.md §6).
+
+The operator A_z (band-limited ASM on the encoder's padded grid, its adjoint, and why less than 2x padding is
+exact) is :mod:`holocore.encode.operator`; ``Operator``, ``encoder_grid`` and ``spread_px`` are re-exported here.
+
+Loss and gradient, per (frame, color) b, with t the unit-norm band-limited target and p = A_z u:
+a = <t, p>, e = ||p||^2, rho^2 = |a|^2 / e, q = (e / HW)^w (w: ``efficiency_weight``), objective
+O = 1 - q rho^2 (w = 0: E = 1 - rho^2). Its Wirtinger gradient is dO/dp* = -(q/e)(a t - (1 - w) rho^2 p), so
+dO/du* = A^H dO/dp* and, with u = exp(i phi), dO/dphi = 2 Im(conj(u) dO/du*). Written out this way one
+iteration is four padded ``fft2`` (Eqs. 1-2 of :mod:`holocore.encode.operator`), two multiplies on the padded grid
+and ten passes over H x W: cos, sin, u = exp(i phi) straight into the FFT input, the crop copy of J p, the
+dots (one BLAS dot each), dO/dp* straight into the adjoint's input (two), the gradient (two), fused Adam.
+No autograd tape. The WRP-side fields (t, p, dO/dp*) are held flipped (J; the dots do not depend on the
+order), the SLM side (phi, u, the gradient) in natural order. The gradient is scaled by 2 HW so that Adam's
+eps stays negligible at every size (Adam is otherwise scale-free).
+
+Adam, per element (Kingma & Ba 2015; the same update as ``torch.optim.Adam``). Each (frame, color) has its
+own stop rule: every 10 iterations its field SNR, 10 log10((1 - O) / O) dB, is compared with the value 30
+iterations before; once it gained less than ``stop_db`` (default 0.05 dB: far below what a viewer notices) it
+is frozen and leaves the batch. No number is shared between (frame, color) pairs, so the result does not depend
+on how frames are grouped into blocks (chunking is exact).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+import torch
+
+import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
+from holocore.encode.operator import Operator, encoder_grid, flip, heap_reuse, spread_px
+
+__all__ = ["Operator", "encoder_grid", "spread_px", "inner_energy", "optimise", "SgdOutcome"]
+
+CHECK_EVERY = 10  # iterations between stop-rule checks
+WINDOW_CHECKS = 3  # the stop rule compares with the value this many checks (30 iterations) before
+_BETAS = (0.9, 0.999)
+_EPS = 1e-8
+
+
+def inner_energy(t: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """a = <t, p> (complex [B]) and e = ||p||^2 (float [B]), item by item (one BLAS dot each, no temporaries):
+    the same numbers whatever B is, so chunking is exact."""
+    a = torch.stack([torch.vdot(t[i].reshape(-1), p[i].reshape(-1)) for i in range(t.shape[0])])
+    e = torch.stack([torch.vdot(p[i].reshape(-1), p[i].reshape(-1)).real for i in range(p.shape[0])])
+    return a, e
+
+
+def _adam(phi: torch.Tensor, lr: float, state: Optional[dict]) -> torch.optim.Adam:
+    """torch's Adam on phi (fused on CPU and CUDA: one pass per step), optionally with a given state."""
+    phi.requires_grad_(False)
+    opt = torch.optim.Adam([phi], lr=lr, betas=_BETAS, eps=_EPS, fused=phi.device.type in ("cpu", "cuda"))
+    if state is not None:
+        opt.state[phi] = state
+    return opt
+
+
+def _stop(hist: list[float], stop_db: Optional[float], tol: Optional[float]) -> bool:
+    """The per-item stop rule on the objective at the checks so far (module docstring)."""
+    if len(hist) <= WINDOW_CHECKS:
+        return False
+    old, new = hist[-1 - WINDOW_CHECKS], hist[-1]
+    if new <= 1e-7:
+        return True
+    if tol is not None:
+        return tol > 0 and old - new <= tol * max(old, 1e-12)
+    if not stop_db:
+        return False
+
+    def snr(o: float) -> float:
+        return 10.0 * math.log10(max(1.0 - o, 1e-30) / max(o, 1e-30))
+
+    return snr(new) - snr(old) < stop_db
+
+
+@dataclass
+class SgdOutcome:
+    phase: torch.Tensor  # [B, H, W] rad
+    iterations: np.ndarray  # int [B]
+    converged: np.ndarray  # bool [B]
+    trace: list[list[float]]  # objective of each item at every check (before that check's step)
+    loss_init: np.ndarray  # float64 [B]
+
+
+def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.ndarray, iterations: int,
+             lr: float, stop_db: Optional[float], tol: Optional[float], efficiency_weight: float,
+             progress: Optional[Callable[[int], None]] = None) -> SgdOutcome:
+    """Adam on phi [B, H, W] against unit-norm targets t [B, H, W] through ``op`` (module docstring). Items that
+    are not ``lit`` (black targets) are never updated. ``stop_db`` / ``tol`` (relative objective decrease over
+    30 iterations; used when given): per-item stop rules, 0 never stops."""
+    b_all, h, w = phi0.shape
+    hw = float(h * w)
+    phi_out = phi0.clone()
+    iters = np.zeros(b_all, np.int64)
+    conv = ~lit.copy()
+    trace: list[list[float]] = [[] for _ in range(b_all)]
+    loss_init = np.ones(b_all)
+    active = np.flatnonzero(lit)
+    if iterations == 0 or active.size == 0:
+        conv[:] = conv | (iterations == 0)
+        if active.size:
+            with torch.no_grad():
+                a, e = inner_energy(t_unit[active], op(torch.polar(torch.ones_like(phi0[active]), phi0[active])))
+                loss_init[active] = (1 - (a.abs().square() / e.clamp_min(1e-30)).double().clamp(0, 1)).cpu().numpy()
+        return SgdOutcome(phi_out, iters, conv, trace, loss_init)
+    dev = phi0.device
+    idx = torch.from_numpy(active).to(dev)
+    phi = phi0.index_select(0, idx).contiguous()
+    t = flip(t_unit.index_select(0, idx))  # J t: the WRP side is held flipped (encoding_op, Eq. 1)
+    opt = _adam(phi, lr, None)
+    w_eff = float(efficiency_weight)
+    with torch.no_grad(), heap_reuse(dev.type == "cpu"):
+        p = torch.empty_like(t)
+        cos, sin, grad = torch.empty_like(phi), torch.empty_like(phi), torch.empty_like(phi)
+        for it in range(1, iterations + 1):
+            n = phi.shape[0]
+            torch.cos(phi, out=cos)
+            torch.sin(phi, out=sin)
+            torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the FFT input
+            p.copy_(op.apply("in", n, dev))  # J A u (the crop copy; the padded result is freed)
+            a, e = inner_energy(t, p)
+            e = e.clamp_min(1e-30)
+            rho2 = (a.real.square() + a.imag.square()) / e
+            q = (e / hw) ** w_eff if w_eff > 0 else torch.ones_like(e)
+            obj = 1.0 - q * rho2
+            if it == 1:
+                loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
+            c1 = (-2.0 * hw * (q / e) * a)[:, None, None]  # 2 HW dO/dp* = c1 t + c2 p, flipped like t and p
+            c2 = (2.0 * hw * (q / e) * (1.0 - w_eff) * rho2)[:, None, None]  # real: a cheaper multiply
+            torch.mul(p, c2, out=op.window("adj", n, dev)).addcmul_(t, c1)
+            gu = op.apply("adj", n, dev, adjoint=True)  # 2 HW dO/du*, natural order (Eq. 2)
+            # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g); the 2 rides on c1, c2
+            phi.grad = torch.mul(cos, gu.imag, out=grad).addcmul_(sin, gu.real, value=-1.0)
+            del gu
+            opt.step()
+            iters[active] = it
+            if it % CHECK_EVERY and it != iterations:
+                continue
+            objs = obj.double().cpu().numpy()
+            keep = []
+            for j, k in enumerate(active):
+                trace[k].append(float(objs[j]))
+                done = _stop(trace[k], stop_db, tol)
+                conv[k] = done
+                keep.append(not done)
+            if progress is not None:
+                progress(it)
+            if not all(keep):
+                finished = torch.tensor([j for j, kp in enumerate(keep) if not kp], device=dev)
+                phi_out.index_copy_(0, idx.index_select(0, finished), phi.index_select(0, finished))
+                sel = torch.tensor([j for j, kp in enumerate(keep) if kp], dtype=torch.long, device=dev)
+                active = active[np.asarray(keep)]
+                if active.size == 0:
+                    break
+                idx = idx.index_select(0, sel)
+                state = opt.state[phi]
+                phi = phi.index_select(0, sel).contiguous()
+                opt = _adam(phi, lr, {k: (v.index_select(0, sel).contiguous() if v.dim() else v.clone())
+                                      for k, v in state.items()})
+                t = t.index_select(0, sel).contiguous()
+                p, cos, sin, grad = p[: len(sel)], cos[: len(sel)], sin[: len(sel)], grad[: len(sel)]
+        if active.size:
+            phi_out.index_copy_(0, idx, phi)
+    return SgdOutcome(phi_out, iters, conv, trace, loss_init)

@@ -1,0 +1,167 @@
+"""Encode RESULT.npz to STACK.npz in bounded memory: read blocks of frames of one color from the file, encode
+them (holocore.encode.block), and stream the phase and 8-bit frames into the output zip as they come.
+
+Peak memory is the block's working set (:func:`bytes_per_frame` per frame of the block) plus one frame-block
+of output, whatever the number of frames; the block size follows from ``memory_limit_bytes``. The output
+file is the one ``io.save_stack`` writes (uncompressed .npz members ``phase``, ``frames_u8``, ``meta``),
+written next to its destination and renamed into place.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+import torch
+
+from holocore.encode.block import encode_block
+from holocore.encode.core import _finite, _wavelengths, wrap_phase
+from holocore.encode.encoder import (
+    Assembler,
+    EncodeResult,
+    _sgd_options,
+    supervision_for,
+)
+from holocore.encode.output import quantize
+from holocore.encode.sgd import encoder_grid
+from holocore.io import NpyMember
+
+BASE_BYTES = 1 << 30  # interpreter, torch, transfer functions and slack outside the per-frame working set
+
+
+def read_meta(path: Union[str, Path]) -> dict:
+    with np.load(path, allow_pickle=False) as z:
+        if "meta" not in z or "wrp_field" not in z:
+            raise ValueError(f"{path} is not a render result (needs wrp_field, meta)")
+        return json.loads(str(z["meta"]))
+
+
+def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int]) -> int:
+    """Working set of one frame of a block: ~100 bytes per SLM pixel (target, ideal field, phase, Adam state,
+    fields and gradients, output) and three complex64 padded grids (workspace, spectrum, FFT output)."""
+    return 100 * shape_hw[0] * shape_hw[1] + 24 * grid[0] * grid[1]
+
+
+def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int) -> int:
+    per = bytes_per_frame(shape_hw, grid)
+    fixed = BASE_BYTES + 32 * grid[0] * grid[1]  # + four cached multipliers of the color
+    n = int((memory_limit_bytes - fixed) // per)
+    if n < 1:
+        need = (fixed + per) / 2**30
+        raise ValueError(f"a memory limit of {memory_limit_bytes / 2**30:.2f} GiB cannot hold one frame of "
+                         f"{shape_hw[0]}x{shape_hw[1]} (needs about {need:.2f} GiB)")
+    return min(frames, n)
+
+
+class _StreamedNpy:
+    """One .npy member written into an open zip in pieces of a known total shape."""
+
+    def __init__(self, zf: zipfile.ZipFile, name: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
+        self.fh = zf.open(name + ".npy", "w", force_zip64=True)
+        np.lib.format.write_array_header_2_0(self.fh, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                                                       "fortran_order": False, "shape": shape})
+
+    def write(self, arr: np.ndarray) -> None:
+        self.fh.write(np.ascontiguousarray(arr).tobytes())
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, method: str = "sgd",
+                fourier_filter: Optional[bool] = None, memory_limit_bytes: int = 8 * 2**30,
+                block_frames: Optional[int] = None, device: Union[str, torch.device] = "cpu",
+                lut: Optional[np.ndarray] = None, lut_source: Optional[str] = None,
+                progress: Optional[Callable[[str, int, int], None]] = None, **sgd: Any) -> tuple[EncodeResult, dict]:
+    """Encode ``result_path``'s ``wrp_field`` into STACK.npz at ``out_path`` block by block; returns the result
+    (``phase`` left empty: it is in the file) and the stack's meta. ``fourier_filter`` None: the RESULT meta's
+    display decides (True when it names none). ``block_frames`` None: as many frames as ``memory_limit_bytes``
+    allows."""
+    t0 = time.perf_counter()
+    result_path, out_path = Path(result_path), Path(out_path)
+    meta = read_meta(result_path)
+    missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
+    if missing:
+        raise ValueError(f"{result_path}: meta lacks {missing}")
+    src = NpyMember(result_path, "wrp_field")
+    if len(src.shape) != 4:
+        raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
+    F, C, H, W = src.shape
+    z = _finite("z_wrp_m", meta["z_wrp_m"], low=0.0, low_inclusive=False, unit="m")
+    lams = _wavelengths(meta["wavelengths_m"], C)
+    pitch = meta["pitch_m"]
+    display = meta.get("display") if isinstance(meta.get("display"), dict) else None
+    if fourier_filter is None:
+        source = "display" if display is not None and "fourier_filter" in display else "default"
+        fourier_filter = bool(display["fourier_filter"]) if source == "display" else True
+    else:
+        source = "option"
+    sup = supervision_for(bool(fourier_filter))
+    sgd_opts = _sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
+                               "efficiency_weight": 0.0, **sgd}) if method == "sgd" else {}
+    grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
+    fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
+    n_blocks = math.ceil(F / fb)
+    total = sgd_opts.get("iterations", 0) * n_blocks * C
+    acc = Assembler(F, C)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".tmp")
+    fd_u8, tmp_u8 = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".u8")
+    os.close(fd_u8)
+    try:
+        with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf, \
+                open(tmp_u8, "wb") as u8f:
+            ph_out = _StreamedNpy(zf, "phase", (F, C, H, W), np.float32)
+            for bi, f0 in enumerate(range(0, F, fb)):
+                f1 = min(F, f0 + fb)
+                block = np.empty((f1 - f0, C, H, W), np.float32)
+                for c, lam in enumerate(lams):
+                    done = (bi * C + c) * sgd_opts.get("iterations", 0)
+                    cb = None if progress is None or method != "sgd" else \
+                        (lambda it, _d=done: progress("encode", _d + it, total))
+                    t = torch.from_numpy(src.read_fc(f0, f1, c)).to(device=device, dtype=torch.complex64)
+                    if not bool(torch.isfinite(torch.view_as_real(t)).all()):
+                        raise ValueError(f"{result_path}: wrp_field contains NaN or infinite values")
+                    blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
+                                       progress=cb, **sgd_opts)
+                    del t
+                    block[:, c] = wrap_phase(blk.phase)
+                    acc.add(f0, c, blk)
+                ph_out.write(block)
+                u8f.write(quantize(block, lut=lut).tobytes())
+                del block
+            ph_out.close()
+            u8f.flush()
+            u8_out = _StreamedNpy(zf, "frames_u8", (F, C, H, W), np.uint8)
+            with open(tmp_u8, "rb") as rf:
+                for piece in iter(lambda: rf.read(64 << 20), b""):
+                    u8_out.fh.write(piece)
+            u8_out.close()
+            opts = {"fourier_filter": bool(fourier_filter), "fourier_filter_source": source,
+                    "block_frames": int(fb), "memory_limit_bytes": int(memory_limit_bytes), "streamed": True,
+                    "grid": [list(encoder_grid((H, W), z, lam, pitch)) for lam in lams], "device": str(device)}
+            if method == "sgd":
+                opts.update({"lr": sgd_opts["lr"], "tol": sgd_opts["tol"], "stop_db": sgd_opts["stop_db"],
+                             "efficiency_weight": sgd_opts["efficiency_weight"],
+                             "max_iterations": sgd_opts["iterations"], "init": "naive"})
+            res = acc.result(method, np.empty((0, C, H, W), np.float32), sup, t0, opts)
+            enc = res.summary()
+            enc["lut"] = None if lut is None else {"source": lut_source or "array",
+                                                    "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}
+            out_meta = {**meta, "display_profile": meta.get("display_profile"), "display": display, "encoder": enc}
+            with zf.open("meta.npy", "w") as mf:
+                np.lib.format.write_array(mf, np.array(json.dumps(out_meta)), allow_pickle=False)
+        os.replace(tmp, out_path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        Path(tmp_u8).unlink(missing_ok=True)
+    return res, out_meta

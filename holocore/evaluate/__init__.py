@@ -1,0 +1,2 @@
+"""Evaluation (DESIGN.md §7): views against Mitsuba ground truth (`scoring`, `groundtruth`), PSNR/SSIM
+(`metrics`), pictures a person looks at (`preview`)."""

@@ -1,0 +1,2 @@
+"""Wave optics (DESIGN.md §5, §7): band-limited ASM (`propagation`), an eye's view of a hologram (`viewing`,
+`fieldsource`) and the direct Rayleigh-Sommerfeld reference (`rs_reference`)."""

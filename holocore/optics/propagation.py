@@ -1,0 +1,256 @@
+"""Band-limited angular spectrum propagation between parallel planes (DESIGN.md §5).
+
+    U(x, y, z) = IFFT{ FFT{U(x, y, 0)} * H(f_x, f_y; z) },   H = exp(i 2 pi z sqrt(1/lambda^2 - f_x^2 - f_y^2))
+
+on a grid zero-padded by ``pad_factor`` (linear, not circular, convolution) and cropped back. Evanescent
+components (f_x^2 + f_y^2 > 1/lambda^2) are dropped, and, with ``band_limit``, the band limit of Matsushima &
+Shimobaba (Opt. Express 17(22), 2009, Eq. 13) is applied per axis on the exact DFT frequency grid:
+
+    |f_x| <= 1 / (lambda sqrt((2 df_x z)^2 + 1)),   df_x = 1 / (padded_W p_x)   (same for y with rows)
+
+which keeps the sampled transfer function free of aliasing. H is built in float64 with its phase wrapped to
+[-pi, pi) before the cast (DESIGN §2: 2 pi z / lambda is ~1.4e7 rad at 1 m), cached in a bounded LRU, and
+applied in the input's dtype. Frequencies stay in unshifted FFT order (no fftshift copies).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+from typing import Sequence, Union
+
+import torch
+
+import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
+
+__all__ = ["asm", "ifft2", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
+
+PitchLike = Union[float, Sequence[float]]
+"""A pixel pitch in metres: one float (square pixels) or a ``(pitch_y, pitch_x)`` pair."""
+
+_TF_CACHE_MAX_ENTRIES = 16
+_TF_CACHE_MAX_BYTES = 1 << 30  # 1 GiB of transfer functions at most
+_WS_MAX_BYTES = 1 << 30  # per thread: zero-padded input workspaces (CPU fast path)
+
+_tf_cache: "OrderedDict[tuple, torch.Tensor]" = OrderedDict()
+_tf_lock = threading.Lock()
+_ws_local = threading.local()
+
+
+# ---- validation ------------------------------------------------------------------------------------------
+def _real(name: str, value: object) -> float:
+    """A finite real scalar (Python, numpy or one-element torch) as float; ValueError otherwise."""
+    if isinstance(value, (bool, str, bytes, complex)) or getattr(value, "ndim", 0) != 0 \
+            or (isinstance(value, torch.Tensor) and value.is_complex()):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {v}")
+    return v
+
+
+def _positive(name: str, value: object) -> float:
+    v = _real(name, value)
+    if v <= 0.0:
+        raise ValueError(f"{name} must be > 0 (metres), got {v}")
+    return v
+
+
+def _pitch_pair(pitch_m: PitchLike) -> tuple[float, float]:
+    """(pitch_y, pitch_x) in metres from a float or a (pitch_y, pitch_x) pair; each finite and > 0."""
+    if isinstance(pitch_m, (list, tuple)) or getattr(pitch_m, "ndim", 0) == 1:
+        vals = list(pitch_m)  # type: ignore[arg-type]
+        if len(vals) != 2:
+            raise ValueError(f"pitch_m pair must be (pitch_y, pitch_x), got {len(vals)} values")
+        return _positive("pitch_m[0] (pitch_y)", vals[0]), _positive("pitch_m[1] (pitch_x)", vals[1])
+    p = _positive("pitch_m", pitch_m)
+    return p, p
+
+
+def _check_field(field: object) -> torch.Tensor:
+    if not isinstance(field, torch.Tensor):
+        raise ValueError(f"field must be a torch tensor, got {type(field).__name__}")
+    if not field.is_complex():
+        raise ValueError(f"field must be complex (complex64 or complex128), got {field.dtype}")
+    if field.dim() < 2:
+        raise ValueError(f"field must be [..., H, W], got shape {tuple(field.shape)}")
+    if field.shape[-1] < 1 or field.shape[-2] < 1:
+        raise ValueError(f"field must have H, W >= 1, got shape {tuple(field.shape)}")
+    return field
+
+
+def _smooth_at_least(n: int) -> int:
+    """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
+    m = max(1, n)
+    while True:
+        k = m
+        for p in (2, 3, 5, 7):
+            while k % p == 0:
+                k //= p
+        if k == 1:
+            return m
+        m += 1
+
+
+def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int, int]:
+    """Padded FFT grid (rows, cols) that :func:`asm` uses: ceil(n * pad_factor), rounded up to a 7-smooth size."""
+    pf = _real("pad_factor", pad_factor)
+    if pf < 1.0:
+        raise ValueError(f"pad_factor must be >= 1, got {pf}")
+    h, w = (int(s) for s in shape_hw)
+    if h < 1 or w < 1:
+        raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")
+    return _smooth_at_least(math.ceil(h * pf - 1e-9)), _smooth_at_least(math.ceil(w * pf - 1e-9))
+
+
+# ---- transfer function -----------------------------------------------------------------------------------
+def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
+              device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """H(f_x, f_y; z) in float64 on the unshifted DFT grid, phase wrapped, then cast to ``dtype``."""
+    ph, pw = shape
+    f64 = torch.float64
+    fx = torch.fft.fftfreq(pw, d=px, dtype=f64, device=device)  # cycles / m, unshifted FFT order
+    fy = torch.fft.fftfreq(ph, d=py, dtype=f64, device=device)
+    fx2 = (fx * fx)[None, :]
+    fy2 = (fy * fy)[:, None]
+    arg = (1.0 / (lam * lam)) - fx2 - fy2  # w^2 = 1/lambda^2 - f_x^2 - f_y^2
+    keep = arg > 0.0  # evanescent components dropped
+    w = torch.sqrt(torch.clamp_(arg, min=0.0))
+    phase = w.mul_(2.0 * math.pi * z)
+    phase = torch.remainder(phase + math.pi, 2.0 * math.pi).sub_(math.pi)  # wrap to [-pi, pi) in float64
+    if band_limit:
+        # Matsushima & Shimobaba 2009, Eq. 13, per axis with the padded grid's frequency step.
+        dfx, dfy = 1.0 / (pw * px), 1.0 / (ph * py)
+        lim_x = 1.0 / (lam * math.sqrt((2.0 * dfx * z) ** 2 + 1.0))
+        lim_y = 1.0 / (lam * math.sqrt((2.0 * dfy * z) ** 2 + 1.0))
+        keep &= (fx.abs() <= lim_x)[None, :] & (fy.abs() <= lim_y)[:, None]
+    real_dtype = torch.float64 if dtype == torch.complex128 else torch.float32
+    phase_c = phase.to(real_dtype)
+    tf = torch.polar(keep.to(real_dtype), phase_c)
+    return tf.to(dtype)
+
+
+def _cached_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
+               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False) -> torch.Tensor:
+    """The cached H; with ``conj_scaled`` the cached conj(H) / (Hp Wp) that :func:`ifft2`'s identity needs."""
+    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled)
+    with _tf_lock:
+        tf = _tf_cache.get(key)
+        if tf is not None:
+            _tf_cache.move_to_end(key)
+            return tf
+    if conj_scaled:
+        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype).conj_physical().div_(shape[0] * shape[1])
+    else:
+        tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype)
+    nbytes = tf.numel() * tf.element_size()
+    if nbytes <= _TF_CACHE_MAX_BYTES:
+        with _tf_lock:
+            _tf_cache[key] = tf
+            _tf_cache.move_to_end(key)
+            total = sum(t.numel() * t.element_size() for t in _tf_cache.values())
+            while len(_tf_cache) > 1 and (len(_tf_cache) > _TF_CACHE_MAX_ENTRIES or total > _TF_CACHE_MAX_BYTES):
+                _, old = _tf_cache.popitem(last=False)
+                total -= old.numel() * old.element_size()
+    return tf
+
+
+def clear_cache() -> None:
+    """Forget every cached transfer function and this thread's padding workspaces."""
+    with _tf_lock:
+        _tf_cache.clear()
+    _ws_local.__dict__.pop("bufs", None)
+
+
+def _check_dtype(dtype: torch.dtype) -> None:
+    if dtype not in (torch.complex64, torch.complex128):
+        raise ValueError(f"dtype must be torch.complex64 or torch.complex128, got {dtype}")
+
+
+def transfer_function(shape_hw_padded: tuple[int, int], distance_m: float, wavelength_m: float, pitch_m: PitchLike,
+                      *, band_limit: bool = True, device: Union[str, torch.device] = "cpu",
+                      dtype: torch.dtype = torch.complex64) -> torch.Tensor:
+    """ASM transfer function H [Hp, Wp] (unshifted FFT order) for a propagation by ``distance_m`` (m).
+
+    Built in float64, phase wrapped before the cast; evanescent part zero; Matsushima-Shimobaba band limit per
+    axis when ``band_limit``. Returns a fresh tensor (the cache inside :func:`asm` is not exposed).
+    """
+    _check_dtype(dtype)
+    hp, wp = (int(s) for s in shape_hw_padded)
+    if hp < 1 or wp < 1:
+        raise ValueError(f"shape_hw_padded must be two sizes >= 1, got {shape_hw_padded}")
+    z = _real("distance_m", distance_m)
+    lam = _positive("wavelength_m", wavelength_m)
+    py, px = _pitch_pair(pitch_m)
+    return _cached_tf((hp, wp), z, lam, py, px, band_limit, torch.device(device), dtype).clone()
+
+
+# ---- propagation -----------------------------------------------------------------------------------------
+def ifft2(spec: torch.Tensor) -> torch.Tensor:
+    """Inverse 2-D DFT over the last two axes (numpy's normalisation), as conj(fft2(conj(X))) / N.
+
+    torch 2.13's CPU ``ifft2`` returns garbage for an unbatched 2048 x 2048 complex64 input on more than one
+    thread (the grid of a 1024 x 1024 SLM padded 2x; ``ifftn`` too, while ``fft2`` and batched calls are right:
+    tests/test_propagation.py checks both at production sizes), so the project never calls it.
+    """
+    return torch.fft.fft2(spec.conj()).conj_physical_().div_(spec.shape[-2] * spec.shape[-1])
+
+
+def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
+    """A per-thread zero-padded CPU buffer; only its top-left [..., :H, :W] block is ever written.
+
+    Reusing it avoids allocating (and page-faulting) a fresh zero grid on every call, which alone costs about
+    a fifth of an FFT pair on CPU.
+    """
+    bufs = getattr(_ws_local, "bufs", None)
+    if bufs is None:
+        bufs = _ws_local.bufs = OrderedDict()
+    key = (shape, dtype)
+    buf = bufs.get(key)
+    if buf is None:
+        buf = torch.zeros(shape, dtype=dtype)
+        nbytes = buf.numel() * buf.element_size()
+        if nbytes <= _WS_MAX_BYTES:
+            bufs[key] = buf
+            total = sum(b.numel() * b.element_size() for b in bufs.values())
+            while len(bufs) > 1 and total > _WS_MAX_BYTES:
+                _, old = bufs.popitem(last=False)
+                total -= old.numel() * old.element_size()
+    else:
+        bufs.move_to_end(key)
+    return buf
+
+
+def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: PitchLike, *,
+        pad_factor: float = 2, band_limit: bool = True) -> torch.Tensor:
+    """Propagate a complex field ``[..., H, W]`` by ``distance_m`` (m; < 0 back-propagates, 0 is a copy).
+
+    ``wavelength_m`` in m, ``pitch_m`` a float or ``(pitch_y, pitch_x)`` in m. Zero-pads to
+    :func:`padded_shape` (``pad_factor`` >= 1), applies the band-limited transfer function (DESIGN §5) and
+    crops back. Returns a new tensor of the input's shape, dtype and device. Differentiable.
+    """
+    field = _check_field(field)
+    z = _real("distance_m", distance_m)
+    lam = _positive("wavelength_m", wavelength_m)
+    py, px = _pitch_pair(pitch_m)
+    h, w = field.shape[-2], field.shape[-1]
+    hp, wp = padded_shape((h, w), pad_factor)
+    if z == 0.0:
+        return field.clone()
+    # The inverse transform is a forward one: IFFT(S H) = conj(FFT(conj(S) conj(H) / N)) (see :func:`ifft2`).
+    tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True)
+    needs_graph = torch.is_grad_enabled() and field.requires_grad
+    if needs_graph or field.device.type != "cpu":
+        spec = torch.fft.fft2(field, s=(hp, wp))  # pads with zeros at the end of each axis
+        spec = spec.conj() * tfc if needs_graph else spec.conj_physical_().mul_(tfc)
+        return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])
+    # CPU fast path: reuse a zero-padded workspace, multiply in place, one crop copy.
+    buf = _workspace(tuple(field.shape[:-2]) + (hp, wp), field.dtype)
+    buf[..., :h, :w].copy_(field)
+    spec = torch.fft.fft2(buf)
+    spec.conj_physical_().mul_(tfc)
+    return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])

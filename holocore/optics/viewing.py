@@ -1,0 +1,197 @@
+"""Simulated viewing of a hologram through an eye pupil (DESIGN.md §7).
+
+An eye of pupil diameter D behind an eyepiece of focal length f, looking from lateral offset e, accepts the
+plane waves whose direction sines (lambda f_x, lambda f_y) lie in the disc of centre e / f and radius
+NA = D / (2 f). We keep those in the angular spectrum of the field, propagate the rest by ``distance_m`` to the
+focus plane (band-limited ASM, DESIGN §5) in the same padded FFT pass, take |.|^2 and average over frames
+(time multiplexing).
+
+Sign of the row frequency: rows run down while y runs up (y = ((H-1)/2 - i) p), so a wave exp(i 2 pi f_y y)
+travelling upwards (f_y > 0) has DFT frequency -f_y along the row axis. The pupil therefore sits at
+row frequency -e_y / (f lambda).
+
+Memory: the field is read in chunks of frames of one color (:func:`view_intensities` takes anything with
+``shape`` and ``chunk(f0, f1, c)``, e.g. :class:`holocore.optics.fieldsource.SlmFieldSource` streaming from a file), the
+chunk sized by the memory budget (:mod:`holocore.runtime.membudget`) and at most ``_CHUNK_BYTES`` of padded spectra.
+Each frame's intensity is summed in float64, so the view does not depend on the chunking beyond float32
+rounding of the FFTs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from holocore.optics.propagation import (
+    PitchLike,
+    _pitch_pair,
+    _positive,
+    _real,
+    ifft2,
+    padded_shape,
+    transfer_function,
+)
+
+__all__ = ["simulate_view", "view_intensities", "pupil_mask", "stack_to_field", "depth_of_field_m"]
+
+_CHUNK_BYTES = 256 << 20  # padded spectra processed at once, per channel
+
+
+def depth_of_field_m(wavelength_m: float, focal_length_m: float, pupil_diameter_m: float) -> float:
+    """Hologram-space depth of field (m) of a pupil: lambda / NA^2 with NA = D / (2 f)."""
+    lam = _positive("wavelength_m", wavelength_m)
+    f = _positive("focal_length_m", focal_length_m)
+    d = _positive("pupil_diameter_m", pupil_diameter_m)
+    na = d / (2.0 * f)
+    return lam / (na * na)
+
+
+def stack_to_field(phase: Union[np.ndarray, torch.Tensor]) -> torch.Tensor:
+    """exp(i phase) as a complex64 tensor of the same shape (phase in rad, numpy or torch, real)."""
+    ph = torch.as_tensor(phase)
+    if ph.is_complex() or not (ph.is_floating_point() or ph.dtype in (torch.int8, torch.int16, torch.int32,
+                                                                        torch.int64, torch.uint8)):
+        raise ValueError(f"phase must be a real array, got dtype {ph.dtype}")
+    ph = ph.to(torch.float32)
+    if not bool(torch.isfinite(ph).all()):
+        raise ValueError("phase contains NaN or infinite values")
+    return torch.polar(torch.ones_like(ph), ph)
+
+
+def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *,
+               focal_length_m: float, pupil_diameter_m: float,
+               view_offset_m: tuple[float, float] = (0.0, 0.0), device: Union[str, torch.device] = "cpu") -> torch.Tensor:
+    """Boolean [Hp, Wp] mask (unshifted DFT order) of the plane waves the pupil accepts.
+
+    Keeps (lambda f_x - e_x / f)^2 + (lambda f_y - e_y / f)^2 <= (D / 2f)^2 with f_y = -(row frequency).
+    ``view_offset_m`` is (e_x, e_y) in m, x right and y up (DESIGN §3).
+    """
+    hp, wp = (int(s) for s in shape_hw_padded)
+    lam = _positive("wavelength_m", wavelength_m)
+    py, px = _pitch_pair(pitch_m)
+    f = _positive("focal_length_m", focal_length_m)
+    d = _positive("pupil_diameter_m", pupil_diameter_m)
+    if len(view_offset_m) != 2:
+        raise ValueError(f"view_offset_m must be (e_x, e_y) in m, got {view_offset_m!r}")
+    ex, ey = _real("view_offset_m[0]", view_offset_m[0]), _real("view_offset_m[1]", view_offset_m[1])
+    sx = lam * torch.fft.fftfreq(wp, d=px, dtype=torch.float64, device=device)  # direction sine along x
+    sy = -lam * torch.fft.fftfreq(hp, d=py, dtype=torch.float64, device=device)  # rows run down: f_y = -f_row
+    na = d / (2.0 * f)
+    return ((sx[None, :] - ex / f) ** 2 + (sy[:, None] - ey / f) ** 2) <= na * na
+
+
+class _TensorSource:
+    def __init__(self, field: torch.Tensor) -> None:
+        self.shape = tuple(field.shape)
+        self._f = field
+
+    def chunk(self, f0: int, f1: int, c: int) -> torch.Tensor:
+        return self._f[f0:f1, c]
+
+
+_VIEW_FIXED_BYTES = 0.6 * 2**30  # interpreter, torch, filters, accumulators outside the chunk
+
+
+def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
+                     pupil_diameter_m: float, distances_m: Sequence[float],
+                     view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
+                     pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
+                     memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
+    """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (DESIGN §7).
+
+    ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
+    plane; see :func:`simulate_view` for the optics. ``shift_px`` = (rows, cols): the view is first shifted by
+    that many pixels (U'[i, j] = U[i + a_row, j + a_col], exactly, on the spectrum of a grid padded by the
+    shift; evaluate's off-axis eye). ``device``: where the FFTs run (default: the chunks' device).
+    """
+    from holocore.runtime.membudget import frames_per_chunk
+    from holocore.runtime.membudget import memory_budget_bytes as _budget
+
+    F, C, h, w = (int(v) for v in source.shape)
+    lams = [float(v) for v in wavelengths_m]
+    if len(lams) != C:
+        raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {C} channels")
+    zs = [_real("distance_m", z) for z in distances_m]
+    _pitch_pair(pitch_m)
+    a_row, a_col = (float(v) for v in shift_px)
+    m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
+    hs, ws = h + 2 * m, w + 2 * m
+    hp, wp = padded_shape((hs, ws), pad_factor)
+    cap = max(1, _CHUNK_BYTES // (hp * wp * 8))  # bound the padded working set
+    per_frame = 8 * (3 * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
+    fixed = _VIEW_FIXED_BYTES + len(zs) * C * h * w * 4 + 16 * h * w + 16 * hp * wp
+    chunk = frames_per_chunk(F, per_frame_bytes=per_frame, fixed_bytes=fixed,
+                             budget_bytes=_budget(memory_budget_bytes), cap=cap)
+    dev = None if device is None else torch.device(device)
+    out = None
+    ramp = None
+    for c, lam in enumerate(lams):
+        for di, z in enumerate(zs):
+            acc = None
+            filt = None
+            for f0 in range(0, F, chunk):
+                u0 = source.chunk(f0, min(F, f0 + chunk), c)
+                u0 = torch.from_numpy(u0) if isinstance(u0, np.ndarray) else u0
+                if not u0.is_complex():
+                    raise ValueError("field must be complex")
+                if dev is not None:
+                    u0 = u0.to(dev)
+                if u0.dtype != torch.complex64:
+                    u0 = u0.to(torch.complex64)
+                if out is None:
+                    out = torch.empty((len(zs), C, h, w), dtype=torch.float32, device=u0.device)
+                if m:
+                    if ramp is None:
+                        ky = torch.fft.fftfreq(hs, dtype=torch.float64)
+                        kx = torch.fft.fftfreq(ws, dtype=torch.float64)
+                        ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
+                                           2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
+                                           ).to(torch.complex64).to(u0.device)
+                    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
+                    big[..., m:m + h, m:m + w] = u0
+                    u0 = ifft2(torch.fft.fft2(big) * ramp)
+                    del big
+                if filt is None:
+                    mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
+                                      pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                                      device=u0.device)
+                    filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
+                        if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
+                    filt.mul_(mask.to(filt.real.dtype))
+                    acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
+                spec = torch.fft.fft2(u0, s=(hp, wp))
+                del u0
+                spec.mul_(filt)
+                u = ifft2(spec)[..., :hs, :ws]
+                del spec
+                acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
+                del u
+            out[di, c] = (acc / F).to(torch.float32)[m:m + h, m:m + w]
+    return out
+
+
+def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
+                  pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
+                  pad_factor: float = 2, memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
+    """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
+
+    ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
+    the focus plane z_f (negative: focus behind it); pupil of ``pupil_diameter_m`` behind an eyepiece of
+    ``focal_length_m``, centred at ``view_offset_m`` = (e_x, e_y) (m). One wavelength per channel.
+    """
+    if not isinstance(field, torch.Tensor) or not field.is_complex():
+        raise ValueError("field must be a complex torch tensor [F, C, H, W] or [C, H, W]")
+    if field.dim() == 3:
+        field = field.unsqueeze(0)
+    if field.dim() != 4:
+        raise ValueError(f"field must be [F, C, H, W] or [C, H, W], got shape {tuple(field.shape)}")
+    lams = [float(v) for v in wavelengths_m]
+    if len(lams) != field.shape[1]:
+        raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {field.shape[1]} channels")
+    z = _real("distance_m", distance_m)
+    return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
+                            pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
+                            pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes)[0]

@@ -1,0 +1,219 @@
+"""EffectPlan: simulate only what a scene calls for (DESIGN.md §8).
+
+From the scene's BSDFs, emitters and geometry the plan decides: whether the coherent delta loop runs and
+its depth cap, whether radiance is view-dependent (glossy), the global-illumination depth, whether the
+ambient cache is exact, which colors carry light, and whether a random-phase bank is needed. Every decision
+can be forced on (``force_all``) for comparison. The plan travels in every result, in plain words.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Optional
+
+from pydantic import BaseModel, Field
+
+from holocore.runtime.mitsuba_env import mitsuba
+
+__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "PRESETS"]
+
+MAX_DELTA_CAP = 16
+
+# Rays per WRP pixel are chosen from the scene depth (DESIGN §4 "Convergence"): the Monte Carlo noise power
+# relative to the signal at an image point whose sub-hologram has radius rho pixels is about
+# k(theta) rho^2 / N with k = 2 pi (1 - cos theta) / tan^2 theta (~ pi), so N = k rho^2 / noise, clamped.
+# ``noise``: target noise-to-signal power at the farthest image point; amp_spp: incoherent samples per point.
+PRESETS: dict[str, dict] = {
+    "fast": {"noise": 2.0, "spp_min": 4, "spp_max": 128, "amp_spp": 1, "gi_depth": 3, "cache": True},
+    "balanced": {"noise": 1.0, "spp_min": 16, "spp_max": 512, "amp_spp": 2, "gi_depth": 6, "cache": False},
+    "reference": {"noise": 0.1, "spp_min": 64, "spp_max": 8192, "amp_spp": 8, "gi_depth": 12, "cache": False},
+}
+
+
+def noise_factor(theta_max: float) -> float:
+    """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
+    t = min(theta_max, math.radians(89.0))
+    return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
+
+
+def choose_spp(preset: str, subhologram_radius_px: float, theta_max: float) -> int:
+    """Rays per WRP pixel for a preset, from the farthest image point's sub-hologram radius."""
+    p = PRESETS[preset]
+    n = math.ceil(noise_factor(theta_max) * subhologram_radius_px ** 2 / p["noise"])
+    return int(min(p["spp_max"], max(p["spp_min"], n)))
+
+
+class SceneInventory(BaseModel):
+    """What the scene holds, read from Mitsuba's objects (no tracing)."""
+
+    shapes: int
+    primitives: int
+    mirrors: list[str] = Field(default_factory=list)  # shapes with a delta reflection-only BSDF
+    dielectrics: list[str] = Field(default_factory=list)  # shapes with delta transmission
+    glossy: list[str] = Field(default_factory=list)  # shapes with glossy lobes
+    mixed_delta: list[str] = Field(default_factory=list)  # delta and non-delta lobes together (plastic...)
+    emitters: list[str] = Field(default_factory=list)
+    environment: bool = False
+    bsdf_types: dict[str, int] = Field(default_factory=dict)
+
+
+class EffectPlan(BaseModel):
+    """Decisions for one render; ``summary`` says them in words."""
+
+    coherent_delta: bool
+    max_delta: int
+    view_dependent: bool
+    gi_depth: int
+    use_cache: bool
+    cache_exact: bool
+    colors_lit: list[bool]
+    random_phase: bool
+    spp: int
+    amp_spp: int
+    noise_to_signal: float = 0.0
+    wrp_planes_m: list[float] = Field(default_factory=list)  # recording planes front to back (hologram z, m)
+    forced: bool = False
+    summary: list[str] = Field(default_factory=list)
+
+
+def _name(shape, i: int) -> str:
+    sid = shape.id()
+    return sid if sid else f"{shape.class_name().lower()}#{i}"
+
+
+def is_mixed_delta(flags) -> bool:
+    """Whether BSDF flags hold delta and smooth lobes together (plastic and the like): the one test of it."""
+    mi = mitsuba()
+    return bool(mi.has_flag(flags, mi.BSDFFlags.Delta) and mi.has_flag(flags, mi.BSDFFlags.Smooth))
+
+
+def has_mixed_delta(scene) -> bool:
+    """Whether any shape's BSDF mixes delta and smooth lobes (a cheap loop over the shapes, no inventory)."""
+    return any(sh.bsdf() is not None and is_mixed_delta(sh.bsdf().flags()) for sh in scene.shapes())
+
+
+def inventory(scene) -> SceneInventory:
+    mi = mitsuba()
+    F = mi.BSDFFlags
+    inv = SceneInventory(shapes=0, primitives=0)
+    types: Counter = Counter()
+    for i, sh in enumerate(scene.shapes()):
+        inv.shapes += 1
+        inv.primitives += int(sh.primitive_count())
+        name = _name(sh, i)
+        if sh.is_emitter():
+            inv.emitters.append(name)
+        b = sh.bsdf()
+        if b is None:
+            continue
+        types[b.class_name()] += 1
+        fl = b.flags()
+        has = lambda flag: mi.has_flag(fl, flag)  # noqa: E731
+        if has(F.DeltaTransmission):
+            inv.dielectrics.append(name)
+        elif has(F.DeltaReflection) and not has(F.Smooth):
+            inv.mirrors.append(name)
+        if is_mixed_delta(fl):
+            inv.mixed_delta.append(name)
+        if has(F.Glossy):
+            inv.glossy.append(name)
+    inv.environment = scene.environment() is not None
+    inv.bsdf_types = dict(types)
+    return inv
+
+
+def make_plan(
+    inv: SceneInventory,
+    *,
+    preset: str,
+    frames: int,
+    n_colors: int,
+    colors_lit: Optional[list[bool]] = None,
+    spp: Optional[int] = None,
+    force_all: bool = False,
+    max_delta_seen: Optional[int] = None,
+    prepass_capped: int = 0,
+    subhologram_radius_px: float = 0.0,
+    theta_max: float = 0.05,
+    wrp_planes_m: Optional[list[float]] = None,
+    wrp_planes_asked: object = 1,
+    z_inf_m: float = 0.0,
+) -> EffectPlan:
+    """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    p = PRESETS[preset]
+    words: list[str] = []
+    n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta)
+    n_delta_shapes += int(bool(max_delta_seen))
+    coherent = force_all or n_delta_shapes > 0
+    if force_all:
+        cap = MAX_DELTA_CAP
+    elif n_delta_shapes == 0:
+        cap = 0
+    else:
+        # Each dielectric: entry, exit and up to two internal reflections; each mirror: a couple of visits.
+        cap = 4 * len(inv.dielectrics) + 2 * (len(inv.mirrors) + len(inv.mixed_delta))
+        if max_delta_seen is not None:
+            cap = max(cap, max_delta_seen + 1)  # Mitsuba merges meshes that share a BSDF: trust the pre-pass
+        if prepass_capped:
+            cap = MAX_DELTA_CAP
+            words.append(f"mirror hall: some paths exceed {MAX_DELTA_CAP} delta bounces; they are dropped")
+        cap = min(MAX_DELTA_CAP, cap)
+    if inv.mirrors:
+        words.append(f"mirror reflection: {len(inv.mirrors)} surface(s) ({', '.join(inv.mirrors[:4])})")
+    if inv.dielectrics:
+        words.append(f"refraction: {', '.join(inv.dielectrics[:4])}, up to {cap} delta interfaces per path")
+    if inv.mixed_delta:
+        words.append(f"coated surfaces with a delta layer: {', '.join(inv.mixed_delta[:4])}")
+    if not coherent:
+        words.append("no mirror or glass: coherent delta loop off, the first hit is the image point")
+    elif force_all and n_delta_shapes == 0:
+        words.append(f"coherent delta loop forced on (cap {cap}) although the scene has no delta surface")
+
+    view_dep = force_all or bool(inv.glossy) or bool(inv.mixed_delta)
+    if inv.glossy:
+        words.append(f"glossy, view-dependent radiance traced per ray: {', '.join(inv.glossy[:4])}")
+    elif not view_dep:
+        words.append("all rough surfaces diffuse: radiance is view-independent")
+
+    gi = p["gi_depth"]
+    words.append(f"global illumination: up to {gi} bounces")
+    use_cache = bool(p["cache"]) and not force_all
+    cache_exact = not view_dep
+    if use_cache:
+        words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
+                                                    else "used on diffuse surfaces; glossy surfaces are path "
+                                                         "traced (their highlights move with the view)"))
+    lit = list(colors_lit) if colors_lit is not None else [True] * n_colors
+    if force_all:
+        lit = [True] * n_colors
+    if not all(lit):
+        dark = [str(i) for i, v in enumerate(lit) if not v]
+        words.append(f"color channel(s) {', '.join(dark)} carry no light: skipped")
+    if not any(lit):
+        words.append("the scene is black: the fields are zero")
+    random_phase = force_all or frames > 1
+    words.append(f"{frames} frame(s): " + ("band-limited random-phase bank, paths shared by all frames"
+                                           if random_phase else "one frame, no random-phase bank (smooth phase)"))
+    planes = list(wrp_planes_m or [])
+    if len(planes) > 1:
+        at = ", ".join(f"{(z - z_inf_m) * 1e3:.2f}" for z in planes)
+        why = "chosen from the scene depth (auto)" if wrp_planes_asked == "auto" else "asked for"
+        words.append(f"{len(planes)} wave recording planes at z_inf + {at} mm ({why}): each ray's contribution is "
+                     f"recorded where it crosses the plane just in front of its image point, the planes chained "
+                     f"to the WRP by the ASM")
+    elif wrp_planes_asked == "auto":
+        words.append("one wave recording plane (auto: more planes would not lower the noise much at this depth)")
+    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max)
+    ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
+    words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
+                 f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
+                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {p['amp_spp']} radiance sample(s) per "
+                 f"image point")
+    return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
+                      use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
+                      spp=n, amp_spp=p["amp_spp"], noise_to_signal=ratio, forced=force_all,
+                      wrp_planes_m=[float(z) for z in planes],
+                      summary=words)

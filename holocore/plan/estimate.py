@@ -1,0 +1,369 @@
+"""Predicting a run's time before it starts, from rates measured on this machine.
+
+The renderer's time is a sum of stages (``holocore.pipeline`` reports each in ``meta["timings"]`` and the
+tracer's split in ``meta["stats"]``); each stage follows a simple cost model with one or two rates:
+
+    analysis   a_analysis                                      (sparse pre-pass, fixed size)
+    bank       a_bank  F C H W log2(H W)                       (random-phase bank; only with > 1 frame)
+    cache      a_cache                                         (ambient cache, "fast" preset; fixed size)
+    trace      a_tile n_tiles + a_ray[method/preset] R         (Mitsuba: R = H W N rays, N rays per pixel)
+    accumulate R C (a_acc + a_acc_frame F)                     (phasors, bank gather, sums; F = 0 for one frame)
+    propagate  a_fft F C P log2 P                              (ASM, P = padded pixels = 4 H W)
+    overhead   a_overhead
+
+and for the extras the report times: phase-only encoding (``a_enc`` per iteration per F C P log2 P) and the
+layer baseline (RGB-D ``a_rgbd`` H W spp, then (planes + 1) F C ASMs). ``holo bench calibrate`` measures
+small runs on a scene (default: the project's demo scene, which has a mirror and glass), fits every rate by
+non-negative least squares and stores them as JSON in the user's cache directory; without one, the committed
+default (``holocore/data/calibration_default.json``, measured on the development machine) is used.
+
+Times are for warm runs: the first Mitsuba render of a process also compiles its kernels (seconds).
+When ``options.spp`` is None the preset's rays per pixel depend on the scene's depth (its farthest image
+point's sub-hologram radius); the estimate then assumes a shallow scene (radius = WRP margin + 2 px) unless
+``subhologram_radius_px`` is given.
+
+The cost model itself needs no numpy (the service's API process estimates a job with it); calibration does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+from holocore.display.optics import OpticsConfig
+
+__all__ = ["estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
+           "user_calibration_path", "DEFAULT_CALIBRATION", "calibrate", "save_calibration", "features"]
+
+DEFAULT_CALIBRATION = Path(__file__).resolve().parent / "data" / "calibration_default.json"
+CALIBRATION_VERSION = 1
+REFERENCE_PRIMITIVES = 1000  # primitives of a calibration that does not record its scene's (BVH depth ~ log2)
+
+RATE_KEYS = ("analysis", "bank", "cache", "tile", "acc", "acc_frame", "fft", "overhead", "enc", "rgbd",
+             "layers_overhead")
+
+
+def user_calibration_path() -> Path:
+    """Where `holo bench calibrate` stores this machine's rates: $HOLO_CACHE_DIR, else $XDG_CACHE_HOME or
+    ~/.cache, under holopathtracer/calibration.json."""
+    root = os.environ.get("HOLO_CACHE_DIR")
+    if root:
+        return Path(root).expanduser() / "calibration.json"
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base).expanduser() / "holopathtracer" / "calibration.json"
+
+
+def _check_calibration(cal: Any, source: str) -> dict:
+    if not isinstance(cal, dict) or cal.get("version") != CALIBRATION_VERSION or not isinstance(cal.get("rates"), dict):
+        raise ValueError(f"{source} is not a version-{CALIBRATION_VERSION} calibration (needs 'version', 'rates')")
+    rates = cal["rates"]
+    for k, v in rates.items():
+        if k == "ray":
+            if not isinstance(v, dict) or not v:
+                raise ValueError(f"{source}: rates.ray must map 'method/preset' to seconds per ray")
+            for kk, vv in v.items():
+                if not (isinstance(vv, (int, float)) and math.isfinite(vv) and vv >= 0):
+                    raise ValueError(f"{source}: rates.ray[{kk!r}] must be a finite number >= 0, got {vv!r}")
+        elif not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"{source}: rates[{k!r}] must be a finite number >= 0, got {v!r}")
+    missing = [k for k in RATE_KEYS + ("ray",) if k not in rates]
+    if missing:
+        raise ValueError(f"{source}: rates lack {missing}")
+    return cal
+
+
+def load_calibration(path: Optional[str | Path] = None) -> dict:
+    """The calibration at ``path``; default the user's (if present and valid) else the committed default."""
+    if path is not None:
+        p = Path(path)
+        return _check_calibration(json.loads(p.read_text()), str(p))
+    user = user_calibration_path()
+    if user.is_file():
+        try:
+            return _check_calibration(json.loads(user.read_text()), str(user))
+        except (ValueError, OSError, json.JSONDecodeError):
+            pass  # a stale or broken user file: fall back to the default
+    return _check_calibration(json.loads(DEFAULT_CALIBRATION.read_text()), str(DEFAULT_CALIBRATION))
+
+
+def save_calibration(cal: dict, path: Optional[str | Path] = None) -> Path:
+    """Write a calibration (validated) to ``path`` (default :func:`user_calibration_path`); returns it."""
+    p = Path(path) if path is not None else user_calibration_path()
+    _check_calibration(cal, "calibration")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_suffix(".tmp")
+    tmp.write_text(json.dumps(cal, indent=1, sort_keys=True))
+    os.replace(tmp, p)
+    return p
+
+
+# ---- the cost model ---------------------------------------------------------------------------------------
+def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Optional[float]) -> dict:
+    from holocore.plan.effects import PRESETS, choose_spp
+
+    if options.preset not in PRESETS:
+        raise ValueError(f"options.preset must be one of {sorted(PRESETS)}, got {options.preset!r}")
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    if options.spp is not None:
+        n = int(options.spp)
+    else:
+        radius = optics.wrp_margin_px + 2.0 if subhologram_radius_px is None else float(subhologram_radius_px)
+        if not (math.isfinite(radius) and radius >= 0):
+            raise ValueError(f"subhologram_radius_px must be finite and >= 0, got {subhologram_radius_px!r}")
+        n = choose_spp(options.preset, radius, theta)
+    H, W = optics.resolution_hw
+    rows_per_tile = max(1, int(getattr(options, "tile_rays", 1 << 19)) // max(1, n * W))
+    return {"spp": n, "rays": H * W * n, "tiles": math.ceil(H / rows_per_tile),
+            "cache": bool(PRESETS[options.preset]["cache"]) and not getattr(options, "force_all_effects", False),
+            "random_phase": optics.frames > 1 or getattr(options, "force_all_effects", False)}
+
+
+def features(optics: OpticsConfig, options: Any, *, subhologram_radius_px: Optional[float] = None) -> dict:
+    """The quantities the cost model multiplies by its rates (rays, tiles, F C P log2 P, ...)."""
+    pn = _plan_numbers(optics, options, subhologram_radius_px)
+    H, W = optics.resolution_hw
+    F, C = optics.frames, len(optics.wavelengths_m)
+    P = 4 * H * W
+    return {
+        "key": f"{options.method}/{options.preset}",
+        "spp": pn["spp"],
+        "rays": float(pn["rays"]),
+        "tiles": float(pn["tiles"]),
+        "bank": float(F * C * H * W * math.log2(max(2, H * W))) if pn["random_phase"] else 0.0,
+        "cache": 1.0 if pn["cache"] else 0.0,
+        "acc": float(pn["rays"] * C),
+        "acc_frame": float(pn["rays"] * C * F) if pn["random_phase"] else 0.0,
+        "fft": float(F * C * P * math.log2(P)),
+    }
+
+
+def _prim_factor(scene_primitives: Optional[int], calibration_primitives: int = REFERENCE_PRIMITIVES) -> float:
+    """BVH traversal grows like log2 of the primitive count; relative to the calibration scene's."""
+    if scene_primitives is None:
+        return 1.0
+    n = int(scene_primitives)
+    if n < 0:
+        raise ValueError(f"scene_primitives must be >= 0, got {scene_primitives!r}")
+    return max(0.5, math.log2(n + 16) / math.log2(max(0, int(calibration_primitives)) + 16))
+
+
+def _ray_rate(rates: dict, key: str) -> float:
+    table = rates["ray"]
+    if key in table:
+        return float(table[key])
+    method, preset = key.split("/")
+    for k, v in table.items():  # same preset, other method; else the mean
+        if k.endswith("/" + preset):
+            return float(v)
+    return float(statistics.fmean(table.values()))
+
+
+def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
+                       subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
+                       calibration: Optional[dict] = None) -> dict[str, float]:
+    """Predicted seconds per stage (see the module docstring) and ``total``."""
+    if not isinstance(optics, OpticsConfig):
+        raise ValueError(f"optics must be an OpticsConfig, got {type(optics).__name__}")
+    if isinstance(encode_iterations, bool) or not isinstance(encode_iterations, numbers.Integral) \
+            or not 0 <= encode_iterations <= 10**6:
+        raise ValueError(f"encode_iterations must be an integer in 0..1000000, got {encode_iterations!r}")
+    cal = calibration if calibration is not None else load_calibration()
+    r = cal["rates"]
+    x = features(optics, options, subhologram_radius_px=subhologram_radius_px)
+    out = {
+        "analysis": r["analysis"],
+        "bank": r["bank"] * x["bank"],
+        "cache": r["cache"] * x["cache"],
+        "trace": (r["tile"] * x["tiles"] + _ray_rate(r, x["key"]) * x["rays"])
+        * _prim_factor(scene_primitives, cal.get("primitives", REFERENCE_PRIMITIVES)),
+        "accumulate": r["acc"] * x["acc"] + r["acc_frame"] * x["acc_frame"],
+        "propagate": r["fft"] * x["fft"],
+        "overhead": r["overhead"],
+    }
+    if encode_iterations:
+        out["encode"] = r["enc"] * encode_iterations * x["fft"]
+    out["total"] = float(sum(out.values()))
+    return {k: float(v) for k, v in out.items()}
+
+
+def estimate_seconds(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
+                     subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
+                     calibration: Optional[dict] = None) -> float:
+    """Predicted wall time (s) of ``holocore.pipeline.render`` with these optics and options on this machine
+    (warm), plus ``encode_iterations`` SGD steps of phase-only encoding if asked."""
+    return estimate_breakdown(optics, options, scene_primitives=scene_primitives,
+                              subhologram_radius_px=subhologram_radius_px, encode_iterations=encode_iterations,
+                              calibration=calibration)["total"]
+
+
+def estimate_layers_seconds(optics: OpticsConfig, *, planes: int = 8, spp: int = 64,
+                            calibration: Optional[dict] = None) -> float:
+    """Predicted wall time (s) of :func:`holocore.baselines.layers.render_layers`."""
+    if not 1 <= int(planes) <= 256 or not 1 <= int(spp) <= 65536:
+        raise ValueError(f"planes must be in 1..256 and spp in 1..65536, got {planes!r}, {spp!r}")
+    cal = calibration if calibration is not None else load_calibration()
+    r = cal["rates"]
+    H, W = optics.resolution_hw
+    F, C = optics.frames, len(optics.wavelengths_m)
+    P = 4 * H * W
+    bank = F * C * H * W * math.log2(max(2, H * W))
+    # Per plane a masked copy of the frames and an ASM: its own rate where the calibration measured one
+    # (calibrations before it had only the tracer's ASM rate, which leaves the masks out).
+    fft = r.get("layer_fft", r["fft"])
+    return float(r["analysis"] + r["layers_overhead"] + r["rgbd"] * H * W * spp + r["bank"] * bank
+                 + fft * (int(planes) + 1) * F * C * P * math.log2(P))
+
+
+# ---- calibration ------------------------------------------------------------------------------------------
+_RUNS = (  # (H, W, preset, method, spp, frames)
+    (48, 64, "balanced", "wrp", 16, 1), (48, 64, "balanced", "wrp", 64, 8), (96, 128, "balanced", "wrp", 16, 4),
+    (96, 128, "balanced", "wrp", 48, 16), (48, 64, "fast", "wrp", 32, 4), (96, 128, "fast", "wrp", 16, 8),
+    (96, 128, "fast", "wrp", 48, 1), (48, 64, "reference", "wrp", 16, 4), (96, 128, "reference", "wrp", 16, 8),
+    (48, 64, "balanced", "direct", 64, 4), (96, 128, "balanced", "direct", 32, 16),
+    (96, 128, "fast", "direct", 32, 8), (48, 64, "balanced", "wrp", 32, 24),
+)
+
+
+def _fit(rows: list[list[float]], y: list[float]):
+    import numpy as np
+    from scipy.optimize import nnls
+
+    A = np.asarray(rows, dtype=np.float64)
+    b = np.asarray(y, dtype=np.float64)
+    scale = np.where(A.max(axis=0) > 0, A.max(axis=0), 1.0)
+    coef, _ = nnls(A / scale, b)
+    return coef / scale
+
+
+def _best_of(repeats: int, fn: Callable[[], Any], seconds: Callable[[Any], float]) -> Any:
+    """The run with the smallest time of ``repeats`` (timing noise on a shared machine only adds)."""
+    best = None
+    for _ in range(max(1, repeats)):
+        out = fn()
+        if best is None or seconds(out) < seconds(best):
+            best = out
+    return best
+
+
+def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeats: int = 2,
+              optics: Optional[dict] = None, progress: Optional[Callable[[str, int, int], None]] = None) -> dict:
+    """Time small renders, encodings and layer baselines on ``scene`` (default: the demo scene) and fit the
+    rates of the cost model; each run is repeated ``repeats`` times and the fastest kept. Returns a
+    calibration dict (save it with :func:`save_calibration`).
+
+    ``optics``: OpticsConfig fields every calibration run uses (z_inf_mm, focal_length_mm, pitch_um, ...; the
+    runs set resolution, frames and seed). The cost of a ray depends on where it goes (a direct ray from an SLM
+    80 mm away mostly leaves the field of view; from 4 mm it hits the scene), so calibrate with the optics the
+    estimates are for."""
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= 10:
+        raise ValueError(f"repeats must be an integer in 1..10, got {repeats!r}")
+    base = dict(optics or {})
+    for k in ("resolution_hw", "frames", "seed"):
+        base.pop(k, None)
+    OpticsConfig(**base)  # refuse bad optics before anything runs
+    import tempfile
+
+    import numpy as np
+    import torch
+
+    from holocore.baselines.layers import render_layers
+    from holocore.encode.encoder import encode_sgd
+    from holocore.pipeline import RenderOptions, render_loaded
+    from holocore.scene.load import load_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if scene is None:
+            from holocore.scene.demo import write_demo_scene
+
+            scene = write_demo_scene(Path(tmp) / "demo", fov_deg=10.0)
+            label = "demo scene (holocore.scene.demo, 10 deg)"
+        else:
+            label = str(scene)
+        loaded = load_scene(scene)
+        primitives = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
+        runs = _RUNS[::2] if quick else _RUNS
+        total = len(runs) + 4
+        # Warm-up: compile every kernel once (the first render of a process pays for it).
+        for preset, method in {(r[2], r[3]) for r in runs}:
+            render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
+                          RenderOptions(preset=preset, method=method, spp=4))
+        render_layers(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2), planes=2, spp=4)
+        samples = []
+        for i, (H, W, preset, method, spp, F) in enumerate(runs):
+            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F, seed=i)
+            options = RenderOptions(preset=preset, method=method, spp=spp)
+            res = _best_of(repeats, lambda o=optics, op=options: render_loaded(loaded, o, op),
+                           lambda r: r.meta["timings"]["total_s"])
+            x = features(optics, options)
+            samples.append({"H": H, "W": W, "preset": preset, "method": method, "spp": spp, "frames": F,
+                            "features": {k: v for k, v in x.items() if k != "key"}, "key": x["key"],
+                            "timings": res.meta["timings"], "trace_s": res.meta["stats"]["seconds_trace"],
+                            "accumulate_s": res.meta["stats"]["seconds_accumulate"]})
+            if progress:
+                progress("calibrate", i + 1, total)
+        enc_samples = []
+        for j, (H, W, F, it) in enumerate(((48, 64, 4, 20), (96, 128, 8, 20))):
+            g = torch.Generator().manual_seed(j)
+            tgt = torch.polar(torch.rand((F, 3, H, W), generator=g), 6.3 * torch.rand((F, 3, H, W), generator=g))
+
+            def enc() -> float:
+                t0 = time.perf_counter()
+                encode_sgd(tgt, z_wrp_m=1e-3, wavelengths_m=[640e-9, 516.5e-9, 455.4e-9], pitch_m=8e-6,
+                           iterations=it, tol=0.0)
+                return time.perf_counter() - t0
+
+            P = 4 * H * W
+            enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * F * 3 * P * math.log2(P)})
+            if progress:
+                progress("calibrate", len(runs) + j + 1, total)
+        lay_samples = []  # RGB-D renders of 0.05 to 0.2 s: well above the timing noise
+        for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 128, 4), (96, 128, 8, 128, 8))):
+            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
+            res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
+                           lambda r: r.meta["timings"]["total_s"])
+            P = 4 * H * W
+            lay_samples.append({"t": res.meta["timings"], "pix_spp": H * W * spp,
+                                "fft": (planes + 1) * F * 3 * P * math.log2(P)})
+            if progress:
+                progress("calibrate", len(runs) + 3 + j, total)  # after the two encodings
+
+    rates: dict[str, Any] = {}
+    rates["analysis"] = float(np.median([s["timings"]["analysis_s"] for s in samples]))
+    banked = [s for s in samples if s["features"]["bank"] > 0]
+    rates["bank"] = float(_fit([[s["features"]["bank"]] for s in banked], [s["timings"]["bank_s"] for s in banked])[0])
+    cached = [s["timings"]["cache_s"] for s in samples if "cache_s" in s["timings"]]
+    rates["cache"] = float(np.median(cached)) if cached else 0.0
+    keys = sorted({s["key"] for s in samples})
+    rows = [[s["features"]["tiles"]] + [s["features"]["rays"] if s["key"] == k else 0.0 for k in keys]
+            for s in samples]
+    coef = _fit(rows, [s["trace_s"] for s in samples])
+    rates["tile"] = float(coef[0])
+    rates["ray"] = {k: float(c) for k, c in zip(keys, coef[1:])}
+    coef = _fit([[s["features"]["acc"], s["features"]["acc_frame"]] for s in samples],
+                [s["accumulate_s"] for s in samples])
+    rates["acc"], rates["acc_frame"] = float(coef[0]), float(coef[1])
+    rates["fft"] = float(_fit([[s["features"]["fft"]] for s in samples],
+                              [s["timings"]["propagate_s"] for s in samples])[0])
+    staged = ("analysis_s", "bank_s", "cache_s", "propagate_s")
+    rates["overhead"] = float(max(0.0, np.median([
+        s["timings"]["total_s"] - sum(s["timings"].get(k, 0.0) for k in staged) - s["trace_s"] - s["accumulate_s"]
+        for s in samples])))
+    rates["enc"] = float(_fit([[e["x"]] for e in enc_samples], [e["seconds"] for e in enc_samples])[0])
+    rates["rgbd"] = float(_fit([[s["pix_spp"]] for s in lay_samples], [s["t"]["rgbd_s"] for s in lay_samples])[0])
+    rates["layer_fft"] = float(_fit([[s["fft"]] for s in lay_samples], [s["t"]["propagate_s"] for s in lay_samples])[0])
+    rates["layers_overhead"] = float(max(0.0, np.median([
+        s["t"]["total_s"] - s["t"]["analysis_s"] - s["t"]["rgbd_s"] - s["t"]["propagate_s"] for s in lay_samples])))
+    import torch as _torch
+
+    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
+            "primitives": primitives,
+            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                        "cpus": os.cpu_count(), "torch_threads": _torch.get_num_threads()},
+            "repeats": repeats, "rates": rates, "samples": samples}

@@ -1,0 +1,432 @@
+"""Scene bundles: a folder holding a Mitsuba 3 XML scene and every file it references, checked before Mitsuba
+parses anything (the service runs it on every upload; `holo` runs it before every load).
+
+The check sees what Mitsuba will do (issue 10), with Mitsuba's own rules, probed against Mitsuba 3.9:
+- ``<default>`` parameters form one ordered namespace over the entry and its includes, the first definition
+  wins; we refuse a name defined twice, and a value holding ``$``. ``$name`` is substituted in every attribute
+  of every element (types, names, values, file names), the longest name first; anything left with a ``$`` is
+  refused (Mitsuba would call it an undefined parameter).
+- Every relative reference (``filename`` attributes and strings, ``<include>``, in the entry or in an include)
+  resolves against the entry's folder, never the including file's; it must name a regular file inside the
+  bundle. Absolute paths, ``~``, URLs, ``..`` components and backslashes are refused, as are ``<path>``
+  elements (extra search paths) and symbolic links leaving the bundle.
+- Every file in the bundle is of a kind a scene reads, judged by its content (``holocore.scene.filekinds``): no
+  shared object or executable can be in a bundle under any name.
+- The XML is read with defusedxml (no DTDs, entities or external references); element names and plugin types
+  must be on allow-lists; caps bound bytes, files, includes, mesh faces/vertices and image pixels (read from
+  headers, by content: a PNG named ``t.dat`` counts as an image).
+- The scene's ``<integrator>`` is ignored: the hologram brings its own. ``entry_source`` gives the entry XML
+  with its top-level integrators blanked (line and column numbers kept), and the report says what was ignored.
+Pure Python: no Mitsuba import.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import stat
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Optional
+
+from holocore.scene.filekinds import (
+    IMAGE_KINDS,
+    FileKindError,
+    image_pixels,
+    obj_counts,
+    ply_counts,
+    sniff_kind,
+)
+
+__all__ = ["BundleError", "BundleLimits", "BundleReport", "validate_bundle", "entry_source", "content_sha256",
+           "ALLOWED_PLUGINS", "ALLOWED_TAGS", "IGNORED_PLUGIN_TAGS"]
+
+
+class BundleError(ValueError):
+    """The bundle is refused; the message says why, with bundle-relative names."""
+
+
+@dataclass(frozen=True)
+class BundleLimits:
+    """Caps on what a bundle may hold (bytes, counts, pixels)."""
+
+    max_total_bytes: int = 512 * 1024 * 1024
+    max_files: int = 2000
+    max_mesh_faces: int = 20_000_000
+    max_mesh_vertices: int = 20_000_000
+    max_image_pixels: int = 64 * 1024 * 1024
+    max_xml_bytes: int = 8 * 1024 * 1024
+    max_include_depth: int = 8
+    max_includes: int = 256
+
+    def __post_init__(self) -> None:
+        for name, value in self.__dict__.items():
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"BundleLimits.{name} must be a positive integer, got {value!r}")
+
+
+@dataclass
+class BundleReport:
+    """What a valid bundle holds. ``entry`` is the absolute path of the scene XML; ``files`` are relative
+    POSIX paths; ``sha256`` names the content unambiguously (see ``content_sha256``); ``kinds`` maps each file
+    to its kind by content; ``ignored`` lists scene elements the hologram renderer does not use."""
+
+    entry: Path
+    files: list[str]
+    total_bytes: int
+    sha256: str
+    plugins: list[str]
+    warnings: list[str] = field(default_factory=list)
+    mesh_faces: int = 0
+    image_pixels: int = 0
+    kinds: dict[str, str] = field(default_factory=dict)
+    ignored: list[str] = field(default_factory=list)
+
+
+# Mitsuba 3 plugins a scene may use (rendering plugins only; nothing that writes files or runs code).
+ALLOWED_PLUGINS = {
+    "bsdf": {"diffuse", "dielectric", "thindielectric", "roughdielectric", "conductor", "roughconductor",
+             "plastic", "roughplastic", "bumpmap", "normalmap", "blendbsdf", "mask", "twosided", "null",
+             "principled", "principledthin", "hair", "measured", "pplastic", "polarizer", "retarder",
+             "circular"},
+    "shape": {"obj", "ply", "serialized", "sphere", "rectangle", "disk", "cylinder", "cube", "shapegroup",
+              "instance", "bsplinecurve", "linearcurve", "sdfgrid", "ellipsoids", "ellipsoidsmesh"},
+    "emitter": {"area", "point", "spot", "directional", "constant", "envmap", "projector", "directionalarea"},
+    "texture": {"bitmap", "checkerboard", "mesh_attribute", "volume"},
+    "sensor": {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter", "batch"},
+    "film": {"hdrfilm", "specfilm"},
+    "rfilter": {"box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos"},
+    "sampler": {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"},
+    "integrator": {"path", "direct", "aov", "volpath", "volpathmis", "depth", "moment", "stokes", "ptracer",
+                   "prb", "direct_projective", "prb_projective"},
+    "medium": {"homogeneous", "heterogeneous"},
+    "phase": {"isotropic", "hg", "rayleigh", "blendphase", "tabphase", "sggx"},
+    "volume": {"constvolume", "gridvolume"},
+    "spectrum": {"uniform", "regular", "irregular", "blackbody", "d65", "srgb"},
+}
+# Every other element Mitsuba 3's XML parser knows (values, transforms, references). Anything else is refused.
+ALLOWED_TAGS = set(ALLOWED_PLUGINS) | {
+    "scene", "default", "include", "ref", "alias", "boolean", "integer", "float", "string", "point", "vector",
+    "rgb", "color", "transform", "translate", "rotate", "scale", "matrix", "lookat",
+}
+# Plugin elements the hologram renderer ignores: stripped from the entry before Mitsuba parses it, so their
+# type is never instantiated (any type is accepted there).
+IGNORED_PLUGIN_TAGS = ("integrator",)
+# What a plugin's file must be, by content.
+_EXPECTED_KINDS = {"shape:obj": ({"text"}, "an OBJ mesh"), "shape:ply": ({"ply"}, "a PLY mesh"),
+                   "shape:serialized": ({"serialized"}, "a Mitsuba serialized mesh"),
+                   "texture:bitmap": (IMAGE_KINDS, "a readable image"), "emitter:envmap": (IMAGE_KINDS,
+                                                                                         "a readable image")}
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
+
+
+def _rel(root: Path, p: Path) -> str:
+    return p.relative_to(root).as_posix()
+
+
+def _inside(root: Path, target: Path) -> bool:
+    try:
+        target.relative_to(root)
+        return True
+    except ValueError:
+        return False
+
+
+def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
+    """Resolve a reference as Mitsuba does (against the entry's folder ``base``); refuse escapes and misses."""
+    if not value or "\x00" in value or len(value) > 4096:
+        raise BundleError(f"{what}: empty or invalid file reference")
+    shown = value[:120]
+    if value.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", value) or "://" in value:
+        raise BundleError(f"{what}: absolute path {shown!r} is not allowed; paths must be relative to the bundle")
+    if "$" in value:
+        raise BundleError(f"{what}: {shown!r} uses an undefined $parameter")
+    if "\\" in value:
+        raise BundleError(f"{what}: {shown!r} holds a backslash; use '/' between folders")
+    parts = PurePosixPath(value).parts
+    if ".." in parts:
+        raise BundleError(f"{what}: {shown!r} leaves the scene bundle ('..' is not allowed in references)")
+    target = base.joinpath(*parts)
+    resolved = target.resolve()
+    if not _inside(root, resolved):
+        raise BundleError(f"{what}: {shown!r} leaves the scene bundle (a link points outside)")
+    if not target.is_file():
+        raise BundleError(f"{what}: {shown!r} is referenced but not in the bundle (references are relative to the "
+                          "scene file's folder, also inside includes)")
+    return resolved
+
+
+def _parse(path: Path, limits: BundleLimits, name: str):
+    from xml.etree.ElementTree import ParseError
+
+    from defusedxml import DefusedXmlException
+    from defusedxml.ElementTree import parse
+
+    if path.stat().st_size > limits.max_xml_bytes:
+        raise BundleError(f"{name}: XML larger than {limits.max_xml_bytes} bytes")
+    try:
+        return parse(str(path), forbid_dtd=True, forbid_entities=True, forbid_external=True).getroot()
+    except DefusedXmlException as exc:
+        raise BundleError(f"{name}: refused XML construct ({type(exc).__name__}): DTDs, entities and external "
+                          "references are not allowed") from None
+    except (ParseError, UnicodeError, ValueError) as exc:
+        raise BundleError(f"{name}: not well-formed XML: {exc}") from None
+
+
+class _Params:
+    """Mitsuba's ``<default>`` namespace: ordered, global over includes, substituted longest name first."""
+
+    def __init__(self) -> None:
+        self.values: dict[str, str] = {}
+        self._pattern: Optional[re.Pattern] = None
+
+    def define(self, name: str, value: str, where: str) -> None:
+        if not _NAME.match(name):
+            raise BundleError(f"{where}: <default name={name[:40]!r}>: parameter names are letters, digits, '_', "
+                              "'.' and '-', starting with a letter or '_'")
+        if name in self.values:
+            raise BundleError(f"{where}: <default name={name!r}> is defined twice; define each parameter once")
+        if "$" in value:
+            raise BundleError(f"{where}: <default name={name!r}> has a value holding '$'; values are not expanded")
+        self.values[name] = value
+        names = sorted(self.values, key=len, reverse=True)
+        self._pattern = re.compile(r"\$(" + "|".join(re.escape(n) for n in names) + ")")
+
+    def substitute(self, value: str, where: str) -> str:
+        out = self._pattern.sub(lambda m: self.values[m.group(1)], value) if self._pattern else value
+        if "$" in out:
+            raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
+        return out
+
+
+def _file_reference(tag: str, attrs: dict[str, str]) -> Optional[str]:
+    """The file path an element names, if any: a ``filename`` attribute, or a string property whose name
+    says it is a file (``filename``, ``*_filename``, ``*file``)."""
+    if "filename" in attrs:
+        return attrs["filename"]
+    if tag == "string":
+        pname = attrs.get("name", "").lower()
+        if pname.endswith("filename") or pname.endswith("file"):
+            return attrs.get("value", "")
+    return None
+
+
+def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int, dict[str, str]]:
+    files: list[Path] = []
+    kinds: dict[str, str] = {}
+    total = 0
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        d = Path(dirpath)
+        for name in list(dirnames):
+            p = d / name
+            if p.is_symlink() and not _inside(root, p.resolve()):
+                raise BundleError(f"{_rel(root, p)}: symbolic link leaves the bundle")
+        for name in filenames:
+            p = d / name
+            rel = _rel(root, p)
+            if p.is_symlink() and not _inside(root, p.resolve()):
+                raise BundleError(f"{rel}: symbolic link leaves the bundle")
+            try:
+                st = p.stat()
+            except OSError:
+                raise BundleError(f"{rel}: dangling symbolic link or unreadable file") from None
+            if not stat.S_ISREG(st.st_mode):
+                raise BundleError(f"{rel}: not a regular file (devices, FIFOs and sockets are refused)")
+            files.append(p)
+            total += st.st_size
+            if len(files) > limits.max_files:
+                raise BundleError(f"bundle holds more than {limits.max_files} files")
+            if total > limits.max_total_bytes:
+                raise BundleError(f"bundle is larger than {limits.max_total_bytes} bytes")
+            try:
+                kinds[rel] = sniff_kind(p, rel)
+            except FileKindError as exc:
+                raise BundleError(str(exc)) from None
+    return files, total, kinds
+
+
+def content_sha256(root: Path, files: list[Path]) -> str:
+    """Names and contents hashed unambiguously: for each file in name order, the byte length of its UTF-8
+    name, the name, the byte length of its content, the content (8-byte big-endian lengths)."""
+    h = hashlib.sha256(b"holo-bundle-v2\0")
+    for p in sorted(files, key=lambda q: _rel(root, q)):
+        name = _rel(root, p).encode("utf-8", "surrogateescape")
+        h.update(struct.pack(">Q", len(name)) + name + struct.pack(">Q", p.stat().st_size))
+        with p.open("rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+class _Walker:
+    """One pass over the entry and its includes in document order, as Mitsuba's parser reads them."""
+
+    def __init__(self, root: Path, entry: Path, limits: BundleLimits, kinds: dict[str, str]) -> None:
+        self.root, self.base, self.limits, self.kinds = root, entry.parent, limits, kinds
+        self.entry = entry
+        self.params = _Params()
+        self.plugins: set[str] = set()
+        self.ignored: list[str] = []
+        self.warnings: list[str] = []
+        self.referenced: set[Path] = set()
+        self.counted: set[Path] = set()
+        self.faces = self.verts = self.pixels = self.includes = 0
+        self.stack: list[Path] = []
+
+    def account(self, ref: Path, plugin: Optional[str]) -> None:
+        rel = _rel(self.root, ref)
+        kind = self.kinds.get(rel, "")
+        expected = _EXPECTED_KINDS.get(plugin or "")
+        if expected is not None and kind not in expected[0]:
+            raise BundleError(f"{rel}: {plugin} needs {expected[1]}, but the file is not one (by its content: "
+                              f"{kind})")
+        if ref in self.counted:  # a mesh or image used twice is loaded once
+            return
+        self.counted.add(ref)
+        try:
+            if kind in IMAGE_KINDS:
+                self.pixels += image_pixels(ref, rel, kind, max_pixels=self.limits.max_image_pixels)
+            elif kind == "ply":
+                f, v = ply_counts(ref, rel)
+                self.faces, self.verts = self.faces + f, self.verts + v
+            elif kind == "serialized":
+                self.warnings.append(f"{rel}: face count of .serialized meshes is not checked before loading "
+                                     "(bytes are)")
+            elif kind == "text" and plugin == "shape:obj":
+                f, v = obj_counts(ref)
+                self.faces, self.verts = self.faces + f, self.verts + v
+        except FileKindError as exc:
+            raise BundleError(str(exc)) from None
+        if self.faces > self.limits.max_mesh_faces:
+            raise BundleError(f"meshes declare more than {self.limits.max_mesh_faces} faces ({rel})")
+        if self.verts > self.limits.max_mesh_vertices:
+            raise BundleError(f"meshes declare more than {self.limits.max_mesh_vertices} vertices ({rel})")
+        if self.pixels > self.limits.max_image_pixels:
+            raise BundleError(f"images hold more than {self.limits.max_image_pixels} pixels ({rel})")
+
+    def visit(self, xml: Path) -> None:
+        name = _rel(self.root, xml)
+        if xml in self.stack:
+            raise BundleError(f"{name}: includes itself (include cycle)")
+        if len(self.stack) >= self.limits.max_include_depth:
+            raise BundleError(f"{name}: includes nested deeper than {self.limits.max_include_depth}")
+        if self.kinds.get(name) != "xml":
+            raise BundleError(f"{name}: is not an XML file (by its content)")
+        self.stack.append(xml)
+        el = _parse(xml, self.limits, name)
+        if el.tag != "scene":
+            raise BundleError(f"{name}: root element is <{str(el.tag)[:40]}>, expected <scene>")
+        self.element(el, name, parent=None, top=True)
+        self.stack.pop()
+
+    def element(self, node, name: str, *, parent: Optional[str], top: bool) -> None:
+        for child in node:
+            tag = child.tag
+            if not isinstance(tag, str):
+                continue  # comments and processing instructions
+            if tag == "path":
+                raise BundleError(f"{name}: <path> elements (extra search paths) are not allowed")
+            if tag not in ALLOWED_TAGS:
+                raise BundleError(f"{name}: unknown XML element <{tag[:40]}>")
+            where = f"{name}: <{tag}>"
+            if tag == "default":
+                self.params.define(child.get("name", ""), child.get("value", ""), name)
+                continue
+            attrs = {k: self.params.substitute(v, where) for k, v in child.attrib.items()}
+            if tag in IGNORED_PLUGIN_TAGS and top and len(self.stack) == 1:
+                self.ignored.append(f"the scene's <{tag} type={attrs.get('type', '')[:40]!r}> (the hologram "
+                                    "renderer brings its own)")
+                continue
+            if tag == "include":
+                self.includes += 1
+                if self.includes > self.limits.max_includes:
+                    raise BundleError(f"scene has more than {self.limits.max_includes} includes")
+                inc = _check_reference(self.root, self.base, attrs.get("filename", ""), f"{name}: include")
+                self.referenced.add(inc)
+                self.visit(inc)
+                continue
+            kind = attrs.get("type")
+            if tag in ALLOWED_PLUGINS and kind is not None:
+                if kind not in ALLOWED_PLUGINS[tag]:
+                    raise BundleError(f"{name}: unknown or disallowed {tag} plugin {kind[:40]!r}")
+                self.plugins.add(f"{tag}:{kind}")
+            value = _file_reference(tag, attrs)
+            if value is not None:
+                ref = _check_reference(self.root, self.base, value, f"{name}: filename")
+                self.referenced.add(ref)
+                self.account(ref, parent if tag == "string" else f"{tag}:{kind}")
+            self.element(child, name, parent=f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None, top=False)
+
+
+def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: BundleLimits = BundleLimits()
+                    ) -> BundleReport:
+    """Check a scene folder (``entry``: the scene XML relative to it, needed when the root holds several XML
+    files); returns what it holds or raises :class:`BundleError` saying why not."""
+    if not isinstance(limits, BundleLimits):
+        raise ValueError(f"limits must be a BundleLimits, got {type(limits).__name__}")
+    root_in = Path(root)
+    if not root_in.is_dir():
+        raise BundleError(f"scene bundle {root_in.name or root_in} is not a folder")
+    root = root_in.resolve()
+    files, total, kinds = _list_files(root, limits)
+    if entry is None:
+        xmls = sorted(p for p in root.glob("*.xml") if p.is_file())
+        if len(xmls) != 1:
+            raise BundleError(f"bundle has {len(xmls)} XML files at its root; name the scene file (entry)")
+        entry_path = xmls[0]
+    else:
+        entry_path = _check_reference(root, root, entry, "entry")
+        if entry_path.suffix.lower() != ".xml":
+            raise BundleError(f"entry {entry[:120]!r} is not an .xml file")
+    w = _Walker(root, entry_path, limits, kinds)
+    w.visit(entry_path)
+    unused = [p for p in files if p not in w.referenced and p != entry_path and kinds[_rel(root, p)] != "xml"]
+    warnings = list(w.warnings)
+    if unused:
+        warnings.append(f"{len(unused)} file(s) not referenced by the scene, e.g. {_rel(root, unused[0])}")
+    return BundleReport(entry=entry_path, files=sorted(_rel(root, p) for p in files), total_bytes=total,
+                        sha256=content_sha256(root, files), plugins=sorted(w.plugins), warnings=warnings,
+                        mesh_faces=w.faces, image_pixels=w.pixels, kinds=kinds, ignored=w.ignored)
+
+
+def entry_source(report: BundleReport) -> str:
+    """The entry XML as Mitsuba should parse it: its top-level ``IGNORED_PLUGIN_TAGS`` elements blanked with
+    spaces (newlines kept, so Mitsuba's line and column numbers still point into the user's file)."""
+    import xml.parsers.expat
+
+    raw = Path(report.entry).read_bytes()
+    spans: list[list[int]] = []
+    depth = [0]
+    pending: list[list[int]] = []  # spans waiting for the byte index where they end
+
+    def close_pending() -> None:
+        while pending:
+            pending.pop()[1] = p.CurrentByteIndex
+
+    def start(tag, attrs):  # noqa: ARG001
+        close_pending()
+        depth[0] += 1
+        if depth[0] == 2 and tag in IGNORED_PLUGIN_TAGS:
+            spans.append([p.CurrentByteIndex, -1, depth[0]])
+
+    def end(tag):  # noqa: ARG001
+        close_pending()
+        if spans and spans[-1][1] == -1 and spans[-1][2] == depth[0]:
+            pending.append(spans[-1])
+        depth[0] -= 1
+
+    def other(*_):
+        close_pending()
+
+    p = xml.parsers.expat.ParserCreate()
+    p.StartElementHandler, p.EndElementHandler = start, end
+    p.CharacterDataHandler = p.CommentHandler = p.ProcessingInstructionHandler = p.DefaultHandler = other
+    p.Parse(raw, True)
+    out = bytearray(raw)
+    for a, b, _ in spans:
+        for i in range(a, b):
+            if out[i] not in (10, 13):
+                out[i] = 32
+    return out.decode("utf-8")

@@ -1,0 +1,182 @@
+"""Loading a scene bundle into Mitsuba, after the bundle check (files confined to the bundle), and reading
+its perspective sensor.
+
+Mitsuba resolves a plugin ``<type>`` to ``plugins/<type>.so`` through its file resolver, which normally
+searches the scene's folder first: a bundle could bring its own shared object (issue 10). So, before any scene
+is parsed, every plugin of Mitsuba's own installation is loaded once (the plugin manager keeps them, and never
+looks a loaded name up again); the bundle check refuses any file that is not scene data by its content; and
+scenes are parsed from the checked entry text (its integrator stripped) with a resolver holding only the
+entry's folder and Mitsuba's own folder. Errors come back as :class:`SceneLoadError` in the user's terms
+(bundle-relative paths, no server paths)."""
+
+from __future__ import annotations
+
+import math
+import threading
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+from holocore.runtime.mitsuba_env import mitsuba
+from holocore.scene.errors import scrub_message
+
+__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins", "unsupported_reason"]
+
+_PRELOAD_LOCK = threading.Lock()
+_PRELOADED: list[str] = []
+
+
+class SceneLoadError(ValueError):
+    """Mitsuba could not load a checked bundle; the message names the file and line, relative to the bundle."""
+
+
+def preload_plugins() -> list[str]:
+    """Load every plugin of Mitsuba's installation (once per process) so that no plugin name is ever resolved
+    through a search path that holds a scene's folder; returns their names."""
+    with _PRELOAD_LOCK:
+        if not _PRELOADED:
+            mi = mitsuba()
+            folder = Path(mi.__file__).parent / "plugins"
+            pm = mi.PluginManager.instance()
+            names = sorted(p.name[:-3] for p in folder.iterdir() if p.name.endswith(".so"))
+            for name in names:
+                try:
+                    pm.plugin_type(name)
+                except Exception:  # noqa: BLE001 - a plugin this variant cannot use stays unloaded (never resolved)
+                    pass
+            _PRELOADED.extend(names)
+        return list(_PRELOADED)
+
+
+@contextmanager
+def _resolver_for(entry_dir: Path) -> Iterator[None]:
+    """The thread's file resolver holds only the entry's folder and Mitsuba's own folder while a scene loads."""
+    mi = mitsuba()
+    fr = mi.file_resolver()
+    saved = [str(p) for p in fr]
+    fr.clear()
+    fr.append(str(entry_dir))
+    fr.append(str(Path(mi.__file__).parent))
+    try:
+        yield
+    finally:
+        fr.clear()
+        for p in saved:
+            fr.append(p)
+
+
+@dataclass
+class LoadedScene:
+    scene: Any  # mi.Scene
+    entry: Path  # the scene XML
+    sensor: Any
+    fov_x_deg: float
+    bundle: Any  # holocore.scene.bundle.BundleReport or None when loaded from a dict
+
+    @property
+    def name(self) -> str:
+        return self.entry.parent.name if self.entry.name in ("scene.xml", "cbox.xml") else self.entry.stem
+
+
+def resolve_entry(path: str | Path) -> tuple[Path, str | None]:
+    """(bundle root, entry name) for a scene folder or an XML file."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise FileNotFoundError(f"scene not found: {p}")
+    if p.is_dir():
+        return p.resolve(), None
+    if p.suffix.lower() != ".xml":
+        raise ValueError(f"a scene is a folder or a Mitsuba .xml file, got {p}")
+    return p.resolve().parent, p.name
+
+
+def _sensor_fov_x_deg(sensor) -> float:
+    mi = mitsuba()
+    params = mi.traverse(sensor)
+    if "x_fov" not in params:
+        raise ValueError(
+            f"the scene's sensor is a {sensor.class_name()}; wave path tracing needs a perspective sensor "
+            "(DESIGN.md §3 maps its eye-camera frame to hologram space)"
+        )
+    fov = float(params["x_fov"][0]) if hasattr(params["x_fov"], "__len__") else float(params["x_fov"])
+    if not (0.0 < fov < 180.0) or math.isnan(fov):
+        raise ValueError(f"sensor field of view {fov} deg is not usable")
+    return fov
+
+
+_PERSPECTIVE = {"perspective", "thinlens"}
+
+
+def unsupported_reason(plugins: list[str]) -> str | None:
+    """Why a scene using ``plugins`` ("tag:type", as the bundle report lists them) cannot become a hologram, in
+    one line that says what to change; None when it can. Checked before Mitsuba parses the scene."""
+    kinds = {p.split(":", 1)[0] for p in plugins}
+    if "medium" in kinds:
+        return ("participating media (<medium>, with its phase function and volumes) are not simulated by wave "
+                "path tracing: remove the medium from the scene (the hologram would silently ignore it)")
+    ellipsoids = sorted(p for p in plugins if p in ("shape:ellipsoids", "shape:ellipsoidsmesh"))
+    if ellipsoids:
+        return (f"Gaussian ellipsoid primitives (<shape type={ellipsoids[0].split(':')[1]!r}>) need Mitsuba's "
+                "volumetric-primitive integrators; wave path tracing does not trace them: use meshes")
+    other = sorted(p.split(":")[1] for p in plugins if p.startswith("sensor:") and p.split(":")[1] not in _PERSPECTIVE)
+    if other:
+        return (f"<sensor type={other[0]!r}>: wave path tracing needs a perspective sensor (the eye's camera; "
+                "perspective or thinlens) and no other: remove or replace it")
+    tables = sorted(p.split(":")[1] for p in plugins if p in ("spectrum:blackbody", "spectrum:regular",
+                                                               "spectrum:irregular"))
+    if tables:
+        return (f"<spectrum type={tables[0]!r}> needs a spectral Mitsuba variant, and holograms render in RGB at the "
+                "display's laser lines: give that emitter or material an <rgb> value (spectral files given as "
+                "<spectrum filename=...> are converted and work)")
+    return None
+
+
+def _rel_name(root: Path, entry: Path) -> str:
+    try:
+        return entry.relative_to(root).as_posix()
+    except ValueError:
+        return entry.name
+
+
+def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
+    """Check the bundle (every file inside it, no escapes, only scene data) and load it with Mitsuba.
+    ``check_bundle=False`` is for trusted folders only (tests): Mitsuba then reads the files as it likes."""
+    root, entry_name = resolve_entry(path)
+    report = None
+    mi = mitsuba()
+    preload_plugins()
+    if check_bundle:
+        from holocore.scene.bundle import entry_source, validate_bundle
+
+        report = validate_bundle(root, entry=entry_name)
+        entry = Path(report.entry)
+        why = unsupported_reason(report.plugins)
+        if why is not None:
+            raise SceneLoadError(f"{_rel_name(root, entry)}: {why}")
+        try:
+            with _resolver_for(entry.parent):
+                scene = mi.load_string(entry_source(report))
+        except RuntimeError as exc:
+            raise SceneLoadError(scrub_message(f"Mitsuba could not load the scene: {exc}", roots=[entry.parent],
+                                               entry_name=_rel_name(root, entry))) from None
+    else:
+        if entry_name is None:
+            xmls = sorted(root.glob("*.xml"))
+            if len(xmls) != 1:
+                raise ValueError(f"{root} holds {len(xmls)} XML files; name the scene file")
+            entry_name = xmls[0].name
+        entry = root / entry_name
+        scene = mi.load_file(str(entry))
+    sensors = scene.sensors()
+    if not sensors:
+        raise ValueError(f"{entry} has no sensor: the hologram needs the scene's camera")
+    return LoadedScene(scene=scene, entry=entry, sensor=sensors[0], fov_x_deg=_sensor_fov_x_deg(sensors[0]),
+                       bundle=report)
+
+
+def from_mitsuba_scene(scene, *, name: str = "scene") -> LoadedScene:
+    """Wrap a scene made with mi.load_dict (tests, demos)."""
+    sensor = scene.sensors()[0]
+    return LoadedScene(scene=scene, entry=Path(f"{name}.xml"), sensor=sensor, fov_x_deg=_sensor_fov_x_deg(sensor),
+                       bundle=None)
