@@ -71,12 +71,12 @@ def bench_frames(scene_path, H, W, spp):
         loaded, optics, pl = _setup(scene_path, H, W, F)
         banks = _banks(optics, (H, W))
         integ = mi.load_dict({"type": "path", "max_depth": 6})
-        z = pl["analysis"].z_wrp_m
+        z = pl.analysis.z_wrp_m
 
         def run(loaded=loaded, optics=optics, pl=pl, banks=banks, integ=integ, z=z, F=F):
-            return trace_field(loaded.scene, pl["hmap"], wavelengths_m=list(optics.wavelengths_m),
+            return trace_field(loaded.scene, pl.hmap, wavelengths_m=list(optics.wavelengths_m),
                                pitch_m=optics.pitch_m, shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=F,
-                               settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl["plan"].max_delta),
+                               settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta),
                                integrator=integ, seed=0, bank_phasors=banks)
 
         fns[F] = run
@@ -93,19 +93,19 @@ def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 1)
     integ = mi.load_dict({"type": "path", "max_depth": depth})
-    z = pl["analysis"].z_wrp_m
+    z = pl.analysis.z_wrp_m
 
     def ours():
-        return trace_field(loaded.scene, pl["hmap"], wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
+        return trace_field(loaded.scene, pl.hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
                            shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=1,
-                           settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl["plan"].max_delta, max_depth=depth),
+                           settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta, max_depth=depth),
                            integrator=integ, seed=0)
 
     rays = H * W * spp
     scene = loaded.scene
     # Mitsuba renders the same view the hologram shows (its field of view: the SLM's width seen at f), so that
     # both trace the same content; the scene's own, wider camera view is timed too, for reference.
-    fov_holo = math.degrees(2.0 * math.atan(W * optics.pitch_m / (2.0 * pl["hmap"].focal_length_m)))
+    fov_holo = math.degrees(2.0 * math.atan(W * optics.pitch_m / (2.0 * pl.hmap.focal_length_m)))
     to_world = mi.ScalarTransform4f(np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4))
 
     def render_fn(fov):
@@ -157,14 +157,14 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
     loaded, optics, pl = _setup(scene_path, H, W, 4, wavelengths=(516.5,))
     banks = _banks(optics, (H, W))
     integ = mi.load_dict({"type": "path", "max_depth": 6})
-    z = pl["analysis"].z_wrp_m
+    z = pl.analysis.z_wrp_m
     lam = optics.wavelengths_m[0]
 
     def slm_field(method, spp, seed):
         plane = z if method == "wrp" else 0.0
-        u = trace_field(loaded.scene, pl["hmap"], wavelengths_m=[lam], pitch_m=optics.pitch_m, shape_hw=(H, W),
+        u = trace_field(loaded.scene, pl.hmap, wavelengths_m=[lam], pitch_m=optics.pitch_m, shape_hw=(H, W),
                         plane_z_m=plane, z_wrp_m=z, frames=4,
-                        settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl["plan"].max_delta),
+                        settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta),
                         integrator=integ, seed=seed, bank_phasors=banks)
         if method == "wrp":
             u = asm(torch.from_numpy(u[:, 0]), -z, lam, optics.pitch_m).numpy()[:, None]
@@ -184,7 +184,7 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
             rows.append({"method": method, "spp": spp, "rays": H * W * spp, "seconds": dt,
                          "field_psnr_db": 10 * math.log10(signal / var), "a": spp * var / signal})
     a = {m: float(np.median([r["a"] for r in rows if r["method"] == m])) for m in ("wrp", "direct")}
-    ana = pl["analysis"]
+    ana = pl.analysis
     return {"rows": rows, "a_wrp": a["wrp"], "a_direct": a["direct"], "ratio": a["direct"] / a["wrp"],
             "z_wrp_mm": z * 1e3, "z_image_mm": 0.5e3 * (ana.z_near_holo_m + ana.z_far_holo_m)}
 

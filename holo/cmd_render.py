@@ -62,9 +62,11 @@ def render(
         budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
     except ValueError as exc:
         fail(str(exc))
-    if preset not in ("fast", "balanced", "reference"):
+    from holocore.plan.presets import PRESET_NAMES, RENDER_METHODS
+
+    if preset not in PRESET_NAMES:
         fail(f"--preset must be fast, balanced or reference, got {preset!r}")
-    if method not in ("wrp", "direct"):
+    if method not in RENDER_METHODS:
         fail(f"--method must be wrp or direct, got {method!r}")
     if not scene.exists():
         fail(f"scene not found: {scene}")
@@ -102,12 +104,12 @@ def render(
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
         cal = load_calibration()
-        secs = estimate_seconds(optics_cfg, options, scene_primitives=pl["inventory"].primitives,
-                                subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
+        secs = estimate_seconds(optics_cfg, options, scene_primitives=pl.inventory.primitives,
+                                subhologram_radius_px=pl.analysis.subhologram_radius_px, calibration=cal)
         source = f"calibrated on {cal.get('scene', 'this machine')}" if user_calibration_path().is_file() else \
             "committed default calibration; run `holo bench calibrate` on this machine for a closer figure"
-        full = estimate_with_probe(optics_cfg, options, probe, scene_primitives=pl["inventory"].primitives,
-                                   subhologram_radius_px=pl["analysis"].subhologram_radius_px, calibration=cal)
+        full = estimate_with_probe(optics_cfg, options, probe, scene_primitives=pl.inventory.primitives,
+                                   subhologram_radius_px=pl.analysis.subhologram_radius_px, calibration=cal)
         console.print(f"estimated time of `holo render`: {full['total']:.1f} s (start-up {full['startup']:.1f} s, "
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
@@ -182,21 +184,17 @@ def plan(
         fail(str(exc))
     from holocore.display.profiles import display_meta
 
-    doc = {"plan": json.loads(pl["plan"].model_dump_json()), "summary": pl["plan"].summary,
-           "analysis": json.loads(pl["analysis"].model_dump_json()),
-           "inventory": json.loads(pl["inventory"].model_dump_json()), "focal_length_m": pl["focal_length_m"],
-           "field_of_view": pl["field_of_view"], "optics": json.loads(optics_cfg.model_dump_json()),
-           **display_meta(profile, optics_cfg)}
+    doc = {**pl.to_dict(), "optics": json.loads(optics_cfg.model_dump_json()), **display_meta(profile, optics_cfg)}
     if as_json:
         print(json.dumps(doc, indent=2))
     else:
         over = doc["display"]["overridden"]
         print(f"- display {profile.name}" + (f" (overridden: {', '.join(over)})" if over else "")
               + f": {optics_cfg.height}x{optics_cfg.width} px at {optics_cfg.pitch_um:g} µm, "
-              f"f = {pl['focal_length_m'] * 1e3:.4g} mm, virtual infinity at {optics_cfg.z_inf_mm:g} mm, "
+              f"f = {pl.focal_length_m * 1e3:.4g} mm, virtual infinity at {optics_cfg.z_inf_mm:g} mm, "
               f"{optics_cfg.frames} frame(s)")
-        for line in pl["plan"].summary:
+        for line in pl.plan.summary:
             print(f"- {line}")
-        a = pl["analysis"]
+        a = pl.analysis
         print(f"- WRP at {a.z_wrp_m * 1e3:.3f} mm from the SLM; image volume "
               f"{(a.z_near_holo_m or 0) * 1e3:.3f}..{(a.z_far_holo_m or 0) * 1e3:.3f} mm")

@@ -24,6 +24,8 @@ import numpy as np
 from holocore import __version__
 from holocore.display.optics import OpticsConfig
 from holocore.display.profiles import DisplayProfile
+from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
+from holocore.plan.scene_plan import ScenePlan
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
@@ -32,9 +34,9 @@ ProgressFn = Callable[[str, int, int], None]
 
 @dataclass(frozen=True)
 class RenderOptions:
-    preset: Literal["fast", "balanced", "reference"] = "balanced"
+    preset: PresetName = "balanced"
     spp: Optional[int] = None
-    method: Literal["wrp", "direct"] = "wrp"
+    method: RenderMethod = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
     wrp_planes: Union[int, Literal["auto"]] = "auto"  # recording planes (holocore.plan.wrp_planes); "auto": from the depth
@@ -45,7 +47,7 @@ class RenderOptions:
     def __post_init__(self) -> None:
         from holocore.plan.wrp_planes import MAX_WRP_PLANES
 
-        if self.method not in ("wrp", "direct"):
+        if self.method not in RENDER_METHODS:
             raise ValueError(f"method must be 'wrp' or 'direct', got {self.method!r}")
         if self.wrp_planes != "auto" and not (isinstance(self.wrp_planes, int)
                                               and 1 <= self.wrp_planes <= MAX_WRP_PLANES):
@@ -63,7 +65,7 @@ class RenderResult:
     meta: dict
 
 
-def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> dict:
+def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> ScenePlan:
     """The effect plan and the analysis of a loaded scene, without tracing the hologram. ``field_of_view``
     compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it."""
     from holocore.display.profiles import field_of_view_report
@@ -99,8 +101,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"], *ignored]})
-    return {"hmap": hmap, "inventory": inv, "analysis": ana, "plan": plan, "focal_length_m": f,
-            "field_of_view": fov, "planes": planes}
+    return ScenePlan(hmap=hmap, inventory=inv, analysis=ana, plan=plan, focal_length_m=f, field_of_view=fov,
+                     planes=planes)
 
 
 def coded_frames(optics: OpticsConfig) -> Optional[int]:
@@ -284,7 +286,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, options)
-    hmap, ana, plan, planes = pl["hmap"], pl["analysis"], pl["plan"], pl["planes"]
+    hmap, ana, plan, planes = pl.hmap, pl.analysis, pl.plan, pl.planes
     timings["analysis_s"] = time.perf_counter() - t0
     if progress:
         progress("analysis", 1, 1)
@@ -364,7 +366,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     timings["total_s"] = time.perf_counter() - t0
 
     meta: dict[str, Any] = {
-        "focal_length_m": pl["focal_length_m"],
+        "focal_length_m": pl.focal_length_m,
         "z_inf_m": optics.z_inf_m,
         "z_wrp_m": z_wrp,
         "wrp_planes_m": list(planes.z_m),
@@ -378,8 +380,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "optics": json.loads(optics.model_dump_json()),
         "plan": json.loads(plan.model_dump_json()),
         "analysis": json.loads(ana.model_dump_json()),
-        "inventory": json.loads(pl["inventory"].model_dump_json()),
-        "field_of_view": pl["field_of_view"],
+        "inventory": json.loads(pl.inventory.model_dump_json()),
+        "field_of_view": pl.field_of_view,
         **_display_meta(display, optics),
         "stats": stats.as_dict(),
         "timings": timings,

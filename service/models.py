@@ -188,7 +188,7 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
 
 
 # Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
-# between the preset's bounds; see holocore/plan/effects.py PRESETS).
+# between the preset's bounds; see holocore/plan/presets.py PRESETS).
 _TYPICAL_SPP = {"fast": 16, "balanced": 128, "reference": 1024}
 
 

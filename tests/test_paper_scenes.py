@@ -73,13 +73,13 @@ def test_the_camera_sees_the_paper_display_view(loaded):
     for name, ld in loaded.items():
         pl = _plan(ld)
         assert abs(ld.fov_x_deg - fov) < 1e-3, name
-        assert pl["focal_length_m"] == pytest.approx(F_M)
-        assert not pl["field_of_view"]["differs"], (name, pl["field_of_view"]["summary"])
+        assert pl.focal_length_m == pytest.approx(F_M)
+        assert not pl.field_of_view["differs"], (name, pl.field_of_view["summary"])
 
 
 def test_depth_scene_spans_the_paper_image_volume(loaded):
     # 10 m, 0.9 m, 0.5 m at z_inf + 0.25, 2.78, 5 mm (DESIGN §3); the cards are planes facing the eye
-    ana = _plan(loaded["depth"])["analysis"]
+    ana = _plan(loaded["depth"]).analysis
     assert ana.z_far_holo_m - Z_INF == pytest.approx(0.25e-3, abs=2e-6)
     assert ana.z_near_holo_m - Z_INF == pytest.approx(5.0e-3, abs=1e-5)
     assert ana.z_wrp_m > ana.z_near_holo_m
@@ -148,7 +148,7 @@ def test_glass_ball_images_the_card_at_the_paraxial_thick_lens_position(loaded):
     dof = 516.5e-9 / (516.5e-9 / (2 * 8e-6)) ** 2
     assert z_holo(zc.max()) - z_holo(c - R) > dof and z_holo(zc.max()) - z_holo(zo) > 1.5 * dof
     # the plan sees it: the nearest image point of the scene is that image (the WRP goes in front of it)
-    ana = _plan(loaded["glass"])["analysis"]
+    ana = _plan(loaded["glass"]).analysis
     assert ana.z_near_holo_m == pytest.approx(z_holo(zc_expect), abs=2e-5)
     assert ana.z_wrp_m > ana.z_near_holo_m
 

@@ -240,8 +240,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
-    ana = pl["analysis"]
-    f = pl["focal_length_m"]
+    ana = pl.analysis
+    f = pl.focal_length_m
     timings["analysis_s"] = time.perf_counter() - t0
     if plane_z_m is not None:
         zs = np.asarray([float(z) for z in plane_z_m], dtype=np.float64)
@@ -302,8 +302,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
                              f"Mitsuba thin-lens targets through a {D * 1e3:.3g} mm pupil at {gt_spp} spp, "
                              f"{F} phase-only frame(s) per colour optimised together ({iterations} Adam steps) on "
                              f"the frame-averaged amplitude, colours balanced by laser power",
-                             pl["field_of_view"]["summary"]]},
-        "field_of_view": pl["field_of_view"], **_display_meta(display, optics),
+                             pl.field_of_view["summary"]]},
+        "field_of_view": pl.field_of_view, **_display_meta(display, optics),
         "stats": {}, "timings": timings, "versions": _versions(variant()),
     }
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)

@@ -172,7 +172,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
-    hmap, ana = pl["hmap"], pl["analysis"]
+    hmap, ana = pl.hmap, pl.analysis
     timings["analysis_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     rgb, zc = rgbd(loaded.scene, hmap, shape_hw=optics.resolution_hw, pitch_m=optics.pitch_m, spp=spp,
@@ -181,7 +181,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     if progress:
         progress("rgbd", 1, 1)
     t2 = time.perf_counter()
-    slm, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=pl["focal_length_m"], z_inf_m=optics.z_inf_m,
+    slm, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=pl.focal_length_m, z_inf_m=optics.z_inf_m,
                                         z_wrp_m=ana.z_wrp_m, pitch_m=optics.pitch_m,
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
                                         seed=optics.seed, coded=optics.frame_phases == "coded",
@@ -193,7 +193,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
         progress("propagate", 1, 1)
     F, C, H, W = slm.shape
     meta: dict[str, Any] = {
-        "focal_length_m": pl["focal_length_m"], "z_inf_m": optics.z_inf_m, "z_wrp_m": ana.z_wrp_m,
+        "focal_length_m": pl.focal_length_m, "z_inf_m": optics.z_inf_m, "z_wrp_m": ana.z_wrp_m,
         "pitch_m": optics.pitch_m, "wavelengths_m": list(optics.wavelengths_m), "shape_fchw": [F, C, H, W],
         "method": "layers", "preset": None, "scene": str(loaded.entry),
         "scene_sha256": getattr(loaded.bundle, "sha256", None),
@@ -203,8 +203,8 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
                    "pixels_per_plane": [int(n) for n in counts]},
         "plan": {"summary": [f"layer baseline: {planes} planes uniform in dioptres, RGB-D at {spp} spp, random "
                              f"phase per frame, ASM plane -> WRP -> SLM, no occlusion handling",
-                             pl["field_of_view"]["summary"]]},
-        "field_of_view": pl["field_of_view"], **_display_meta(display, optics),
+                             pl.field_of_view["summary"]]},
+        "field_of_view": pl.field_of_view, **_display_meta(display, optics),
         "stats": {}, "timings": timings, "versions": _versions(variant()),
     }
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)

@@ -14,22 +14,12 @@ from typing import Optional
 
 from pydantic import BaseModel, Field
 
+from holocore.plan.presets import PRESETS, PresetName
 from holocore.runtime.mitsuba_env import mitsuba
 
-__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "PRESETS"]
+__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor"]
 
 MAX_DELTA_CAP = 16
-
-# Rays per WRP pixel are chosen from the scene depth (DESIGN §4 "Convergence"): the Monte Carlo noise power
-# relative to the signal at an image point whose sub-hologram has radius rho pixels is about
-# k(theta) rho^2 / N with k = 2 pi (1 - cos theta) / tan^2 theta (~ pi), so N = k rho^2 / noise, clamped.
-# ``noise``: target noise-to-signal power at the farthest image point; amp_spp: incoherent samples per point.
-PRESETS: dict[str, dict] = {
-    "fast": {"noise": 2.0, "spp_min": 4, "spp_max": 128, "amp_spp": 1, "gi_depth": 3, "cache": True},
-    "balanced": {"noise": 1.0, "spp_min": 16, "spp_max": 512, "amp_spp": 2, "gi_depth": 6, "cache": False},
-    "reference": {"noise": 0.1, "spp_min": 64, "spp_max": 8192, "amp_spp": 8, "gi_depth": 12, "cache": False},
-}
-
 
 def noise_factor(theta_max: float) -> float:
     """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
@@ -37,11 +27,12 @@ def noise_factor(theta_max: float) -> float:
     return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
 
 
-def choose_spp(preset: str, subhologram_radius_px: float, theta_max: float) -> int:
-    """Rays per WRP pixel for a preset, from the farthest image point's sub-hologram radius."""
+def choose_spp(preset: PresetName, subhologram_radius_px: float, theta_max: float) -> int:
+    """Rays per WRP pixel for a preset (holocore.plan.presets), from the farthest image point's sub-hologram
+    radius: N = k(theta) rho^2 / the preset's noise-to-signal target, within its bounds."""
     p = PRESETS[preset]
-    n = math.ceil(noise_factor(theta_max) * subhologram_radius_px ** 2 / p["noise"])
-    return int(min(p["spp_max"], max(p["spp_min"], n)))
+    n = math.ceil(noise_factor(theta_max) * subhologram_radius_px ** 2 / p.noise_to_signal)
+    return int(min(p.spp_max, max(p.spp_min, n)))
 
 
 class SceneInventory(BaseModel):
@@ -126,7 +117,7 @@ def inventory(scene) -> SceneInventory:
 def make_plan(
     inv: SceneInventory,
     *,
-    preset: str,
+    preset: PresetName,
     frames: int,
     n_colors: int,
     colors_lit: Optional[list[bool]] = None,
@@ -178,9 +169,9 @@ def make_plan(
     elif not view_dep:
         words.append("all rough surfaces diffuse: radiance is view-independent")
 
-    gi = p["gi_depth"]
+    gi = p.gi_depth
     words.append(f"global illumination: up to {gi} bounces")
-    use_cache = bool(p["cache"]) and not force_all
+    use_cache = p.use_cache and not force_all
     cache_exact = not view_dep
     if use_cache:
         words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
@@ -210,10 +201,10 @@ def make_plan(
     ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
     words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
-                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {p['amp_spp']} radiance sample(s) per "
+                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {p.amp_spp} radiance sample(s) per "
                  f"image point")
     return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
                       use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
-                      spp=n, amp_spp=p["amp_spp"], noise_to_signal=ratio, forced=force_all,
+                      spp=n, amp_spp=p.amp_spp, noise_to_signal=ratio, forced=force_all,
                       wrp_planes_m=[float(z) for z in planes],
                       summary=words)

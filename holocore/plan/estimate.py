@@ -106,7 +106,8 @@ def save_calibration(cal: dict, path: Optional[str | Path] = None) -> Path:
 
 # ---- the cost model ---------------------------------------------------------------------------------------
 def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Optional[float]) -> dict:
-    from holocore.plan.effects import PRESETS, choose_spp
+    from holocore.plan.effects import choose_spp
+    from holocore.plan.presets import PRESETS
 
     if options.preset not in PRESETS:
         raise ValueError(f"options.preset must be one of {sorted(PRESETS)}, got {options.preset!r}")
@@ -121,7 +122,7 @@ def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Opt
     H, W = optics.resolution_hw
     rows_per_tile = max(1, int(getattr(options, "tile_rays", 1 << 19)) // max(1, n * W))
     return {"spp": n, "rays": H * W * n, "tiles": math.ceil(H / rows_per_tile),
-            "cache": bool(PRESETS[options.preset]["cache"]) and not getattr(options, "force_all_effects", False),
+            "cache": PRESETS[options.preset].use_cache and not getattr(options, "force_all_effects", False),
             "random_phase": optics.frames > 1 or getattr(options, "force_all_effects", False)}
 
 

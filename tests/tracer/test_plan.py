@@ -26,7 +26,7 @@ def plans(request, bundles_by_source):
 
 def test_cbox_plan_has_mirror_and_glass(plans):
     pl = plans["cbox"]
-    inv, plan, ana = pl["inventory"], pl["plan"], pl["analysis"]
+    inv, plan, ana = pl.inventory, pl.plan, pl.analysis
     assert inv.mirrors == ["mirrorsphere"] and inv.dielectrics == ["glasssphere"]
     assert plan.coherent_delta and plan.max_delta >= 4
     assert not plan.view_dependent and plan.cache_exact
@@ -38,13 +38,13 @@ def test_cbox_plan_has_mirror_and_glass(plans):
 
 def test_veach_bidir_plan_is_glossy_with_glass(plans):
     pl = plans["bidir"]
-    assert pl["inventory"].dielectrics == ["Glass"]
-    assert pl["plan"].view_dependent and pl["plan"].coherent_delta
-    assert any("glossy" in s for s in pl["plan"].summary)
+    assert pl.inventory.dielectrics == ["Glass"]
+    assert pl.plan.view_dependent and pl.plan.coherent_delta
+    assert any("glossy" in s for s in pl.plan.summary)
 
 
 def test_veach_mis_plan_has_no_coherent_loop(plans):
-    plan = plans["mis"]["plan"]
+    plan = plans["mis"].plan
     assert not plan.coherent_delta and plan.max_delta == 0
     assert plan.view_dependent  # rough plastic plates
     assert any("first hit is the image point" in s for s in plan.summary)
@@ -55,7 +55,7 @@ def test_forcing_turns_everything_on(bundles_by_source, source):
     pl = plan_scene(load_scene(bundles_by_source[source].entry("veach-mis")),
                     OpticsConfig(resolution_hw=(16, 16), focal_length_mm=20.0, frames=1),
                     RenderOptions(preset="fast", force_all_effects=True))
-    p = pl["plan"]
+    p = pl.plan
     assert p.forced and p.coherent_delta and p.max_delta == 16 and p.random_phase and not p.use_cache
 
 
