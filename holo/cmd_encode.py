@@ -65,13 +65,10 @@ def encode(
         meta = read_meta(result)
     except (ValueError, OSError, KeyError) as exc:
         fail(f"cannot read {result}: {exc}")
-    missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
-    if missing:
-        fail(f"{result}: meta lacks {missing}")
     lut_table = None
     if lut is not None:
         try:
-            lut_table = encoding.load_lut(lut, wavelengths_m=meta["wavelengths_m"])
+            lut_table = encoding.load_lut(lut, wavelengths_m=meta.wavelengths_m)
         except ValueError as exc:
             fail(str(exc))
     write_progress = progress_writer(progress_jsonl)

@@ -74,10 +74,10 @@ def evaluate(
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     paths = write_outputs(ev, out, label=source.name)
-    f_m = float(meta["focal_length_m"])
+    f_m = meta.focal_length_m
     typer.echo(f"{'focus mm':>9} {'depth m':>8} {'view x,y mm':>14} {'PSNR dB':>8} {'SSIM':>6}")
     for c in ev.cells:
-        dz = c.focus_z_m - float(meta["z_inf_m"])
+        dz = c.focus_z_m - meta.z_inf_m
         depth = f"{f_m * f_m / dz:8.3g}" if dz > 0 else "     inf"
         typer.echo(f"{c.focus_z_m * 1e3:9.4f} {depth} {c.view_offset_m[0] * 1e3:6.3f},{c.view_offset_m[1] * 1e3:<7.3f} "
                    f"{c.score.psnr_db:8.2f} {c.score.ssim:6.3f}")

@@ -10,11 +10,14 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 
 from holo.common import fail
+
+if TYPE_CHECKING:
+    from holocore.formats.meta import ViewMeta
 
 _LABEL_PX = 14  # strip above each sweep tile / GIF frame with its focus depth
 
@@ -48,11 +51,11 @@ def _load(path: Path, quantized: bool, equal_power: bool):
         fail(f"cannot read {path}: {exc}")
 
 
-def _warn_cone(meta: dict, pupil_m: float, offset_m: tuple[float, float]) -> None:
+def _warn_cone(meta: ViewMeta, pupil_m: float, offset_m: tuple[float, float]) -> None:
     """Say when the pupil accepts directions outside a color's recording cone (sin theta_max = lambda / 2p)."""
-    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
+    f, p = meta.focal_length_m, float(meta.pitch_m)
     reach = (pupil_m / 2 + math.hypot(*offset_m)) / f
-    wide = [f"{lam * 1e9:.0f} nm" for lam in meta["wavelengths_m"] if reach > min(1.0, lam / (2 * p))]
+    wide = [f"{lam * 1e9:.0f} nm" for lam in meta.wavelengths_m if reach > min(1.0, lam / (2 * p))]
     if wide:
         typer.echo(f"  note: the pupil reaches sin = {reach:.3f}, past the recording cone of {', '.join(wide)}: "
                    "light outside the cone (Monte Carlo noise, light an encoder put there) shows", err=True)
@@ -120,9 +123,6 @@ def view(
     t0 = time.perf_counter()
     field = _load(source, quantized, equal_power)
     meta, kind = field.meta, field.kind
-    missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
-    if missing:
-        fail(f"{source}: meta lacks {missing}")
     pupil_m, offset_m = pupil_mm * 1e-3, (ex * 1e-3, ey * 1e-3)
     depths = [focus_mm * 1e-3] if focus_mm is not None else [float(z) for z in focus_depths(meta, sweep)]
 

@@ -422,7 +422,8 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
                    memory_budget_bytes: Optional[int] = None) -> dict:
     """Render ``scene`` (a bundle path or a loaded scene) straight into RESULT.npz at ``out_path`` in bounded
     memory (the same file :func:`holocore.io.save_result` writes, equal fields); returns the meta."""
-    from holocore.io import RESULT_META_KEYS, NpzWriter
+    from holocore.formats.meta import parse_result_meta
+    from holocore.io import NpzWriter
     from holocore.scene.load import load_scene
 
     loaded = load_scene(scene) if isinstance(scene, (str, Path)) else scene
@@ -431,10 +432,8 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
                                   progress=progress, display=display, memory_budget_bytes=memory_budget_bytes,
                                   in_memory=False)
         sink.finish()
-        missing = [k for k in RESULT_META_KEYS if k not in meta]
-        if missing:
-            raise ValueError(f"result meta lacks {missing}")
-        writer.add("meta", np.array(json.dumps(meta)))
+        checked = parse_result_meta(meta, what=f"result {Path(out_path).name}")  # MetaError naming the field
+        writer.add("meta", np.array(json.dumps(checked.to_dict())))
     return meta
 
 

@@ -113,9 +113,9 @@ def test_black_target_gives_a_valid_stack(tmp_path):
                 enc.encode_dpac(black, **kw)):
         assert np.isfinite(res.phase).all() and res.phase.min() >= 0 and res.phase.max() < 2 * np.pi
         assert res.black.all() and np.all(res.loss == 1.0) and np.all(res.illumination == 0.0)
-        enc.save_encoded(tmp_path / f"{res.method}.npz", res, meta={"z_wrp_m": 1e-3})
+        enc.save_encoded(tmp_path / f"{res.method}.npz", res, meta={"z_wrp_m": 1e-3, "wavelengths_m": LAMS})
         phase, u8, meta = load_stack(tmp_path / f"{res.method}.npz")
-        assert np.array_equal(u8, phase_to_u8(phase)) and json.dumps(meta)  # valid JSON, no NaN
+        assert np.array_equal(u8, phase_to_u8(phase)) and json.dumps(meta.to_dict())  # valid JSON, no NaN
         assert all(math.isfinite(v) for v in meta["encoder"]["loss_init"][0])
     # One dark color among lit ones: the lit one is optimised, the dark one is switched off.
     mixed = np.zeros((1, 2, 32, 32), np.complex64)
@@ -173,7 +173,7 @@ def test_eight_bit_wrap_at_the_edges(tmp_path):
     head = res.phase[0, 0, 0, :3]
     assert head[0] == np.float32(two_pi * 255 / 256) and head[2] == 0.0
     assert 0.0 <= head[1] < 1e-6  # float32(2pi) lies 1.7e-7 above 2pi: it wraps to just above 0
-    enc.save_encoded(tmp_path / "S.npz", res, meta={"pitch_m": P})
+    enc.save_encoded(tmp_path / "S.npz", res, meta={"pitch_m": P, "wavelengths_m": LAMS})
     ph, u8, meta = load_stack(tmp_path / "S.npz")
     assert np.array_equal(ph, res.phase) and np.array_equal(u8, phase_to_u8(ph))
     assert u8[0, 0, 0, :3].tolist() == [255, 0, 0]

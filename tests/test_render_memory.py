@@ -197,7 +197,7 @@ def test_small_results_still_save_and_load(tmp_path):
     a = np.ones((1, 1, 4, 4), np.complex64)
     save_result(tmp_path / "r.npz", slm_field=a, wrp_field=2 * a, meta={"focal_length_m": 1, "z_inf_m": 0,
                                                                         "z_wrp_m": 1, "pitch_m": 1,
-                                                                        "wavelengths_m": [1]})
+                                                                        "wavelengths_m": [5e-7]})
     s, w, m = load_result(tmp_path / "r.npz")
     assert np.array_equal(w, 2 * a) and np.array_equal(NpyMember(tmp_path / "r.npz", "wrp_field").read_fc(0, 1, 0), w[:, 0])
 
@@ -216,3 +216,15 @@ def test_encode_takes_its_device_from_holo_device_like_render(tmp_path, monkeypa
     out = CliRunner().invoke(app, ["encode", str(res_path), "--out", str(tmp_path / "S.npz"), "--iterations", "1"])
     assert out.exit_code != 0
     assert "HOLO_DEVICE must be auto, cpu, cuda or cuda:N" in out.output and "Traceback" not in out.output
+
+
+def test_an_error_while_a_member_is_open_is_the_callers_and_leaves_no_file(tmp_path):
+    """The writer used to close the zip on the way out with the member still open, and zipfile's "Can't close
+    the ZIP file while there is an open writing handle" replaced the real error (a render failed that way)."""
+    out = tmp_path / "r.npz"
+    with pytest.raises(KeyError, match="the caller's error"):
+        with NpzWriter(out) as w:
+            s = w.stream("slm_field", (1, 1, 4, 4), np.complex64)
+            s.write(np.zeros((1, 1, 2, 4), np.complex64))
+            raise KeyError("the caller's error")
+    assert list(tmp_path.iterdir()) == []

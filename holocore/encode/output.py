@@ -7,6 +7,7 @@ See docs/encoding.md. Only numpy, json and zipfile here; the streamed writer pro
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional, Sequence, Union
 
@@ -14,6 +15,7 @@ import numpy as np
 import torch
 
 from holocore.encode.core import ArrayLike, wrap_phase
+from holocore.formats.meta import MetaLike
 from holocore.io import phase_to_u8, save_stack
 
 if TYPE_CHECKING:
@@ -93,12 +95,12 @@ def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None) -> np.ndarra
     return out
 
 
-def save_encoded(path: Union[str, Path], result: "EncodeResult", *, meta: dict, lut: Optional[np.ndarray] = None,
+def save_encoded(path: Union[str, Path], result: "EncodeResult", *, meta: MetaLike, lut: Optional[np.ndarray] = None,
                  lut_source: Optional[str] = None) -> None:
     """Write STACK.npz (``io.save_stack``): the phase, its 8-bit frames (through ``lut`` if given) and
     ``meta`` (the render's, carried forward) with ``meta["encoder"]`` = the result's summary."""
-    if not isinstance(meta, dict):
-        raise ValueError(f"meta must be a dict, got {type(meta).__name__}")
+    if not isinstance(meta, Mapping):
+        raise ValueError(f"meta must be a mapping (a render's meta), got {type(meta).__name__}")
     enc = result.summary()
     enc["lut"] = None if lut is None else {"source": lut_source or "array",
                                             "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}

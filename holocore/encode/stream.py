@@ -31,16 +31,18 @@ from holocore.encode.encoder import (
 )
 from holocore.encode.output import quantize
 from holocore.encode.sgd import encoder_grid
+from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
 from holocore.io import NpyMember
 
 BASE_BYTES = 1 << 30  # interpreter, torch, transfer functions and slack outside the per-frame working set
 
 
-def read_meta(path: Union[str, Path]) -> dict:
+def read_meta(path: Union[str, Path]) -> ResultMeta:
+    """A RESULT's meta, typed (MetaError, a ValueError, naming the field when it is wrong)."""
     with np.load(path, allow_pickle=False) as z:
         if "meta" not in z or "wrp_field" not in z:
             raise ValueError(f"{path} is not a render result (needs wrp_field, meta)")
-        return json.loads(str(z["meta"]))
+        return parse_result_meta(json.loads(str(z["meta"])), what=str(path))
 
 
 def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int]) -> int:
@@ -87,17 +89,14 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     t0 = time.perf_counter()
     result_path, out_path = Path(result_path), Path(out_path)
     meta = read_meta(result_path)
-    missing = [k for k in ("z_wrp_m", "wavelengths_m", "pitch_m") if k not in meta]
-    if missing:
-        raise ValueError(f"{result_path}: meta lacks {missing}")
     src = NpyMember(result_path, "wrp_field")
     if len(src.shape) != 4:
         raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
     F, C, H, W = src.shape
-    z = _finite("z_wrp_m", meta["z_wrp_m"], low=0.0, low_inclusive=False, unit="m")
-    lams = _wavelengths(meta["wavelengths_m"], C)
-    pitch = meta["pitch_m"]
-    display = meta.get("display") if isinstance(meta.get("display"), dict) else None
+    z = _finite("z_wrp_m", meta.z_wrp_m, low=0.0, low_inclusive=False, unit="m")
+    lams = _wavelengths(meta.wavelengths_m, C)
+    pitch = meta.pitch_m
+    display = meta.display
     if fourier_filter is None:
         source = "display" if display is not None and "fourier_filter" in display else "default"
         fourier_filter = bool(display["fourier_filter"]) if source == "display" else True
@@ -155,9 +154,10 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
             enc = res.summary()
             enc["lut"] = None if lut is None else {"source": lut_source or "array",
                                                     "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}
-            out_meta = {**meta, "display_profile": meta.get("display_profile"), "display": display, "encoder": enc}
+            out_meta = parse_stack_meta({**meta, "display_profile": meta.display_profile, "display": display,
+                                         "encoder": enc}, what=str(out_path))
             with zf.open("meta.npy", "w") as mf:
-                np.lib.format.write_array(mf, np.array(json.dumps(out_meta)), allow_pickle=False)
+                np.lib.format.write_array(mf, np.array(json.dumps(out_meta.to_dict())), allow_pickle=False)
         os.replace(tmp, out_path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -31,6 +31,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from holocore.formats.meta import MetaLike, parse_view_meta
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths",
@@ -180,19 +181,17 @@ class GroundTruth:
     (``focal_length_m``, ``z_inf_m``, ``pitch_m``, ``wavelengths_m``) with ``shape_hw`` the display's pixels.
     """
 
-    def __init__(self, loaded: Any, meta: dict, *, shape_hw: tuple[int, int], spp: int = 256, seed: int = 0,
+    def __init__(self, loaded: Any, meta: MetaLike, *, shape_hw: tuple[int, int], spp: int = 256, seed: int = 0,
                  integrator: Optional[Any] = None, diffraction: bool = True) -> None:
-        missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
-        if missing:
-            raise ValueError(f"meta lacks {missing}: the ground truth needs the display's geometry")
+        meta = parse_view_meta(meta, what="the ground truth (it needs the display's geometry)")
         if not 1 <= int(spp) <= MAX_GT_SPP:
             raise ValueError(f"spp must be in 1..{MAX_GT_SPP}, got {spp!r}")
         self.scene = loaded.scene
         self.sensor_to_world = np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
-        self.focal_length_m = float(meta["focal_length_m"])
-        self.z_inf_m = float(meta["z_inf_m"])
-        self.pitch_m = float(meta["pitch_m"])
-        self.wavelengths_m = [float(v) for v in meta["wavelengths_m"]]
+        self.focal_length_m = meta.focal_length_m
+        self.z_inf_m = meta.z_inf_m
+        self.pitch_m = float(meta.pitch_m)
+        self.wavelengths_m = list(meta.wavelengths_m)
         self.shape_hw = (int(shape_hw[0]), int(shape_hw[1]))
         self.spp = int(spp)
         self.seed = int(seed)

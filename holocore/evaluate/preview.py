@@ -8,17 +8,20 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from holocore.formats.meta import MetaLike, parse_view_meta
+
 __all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8", "depth_words"]
 
 
-def depth_words(z_m: float, meta: dict) -> str:
+def depth_words(z_m: float, meta: MetaLike) -> str:
     """Where a hologram depth ``z_m`` (m from the SLM) lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
-    dz = z_m - float(meta["z_inf_m"])
+    meta = parse_view_meta(meta)
+    dz = z_m - meta.z_inf_m
     if abs(dz) < 1e-12:
         return "optical infinity"
     if dz < 0:
         return "beyond infinity"
-    return f"scene distance {float(meta['focal_length_m']) ** 2 / dz:.3g} m"
+    return f"scene distance {meta.focal_length_m ** 2 / dz:.3g} m"
 
 
 def _channel_of(wavelength_m: float) -> int:
@@ -26,13 +29,14 @@ def _channel_of(wavelength_m: float) -> int:
     return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
 
-def views_rgb(slm_field, meta: dict, *, focus_z_m, pupil_diameter_m: float = 4e-3,
+def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float = 4e-3,
               view_offset_m: tuple[float, float] = (0.0, 0.0), device=None,
               memory_budget_bytes: Optional[int] = None) -> list[np.ndarray]:
     """Frame-averaged intensity [H, W, 3] seen with the eye focused at each hologram depth of ``focus_z_m``.
 
     ``slm_field``: a complex [F, C, H, W] array or a chunked source (:func:`holocore.optics.fieldsource.open_slm_field`),
     read in chunks of frames that fit ``memory_budget_bytes``; ``device``: where the FFTs run."""
+    meta = parse_view_meta(meta)
     import torch
 
     from holocore.optics.fieldsource import SlmFieldSource
@@ -42,9 +46,9 @@ def views_rgb(slm_field, meta: dict, *, focus_z_m, pupil_diameter_m: float = 4e-
         src = slm_field
     else:
         src = SlmFieldSource.from_array(torch.from_numpy(np.ascontiguousarray(slm_field)))
-    wl = [float(v) for v in meta["wavelengths_m"]]
-    inten = view_intensities(src, wavelengths_m=wl, pitch_m=float(meta["pitch_m"]),
-                             focal_length_m=float(meta["focal_length_m"]), pupil_diameter_m=pupil_diameter_m,
+    wl = list(meta.wavelengths_m)
+    inten = view_intensities(src, wavelengths_m=wl, pitch_m=float(meta.pitch_m),
+                             focal_length_m=meta.focal_length_m, pupil_diameter_m=pupil_diameter_m,
                              distances_m=[float(z) for z in focus_z_m], view_offset_m=view_offset_m, device=device,
                              memory_budget_bytes=memory_budget_bytes).cpu().numpy()
     out = []
@@ -59,7 +63,7 @@ def views_rgb(slm_field, meta: dict, *, focus_z_m, pupil_diameter_m: float = 4e-
     return out
 
 
-def view_rgb(slm_field, meta: dict, *, focus_z_m: float, pupil_diameter_m: float = 4e-3,
+def view_rgb(slm_field, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float = 4e-3,
              view_offset_m: tuple[float, float] = (0.0, 0.0), device=None,
              memory_budget_bytes: Optional[int] = None) -> np.ndarray:
     """Frame-averaged intensity [H, W, 3] seen with the eye focused at hologram depth ``focus_z_m``."""
@@ -74,16 +78,17 @@ def to_png8(rgb: np.ndarray, *, white: Optional[float] = None, gamma: float = 2.
     return (x * 255.0 + 0.5).astype(np.uint8)
 
 
-def focus_depths(meta: dict, n_planes: int) -> list[float]:
-    """n hologram depths spread over the scene's image volume (near to far), from the render's analysis."""
-    ana = meta.get("analysis", {})
+def focus_depths(meta: MetaLike, n_planes: int) -> list[float]:
+    """n hologram depths spread over the scene's image volume (near to far), from the render's analysis (else
+    ``z_inf_m``: a mapping with just those does)."""
+    ana = meta.get("analysis") or {}
     near, far = ana.get("z_near_holo_m"), ana.get("z_far_holo_m")
     if near is None or far is None:
         near = far = float(meta["z_inf_m"])
     return list(np.linspace(far, near, n_planes)) if n_planes > 1 else [0.5 * (near + far)]
 
 
-def focal_sweep_png(slm_field: np.ndarray, meta: dict, path: str | Path, *, n_planes: int = 3,
+def focal_sweep_png(slm_field: np.ndarray, meta: MetaLike, path: str | Path, *, n_planes: int = 3,
                     depths_m: Optional[Sequence[float]] = None, pupil_diameter_m: float = 4e-3) -> Path:
     """A row of simulated views focused from far to near, one shared white level; returns the path."""
     from PIL import Image, ImageDraw

@@ -32,6 +32,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from holocore.formats.meta import MetaLike, ViewMeta, parse_view_meta
+
 __all__ = ["CellScore", "Cell", "Evaluation", "load_slm_field", "focus_planes_m", "view_offsets_m",
            "default_pupil_m", "lit_margin_px", "eye_view", "compare", "evaluate", "write_outputs"]
 
@@ -85,7 +87,7 @@ class Evaluation:
 
 
 # ---- inputs -------------------------------------------------------------------------------------------------
-def load_slm_field(path: str | Path) -> tuple[np.ndarray, dict, str]:
+def load_slm_field(path: str | Path) -> tuple[np.ndarray, ViewMeta, str]:
     """(SLM field complex64 [F, C, H, W], meta, "result" | "stack") from RESULT.npz or STACK.npz.
 
     A stack is exp(i phase) lit with the encoder's relative laser power per frame and color
@@ -113,44 +115,44 @@ def load_slm_field(path: str | Path) -> tuple[np.ndarray, dict, str]:
         fieldv, kind = np.ascontiguousarray(slm, dtype=np.complex64), "result"
     else:
         raise ValueError(f"{p} is neither a STACK.npz (phase) nor a RESULT.npz (slm_field)")
-    missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
-    if missing:
-        raise ValueError(f"{p}: meta lacks {missing}")
-    if fieldv.ndim != 4 or fieldv.shape[1] != len(meta["wavelengths_m"]):
+    meta = parse_view_meta(meta, what=str(p))
+    if fieldv.ndim != 4 or fieldv.shape[1] != len(meta.wavelengths_m):
         raise ValueError(f"{p}: field must be [F, C, H, W] with one color per wavelength, got {fieldv.shape}")
     if not np.all(np.isfinite(fieldv)):
         raise ValueError(f"{p}: the field holds NaN or infinite values")
     return fieldv, meta, kind
 
 
-def focus_planes_m(meta: dict, n: int) -> list[float]:
+def focus_planes_m(meta: MetaLike, n: int) -> list[float]:
     """n hologram depths (m) uniform from the nearest to the farthest image point (uniform in dioptres).
 
-    Uses the render's analysis (``z_near_holo_m``, ``z_far_holo_m``); one plane: the middle of the volume.
+    Uses the render's analysis (``z_near_holo_m``, ``z_far_holo_m``), else ``z_inf_m`` (all that is read: a
+    mapping with just those does); one plane: the middle of the volume.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_FOCUS_PLANES:
         raise ValueError(f"focus planes must be an integer in 1..{MAX_FOCUS_PLANES}, got {n!r}")
     ana = meta.get("analysis") or {}
     near, far = ana.get("z_near_holo_m"), ana.get("z_far_holo_m")
     if near is None or far is None:
-        near = far = float(meta["z_inf_m"])
+        near = far = meta["z_inf_m"]
     near, far = float(near), float(far)
     if n == 1:
         return [0.5 * (near + far)]
     return [float(z) for z in np.linspace(near, far, n)]
 
 
-def view_offsets_m(meta: dict, n: int, view_deg: float) -> list[tuple[tuple[int, int], tuple[float, float]]]:
+def view_offsets_m(meta: MetaLike, n: int, view_deg: float) -> list[tuple[tuple[int, int], tuple[float, float]]]:
     """An n x n grid of eye offsets e (m) whose directions span +-view_deg: e = f sin(angle) per axis.
 
     Returns [((col, row), (e_x, e_y))], row 0 at the top (e_y > 0: the eye moved up); n = 1: the centre.
     """
+    meta = parse_view_meta(meta)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_VIEWS:
         raise ValueError(f"views must be an integer in 1..{MAX_VIEWS} (an n x n grid), got {n!r}")
     v = float(view_deg)
     if not (math.isfinite(v) and 0.0 <= v < 45.0):
         raise ValueError(f"view_deg must be in [0, 45) degrees, got {view_deg!r}")
-    f = float(meta["focal_length_m"])
+    f = meta.focal_length_m
     s = np.sin(np.radians(np.linspace(-v, v, n))) if n > 1 else np.zeros(1)
     out = []
     for row in range(n):
@@ -159,14 +161,15 @@ def view_offsets_m(meta: dict, n: int, view_deg: float) -> list[tuple[tuple[int,
     return out
 
 
-def default_pupil_m(meta: dict, *, view_deg: float) -> float:
+def default_pupil_m(meta: MetaLike, *, view_deg: float) -> float:
     """Largest pupil (m) that stays inside every color's recording cone at every view of the grid.
 
     The pupil accepts direction sines within D / 2f of the view's e / f; the bluest line records only
     sin(theta_max) = lambda / 2p, and the corner views sit sqrt(2) sin(view_deg) off axis.
     """
-    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
-    s_cone = min(min(1.0, float(lam) / (2.0 * p)) for lam in meta["wavelengths_m"])
+    meta = parse_view_meta(meta)
+    f, p = meta.focal_length_m, float(meta.pitch_m)
+    s_cone = min(min(1.0, float(lam) / (2.0 * p)) for lam in meta.wavelengths_m)
     s_view = math.sqrt(2.0) * math.sin(math.radians(float(view_deg)))
     na = s_cone - s_view
     if na < 0.1 * s_cone:
@@ -176,17 +179,18 @@ def default_pupil_m(meta: dict, *, view_deg: float) -> float:
     return 2.0 * f * na
 
 
-def lit_margin_px(meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
+def lit_margin_px(meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
                   view_offset_m: tuple[float, float] = (0.0, 0.0)) -> int:
     """Border (pixels) where the SLM's aperture vignettes the view: ceil(z_f (NA + max|e| / f) / p)."""
-    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
+    meta = parse_view_meta(meta)
+    f, p = meta.focal_length_m, float(meta.pitch_m)
     na = float(pupil_diameter_m) / (2.0 * f)
     e = max(abs(float(view_offset_m[0])), abs(float(view_offset_m[1])))
     return int(math.ceil(max(0.0, float(focus_z_m)) * (na + e / f) / p - 1e-9))
 
 
 # ---- one view -----------------------------------------------------------------------------------------------
-def eye_view(field_slm, meta: dict, *, focus_z_m: float, pupil_diameter_m: float,
+def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
              view_offset_m: tuple[float, float] = (0.0, 0.0), memory_budget_bytes: Optional[int] = None,
              device=None) -> np.ndarray:
     """Frame-averaged intensity float64 [C, H, W] the eye sees, on the ground truth's pixel grid.
@@ -196,6 +200,7 @@ def eye_view(field_slm, meta: dict, *, focus_z_m: float, pupil_diameter_m: float
     ``memory_budget_bytes``); focus at hologram depth ``focus_z_m`` (m); pupil ``pupil_diameter_m`` (m); eye
     offset ``view_offset_m`` (m). See the module docstring for the shift.
     """
+    meta = parse_view_meta(meta)
     from holocore.optics.fieldsource import SlmFieldSource
     from holocore.optics.viewing import view_intensities
 
@@ -206,16 +211,16 @@ def eye_view(field_slm, meta: dict, *, focus_z_m: float, pupil_diameter_m: float
         if u.ndim != 4 or not np.iscomplexobj(u):
             raise ValueError(f"field_slm must be complex [F, C, H, W], got {u.dtype} {u.shape}")
         src = SlmFieldSource.from_array(u)
-    f, p = float(meta["focal_length_m"]), float(meta["pitch_m"])
+    f, p = meta.focal_length_m, float(meta.pitch_m)
     z_f = float(focus_z_m)
     if not math.isfinite(z_f):
         raise ValueError(f"focus_z_m must be finite, got {focus_z_m!r}")
     ex, ey = (float(v) for v in view_offset_m)
-    dz = z_f - float(meta["z_inf_m"])
+    dz = z_f - meta.z_inf_m
     # The eye sees plane point x at f tan = x - e dz / f: content moves by -e dz / f (x right, y up).
     a_col = ex * dz / f / p  # U'[j] = U[j + a_col]
     a_row = -ey * dz / f / p  # rows run down: U'[i] = U[i + a_row]
-    out = view_intensities(src, wavelengths_m=[float(v) for v in meta["wavelengths_m"]], pitch_m=p, focal_length_m=f,
+    out = view_intensities(src, wavelengths_m=list(meta.wavelengths_m), pitch_m=p, focal_length_m=f,
                            pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
                            shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes)[0]
     out = out.cpu().numpy().astype(np.float64)
@@ -253,7 +258,7 @@ def compare(recon: np.ndarray, truth: np.ndarray, *, white_percentile: float = 9
 
 
 # ---- the grid -----------------------------------------------------------------------------------------------
-def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int = 5, views: int = 7,
+def evaluate(field_slm: np.ndarray, meta: MetaLike, truth: Any, *, focus_planes: int = 5, views: int = 7,
              view_deg: float = 0.5, pupil_diameter_m: Optional[float] = None,
              focus_z_m: Optional[Sequence[float]] = None, keep_images: bool = False, crop: bool = True,
              progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None, device=None) -> Evaluation:
@@ -266,6 +271,7 @@ def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int
     ``crop`` scores only the fully lit part (:func:`lit_margin_px`). ``field_slm``: an array or a chunked source
     (:func:`holocore.optics.fieldsource.open_slm_field`), viewed in chunks that fit ``memory_budget_bytes``.
     """
+    meta = parse_view_meta(meta)
     zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
     grid = view_offsets_m(meta, views, view_deg)
     pupil = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(meta, view_deg=view_deg)
@@ -286,14 +292,14 @@ def evaluate(field_slm: np.ndarray, meta: dict, truth: Any, *, focus_planes: int
                 raise ValueError(
                     f"the SLM ({H}x{W} px) is too small for this view: an image point {z * 1e3:.2f} mm from it "
                     f"gathers light from {m} px around, so no part of the view is fully lit; put virtual "
-                    f"infinity closer (z_inf_mm, now {float(meta['z_inf_m']) * 1e3:g}), use a smaller pupil or "
+                    f"infinity closer (z_inf_mm, now {meta.z_inf_m * 1e3:g}), use a smaller pupil or "
                     f"view angle, or a larger SLM")
             sc = compare(rec[:, m:H - m, m:W - m], gt[:, m:H - m, m:W - m])
             cells.append(Cell(focus_index=fi, view_index=idx, focus_z_m=z, view_offset_m=e, score=sc, margin_px=m,
                               recon=rec if keep_images else None, truth=gt if keep_images else None))
             if progress is not None:
                 progress("evaluate", fi * len(grid) + vi + 1, total)
-    return Evaluation(cells=cells, pupil_diameter_m=pupil, wavelengths_m=[float(v) for v in meta["wavelengths_m"]],
+    return Evaluation(cells=cells, pupil_diameter_m=pupil, wavelengths_m=list(meta.wavelengths_m),
                       meta={"focus_z_m": zs, "views": views, "view_deg": float(view_deg)})
 
 

@@ -199,9 +199,11 @@ class NpzWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
-            self._zf.close()
-            self._fh.close()
             if exc_type is None:
+                self._zf.close()
+                self._fh.close()
                 os.replace(self._tmp, self.path)
+            else:  # abandon the file; closing the zip with a member still open would hide the caller's error
+                self._fh.close()
         finally:
             Path(self._tmp).unlink(missing_ok=True)

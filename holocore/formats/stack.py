@@ -13,12 +13,13 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any, Mapping, Optional, Union
 
 import numpy as np
 
 from holocore.formats.hashing import file_sha256
 from holocore.formats.levels import phase_to_u8
+from holocore.formats.meta import MetaError, StackMeta, parse_stack_meta
 from holocore.formats.npz import atomic_savez, require_fchw
 
 __all__ = ["save_stack", "load_stack", "Stack", "StackError", "open_stack", "check_stack", "MAX_STACK_BYTES"]
@@ -26,23 +27,29 @@ __all__ = ["save_stack", "load_stack", "Stack", "StackError", "open_stack", "che
 MAX_STACK_BYTES = 4 << 30
 
 
-def save_stack(path: str | Path, *, phase: np.ndarray, meta: dict, frames_u8: np.ndarray | None = None) -> None:
-    """Save a phase stack [F, C, H, W] (wrapped to [0, 2pi), float32) with its 8-bit frames and meta."""
+def save_stack(path: str | Path, *, phase: np.ndarray, meta: Union[StackMeta, Mapping[str, Any]],
+               frames_u8: np.ndarray | None = None) -> None:
+    """Save a phase stack [F, C, H, W] (wrapped to [0, 2pi), float32) with its 8-bit frames and meta (checked
+    as :class:`StackMeta`; a dict is written back with every key it has)."""
+    m = parse_stack_meta(meta, what=f"stack {Path(path).name}")
     ph = np.mod(np.asarray(phase, dtype=np.float64), 2 * np.pi).astype(np.float32)
     ph[ph >= np.float32(2 * np.pi)] = 0.0  # float32 rounding of values just under 2pi
     require_fchw("phase", ph)
     u8 = phase_to_u8(ph) if frames_u8 is None else np.asarray(frames_u8, dtype=np.uint8)
     if u8.shape != ph.shape:
         raise ValueError(f"frames_u8 shape {u8.shape} differs from phase shape {ph.shape}")
-    atomic_savez(Path(path), phase=ph, frames_u8=u8, meta=np.array(json.dumps(meta)))
+    if m.wavelengths_m and len(m.wavelengths_m) != ph.shape[1]:
+        raise ValueError(f"stack meta lists {len(m.wavelengths_m)} wavelengths for {ph.shape[1]} colors")
+    atomic_savez(Path(path), phase=ph, frames_u8=u8, meta=np.array(json.dumps(m.to_dict())))
 
 
-def load_stack(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict]:
+def load_stack(path: str | Path) -> tuple[np.ndarray, np.ndarray, StackMeta]:
     """Load STACK.npz -> (phase, frames_u8, meta)."""
     with np.load(path, allow_pickle=False) as z:
         if "phase" not in z or "frames_u8" not in z or "meta" not in z:
             raise ValueError(f"{path} is not a phase stack (needs phase, frames_u8, meta)")
-        return z["phase"], z["frames_u8"], json.loads(str(z["meta"]))
+        raw = json.loads(str(z["meta"]))
+        return z["phase"], z["frames_u8"], parse_stack_meta(raw, what=f"stack {Path(path).name}")
 
 
 class StackError(ValueError):
@@ -57,7 +64,7 @@ class Stack:
     sha256: str
     phase: np.ndarray
     frames_u8: np.ndarray
-    meta: dict = field(repr=False)
+    meta: StackMeta = field(repr=False)
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
@@ -65,7 +72,7 @@ class Stack:
 
     @property
     def wavelengths_m(self) -> list[float]:
-        return [float(w) for w in self.meta["wavelengths_m"]]
+        return [float(w) for w in self.meta.wavelengths_m]
 
 
 def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
@@ -98,12 +105,12 @@ def open_stack(path: Union[str, Path], *, expected_sha256: Optional[str] = None,
         meta: Any = json.loads(str(meta_raw))
     except (json.JSONDecodeError, TypeError) as exc:
         raise StackError(f"stack {path.name}: meta is not JSON: {exc}") from exc
-    check_stack(path.name, phase, frames, meta)
+    meta = check_stack(path.name, phase, frames, meta)
     return Stack(path=path, sha256=digest, phase=phase.astype(np.float32, copy=False), frames_u8=frames, meta=meta)
 
 
-def check_stack(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> None:
-    """StackError (naming ``name``) unless phase, frames_u8 and meta form a consistent stack."""
+def check_stack(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> StackMeta:
+    """The typed meta; StackError (naming ``name``) unless phase, frames_u8 and meta form a consistent stack."""
     if phase.ndim != 4 or min(phase.shape, default=0) < 1:
         raise StackError(f"stack {name}: phase must be a non-empty [F, C, H, W], got shape {phase.shape}")
     if not np.issubdtype(phase.dtype, np.floating):
@@ -116,10 +123,11 @@ def check_stack(name: str, phase: np.ndarray, frames: np.ndarray, meta: Any) -> 
     lo, hi = float(phase.min()), float(phase.max())
     if lo < 0.0 or hi > 2 * np.pi + 1e-5:
         raise StackError(f"stack {name}: phase must lie in [0, 2pi), got [{lo:.4g}, {hi:.4g}]")
-    if not isinstance(meta, dict):
-        raise StackError(f"stack {name}: meta must be a JSON object")
-    wl = meta.get("wavelengths_m")
-    if not isinstance(wl, list) or len(wl) != phase.shape[1]:
-        raise StackError(f"stack {name}: meta.wavelengths_m must list {phase.shape[1]} wavelengths, got {wl!r}")
-    if not all(isinstance(w, (int, float)) and np.isfinite(w) and 1e-7 < w < 1e-5 for w in wl):
-        raise StackError(f"stack {name}: meta.wavelengths_m must be metres in (100 nm, 10 um), got {wl}")
+    try:
+        m = parse_stack_meta(meta, what=f"stack {name}")
+    except MetaError as exc:
+        raise StackError(str(exc)) from None
+    if len(m.wavelengths_m) != phase.shape[1]:
+        raise StackError(f"stack {name}: meta.wavelengths_m must list {phase.shape[1]} wavelengths, "
+                         f"got {list(m.wavelengths_m)!r}")
+    return m

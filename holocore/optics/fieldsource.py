@@ -9,7 +9,6 @@ computed at once (the same elementwise operations), so chunked views equal unchu
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Optional, Union
 
@@ -67,6 +66,7 @@ class SlmFieldSource:
 
 def open_slm_field(path: Union[str, Path], *, quantized: bool = False, equal_power: bool = False) -> SlmFieldSource:
     """A STACK.npz (phase) or RESULT.npz (slm_field) as a chunked source, reading nothing but the meta yet."""
+    from holocore.formats.meta import parse_view_meta
     from holocore.io import NpyMember, npz_members, read_npz_meta
 
     p = Path(path)
@@ -95,11 +95,7 @@ def open_slm_field(path: Union[str, Path], *, quantized: bool = False, equal_pow
         meta = read_npz_meta(p)
     else:
         raise ValueError(f"{p} is neither a STACK.npz (phase) nor a RESULT.npz (slm_field)")
-    missing = [k for k in ("focal_length_m", "z_inf_m", "pitch_m", "wavelengths_m") if k not in meta]
-    if missing:
-        raise ValueError(f"{p}: meta lacks {missing}")
-    if len(member.shape) != 4 or member.shape[1] != len(meta["wavelengths_m"]):
+    meta = parse_view_meta(meta, what=str(p))  # MetaError (a ValueError) naming the field
+    if len(member.shape) != 4 or member.shape[1] != len(meta.wavelengths_m):
         raise ValueError(f"{p}: field must be [F, C, H, W] with one color per wavelength, got {member.shape}")
-    if not all(math.isfinite(float(v)) for v in meta["wavelengths_m"]):
-        raise ValueError(f"{p}: wavelengths must be finite")
     return SlmFieldSource(member.shape, meta, kind, member=member, power=pw, quantized=quantized, path=p)

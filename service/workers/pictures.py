@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Optional
 
 from holocore.evaluate.preview import depth_words
+from holocore.formats.meta import ViewMeta, parse_view_meta
 
 __all__ = ["make_pictures", "picture_key", "PICTURES_VERSION", "depth_words"]
 
@@ -67,17 +68,17 @@ def _field(stack: Path):
         p = np.asarray(power, dtype=np.float64)
         if p.shape == field.shape[:2] and np.all(np.isfinite(p)) and not np.any(p < 0):
             field *= np.sqrt(p).astype(np.float32)[..., None, None]
-    return field, meta
+    return field, parse_view_meta(meta, what=f"stack {Path(stack).name}")
 
 
-def light_radius_m(field, meta: dict, *, share: float = 0.8) -> float:
+def light_radius_m(field, meta: ViewMeta, *, share: float = 0.8) -> float:
     """Radius (m, at the pupil plane) of the disc around the axis that holds ``share`` of the hologram's light,
     from the angular spectrum of the first frame (direction sine lambda f_x, times f), at most the recording
     cone f lambda_min / 2p."""
     import numpy as np
 
-    f_m, p_m = float(meta["focal_length_m"]), float(meta["pitch_m"])
-    lams = [float(v) for v in meta["wavelengths_m"]]
+    f_m, p_m = meta.focal_length_m, float(meta.pitch_m)
+    lams = list(meta.wavelengths_m)
     cone = f_m * min(1.0, min(lams) / (2 * p_m))
     radii, weights = [], []
     for c, lam in enumerate(lams):
@@ -125,7 +126,7 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
         pass
     t0 = time.monotonic()
     field, meta = _field(stack)
-    f_m = float(meta["focal_length_m"])
+    f_m = meta.focal_length_m
     tmp = out.with_name(f".{out.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -134,7 +135,7 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     depths = [float(z) for z in focus_depths(meta, sweep)]
     # A shallow scene (a flat card) has an image volume thinner than the eye's depth of field, where every
     # view would look the same: the sweep then spans at least +-3 depths of field around the volume's middle.
-    dof = depth_of_field_m(float(np.median(meta["wavelengths_m"])), f_m, pupil_m)
+    dof = depth_of_field_m(float(np.median(meta.wavelengths_m)), f_m, pupil_m)
     mid, half = 0.5 * (depths[0] + depths[-1]), 0.5 * abs(depths[-1] - depths[0])
     widened = half < 3 * dof
     if widened:

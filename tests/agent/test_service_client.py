@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -90,7 +92,9 @@ def test_truncated_transfer_resumes_with_range(server, tmp_path):
 def test_hash_consistent_garbage_is_a_bad_stack(server, tmp_path):
     (server.state / "junk.npz").write_bytes(b"PK\x03\x04 not really a zip" * 100)
     ok = server.state / "j3.npz"
-    save_stack(ok, phase=np.zeros((1, 2, 4, 4)), meta={"wavelengths_m": WAVELENGTHS_M})  # 2 colours, 3 wavelengths
+    # 2 colours, 3 wavelengths: save_stack refuses to write that, so the file is made by hand
+    np.savez(ok, phase=np.zeros((1, 2, 4, 4), np.float32), frames_u8=np.zeros((1, 2, 4, 4), np.uint8),
+             meta=np.array(json.dumps({"wavelengths_m": WAVELENGTHS_M})))
     server.set_jobs([job("junk", t=3), job("j3", t=2), job("j1", t=1)])
     cache = StackCache(tmp_path / "cache")
     cl = ServiceClient(server.url, token=TOKEN)
