@@ -16,15 +16,33 @@ reference implementation (and the cache pre-pass's); tests compare the two.
 A BSDF that mixes delta and smooth lobes (plastic) decides chain or image point with one sample; at an image
 point it draws a fresh sample for the incoherent path, so that P's radiance includes all its lobes, as the
 reference implementation's ``integrator.sample`` from the previous vertex does.
+
+One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in this order:
+
+1. :func:`_intersect`: the vertex the current segment reaches;
+2. :func:`_emission`: the emission found there by the previous BSDF sample, MIS-weighted (paper Eq. 1, L_e),
+   or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
+3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
+4. :func:`_coherent_step`: on a delta lobe, the float64 ray-differential transfer (Igehy 1999,
+   :func:`_igehy_transfer`); at P behind delta vertices, the apparent distance d (DESIGN §4, docs/physics.md);
+5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next
+   ray, Russian roulette).
+
+Units: world metres (positions, distances, d), unit direction vectors, radiance in the scene's units.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, NamedTuple
 
 from holocore.plan.effects import has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
+
+if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
+    import mitsuba as mi
+
+    from holocore.trace.radiance_cache import RadianceCache
 
 __all__ = ["WavePaths", "trace_wave_paths"]
 
@@ -43,32 +61,100 @@ class WavePaths:
     escaped: object  # Bool: left the scene before any image point
     capped: object  # Bool: still on delta lobes after max_delta bounces
     sampled: object  # Bool: P's radiance came from path tracing (``amp_spp`` samples), not from the cache
-    surface: Optional[dict] = None  # with ``surface=True``: p, normal (shading), emission, albedo at P and the
+    surface: dict | None = None  # with ``surface=True``: p, normal (shading), emission, albedo at P and the
     # chain's throughput ``thr`` (radiance leaving P = radiance / thr)
 
 
-def _mis(a, b):
-    import drjit as dr
+@dataclass
+class _PathState:
+    """The loop state: one lane per wave path. Dr.Jit traverses the fields in this order (a ``None`` field is
+    not part of the loop) and evaluates their annotations, hence ``object`` and the array type in the comment."""
 
-    a2 = a * a
-    return dr.select(a > 0, a2 / (a2 + b * b), 0.0)  # power heuristic; a > 0 keeps 0/0 out
+    # The incoherent path, as in Mitsuba's ``path`` integrator.
+    ray: object  # mi.Ray3f: the segment traced next (float32, world)
+    active: object  # mi.Bool: the lane is still tracing
+    beta: object  # mi.Color3f throughput: the chain's Fresnel weights, then BSDF weight / pdf, / RR survival
+    L: object  # mi.Color3f: radiance gathered so far, towards the ray's origin
+    eta: object  # mi.Float: product of the sampled relative indices of refraction (for Russian roulette)
+    depth: object  # mi.UInt32: vertices counted from P on (Mitsuba's depth for a ray arriving at P; 0 before P)
+    si_prev: object  # mi.Interaction3f: the previous vertex, for MIS of the emission the BSDF sample reaches
+    pdf_prev: object  # mi.Float: solid-angle pdf (sr^-1) of the BSDF sample that left it
+    delta_prev: object  # mi.Bool: that sample was a delta lobe (its emission takes no MIS)
+    # The coherent chain (Sec. 4.2), float64: differentials per unit shift of O (m/m) or per radian of v.
+    chain: object  # mi.Bool: still on delta vertices: P not reached yet
+    D: object  # mi.Vector3d: unit direction of the current segment
+    dP: object  # 4 x mi.Vector3d: position differentials (shift along e1, e2; angle along e1, e2)
+    dD: object  # 4 x mi.Vector3d: direction differentials (same order)
+    frame: object  # 2 x mi.Vector3d: the lateral frame (e1, e2) of v, carried through the delta vertices
+    n_cur: object  # mi.Float64: index of refraction of the current medium relative to the start
+    nd: object  # mi.UInt32: delta bounces so far
+    # The outcome.
+    d: object  # mi.Float64: apparent distance of P along v (m, world), set at P
+    done: object  # mi.Bool: P reached
+    bad: object  # mi.Bool: a grazing delta vertex made the transfer singular: the ray is dropped
+    capped: object  # mi.Bool: still on delta lobes after max_delta bounces
+    escaped: object  # mi.Bool: left the scene before P
+    cached: object  # mi.Bool: P's radiance came from the ambient cache
+    # What the caller asked to keep of P.
+    thr: object | None = None  # mi.Color3f: the chain's throughput at P (amp_spp > 1, or surface)
+    fin: object | None = None  # mi.Ray3f: the segment that reached P (amp_spp > 1: more samples from it)
+    surf: object | None = None  # dict (surface=True): p (m), shading normal, emission, albedo at P
+
+
+class _Settings(NamedTuple):
+    """What the loop body reads besides its state. The depths are kernel parameters (opaque), not constants:
+    one compiled kernel serves every setting; the Python switches each select their own kernel."""
+
+    ctx: mi.BSDFContext
+    max_delta: mi.UInt32  # delta bounces allowed before P
+    max_depth: mi.UInt32  # path depth counted from P (1: emission at P only)
+    rr_depth: mi.UInt32  # Russian roulette from this depth on
+    any_mixed: bool  # the scene has a BSDF with delta and smooth lobes
+    cache: RadianceCache | None  # the fast variant's ambient cache
+    keep_thr: bool  # record the chain's throughput at P
+    keep_ray: bool  # record the segment that reached P
+    keep_surface: bool  # record P's surface
+
+
+class _Vertex(NamedTuple):
+    """What one iteration knows of the vertex its segment reached."""
+
+    ray: mi.Ray3f  # the segment that reached it
+    pi: mi.PreliminaryIntersection3f
+    si: mi.SurfaceInteraction3f
+    hit: mi.Bool  # an active lane that hit a surface
+    bsdf: mi.BSDFPtr
+    flags: mi.UInt32  # the BSDF's lobes (mi.BSDFFlags)
+    chain0: mi.Bool  # the path was still coherent on this segment
+    in_chain: mi.Bool  # a coherent path hit a surface here: a delta vertex or P
+    is_emitter: mi.Bool  # the surface emits (the chain stops at emitters)
+
+
+class _Lobes(NamedTuple):
+    """The vertex's samples (:func:`_sample_lobes`)."""
+
+    bs: mi.BSDFSample3f  # the BSDF sample (direction wo in the local frame, pdf, lobe, relative eta)
+    w: mi.Color3f  # its weight f cos / pdf
+    Lr: mi.Color3f  # the emitter sample's radiance, MIS-weighted, times the throughput (0 where unused)
+    go_on: mi.Bool  # a delta lobe on a chain: the chain goes on (before the max_delta cap)
+    at_p: mi.Bool  # the chain ends here: this vertex is P
 
 
 def trace_wave_paths(
-    scene,
-    o64,
-    v64,
-    sampler,
+    scene: mi.Scene,
+    o64: mi.Point3d,
+    v64: mi.Vector3d,
+    sampler: mi.Sampler,
     *,
     max_delta: int,
     max_depth: int,
     rr_depth: int = 5,
     amp_spp: int = 1,
-    integrator=None,
-    radiance_cache=None,
+    integrator: mi.Integrator | None = None,
+    radiance_cache: RadianceCache | None = None,
     surface: bool = False,
 ) -> WavePaths:
-    """Trace world rays (``o64``, ``v64``: mi.Point3d / unit mi.Vector3d of one width) as wave paths.
+    """Trace world rays (``o64``, ``v64``: mi.Point3d in m / unit mi.Vector3d of one width) as wave paths.
 
     ``max_depth``: path depth counted from P (Mitsuba's convention: 1 = emission at P only). ``amp_spp`` > 1
     adds ``amp_spp - 1`` samples of ``integrator`` from the ray that reached P. ``radiance_cache``: the fast
@@ -82,194 +168,245 @@ def trace_wave_paths(
         raise ValueError(f"max_depth must be >= 1, got {max_depth}")
     F64, V3d = mi.Float64, mi.Vector3d
     R = dr.width(o64)
-    ctx = mi.BSDFContext()
-    Delta, Smooth = mi.BSDFFlags.Delta, mi.BSDFFlags.Smooth
-
+    extra = amp_spp > 1 and integrator is not None
     any_mixed = has_mixed_delta(scene)
     # Kernel parameters, not constants: one compiled kernel for every depth setting.
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
+    s = _Settings(ctx=mi.BSDFContext(), max_delta=op_delta, max_depth=op_depth, rr_depth=op_rr,
+                  any_mixed=any_mixed, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
+                  keep_surface=surface)
+
+    # The chain starts with A = I, B = 0 (DESIGN §4): two lateral shifts of O along e1, e2 (dP = e_i, dD = 0)
+    # and two angular perturbations of v along them (dP = 0, dD = e_i).
     helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
     e1 = dr.normalize(dr.cross(v64, helper))
     e2 = dr.cross(v64, e1)
     zero3 = dr.zeros(V3d, R)
-    st = {
-        "ray": mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64)),
-        "active": dr.full(mi.Bool, True, R),
-        "beta": dr.full(mi.Color3f, 1.0, R),
-        "L": dr.zeros(mi.Color3f, R),
-        "eta": dr.full(mi.Float, 1.0, R),
-        "depth": dr.zeros(mi.UInt32, R),
-        "si_prev": dr.zeros(mi.Interaction3f, R),  # what MIS needs of the previous vertex
-        "pdf_prev": dr.full(mi.Float, 1.0, R),
-        "delta_prev": dr.full(mi.Bool, True, R),
-        # the coherent part
-        "chain": dr.full(mi.Bool, True, R),
-        "D": V3d(v64),
-        "dP": [V3d(e1), V3d(e2), V3d(zero3), V3d(zero3)],
-        "dD": [V3d(zero3), V3d(zero3), V3d(e1), V3d(e2)],
-        "frame": [V3d(e1), V3d(e2)],
-        "n_cur": dr.full(F64, 1.0, R),
-        "nd": dr.zeros(mi.UInt32, R),
-        # outputs
-        "d": dr.zeros(F64, R),
-        "done": dr.full(mi.Bool, False, R),
-        "bad": dr.full(mi.Bool, False, R),
-        "capped": dr.full(mi.Bool, False, R),
-        "escaped": dr.full(mi.Bool, False, R),
-        "cached": dr.full(mi.Bool, False, R),
-    }
-    extra = amp_spp > 1 and integrator is not None
-    if extra or surface:  # the chain's throughput at P
-        st["thr"] = dr.full(mi.Color3f, 1.0, R)
-    if extra:  # more radiance samples from P start from the ray that reached P
-        st["fin"] = mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64))
-    if surface:
-        st["surf"] = {"p": dr.zeros(mi.Point3f, R), "normal": dr.zeros(mi.Vector3f, R),
-                      "emission": dr.zeros(mi.Color3f, R), "albedo": dr.zeros(mi.Color3f, R)}
+    p = _PathState(
+        ray=mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64)), active=dr.full(mi.Bool, True, R),
+        beta=dr.full(mi.Color3f, 1.0, R), L=dr.zeros(mi.Color3f, R), eta=dr.full(mi.Float, 1.0, R),
+        depth=dr.zeros(mi.UInt32, R), si_prev=dr.zeros(mi.Interaction3f, R), pdf_prev=dr.full(mi.Float, 1.0, R),
+        delta_prev=dr.full(mi.Bool, True, R),
+        chain=dr.full(mi.Bool, True, R), D=V3d(v64), dP=[V3d(e1), V3d(e2), V3d(zero3), V3d(zero3)],
+        dD=[V3d(zero3), V3d(zero3), V3d(e1), V3d(e2)], frame=[V3d(e1), V3d(e2)], n_cur=dr.full(F64, 1.0, R),
+        nd=dr.zeros(mi.UInt32, R),
+        d=dr.zeros(F64, R), done=dr.full(mi.Bool, False, R), bad=dr.full(mi.Bool, False, R),
+        capped=dr.full(mi.Bool, False, R), escaped=dr.full(mi.Bool, False, R), cached=dr.full(mi.Bool, False, R))
+    if s.keep_thr:
+        p.thr = dr.full(mi.Color3f, 1.0, R)
+    if s.keep_ray:
+        p.fin = mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64))
+    if s.keep_surface:
+        p.surf = {"p": dr.zeros(mi.Point3f, R), "normal": dr.zeros(mi.Vector3f, R),
+                  "emission": dr.zeros(mi.Color3f, R), "albedo": dr.zeros(mi.Color3f, R)}
 
-    def cond(st, sampler):
-        return st["active"]
+    def body(p: _PathState, sampler: mi.Sampler) -> tuple[_PathState, mi.Sampler]:
+        v = _intersect(scene, p)  # 1. the vertex this segment reaches
+        p.escaped |= p.active & v.chain0 & ~v.si.is_valid()  # a coherent path that leaves the scene
+        Le = _emission(scene, p, v)  # 2. Eq. 1's L_e reached by the previous BSDF sample, MIS-weighted
+        cached = mi.Bool(False)
+        if s.cache is not None:  # 2'. fast variant: P's radiance from the ambient cache (Sec. 4.2)
+            Le, cached = _cached_radiance(scene, p, v, Le, s.cache)
+        lobes = _sample_lobes(scene, p, v, sampler, s, cached)  # 3. emitter + BSDF sample; chain or P (Sec. 4.2)
+        go_on = _coherent_step(p, v, lobes, s)  # 4. Igehy transfer, or d at P (DESIGN §4)
+        _record_image_point(scene, p, v, lobes.at_p, s)
+        _incoherent_step(p, v, lobes, Le, go_on, cached, sampler, s)  # 5. Eq. 1 from P on, Russian roulette
+        return p, sampler
 
-    def body(st, sampler):
-        st = dict(st)
-        active, ray, chain0 = st["active"], st["ray"], st["chain"]
-        pi = scene.ray_intersect_preliminary(ray, False, active)
-        si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
-        hit = active & si.is_valid()
-        bsdf = si.bsdf(ray)
+    p, sampler = dr.while_loop((p, sampler), lambda p, sampler: p.active, body, label="wave paths")
 
-        # Emission reached by the previous sample (MIS against emitter sampling there).
-        ds = mi.DirectionSample3f(scene, si=si, ref=st["si_prev"])
-        em_pdf = scene.pdf_emitter_direction(st["si_prev"], ds, active & ~st["delta_prev"])
-        Le = st["beta"] * _mis(st["pdf_prev"], em_pdf) * ds.emitter.eval(si, active)
-
-        bflags = bsdf.flags()
-        in_chain = hit & chain0
-        is_em = si.shape.is_emitter()
-        st["escaped"] = st["escaped"] | (active & chain0 & ~si.is_valid())
-        # The fast variant: a chain vertex without delta lobes (or an emitter) is P for sure; where the cache
-        # holds P's cell, P's radiance is one lookup and the path ends there. The cache holds view-independent
-        # radiance per unit diffuse albedo, so a glossy P (a highlight that moves with the view) is path traced.
-        has = mi.Bool(False)
-        if radiance_cache is not None:
-            sure_p = in_chain & (~mi.has_flag(bflags, Delta) | is_em) & ~mi.has_flag(bflags, mi.BSDFFlags.Glossy)
-            emission = si.emitter(scene).eval(si, sure_p)
-            albedo = bsdf.eval_diffuse_reflectance(si, sure_p)
-            L_c, has = radiance_cache.lookup(si, albedo, emission, sure_p)
-            Le = dr.select(has, st["beta"] * L_c, Le)
-            st["cached"] = st["cached"] | has
-
-        # Emitter sampling and one BSDF sample in one call (as Mitsuba's path does). The lobe sample also
-        # decides whether the coherent chain goes on; a lane that goes on discards its emitter sample.
-        em_on = hit & ~has & (st["depth"] + 1 < op_depth) & mi.has_flag(bflags, Smooth)
-        ds_e, em_w = scene.sample_emitter_direction(si, sampler.next_2d(em_on), True, em_on)
-        em_on &= ds_e.pdf != 0.0
-        smp = hit & ~has
-        val, pdf, bs, w = bsdf.eval_pdf_sample(ctx, si, si.to_local(ds_e.d), sampler.next_1d(smp),
-                                               sampler.next_2d(smp), smp)
-        s_delta = mi.has_flag(bs.sampled_type, Delta) & (bs.pdf > 0)
-        go_on = in_chain & s_delta & ~is_em
-        at_p = in_chain & ~go_on
-        mis_em = dr.select(ds_e.delta, 1.0, _mis(ds_e.pdf, pdf))
-        Lr = dr.select(em_on & ~go_on, st["beta"] * mis_em * val * em_w, 0.0)
-
-        # ---- the coherent part (float64), only in the lanes that need it (a real branch per packet) ----
-        capped = go_on & (st["nd"] >= op_delta)
-        st["capped"] = st["capped"] | capped
-        go_on = go_on & ~capped
-        deep = at_p & (st["nd"] > 0)  # an image point behind delta vertices: d from the differentials
-
-        def coherent(D, dP, dD, frame, n_cur, nd):
-            # The shading normal's derivatives (curved mirrors and lenses), only where a chain goes on.
-            si_d = pi.compute_surface_interaction(ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, go_on | deep)
-            return _coherent(mi, si_d, bs, go_on, D, dP, dD, frame, n_cur, nd)
-
-        def plain(D, dP, dD, frame, n_cur, nd):
-            return F64(0.0), mi.Bool(False), D, dP, dD, frame, n_cur, nd
-
-        d_deep, singular, *chain_st = dr.if_stmt(
-            (st["D"], st["dP"], st["dD"], st["frame"], st["n_cur"], st["nd"]), go_on | deep, coherent, plain,
-            label="delta vertex")
-        st["D"], st["dP"], st["dD"], st["frame"], st["n_cur"], st["nd"] = chain_st
-        # With no delta vertex before P, A = I and B = t I: d is the hit distance itself.
-        st["d"] = dr.select(at_p, dr.select(deep, d_deep, F64(si.t)), st["d"])
-        st["done"] = st["done"] | at_p
-        if extra or surface:
-            st["thr"] = dr.select(at_p, st["beta"], st["thr"])
-        if extra:
-            st["fin"] = dr.select(at_p, ray, st["fin"])
-        if surface:
-            here = {"p": si.p, "normal": si.sh_frame.n, "emission": si.emitter(scene).eval(si, at_p),
-                    "albedo": bsdf.eval_diffuse_reflectance(si, at_p)}
-            st["surf"] = {k: dr.select(at_p, here[k], st["surf"][k]) for k in here}
-        st["bad"] = st["bad"] | singular
-        go_on = go_on & ~singular
-        st["chain"] = go_on
-
-        # ---- the incoherent part, from P on ------------------------------------------------------
-        # Nothing counts before P: delta vertices neither emit (the chain stops at emitters) nor sample lights.
-        counts = (active & ~chain0) | at_p  # past P (escaping to an environment included) or at P
-        past = ((hit & ~chain0) | at_p) & ~has
-        more = past & (st["depth"] + 1 < op_depth)
-        # A BSDF with delta and smooth lobes: P's radiance includes all of them, so sample afresh at P.
-        if any_mixed:
-            mixed = at_p & more & mi.has_flag(bflags, Delta) & mi.has_flag(bflags, Smooth)
-            bs2, w2 = bsdf.sample(ctx, si, sampler.next_1d(mixed), sampler.next_2d(mixed), mixed)
-            bs = dr.select(mixed, bs2, bs)
-            w = dr.select(mixed, w2, w)
-        st["L"] = st["L"] + dr.select(counts, Le, 0.0) + Lr
-
-        step = go_on | more
-        st["ray"] = dr.select(step, si.spawn_ray(si.to_world(bs.wo)), ray)
-        st["beta"] = dr.select(step, st["beta"] * w, st["beta"])
-        st["eta"] = dr.select(step, st["eta"] * bs.eta, st["eta"])
-        st["si_prev"] = dr.select(step, mi.Interaction3f(si), st["si_prev"])
-        st["pdf_prev"] = dr.select(step, bs.pdf, st["pdf_prev"])
-        st["delta_prev"] = dr.select(step, mi.has_flag(bs.sampled_type, Delta), st["delta_prev"])
-        b_max = dr.max(st["beta"])
-        rr = more & (st["depth"] + 1 >= op_rr)  # Mitsuba's path: depth counted after this vertex
-        rr_prob = dr.minimum(b_max * st["eta"] * st["eta"], 0.95)
-        st["beta"] = dr.select(rr, st["beta"] / rr_prob, st["beta"])
-        survive = ~rr | (sampler.next_1d(rr) < rr_prob)
-        st["depth"] = dr.select(past, st["depth"] + 1, st["depth"])
-        st["active"] = go_on | (more & survive & (b_max != 0))
-        return st, sampler
-
-    st, sampler = dr.while_loop((st, sampler), cond, body, label="wave paths")
-
-    ok = st["done"] & ~st["bad"] & ~st["capped"] & (st["d"] > 0) & dr.isfinite(st["d"])
-    L = st["L"]
-    if extra:
-        need = ok & ~st["cached"]
-        rd = mi.RayDifferential3f(st["fin"])
+    ok = p.done & ~p.bad & ~p.capped & (p.d > 0) & dr.isfinite(p.d)
+    L = p.L
+    if extra:  # amp_spp - 1 more radiance samples of Mitsuba's integrator from the segment that reached P
+        need = ok & ~p.cached
+        rd = mi.RayDifferential3f(p.fin)
         L_more = dr.zeros(mi.Color3f, R)
         for _ in range(amp_spp - 1):
             spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
             L_more += dr.select(valid & need, spec, 0.0)
-        L = dr.select(need, (L + st["thr"] * L_more) / amp_spp, L)
-    finite = dr.isfinite(L[0]) & dr.isfinite(L[1]) & dr.isfinite(L[2])
-    ok &= finite
+        L = dr.select(need, (L + p.thr * L_more) / amp_spp, L)
+    ok &= dr.isfinite(L[0]) & dr.isfinite(L[1]) & dr.isfinite(L[2])
     L = dr.select(ok, dr.maximum(L, 0.0), 0.0)
-    d = dr.select(ok, st["d"], 0.0)
-    surf = None
-    if surface:
-        surf = dict(st["surf"], thr=st["thr"])
-    return WavePaths(valid=ok, d=d, radiance=L, n_delta=st["nd"], escaped=st["escaped"], capped=st["capped"],
-                     sampled=ok & ~st["cached"], surface=surf)
+    d = dr.select(ok, p.d, 0.0)
+    surf = dict(p.surf, thr=p.thr) if surface else None
+    return WavePaths(valid=ok, d=d, radiance=L, n_delta=p.nd, escaped=p.escaped, capped=p.capped,
+                     sampled=ok & ~p.cached, surface=surf)
 
 
-def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):
-    """At a chain vertex: the apparent distance d read from the differentials (used where the chain ends
-    here), and, on ``go_on``, the differentials and the frame carried through the delta vertex (Igehy 1999),
-    float64. Returns (d, singular, D, dP, dD, frame, n_cur, nd); ``singular``: the ray grazes the surface."""
+# ---- the steps of one iteration ------------------------------------------------------------------------------
+
+
+def _intersect(scene: mi.Scene, p: _PathState) -> _Vertex:
+    """Step 1: the vertex the current segment reaches, and what kind of vertex it is for the chain."""
+    mi = mitsuba()
+
+    pi = scene.ray_intersect_preliminary(p.ray, False, p.active)
+    si = pi.compute_surface_interaction(p.ray, mi.RayFlags.All, p.active)
+    hit = p.active & si.is_valid()
+    bsdf = si.bsdf(p.ray)
+    return _Vertex(ray=p.ray, pi=pi, si=si, hit=hit, bsdf=bsdf, flags=bsdf.flags(), chain0=p.chain,
+                   in_chain=hit & p.chain, is_emitter=si.shape.is_emitter())
+
+
+def _emission(scene: mi.Scene, p: _PathState, v: _Vertex) -> mi.Color3f:
+    """Step 2: the emitted radiance L_e of Eq. 1 that the previous BSDF sample reached (an area light or the
+    environment), times the throughput, MIS-weighted (power heuristic) against emitter sampling at the
+    previous vertex. Whether it counts (from P on only) is the incoherent step's decision."""
+    ds = mitsuba().DirectionSample3f(scene, si=v.si, ref=p.si_prev)
+    em_pdf = scene.pdf_emitter_direction(p.si_prev, ds, p.active & ~p.delta_prev)
+    return p.beta * _mis(p.pdf_prev, em_pdf) * ds.emitter.eval(v.si, p.active)
+
+
+def _cached_radiance(scene: mi.Scene, p: _PathState, v: _Vertex, Le: mi.Color3f,
+                     cache: RadianceCache) -> tuple[mi.Color3f, mi.Bool]:
+    """Step 2, fast variant (Sec. 4.2, the ambient cache): a chain vertex without delta lobes (or an emitter)
+    is P for sure; where the cache holds P's cell, P's radiance is one lookup and the path ends there. The
+    cache holds view-independent radiance per unit diffuse albedo, so a glossy P (a highlight that moves with
+    the view) is path traced. Returns (Le, cached): Le replaced by the throughput times the cached radiance."""
+    mi = mitsuba()
+    import drjit as dr
+
+    sure_p = (v.in_chain & (~mi.has_flag(v.flags, mi.BSDFFlags.Delta) | v.is_emitter)
+              & ~mi.has_flag(v.flags, mi.BSDFFlags.Glossy))
+    emission = v.si.emitter(scene).eval(v.si, sure_p)
+    albedo = v.bsdf.eval_diffuse_reflectance(v.si, sure_p)
+    L_c, cached = cache.lookup(v.si, albedo, emission, sure_p)
+    p.cached |= cached
+    return dr.select(cached, p.beta * L_c, Le), cached
+
+
+def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sampler, s: _Settings,
+                  cached: mi.Bool) -> _Lobes:
+    """Step 3: emitter sampling and one BSDF sample in one call (as Mitsuba's ``path`` does), the two halves
+    of Eq. 1's integral combined by MIS. The BSDF sample's lobe also decides the chain (Sec. 4.2): a delta
+    lobe goes on coherently, anything else (or an emitter) makes this vertex the real image point P. A lane
+    whose chain goes on discards its emitter sample (delta vertices neither emit nor sample lights)."""
+    mi = mitsuba()
+    import drjit as dr
+
+    Delta = mi.BSDFFlags.Delta
+    em_on = v.hit & ~cached & (p.depth + 1 < s.max_depth) & mi.has_flag(v.flags, mi.BSDFFlags.Smooth)
+    ds, em_w = scene.sample_emitter_direction(v.si, sampler.next_2d(em_on), True, em_on)
+    em_on &= ds.pdf != 0.0
+    smp = v.hit & ~cached
+    val, pdf, bs, w = v.bsdf.eval_pdf_sample(s.ctx, v.si, v.si.to_local(ds.d), sampler.next_1d(smp),
+                                             sampler.next_2d(smp), smp)
+    go_on = v.in_chain & mi.has_flag(bs.sampled_type, Delta) & (bs.pdf > 0) & ~v.is_emitter
+    at_p = v.in_chain & ~go_on
+    mis_em = dr.select(ds.delta, 1.0, _mis(ds.pdf, pdf))
+    Lr = dr.select(em_on & ~go_on, p.beta * mis_em * val * em_w, 0.0)
+    return _Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
+
+
+def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi.Bool:
+    """Step 4, the coherent part (Sec. 4.2, DESIGN §4 "Virtual image point"), float64 and only in the lanes
+    that need it (a real branch per packet): through a delta vertex, the differentials and the frame are
+    carried on (:func:`_igehy_transfer`); at a P behind delta vertices, d = 2 / tr(B^-1 A) is read from them
+    (docs/physics.md); at a P with no delta vertex before it (A = I, B = t I), d is the hit distance t (m).
+    Chains past ``max_delta`` bounces are capped, grazing ones dropped. Returns where the chain goes on."""
+    mi = mitsuba()
+    import drjit as dr
+
+    capped = lobes.go_on & (p.nd >= s.max_delta)
+    p.capped |= capped
+    go_on = lobes.go_on & ~capped
+    deep = lobes.at_p & (p.nd > 0)
+
+    def transfer(D, dP, dD, frame, n_cur, nd):
+        # The shading normal's derivatives (curved mirrors and lenses), only where a chain goes on or ends.
+        si_d = v.pi.compute_surface_interaction(v.ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, go_on | deep)
+        return _igehy_transfer(si_d, lobes.bs, go_on, D, dP, dD, frame, n_cur, nd)
+
+    def keep(D, dP, dD, frame, n_cur, nd):
+        return mi.Float64(0.0), mi.Bool(False), D, dP, dD, frame, n_cur, nd
+
+    d_deep, singular, p.D, p.dP, p.dD, p.frame, p.n_cur, p.nd = dr.if_stmt(
+        (p.D, p.dP, p.dD, p.frame, p.n_cur, p.nd), go_on | deep, transfer, keep, label="delta vertex")
+    p.d = dr.select(lobes.at_p, dr.select(deep, d_deep, mi.Float64(v.si.t)), p.d)
+    p.done |= lobes.at_p
+    p.bad |= singular
+    go_on &= ~singular
+    p.chain = go_on
+    return go_on
+
+
+def _record_image_point(scene: mi.Scene, p: _PathState, v: _Vertex, at_p: mi.Bool, s: _Settings) -> None:
+    """At P, keep what the caller asked for: the chain's throughput, the segment that reached P, P's surface."""
+    import drjit as dr
+
+    if s.keep_thr:
+        p.thr = dr.select(at_p, p.beta, p.thr)
+    if s.keep_ray:
+        p.fin = dr.select(at_p, v.ray, p.fin)
+    if s.keep_surface:
+        here = {"p": v.si.p, "normal": v.si.sh_frame.n, "emission": v.si.emitter(scene).eval(v.si, at_p),
+                "albedo": v.bsdf.eval_diffuse_reflectance(v.si, at_p)}
+        p.surf = {k: dr.select(at_p, here[k], p.surf[k]) for k in here}
+
+
+def _incoherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, Le: mi.Color3f, go_on: mi.Bool,
+                     cached: mi.Bool, sampler: mi.Sampler, s: _Settings) -> None:
+    """Step 5, the incoherent part from P on: Eq. 1 by Monte Carlo, as Mitsuba's ``path`` (depth counted
+    from P). Nothing counts before P: delta vertices neither emit (the chain stops at emitters) nor sample
+    lights. Adds this vertex's emission and emitter sample, follows the BSDF sample (or the chain), and plays
+    Russian roulette from ``rr_depth``."""
+    mi = mitsuba()
+    import drjit as dr
+
+    counts = (p.active & ~v.chain0) | lobes.at_p  # past P (escaping to an environment included) or at P
+    past = ((v.hit & ~v.chain0) | lobes.at_p) & ~cached
+    more = past & (p.depth + 1 < s.max_depth)
+    bs, w = lobes.bs, lobes.w
+    if s.any_mixed:  # delta and smooth lobes: P's radiance includes all of them, so sample afresh at P
+        mixed = (lobes.at_p & more & mi.has_flag(v.flags, mi.BSDFFlags.Delta)
+                 & mi.has_flag(v.flags, mi.BSDFFlags.Smooth))
+        bs2, w2 = v.bsdf.sample(s.ctx, v.si, sampler.next_1d(mixed), sampler.next_2d(mixed), mixed)
+        bs = dr.select(mixed, bs2, bs)
+        w = dr.select(mixed, w2, w)
+    p.L = p.L + dr.select(counts, Le, 0.0) + lobes.Lr
+
+    step = go_on | more
+    p.ray = dr.select(step, v.si.spawn_ray(v.si.to_world(bs.wo)), p.ray)
+    p.beta = dr.select(step, p.beta * w, p.beta)
+    p.eta = dr.select(step, p.eta * bs.eta, p.eta)
+    p.si_prev = dr.select(step, mi.Interaction3f(v.si), p.si_prev)
+    p.pdf_prev = dr.select(step, bs.pdf, p.pdf_prev)
+    p.delta_prev = dr.select(step, mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta), p.delta_prev)
+    # Russian roulette, Mitsuba's ``path``: depth counted after this vertex, survival max(beta) eta^2 <= 0.95.
+    b_max = dr.max(p.beta)
+    rr = more & (p.depth + 1 >= s.rr_depth)
+    rr_prob = dr.minimum(b_max * p.eta * p.eta, 0.95)
+    p.beta = dr.select(rr, p.beta / rr_prob, p.beta)
+    survive = ~rr | (sampler.next_1d(rr) < rr_prob)
+    p.depth = dr.select(past, p.depth + 1, p.depth)
+    p.active = go_on | (more & survive & (b_max != 0))
+
+
+def _mis(a: mi.Float, b: mi.Float) -> mi.Float:
+    """Power heuristic a^2 / (a^2 + b^2) of two pdfs (same measure); 0 where a = 0 (keeps 0/0 out)."""
+    import drjit as dr
+
+    a2 = a * a
+    return dr.select(a > 0, a2 / (a2 + b * b), 0.0)
+
+
+def _igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
+                    dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32) -> tuple:
+    """At a chain vertex, in float64: the apparent distance d (m) read from the differentials (used where the
+    chain ends here, at P), and, on ``go_on``, the differentials and the frame carried through the delta
+    vertex (Igehy 1999). Returns (d, singular, D, dP, dD, frame, n_cur, nd); ``singular``: the ray grazes the
+    surface (|cos| < 1e-7), the transfer does not exist and the ray is dropped."""
+    mi = mitsuba()
     import drjit as dr
 
     F64, V3d = mi.Float64, mi.Vector3d
     t = F64(si.t)
     N = V3d(si.sh_frame.n)
     cosD = dr.dot(D, N)
+    # Transfer along the segment to the surface (Igehy Eq. 10 without dt, which the projection below adds).
     dPt = [dP[i] + t * dD[i] for i in range(4)]
-    # The image point: 2x2 transfer blocks A (shifts) and B (angles) read along the carried frame.
+    # The image point: 2x2 transfer blocks A (shifts) and B (angles) read along the carried frame, perpendicular
+    # to the last segment; d = 2 / tr(B^-1 A) = 2 det(B) / tr(adj(B) A) (docs/physics.md).
     lat = [dPt[i] - dr.dot(dPt[i], D) * D for i in range(4)]
     a11, a12 = dr.dot(lat[0], frame[0]), dr.dot(lat[1], frame[0])
     a21, a22 = dr.dot(lat[0], frame[1]), dr.dot(lat[1], frame[1])
@@ -282,7 +419,9 @@ def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):
     singular = go_on & (dr.abs(cosD) < _EPS_COS)
     go_on = go_on & ~singular
     safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
+    # dP on the surface: dt = -(dPt . N) / (D . N) (Igehy Eq. 12), dP' = dPt + dt D.
     dPh = [dPt[i] - (dr.dot(dPt[i], N) / safe_cos) * D for i in range(4)]
+    # dN = dn/du du + dn/dv dv, (du, dv) from dP' in the tangent basis (dp_du, dp_dv): normal equations.
     dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
     dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
     a, b, c = dr.dot(dpdu, dpdu), dr.dot(dpdu, dpdv), dr.dot(dpdv, dpdv)
@@ -308,7 +447,7 @@ def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):
     axis = axis / dr.select(rot_ok, s_ax, 1.0)
     u_old, u_new = dr.cross(axis, D), dr.cross(axis, D_new)
     dP, dD = list(dP), list(dD)
-    for i in range(4):
+    for i in range(4):  # the derivatives of D' (Igehy's reflection and refraction differentials)
         dDN = dr.dot(dD[i], N) + dr.dot(D, dN[i])
         refl = dD[i] - 2.0 * (cosD * dN[i] + dDN * N)
         dNf = dN[i] * sgn
@@ -318,7 +457,7 @@ def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):
         dP[i] = dr.select(go_on, dPh[i], dP[i])
         dD[i] = dr.select(go_on, dr.select(is_refl, refl, refr), dD[i])
     frame = list(frame)
-    for i in range(2):
+    for i in range(2):  # the frame: mirrored (reflection) or rotated about D x D' (refraction)
         f = frame[i]
         refl = f - 2.0 * dr.dot(f, N) * N
         rotated = dr.select(rot_ok, dr.dot(f, axis) * axis + dr.dot(f, u_old) * u_new, f)
@@ -327,3 +466,9 @@ def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd):
     nd = dr.select(go_on, nd + 1, nd)
     D = dr.select(go_on, D_new, D)
     return d_here, singular, D, dP, dD, frame, n_cur, nd
+
+
+def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd) -> tuple:
+    """:func:`_igehy_transfer` under the name and signature :mod:`holocore.trace.reference_chain` imports (the
+    reference implementation shares the transfer code with the kernel)."""
+    return _igehy_transfer(si, bs, go_on, D, dP, dD, frame, n_cur, nd)
