@@ -61,7 +61,7 @@ def _setup(scene_path, H, W, frames, f_mm=20.0, wavelengths=(640.0, 516.5, 455.4
 
 def bench_frames(scene_path, H, W, spp):
     """Whole trace (tracing + accumulation) for 1 and 24 frames, same rays."""
-    from holocore.pipeline import _banks
+    from holocore.pipeline import frame_banks
     from holocore.runtime.mitsuba_env import mitsuba
     from holocore.trace.hologram_rays import TraceSettings, trace_field
 
@@ -69,7 +69,7 @@ def bench_frames(scene_path, H, W, spp):
     fns = {}
     for F in (1, 24):
         loaded, optics, pl = _setup(scene_path, H, W, F)
-        banks = _banks(optics, (H, W))
+        banks = frame_banks(optics, (H, W))
         integ = mi.load_dict({"type": "path", "max_depth": 6})
         z = pl.analysis.z_wrp_m
 
@@ -149,13 +149,13 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
     import torch
 
     from holocore.optics.propagation import asm
-    from holocore.pipeline import _banks
+    from holocore.pipeline import frame_banks
     from holocore.runtime.mitsuba_env import mitsuba
     from holocore.trace.hologram_rays import TraceSettings, trace_field
 
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 4, wavelengths=(516.5,))
-    banks = _banks(optics, (H, W))
+    banks = frame_banks(optics, (H, W))
     integ = mi.load_dict({"type": "path", "max_depth": 6})
     z = pl.analysis.z_wrp_m
     lam = optics.wavelengths_m[0]

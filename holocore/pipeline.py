@@ -111,7 +111,7 @@ def coded_frames(optics: OpticsConfig) -> Optional[int]:
     return optics.frames if optics.frame_phases == "coded" else None
 
 
-def _banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
+def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
            wavelengths_m=None):
     """exp(i phi_m) per color as [F, H, W] views of one cell-major tensor ([H, W, C, F] in memory): the tracer
     gathers every frame of every color of a cell at once (hologram_rays.combined_cells). Frames first_frame..
@@ -320,7 +320,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     for pi, f0 in enumerate(passes):
         f1 = min(F, f0 + ft)
         t1 = time.perf_counter()
-        banks = _banks(optics, (H, W), dev, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
+        banks = frame_banks(optics, (H, W), dev, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
             if plan.random_phase else None
         timings["bank_s"] += time.perf_counter() - t1
         t3 = time.perf_counter()
@@ -382,13 +382,13 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "analysis": json.loads(ana.model_dump_json()),
         "inventory": json.loads(pl.inventory.model_dump_json()),
         "field_of_view": pl.field_of_view,
-        **_display_meta(display, optics),
+        **display_meta_fields(display, optics),
         "stats": stats.as_dict(),
         "timings": timings,
         "memory": {"budget_bytes": budget, "estimated_peak_bytes": peak, "trace_passes": len(passes),
                    "frames_per_trace_pass": ft, "frames_per_propagation_chunk": fp, "streamed": not in_memory},
         "device": str(dev),
-        "versions": _versions(variant()),
+        "versions": software_versions(variant()),
     }
     return sink, meta
 
@@ -437,7 +437,7 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
     return meta
 
 
-def _display_meta(display: Optional[DisplayProfile], optics: OpticsConfig) -> dict:
+def display_meta_fields(display: Optional[DisplayProfile], optics: OpticsConfig) -> dict:
     """``display_profile`` (None: optics given directly, no profile) and ``display`` for a result's meta."""
     if display is None:
         return {"display_profile": None, "display": None}
@@ -446,7 +446,7 @@ def _display_meta(display: Optional[DisplayProfile], optics: OpticsConfig) -> di
     return display_meta(display, optics)
 
 
-def _versions(mi_variant: str) -> dict:
+def software_versions(mi_variant: str) -> dict:
     import drjit
     import mitsuba
     import torch

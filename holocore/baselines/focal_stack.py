@@ -33,6 +33,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from holocore import validate
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "stack_plane_depths",
@@ -45,22 +46,6 @@ MAX_ITERATIONS = 100_000
 _EPS = 1e-10  # inside sqrt(I): a finite gradient where no light arrives
 
 
-def _check_int(name: str, value: object, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= int(value) <= hi:
-        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {value!r}")
-    return int(value)
-
-
-def _check_pos(name: str, value: object) -> float:
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
 def stack_plane_depths(*, z_inf_m: float, z_far_m: Optional[float], z_near_m: Optional[float],
                        planes: int = DEFAULT_PLANES, spacing_m: Optional[float] = DEFAULT_SPACING_M,
                        z_limit_m: Optional[float] = None) -> np.ndarray:
@@ -71,15 +56,15 @@ def stack_plane_depths(*, z_inf_m: float, z_far_m: Optional[float], z_near_m: Op
     (z >= z_inf; ValueError when both cannot hold). ``spacing_m`` None: ``planes`` planes uniform from z_far to
     z_near (one plane: the middle). No volume known (a black scene): centred at z_inf + (planes - 1) spacing / 2.
     """
-    planes = _check_int("planes", planes, 1, MAX_PLANES)
-    zi = _check_pos("z_inf_m", z_inf_m)
+    planes = validate.integer("planes", planes, 1, MAX_PLANES)
+    zi = validate.positive("z_inf_m", z_inf_m, unit="")
     far = zi if z_far_m is None else float(z_far_m)
     near = far if z_near_m is None else float(z_near_m)
     far, near = min(far, near), max(far, near)
     if spacing_m is None:
         zs = np.array([0.5 * (far + near)]) if planes == 1 else np.linspace(far, near, planes)
     else:
-        s = _check_pos("spacing_m", spacing_m)
+        s = validate.positive("spacing_m", spacing_m, unit="")
         mid = 0.5 * (far + near) if z_far_m is not None else zi + 0.5 * (planes - 1) * s
         zs = mid + (np.arange(planes) - 0.5 * (planes - 1)) * s
         if z_limit_m is not None and zs[-1] >= float(z_limit_m):
@@ -137,15 +122,15 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     zs = [float(z) for z in plane_z_m]
     if len(zs) != K or not all(math.isfinite(z) for z in zs):
         raise ValueError(f"plane_z_m must be {K} finite depths (one per target plane), got {plane_z_m!r}")
-    lams = [_check_pos("wavelengths_m", v) for v in wavelengths_m]
+    lams = [validate.positive("wavelengths_m", v, unit="") for v in wavelengths_m]
     if len(lams) != C:
         raise ValueError(f"{len(lams)} wavelengths for {C} target channels")
-    p = _check_pos("pitch_m", pitch_m)
-    f = _check_pos("focal_length_m", focal_length_m)
-    D = _check_pos("pupil_diameter_m", pupil_diameter_m)
-    frames = _check_int("frames", frames, 1, 4096)
-    iterations = _check_int("iterations", iterations, 0, MAX_ITERATIONS)
-    lr = _check_pos("lr", lr)
+    p = validate.positive("pitch_m", pitch_m, unit="")
+    f = validate.positive("focal_length_m", focal_length_m, unit="")
+    D = validate.positive("pupil_diameter_m", pupil_diameter_m, unit="")
+    frames = validate.integer("frames", frames, 1, 4096)
+    iterations = validate.integer("iterations", iterations, 0, MAX_ITERATIONS)
+    lr = validate.positive("lr", lr, unit="")
     dev = torch.device(device)
     hp, wp = padded_shape((H, W))
     t0 = time.perf_counter()
@@ -227,13 +212,13 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     from holocore.pipeline import (
         RenderOptions,
         RenderResult,
-        _display_meta,
-        _versions,
+        display_meta_fields,
         plan_scene,
+        software_versions,
     )
     from holocore.runtime.mitsuba_env import variant
 
-    gt_spp = _check_int("gt_spp", gt_spp, 1, 1 << 16)
+    gt_spp = validate.integer("gt_spp", gt_spp, 1, 1 << 16)
     wp = float(white_percentile)
     if not (math.isfinite(wp) and 50.0 <= wp <= 100.0):
         raise ValueError(f"white_percentile must be in 50..100, got {white_percentile!r}")
@@ -257,7 +242,7 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
                  "wavelengths_m": list(optics.wavelengths_m)}
     D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
-    D = _check_pos("pupil_diameter_m", D)
+    D = validate.positive("pupil_diameter_m", D, unit="")
     H, W = optics.resolution_hw
     t1 = time.perf_counter()
     truth = GroundTruth(loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
@@ -303,8 +288,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
                              f"{F} phase-only frame(s) per colour optimised together ({iterations} Adam steps) on "
                              f"the frame-averaged amplitude, colours balanced by laser power",
                              pl.field_of_view["summary"]]},
-        "field_of_view": pl.field_of_view, **_display_meta(display, optics),
-        "stats": {}, "timings": timings, "versions": _versions(variant()),
+        "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
+        "stats": {}, "timings": timings, "versions": software_versions(variant()),
     }
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
 

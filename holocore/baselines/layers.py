@@ -27,18 +27,13 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from holocore import validate
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers"]
 
 MAX_PLANES = 256
 MAX_SPP = 1 << 16
-
-
-def _check_int(name: str, value: object, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= int(value) <= hi:
-        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {value!r}")
-    return int(value)
 
 
 def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, spp: int = 64, seed: int = 0,
@@ -52,7 +47,7 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
 
     mi = mitsuba()
     H, W = (int(s) for s in shape_hw)
-    spp = _check_int("spp", spp, 1, MAX_SPP)
+    spp = validate.integer("spp", spp, 1, MAX_SPP)
     p = float(pitch_m)
     if not (math.isfinite(p) and p > 0):
         raise ValueError(f"pitch_m must be finite and > 0, got {pitch_m!r}")
@@ -82,7 +77,7 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
 
 def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
     """``planes`` hologram depths (m) uniform from the smallest to the largest finite value of ``z_holo``."""
-    planes = _check_int("planes", planes, 1, MAX_PLANES)
+    planes = validate.integer("planes", planes, 1, MAX_PLANES)
     z = np.asarray(z_holo, dtype=np.float64)
     z = z[np.isfinite(z)]
     if z.size == 0:
@@ -114,7 +109,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
         raise ValueError(f"rgb must be [3, H, W] and zc [H, W], got {img.shape} and {depth.shape}")
     if not np.all(np.isfinite(img)) or img.min() < 0:
         raise ValueError("rgb must be finite radiance >= 0")
-    frames = _check_int("frames", frames, 1, 4096)
+    frames = validate.integer("frames", frames, 1, 4096)
     f, zi, zw, p = (float(v) for v in (focal_length_m, z_inf_m, z_wrp_m, pitch_m))
     H, W = depth.shape
     hit = np.isfinite(depth) & (depth > 0)
@@ -161,14 +156,14 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     from holocore.pipeline import (
         RenderOptions,
         RenderResult,
-        _display_meta,
-        _versions,
+        display_meta_fields,
         plan_scene,
+        software_versions,
     )
     from holocore.runtime.mitsuba_env import variant
 
-    planes = _check_int("planes", planes, 1, MAX_PLANES)
-    spp = _check_int("spp", spp, 1, MAX_SPP)
+    planes = validate.integer("planes", planes, 1, MAX_PLANES)
+    spp = validate.integer("spp", spp, 1, MAX_SPP)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
@@ -204,7 +199,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
         "plan": {"summary": [f"layer baseline: {planes} planes uniform in dioptres, RGB-D at {spp} spp, random "
                              f"phase per frame, ASM plane -> WRP -> SLM, no occlusion handling",
                              pl.field_of_view["summary"]]},
-        "field_of_view": pl.field_of_view, **_display_meta(display, optics),
-        "stats": {}, "timings": timings, "versions": _versions(variant()),
+        "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
+        "stats": {}, "timings": timings, "versions": software_versions(variant()),
     }
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)

@@ -10,7 +10,8 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
-from holocore.optics.propagation import PitchLike, _pitch_pair, asm, ifft2
+from holocore import validate
+from holocore.optics.propagation import PitchLike, asm, ifft2
 from holocore.trace.randomfield import passband_mask
 
 TWO_PI = 2.0 * math.pi
@@ -18,32 +19,6 @@ ArrayLike = Union[np.ndarray, torch.Tensor]
 
 
 # ---- validation --------------------------------------------------------------------------------------------
-def _finite(name: str, value: object, *, low: float, low_inclusive: bool, unit: str) -> float:
-    if isinstance(value, (bool, str, bytes)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    ok = math.isfinite(v) and (v >= low if low_inclusive else v > low)
-    if not ok:
-        raise ValueError(f"{name} must be finite and {'>=' if low_inclusive else '>'} {low} {unit}, got {value!r}")
-    return v
-
-
-def _wavelengths(wavelengths_m: Sequence[float], n_colors: int) -> list[float]:
-    try:
-        lams = [float(v) for v in wavelengths_m]
-    except (TypeError, ValueError):
-        raise ValueError(f"wavelengths_m must be a sequence of numbers (m), got {wavelengths_m!r}") from None
-    if len(lams) != n_colors:
-        raise ValueError(f"wavelengths_m has {len(lams)} entries but the target has {n_colors} colors")
-    for i, lam in enumerate(lams):
-        if not math.isfinite(lam) or not 0.0 < lam < 1e-5:
-            raise ValueError(f"wavelengths_m[{i}] must be in (0, 1e-5) m, got {lam!r}")
-    return lams
-
-
 def _as_field(target: ArrayLike, device: Optional[Union[str, torch.device]]) -> torch.Tensor:
     """complex64 [F, C, H, W] on the chosen device (default: the input's, CPU for numpy)."""
     if isinstance(target, torch.Tensor):
@@ -66,9 +41,9 @@ def _as_field(target: ArrayLike, device: Optional[Union[str, torch.device]]) -> 
 def _common(target_wrp: ArrayLike, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,
             device: Optional[Union[str, torch.device]]) -> tuple[torch.Tensor, float, list[float]]:
     t = _as_field(target_wrp, device)
-    z = _finite("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=False, unit="m (WRP in front of the SLM)")
-    lams = _wavelengths(wavelengths_m, t.shape[1])
-    _pitch_pair(pitch_m)
+    z = validate.bounded("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=False, unit="m (WRP in front of the SLM)")
+    lams = validate.wavelengths(wavelengths_m, t.shape[1])
+    validate.pitch_pair(pitch_m)
     return t, z, lams
 
 
@@ -110,8 +85,8 @@ def _band(u: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
 def passband_filter(field: ArrayLike, *, wavelengths_m: Sequence[float], pitch_m: PitchLike) -> torch.Tensor:
     """A WRP/SLM field [F, C, H, W] with the light outside each color's recording cone removed (complex64)."""
     u = _as_field(field, None)
-    lams = _wavelengths(wavelengths_m, u.shape[1])
-    _pitch_pair(pitch_m)
+    lams = validate.wavelengths(wavelengths_m, u.shape[1])
+    validate.pitch_pair(pitch_m)
     with torch.no_grad():
         return _band(u, _band_masks(tuple(u.shape[-2:]), lams, pitch_m, u.device))
 
@@ -151,9 +126,9 @@ def reach_margin_px(*, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: 
     theta_max = arcsin(lambda / 2p) (DESIGN §4) for the longest wavelength (the widest cone), p the larger
     pitch. A WRP pixel closer to the edge than this misses part of its cone of SLM pixels.
     """
-    z = _finite("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=True, unit="m")
-    py, px = _pitch_pair(pitch_m)
-    lams = _wavelengths(wavelengths_m, len(list(wavelengths_m)))
+    z = validate.bounded("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=True, unit="m")
+    py, px = validate.pitch_pair(pitch_m)
+    lams = validate.wavelengths(wavelengths_m, len(list(wavelengths_m)))
     if not lams:
         raise ValueError("wavelengths_m must not be empty")
     p = max(py, px)

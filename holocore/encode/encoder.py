@@ -29,13 +29,11 @@ from typing import Any, Callable, Optional, Sequence, Union
 import numpy as np
 import torch
 
+from holocore import validate
 from holocore.encode.block import SUPERVISIONS, BlockResult, encode_block
 from holocore.encode.core import (
     TWO_PI,
     ArrayLike,
-    _finite,
-    _pitch_pair,
-    _wavelengths,
     field_error,
     ideal_slm_field,
     passband_filter,
@@ -190,9 +188,9 @@ def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: S
          sgd: Optional[dict] = None, progress: Optional[ProgressFn] = None, options: Optional[dict] = None) -> EncodeResult:
     t0 = time.perf_counter()
     t = _check_target(target_wrp)
-    z = _finite("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=False, unit="m (WRP in front of the SLM)")
-    lams = _wavelengths(wavelengths_m, t.shape[1])
-    _pitch_pair(pitch_m)
+    z = validate.bounded("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=False, unit="m (WRP in front of the SLM)")
+    lams = validate.wavelengths(wavelengths_m, t.shape[1])
+    validate.pitch_pair(pitch_m)
     if not isinstance(fourier_filter, (bool, np.bool_)):
         raise ValueError(f"fourier_filter must be True or False, got {fourier_filter!r}")
     F, C, H, W = t.shape
@@ -233,14 +231,14 @@ def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: S
     return acc.result(method, phase, sup, t0, opts)
 
 
-def _sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:
+def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 10**6:
         raise ValueError(f"iterations must be an integer in 0..1000000, got {iterations!r}")
-    lr = _finite("lr", lr, low=0.0, low_inclusive=False, unit="rad")
+    lr = validate.bounded("lr", lr, low=0.0, low_inclusive=False, unit="rad")
     if tol is not None:
-        tol = _finite("tol", tol, low=0.0, low_inclusive=True, unit="(relative loss change)")
-    stop_db = _finite("stop_db", stop_db, low=0.0, low_inclusive=True, unit="dB")
-    w = _finite("efficiency_weight", efficiency_weight, low=0.0, low_inclusive=True, unit="")
+        tol = validate.bounded("tol", tol, low=0.0, low_inclusive=True, unit="(relative loss change)")
+    stop_db = validate.bounded("stop_db", stop_db, low=0.0, low_inclusive=True, unit="dB")
+    w = validate.bounded("efficiency_weight", efficiency_weight, low=0.0, low_inclusive=True, unit="")
     if w > 1.0:
         raise ValueError(f"efficiency_weight must be in [0, 1], got {efficiency_weight!r}")
     return dict(iterations=int(iterations), lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=w)
@@ -261,7 +259,7 @@ def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence
     rad (default arg u0). ``fourier_filter``: the display's (module docstring). ``chunk_frames``: frames per
     block (default all; the result does not depend on it). ``progress(stage, done, total)``.
     """
-    sgd = _sgd_options(iterations, lr, tol, stop_db, efficiency_weight)
+    sgd = sgd_options(iterations, lr, tol, stop_db, efficiency_weight)
     opts = {"lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"], "efficiency_weight": sgd["efficiency_weight"],
             "max_iterations": sgd["iterations"], "init": "naive" if init is None else "given",
             "device": str(device if device is not None else (target_wrp.device if isinstance(target_wrp, torch.Tensor)

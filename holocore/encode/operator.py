@@ -51,11 +51,11 @@ from typing import Iterator, Optional
 
 import torch
 
+from holocore import validate
 from holocore.optics.propagation import (
     PitchLike,
-    _pitch_pair,
-    _smooth_at_least,
     padded_shape,
+    smooth_at_least,
     transfer_function,
 )
 from holocore.trace.randomfield import passband_mask
@@ -64,7 +64,7 @@ from holocore.trace.randomfield import passband_mask
 def spread_px(z_m: float, wavelength_m: float, pitch_m: PitchLike) -> int:
     """Sideways reach r (pixels) of the full-band ASM over |z|: ceil(|z| s / (p sqrt(1 - 2 s^2))), s = lambda/2p
     (module docstring); -1 when the band contains evanescent corners (2 s^2 >= 1): no finite bound."""
-    py, px = _pitch_pair(pitch_m)
+    py, px = validate.pitch_pair(pitch_m)
     p = min(py, px)
     s = wavelength_m / (2.0 * p)
     if 2.0 * s * s >= 1.0:
@@ -78,7 +78,7 @@ def encoder_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pit
     r = spread_px(z_m, wavelength_m, pitch_m)
     if r < 0:
         return full
-    return tuple(min(_smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore
+    return tuple(min(smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore
 
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters (malloc.h)

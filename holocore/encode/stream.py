@@ -21,12 +21,13 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 import torch
 
+from holocore import validate
 from holocore.encode.block import encode_block
-from holocore.encode.core import _finite, _wavelengths, wrap_phase
+from holocore.encode.core import wrap_phase
 from holocore.encode.encoder import (
     Assembler,
     EncodeResult,
-    _sgd_options,
+    sgd_options,
     supervision_for,
 )
 from holocore.encode.output import quantize
@@ -93,8 +94,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     if len(src.shape) != 4:
         raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
     F, C, H, W = src.shape
-    z = _finite("z_wrp_m", meta.z_wrp_m, low=0.0, low_inclusive=False, unit="m")
-    lams = _wavelengths(meta.wavelengths_m, C)
+    z = validate.bounded("z_wrp_m", meta.z_wrp_m, low=0.0, low_inclusive=False, unit="m")
+    lams = validate.wavelengths(meta.wavelengths_m, C)
     pitch = meta.pitch_m
     display = meta.display
     if fourier_filter is None:
@@ -103,7 +104,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     else:
         source = "option"
     sup = supervision_for(bool(fourier_filter))
-    sgd_opts = _sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
+    sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
                                "efficiency_weight": 0.0, **sgd}) if method == "sgd" else {}
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))

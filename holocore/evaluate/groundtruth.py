@@ -31,6 +31,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from holocore import validate
 from holocore.formats.meta import MetaLike, parse_view_meta
 from holocore.trace.mapping import HologramMap
 
@@ -42,24 +43,14 @@ DEFAULT_MAX_DEPTH = 12  # path length of the ground truth when the scene names n
 _FAR_FOCUS_M = 1e7  # "focused at infinity": Mitsuba needs a finite focus distance
 
 
-def _finite(name: str, value: object, *, positive: bool = False) -> float:
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or (positive and v <= 0):
-        raise ValueError(f"{name} must be finite{' and > 0' if positive else ''}, got {value!r}")
-    return v
-
-
 def focus_distance_m(focus_z_m: float, *, focal_length_m: float, z_inf_m: float) -> float:
     """World focus distance (m) of hologram depth z_f: f^2 / (z_f - z_inf) (DESIGN §3, §7).
 
     z_f = z_inf is optical infinity (returned as 1e7 m); z_f < z_inf lies beyond infinity (ValueError).
     """
-    z = _finite("focus_z_m", focus_z_m)
-    f = _finite("focal_length_m", focal_length_m, positive=True)
-    zi = _finite("z_inf_m", z_inf_m, positive=True)
+    z = validate.real("focus_z_m", focus_z_m)
+    f = validate.positive("focal_length_m", focal_length_m)
+    zi = validate.positive("z_inf_m", z_inf_m)
     dz = z - zi
     if dz < 0:
         raise ValueError(f"focus_z_m = {z * 1e3:.4f} mm lies beyond optical infinity (z_inf = {zi * 1e3:.4f} mm): "
@@ -80,11 +71,11 @@ def thinlens_sensor(hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: fl
         raise ValueError(f"shape_hw must be (H, W) in pixels, got {shape_hw!r}") from None
     if not (1 <= H <= 16384 and 1 <= W <= 16384):
         raise ValueError(f"shape_hw must be two sizes in 1..16384 px, got {shape_hw!r}")
-    p = _finite("pitch_m", pitch_m, positive=True)
-    d = _finite("pupil_diameter_m", pupil_diameter_m, positive=True)
+    p = validate.positive("pitch_m", pitch_m)
+    d = validate.positive("pupil_diameter_m", pupil_diameter_m)
     if len(view_offset_m) != 2:
         raise ValueError(f"view_offset_m must be (e_x, e_y) in m, got {view_offset_m!r}")
-    ex, ey = (_finite(f"view_offset_m[{i}]", v) for i, v in enumerate(view_offset_m))
+    ex, ey = (validate.real(f"view_offset_m[{i}]", v) for i, v in enumerate(view_offset_m))
     if not 1 <= int(spp) <= MAX_GT_SPP:
         raise ValueError(f"spp must be in 1..{MAX_GT_SPP}, got {spp!r}")
     f = hmap.focal_length_m
@@ -122,8 +113,8 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
 
     mi = mitsuba()
     hmap = HologramMap(cam_to_world=np.asarray(sensor_to_world, dtype=np.float64),
-                       focal_length_m=_finite("focal_length_m", focal_length_m, positive=True),
-                       z_inf_m=_finite("z_inf_m", z_inf_m, positive=True))
+                       focal_length_m=validate.positive("focal_length_m", focal_length_m),
+                       z_inf_m=validate.positive("z_inf_m", z_inf_m))
     sensor = thinlens_sensor(hmap, shape_hw=shape_hw, pitch_m=pitch_m, focus_z_m=focus_z_m,
                              pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, spp=spp)
     if not 0 <= int(seed) < 2**31:
@@ -143,7 +134,7 @@ def channels_for_wavelengths(rgb: np.ndarray, wavelengths_m: Sequence[float]) ->
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[0] != 3:
         raise ValueError(f"rgb must be [3, H, W], got shape {a.shape}")
-    lams = [_finite("wavelengths_m", v, positive=True) for v in wavelengths_m]
+    lams = [validate.positive("wavelengths_m", v) for v in wavelengths_m]
     if not lams:
         raise ValueError("wavelengths_m needs at least one wavelength")
     return np.stack([a[channel_of(lam)] for lam in lams], axis=0)
@@ -154,11 +145,11 @@ def pupil_diffraction(img: np.ndarray, *, wavelengths_m: Sequence[float], pitch_
     """Each channel [C, H, W] convolved with the incoherent PSF of a pupil of ``numerical_aperture`` (sine)
     at its wavelength (m), on the grid of ``pitch_m`` (m); float64, same sum. Edges are padded by reflection."""
     a = np.asarray(img, dtype=np.float64)
-    lams = [_finite("wavelengths_m", v, positive=True) for v in wavelengths_m]
+    lams = [validate.positive("wavelengths_m", v) for v in wavelengths_m]
     if a.ndim != 3 or a.shape[0] != len(lams):
         raise ValueError(f"img must be [C, H, W] with one channel per wavelength, got {a.shape} for {len(lams)}")
-    p = _finite("pitch_m", pitch_m, positive=True)
-    na = _finite("numerical_aperture", numerical_aperture, positive=True)
+    p = validate.positive("pitch_m", pitch_m)
+    na = validate.positive("numerical_aperture", numerical_aperture)
     C, H, W = a.shape
     ph, pw = H // 2 + 1, W // 2 + 1
     out = np.empty_like(a)

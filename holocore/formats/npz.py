@@ -203,7 +203,13 @@ class NpzWriter:
                 self._zf.close()
                 self._fh.close()
                 os.replace(self._tmp, self.path)
-            else:  # abandon the file; closing the zip with a member still open would hide the caller's error
+            else:  # abandon the file, and let the caller's error through (zipfile refuses to close with a member open)
+                try:
+                    if self._open is not None and not self._open.fh.closed:
+                        self._open.fh.close()
+                    self._zf.close()
+                except Exception:  # noqa: BLE001 - the file is dropped anyway; the caller's error is the one to see
+                    pass
                 self._fh.close()
         finally:
             Path(self._tmp).unlink(missing_ok=True)

@@ -18,16 +18,16 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
-from typing import Sequence, Union
+from typing import Union
 
 import torch
 
 import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
+from holocore import validate
+from holocore.validate import PitchLike
 
 __all__ = ["asm", "ifft2", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
 
-PitchLike = Union[float, Sequence[float]]
-"""A pixel pitch in metres: one float (square pixels) or a ``(pitch_y, pitch_x)`` pair."""
 
 _TF_CACHE_MAX_ENTRIES = 16
 _TF_CACHE_MAX_BYTES = 1 << 30  # 1 GiB of transfer functions at most
@@ -39,38 +39,6 @@ _ws_local = threading.local()
 
 
 # ---- validation ------------------------------------------------------------------------------------------
-def _real(name: str, value: object) -> float:
-    """A finite real scalar (Python, numpy or one-element torch) as float; ValueError otherwise."""
-    if isinstance(value, (bool, str, bytes, complex)) or getattr(value, "ndim", 0) != 0 \
-            or (isinstance(value, torch.Tensor) and value.is_complex()):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {v}")
-    return v
-
-
-def _positive(name: str, value: object) -> float:
-    v = _real(name, value)
-    if v <= 0.0:
-        raise ValueError(f"{name} must be > 0 (metres), got {v}")
-    return v
-
-
-def _pitch_pair(pitch_m: PitchLike) -> tuple[float, float]:
-    """(pitch_y, pitch_x) in metres from a float or a (pitch_y, pitch_x) pair; each finite and > 0."""
-    if isinstance(pitch_m, (list, tuple)) or getattr(pitch_m, "ndim", 0) == 1:
-        vals = list(pitch_m)  # type: ignore[arg-type]
-        if len(vals) != 2:
-            raise ValueError(f"pitch_m pair must be (pitch_y, pitch_x), got {len(vals)} values")
-        return _positive("pitch_m[0] (pitch_y)", vals[0]), _positive("pitch_m[1] (pitch_x)", vals[1])
-    p = _positive("pitch_m", pitch_m)
-    return p, p
-
-
 def _check_field(field: object) -> torch.Tensor:
     if not isinstance(field, torch.Tensor):
         raise ValueError(f"field must be a torch tensor, got {type(field).__name__}")
@@ -83,7 +51,7 @@ def _check_field(field: object) -> torch.Tensor:
     return field
 
 
-def _smooth_at_least(n: int) -> int:
+def smooth_at_least(n: int) -> int:
     """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
     m = max(1, n)
     while True:
@@ -98,13 +66,13 @@ def _smooth_at_least(n: int) -> int:
 
 def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int, int]:
     """Padded FFT grid (rows, cols) that :func:`asm` uses: ceil(n * pad_factor), rounded up to a 7-smooth size."""
-    pf = _real("pad_factor", pad_factor)
+    pf = validate.real("pad_factor", pad_factor)
     if pf < 1.0:
         raise ValueError(f"pad_factor must be >= 1, got {pf}")
     h, w = (int(s) for s in shape_hw)
     if h < 1 or w < 1:
         raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")
-    return _smooth_at_least(math.ceil(h * pf - 1e-9)), _smooth_at_least(math.ceil(w * pf - 1e-9))
+    return smooth_at_least(math.ceil(h * pf - 1e-9)), smooth_at_least(math.ceil(w * pf - 1e-9))
 
 
 # ---- transfer function -----------------------------------------------------------------------------------
@@ -183,9 +151,9 @@ def transfer_function(shape_hw_padded: tuple[int, int], distance_m: float, wavel
     hp, wp = (int(s) for s in shape_hw_padded)
     if hp < 1 or wp < 1:
         raise ValueError(f"shape_hw_padded must be two sizes >= 1, got {shape_hw_padded}")
-    z = _real("distance_m", distance_m)
-    lam = _positive("wavelength_m", wavelength_m)
-    py, px = _pitch_pair(pitch_m)
+    z = validate.real("distance_m", distance_m)
+    lam = validate.positive("wavelength_m", wavelength_m)
+    py, px = validate.pitch_pair(pitch_m)
     return _cached_tf((hp, wp), z, lam, py, px, band_limit, torch.device(device), dtype).clone()
 
 
@@ -234,9 +202,9 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
     crops back. Returns a new tensor of the input's shape, dtype and device. Differentiable.
     """
     field = _check_field(field)
-    z = _real("distance_m", distance_m)
-    lam = _positive("wavelength_m", wavelength_m)
-    py, px = _pitch_pair(pitch_m)
+    z = validate.real("distance_m", distance_m)
+    lam = validate.positive("wavelength_m", wavelength_m)
+    py, px = validate.pitch_pair(pitch_m)
     h, w = field.shape[-2], field.shape[-1]
     hp, wp = padded_shape((h, w), pad_factor)
     if z == 0.0:

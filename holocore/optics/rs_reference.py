@@ -22,18 +22,11 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
+from holocore import validate
+
 __all__ = ["rs_direct", "grid_coordinates"]
 
 _CHUNK_ELEMENTS = 1 << 21  # kernel entries per chunk (~32 MiB of complex128 plus temporaries)
-
-
-def _pitch_pair(name: str, pitch: Union[float, Sequence[float]]) -> tuple[float, float]:
-    arr = np.asarray(pitch, dtype=np.float64)
-    if arr.ndim == 0:
-        arr = np.array([arr, arr])
-    if arr.shape != (2,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ValueError(f"{name} must be a finite pitch > 0 in m or a (pitch_y, pitch_x) pair, got {pitch!r}")
-    return float(arr[0]), float(arr[1])
 
 
 def grid_coordinates(shape_hw: tuple[int, int], pitch_m: Union[float, Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -41,7 +34,7 @@ def grid_coordinates(shape_hw: tuple[int, int], pitch_m: Union[float, Sequence[f
     h, w = (int(s) for s in shape_hw)
     if h < 1 or w < 1:
         raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")
-    py, px = _pitch_pair("pitch_m", pitch_m)
+    py, px = validate.pitch_pair(pitch_m, name="pitch_m")
     x = (np.arange(w, dtype=np.float64) - (w - 1) / 2.0) * px
     y = ((h - 1) / 2.0 - np.arange(h, dtype=np.float64)) * py
     return x, y
@@ -67,11 +60,11 @@ def rs_direct(field: np.ndarray, distance_m: float, wavelength_m: float, pitch_m
     lam = float(wavelength_m)
     if not math.isfinite(lam) or lam <= 0:
         raise ValueError(f"wavelength_m must be finite and > 0 (m), got {wavelength_m!r}")
-    py, px = _pitch_pair("pitch_m", pitch_m)
+    py, px = validate.pitch_pair(pitch_m, name="pitch_m")
     oshape = u.shape if out_shape is None else tuple(int(s) for s in out_shape)
     if len(oshape) != 2 or oshape[0] < 1 or oshape[1] < 1:
         raise ValueError(f"out_shape must be (H, W) with sizes >= 1, got {out_shape!r}")
-    opitch = (py, px) if out_pitch_m is None else _pitch_pair("out_pitch_m", out_pitch_m)
+    opitch = (py, px) if out_pitch_m is None else validate.pitch_pair(out_pitch_m, name="out_pitch_m")
 
     xi, yi = grid_coordinates(u.shape, (py, px))
     xo, yo = grid_coordinates(oshape, opitch)

@@ -25,11 +25,9 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
+from holocore import validate
 from holocore.optics.propagation import (
     PitchLike,
-    _pitch_pair,
-    _positive,
-    _real,
     ifft2,
     padded_shape,
     transfer_function,
@@ -42,9 +40,9 @@ _CHUNK_BYTES = 256 << 20  # padded spectra processed at once, per channel
 
 def depth_of_field_m(wavelength_m: float, focal_length_m: float, pupil_diameter_m: float) -> float:
     """Hologram-space depth of field (m) of a pupil: lambda / NA^2 with NA = D / (2 f)."""
-    lam = _positive("wavelength_m", wavelength_m)
-    f = _positive("focal_length_m", focal_length_m)
-    d = _positive("pupil_diameter_m", pupil_diameter_m)
+    lam = validate.positive("wavelength_m", wavelength_m)
+    f = validate.positive("focal_length_m", focal_length_m)
+    d = validate.positive("pupil_diameter_m", pupil_diameter_m)
     na = d / (2.0 * f)
     return lam / (na * na)
 
@@ -70,13 +68,13 @@ def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: P
     ``view_offset_m`` is (e_x, e_y) in m, x right and y up (DESIGN §3).
     """
     hp, wp = (int(s) for s in shape_hw_padded)
-    lam = _positive("wavelength_m", wavelength_m)
-    py, px = _pitch_pair(pitch_m)
-    f = _positive("focal_length_m", focal_length_m)
-    d = _positive("pupil_diameter_m", pupil_diameter_m)
+    lam = validate.positive("wavelength_m", wavelength_m)
+    py, px = validate.pitch_pair(pitch_m)
+    f = validate.positive("focal_length_m", focal_length_m)
+    d = validate.positive("pupil_diameter_m", pupil_diameter_m)
     if len(view_offset_m) != 2:
         raise ValueError(f"view_offset_m must be (e_x, e_y) in m, got {view_offset_m!r}")
-    ex, ey = _real("view_offset_m[0]", view_offset_m[0]), _real("view_offset_m[1]", view_offset_m[1])
+    ex, ey = validate.real("view_offset_m[0]", view_offset_m[0]), validate.real("view_offset_m[1]", view_offset_m[1])
     sx = lam * torch.fft.fftfreq(wp, d=px, dtype=torch.float64, device=device)  # direction sine along x
     sy = -lam * torch.fft.fftfreq(hp, d=py, dtype=torch.float64, device=device)  # rows run down: f_y = -f_row
     na = d / (2.0 * f)
@@ -114,8 +112,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     lams = [float(v) for v in wavelengths_m]
     if len(lams) != C:
         raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {C} channels")
-    zs = [_real("distance_m", z) for z in distances_m]
-    _pitch_pair(pitch_m)
+    zs = [validate.real("distance_m", z) for z in distances_m]
+    validate.pitch_pair(pitch_m)
     a_row, a_col = (float(v) for v in shift_px)
     m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
     hs, ws = h + 2 * m, w + 2 * m
@@ -191,7 +189,7 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     lams = [float(v) for v in wavelengths_m]
     if len(lams) != field.shape[1]:
         raise ValueError(f"wavelengths_m has {len(lams)} entries but the field has {field.shape[1]} channels")
-    z = _real("distance_m", distance_m)
+    z = validate.real("distance_m", distance_m)
     return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
                             pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
                             pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes)[0]

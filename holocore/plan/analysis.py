@@ -44,7 +44,7 @@ class SceneAnalysis(BaseModel):
     image_depths_holo_m: list[float] = []
 
 
-def _camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
+def camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
                  rng: np.random.Generator) -> np.ndarray:
     """Eye-camera unit directions covering the hologram's field of view (x = f tan(angle)), jittered."""
     H, W = shape_hw
@@ -163,7 +163,7 @@ def analyze(
     """Sparse pre-pass from the eye point; places the WRP or raises :class:`SceneDoesNotFit`."""
     mi = mitsuba()
     rng = np.random.default_rng([seed, 31337])
-    dirs_c = _camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
+    dirs_c = camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
     R = dirs_c.shape[0]
     eye_w = hmap.camera_to_world(np.zeros((1, 3)))
     o = np.repeat(eye_w, R, axis=0)

@@ -91,7 +91,7 @@ def cell_major(bank: torch.Tensor) -> torch.Tensor:
 
 def combined_cells(banks: Sequence[torch.Tensor]) -> torch.Tensor:
     """Per-color banks [F, H, W] as one table [H*W, C, F]: a view when they are color slices of one cell-major
-    [H, W, C, F] tensor (``pipeline._banks`` builds them so), a copy otherwise."""
+    [H, W, C, F] tensor (``pipeline.frame_banks`` builds them so), a copy otherwise."""
     b0 = banks[0]
     F, H, W = b0.shape
     C = len(banks)

@@ -24,7 +24,7 @@ One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in thi
    or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
 3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
 4. :func:`_coherent_step`: on a delta lobe, the float64 ray-differential transfer (Igehy 1999,
-   :func:`_igehy_transfer`); at P behind delta vertices, the apparent distance d (DESIGN §4, docs/physics.md);
+   :func:`igehy_transfer`); at P behind delta vertices, the apparent distance d (DESIGN §4, docs/physics.md);
 5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next
    ray, Russian roulette).
 
@@ -44,7 +44,7 @@ if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsu
 
     from holocore.trace.radiance_cache import RadianceCache
 
-__all__ = ["WavePaths", "trace_wave_paths"]
+__all__ = ["WavePaths", "trace_wave_paths", "igehy_transfer"]
 
 _EPS_COS = 1e-7  # |cos| below this at a delta vertex: the differential transfer is singular, drop the ray
 
@@ -301,7 +301,7 @@ def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sample
 def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi.Bool:
     """Step 4, the coherent part (Sec. 4.2, DESIGN §4 "Virtual image point"), float64 and only in the lanes
     that need it (a real branch per packet): through a delta vertex, the differentials and the frame are
-    carried on (:func:`_igehy_transfer`); at a P behind delta vertices, d = 2 / tr(B^-1 A) is read from them
+    carried on (:func:`igehy_transfer`); at a P behind delta vertices, d = 2 / tr(B^-1 A) is read from them
     (docs/physics.md); at a P with no delta vertex before it (A = I, B = t I), d is the hit distance t (m).
     Chains past ``max_delta`` bounces are capped, grazing ones dropped. Returns where the chain goes on."""
     mi = mitsuba()
@@ -315,7 +315,7 @@ def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi
     def transfer(D, dP, dD, frame, n_cur, nd):
         # The shading normal's derivatives (curved mirrors and lenses), only where a chain goes on or ends.
         si_d = v.pi.compute_surface_interaction(v.ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, go_on | deep)
-        return _igehy_transfer(si_d, lobes.bs, go_on, D, dP, dD, frame, n_cur, nd)
+        return igehy_transfer(si_d, lobes.bs, go_on, D, dP, dD, frame, n_cur, nd)
 
     def keep(D, dP, dD, frame, n_cur, nd):
         return mi.Float64(0.0), mi.Bool(False), D, dP, dD, frame, n_cur, nd
@@ -390,7 +390,7 @@ def _mis(a: mi.Float, b: mi.Float) -> mi.Float:
     return dr.select(a > 0, a2 / (a2 + b * b), 0.0)
 
 
-def _igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
+def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
                     dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32) -> tuple:
     """At a chain vertex, in float64: the apparent distance d (m) read from the differentials (used where the
     chain ends here, at P), and, on ``go_on``, the differentials and the frame carried through the delta
@@ -466,9 +466,3 @@ def _igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.
     nd = dr.select(go_on, nd + 1, nd)
     D = dr.select(go_on, D_new, D)
     return d_here, singular, D, dP, dD, frame, n_cur, nd
-
-
-def _coherent(mi, si, bs, go_on, D, dP, dD, frame, n_cur, nd) -> tuple:
-    """:func:`_igehy_transfer` under the name and signature :mod:`holocore.trace.reference_chain` imports (the
-    reference implementation shares the transfer code with the kernel)."""
-    return _igehy_transfer(si, bs, go_on, D, dP, dD, frame, n_cur, nd)

@@ -82,11 +82,11 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
     mi = mitsuba()
     import drjit as dr
 
-    from holocore.plan.analysis import _camera_grid
+    from holocore.plan.analysis import camera_grid
     from holocore.trace.kernel import trace_wave_paths
 
     rng = np.random.default_rng([seed, 4242])
-    dirs_c = _camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
+    dirs_c = camera_grid(hmap, shape_hw, pitch_m, n_side, rng)
     v = np.repeat(hmap.camera_dir_to_world(dirs_c), samples, axis=0)
     R = v.shape[0]
     o = hmap.camera_to_world(np.zeros((1, 3)))[0]

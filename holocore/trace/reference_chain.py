@@ -255,7 +255,7 @@ class _DeltaChain:
     def run(self, max_delta: int) -> None:
         import drjit as dr
 
-        from holocore.trace.kernel import _coherent
+        from holocore.trace.kernel import igehy_transfer
 
         mi = self.mi
         for bounce in range(max_delta + 1):
@@ -275,8 +275,8 @@ class _DeltaChain:
                 cont_here = cont
             # The image point (where the chain stops) and the transfer through the vertex (where it goes on):
             # the same code as the fused kernel's.
-            d_here, singular, D, dP, dD, frame, n_cur, _nd = _coherent(
-                mi, si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w)
+            d_here, singular, D, dP, dD, frame, n_cur, _nd = igehy_transfer(
+                si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w)
             self.opl_w = dr.select(active, self.opl_w + self.n_cur * mi.Float64(si.t), self.opl_w)
             self._put("d_out", d_here, stop)
             self._put("fin_o", self.ray.o, stop)
