@@ -24,8 +24,10 @@ import numpy as np
 from holocore import __version__
 from holocore.display.optics import OpticsConfig
 from holocore.display.profiles import DisplayProfile
+from holocore.optics.plane_chain import chain_planes
 from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
+from holocore.sinks import FileSink, MemorySink
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
@@ -134,109 +136,6 @@ def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: in
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 
 
-class _MemorySink:
-    """Both fields in memory (the unchunked layout: one [F, C, H, W] array each)."""
-
-    def __init__(self, shape):
-        self.traced = np.zeros(shape, dtype=np.complex64)
-        self.other = np.empty(shape, dtype=np.complex64)
-
-    def write_rows(self, f0, colors, r0, block):
-        self.traced[f0:f0 + block.shape[0], colors, r0:r0 + block.shape[2]] = block
-
-    def add_rows(self, f0, colors, r0, block):
-        self.traced[f0:f0 + block.shape[0], colors, r0:r0 + block.shape[2]] += block
-
-    def read_traced(self, f0, f1, c):
-        return self.traced[f0:f1, c]
-
-    def write_other(self, f0, block):
-        self.other[f0:f0 + block.shape[0]] = block
-
-
-def _chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings) -> None:
-    """Trace the recording planes into the sink's traced field (frames f0..f0+n_f): one trace from the WRP
-    records every ray on the plane in front of its image point (holocore.trace.hologram_rays, ``planes``); each deeper
-    plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
-    ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
-    ``trace_plane(spec, on_plane_rows)`` runs the trace."""
-    import torch
-
-    from holocore.io import ScratchArray
-    from holocore.optics.propagation import asm, clear_cache
-
-    H, W = optics.resolution_hw
-    lams = [optics.wavelengths_m[c] for c in lit_idx]
-    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta) for k in range(planes.count)]
-    spec = [(planes.z_m[k], *planes.slab(k), borders[k]) for k in range(planes.count)]
-    scratch = [None] + [ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
-                                     dir=getattr(sink, "scratch_dir", None)) for b in borders[1:]]
-    try:
-        def on_plane_rows(k, r0, block):
-            rows = block.cpu().numpy()  # the one transfer to the host per block
-            if k == 0:
-                sink.write_rows(f0, lit_idx, r0, rows)
-            else:
-                scratch[k].write_rows(0, range(len(lams)), r0, rows)
-
-        trace_plane(spec if planes.count > 1 else None, on_plane_rows)
-        t0 = time.perf_counter()
-        for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
-            d = borders[k] - borders[k - 1]
-            Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
-            # The chunk planner sized fp for the WRP's grid; this plane's grid is wider, and the sum with the
-            # plane in front is held too: fewer frames per chunk.
-            step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
-            for a in range(0, n_f, step):
-                e = min(n_f, a + step)
-                for ci, lam in enumerate(lams):
-                    u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
-                    v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
-                    v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
-                    if k - 1 == 0:
-                        sink.add_rows(f0 + a, [lit_idx[ci]], 0, v[:, None])
-                    else:
-                        scratch[k - 1].add_rows(a, [ci], 0, v[:, None])
-                    del u, v
-            scratch[k].close()
-            clear_cache()  # this plane pair's transfer functions and padding workspaces are not used again
-        if planes.count > 1:
-            timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
-    finally:
-        for sc in scratch[1:]:
-            sc.close()
-
-
-class _FileSink:
-    """The traced field in a scratch file, the propagated one streamed straight into RESULT.npz."""
-
-    def __init__(self, writer, shape, traced_name, other_name):
-        from holocore.io import ScratchArray
-
-        self.writer, self.shape, self.traced_name = writer, shape, traced_name
-        self.scratch_dir = writer.path.parent
-        self.scratch = ScratchArray(shape, np.complex64, dir=writer.path.parent)
-        self.stream = writer.stream(other_name, shape, np.complex64)
-
-    def write_rows(self, f0, colors, r0, block):
-        self.scratch.write_rows(f0, colors, r0, block)
-
-    def add_rows(self, f0, colors, r0, block):
-        self.scratch.add_rows(f0, colors, r0, block)
-
-    def read_traced(self, f0, f1, c):
-        return self.scratch.read_fc(f0, f1, c)
-
-    def write_other(self, f0, block):
-        self.stream.write(block)
-
-    def finish(self):
-        self.stream.close()
-        self.writer.copy_from(self.traced_name, self.scratch)
-        self.scratch.close()
-
-
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
 # scene, the ambient cache, a tracer tile) and, per complex sample of a padded propagation grid, the ASM's
 # workspace, spectrum and output.
@@ -339,7 +238,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                         on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
                         planes=spec, on_plane_rows=on_plane_rows if spec else None)
 
-        _chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
+        chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
                       timings=timings)
         del banks
         timings["trace_s"] += time.perf_counter() - t3
@@ -400,7 +299,7 @@ def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderO
     ``display``: the profile ``optics`` came from, recorded in the meta (``display_profile``, ``display``).
     ``memory_budget_bytes``: sizes the chunks (see the module docstring); the two fields returned are held
     in memory whatever it says (use :func:`render_to_file` to stream them)."""
-    sink, meta = _render_into(lambda shape, _t, _o: _MemorySink(shape), loaded, optics, options,
+    sink, meta = _render_into(lambda shape, _t, _o: MemorySink(shape), loaded, optics, options,
                               progress=progress, display=display, memory_budget_bytes=memory_budget_bytes,
                               in_memory=True)
     slm, wrp = (sink.traced, sink.other) if options.method == "direct" else (sink.other, sink.traced)
@@ -428,7 +327,7 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
 
     loaded = load_scene(scene) if isinstance(scene, (str, Path)) else scene
     with NpzWriter(out_path) as writer:
-        sink, meta = _render_into(lambda shape, t, o: _FileSink(writer, shape, t, o), loaded, optics, options,
+        sink, meta = _render_into(lambda shape, t, o: FileSink(writer, shape, t, o), loaded, optics, options,
                                   progress=progress, display=display, memory_budget_bytes=memory_budget_bytes,
                                   in_memory=False)
         sink.finish()

@@ -99,8 +99,8 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     """
     import torch
 
+    from holocore.display.optics import channel_of
     from holocore.optics.propagation import asm
-    from holocore.trace.hologram_rays import channel_of
     from holocore.trace.randomfield import phase_bank
 
     img = np.asarray(rgb, dtype=np.float64)

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad"]
+__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "channel_of"]
 
 MAX_SIDE_PX = 16384
 """Largest SLM or WRP side accepted, in pixels (a 16k×16k complex64 field is 2 GiB)."""
@@ -28,6 +28,12 @@ def theta_max_rad(wavelength_m: float, pitch_m: float) -> float:
     Sec. 4.3). The one place this formula lives."""
     s = float(wavelength_m) / (2.0 * float(pitch_m))
     return math.pi / 2 if s >= 1.0 else math.asin(s)
+
+
+def channel_of(wavelength_m: float) -> int:
+    """RGB channel of the scene that a laser line shows (DESIGN §4): R from 590 nm, G 490-590 nm, B below."""
+    nm = float(wavelength_m) * 1e9
+    return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
 
 Wavelength = Annotated[float, Field(gt=100.0, lt=3000.0, allow_inf_nan=False)]

@@ -14,7 +14,7 @@ reconstruction's pixel grid, without a flip. Mitsuba's film column index runs al
 rows downwards, as our hologram grid does.
 
 Linear RGB radiance comes back as float32 [3, H, W]; a laser line's ground truth is the channel that holds
-it (:func:`holocore.trace.hologram_rays.channel_of`).
+it (:func:`holocore.display.optics.channel_of`).
 
 Diffraction. A thin-lens render is geometric: its pupil blurs defocused points but never limits resolution.
 An eye whose pupil accepts direction sines up to NA = D / 2f resolves no better than lambda / 2NA in hologram
@@ -129,7 +129,7 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
 
 def channels_for_wavelengths(rgb: np.ndarray, wavelengths_m: Sequence[float]) -> np.ndarray:
     """[C, H, W]: for each laser line the RGB channel that holds it (R >= 590 nm, G 490-590 nm, B below)."""
-    from holocore.trace.hologram_rays import channel_of
+    from holocore.display.optics import channel_of
 
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[0] != 3:

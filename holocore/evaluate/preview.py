@@ -8,6 +8,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from holocore.display.optics import channel_of
 from holocore.formats.meta import MetaLike, parse_view_meta
 
 __all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8", "depth_words"]
@@ -22,11 +23,6 @@ def depth_words(z_m: float, meta: MetaLike) -> str:
     if dz < 0:
         return "beyond infinity"
     return f"scene distance {meta.focal_length_m ** 2 / dz:.3g} m"
-
-
-def _channel_of(wavelength_m: float) -> int:
-    nm = wavelength_m * 1e9  # as holocore.trace.hologram_rays.channel_of (DESIGN §4), without importing Mitsuba
-    return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
 
 def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float = 4e-3,
@@ -56,7 +52,7 @@ def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float =
         H, W = one.shape[-2:]
         rgb = np.zeros((H, W, 3), dtype=np.float64)
         for c, lam in enumerate(wl):
-            rgb[..., _channel_of(lam)] += one[c]
+            rgb[..., channel_of(lam)] += one[c]
         if len(wl) == 1:
             rgb[...] = one[0][..., None]
         out.append(rgb)

@@ -306,7 +306,7 @@ def evaluate(field_slm: np.ndarray, meta: MetaLike, truth: Any, *, focus_planes:
 # ---- outputs ------------------------------------------------------------------------------------------------
 def to_rgb(img: np.ndarray, wavelengths_m: Sequence[float]) -> np.ndarray:
     """[C, H, W] per laser line -> [H, W, 3] linear RGB (one line: grey)."""
-    from holocore.trace.hologram_rays import channel_of
+    from holocore.display.optics import channel_of
 
     a = np.asarray(img, dtype=np.float64)
     if len(wavelengths_m) == 1:

@@ -10,9 +10,8 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel
 
-from holocore.display.optics import theta_max_rad
+from holocore.display.optics import channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
-from holocore.trace.hologram_rays import channel_of
 from holocore.trace.mapping import HologramMap
 from holocore.trace.reference_chain import aligned, trace_chain
 

@@ -20,20 +20,17 @@ pixel is the field at its centre, and a jittered start would blur it by the pixe
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
 import torch
 
-from holocore.display.optics import theta_max_rad
-from holocore.runtime.mitsuba_env import mitsuba
-from holocore.trace.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
+from holocore.trace.mapping import HologramMap
+from holocore.trace.tile import TileGeometry, trace_tile
 
-__all__ = ["TraceSettings", "TraceStats", "trace_field", "channel_of", "cell_major", "combined_cells"]
+__all__ = ["TraceSettings", "TraceStats", "trace_field", "cell_major", "combined_cells"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -76,12 +73,6 @@ class TraceStats:
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
-
-
-def channel_of(wavelength_m: float) -> int:
-    """RGB channel holding a laser line (DESIGN §4): R from 590 nm, G 490-590 nm, B below."""
-    nm = wavelength_m * 1e9
-    return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
 
 def cell_major(bank: torch.Tensor) -> torch.Tensor:
@@ -175,7 +166,7 @@ def trace_field(
     multi = planes is not None and len(planes) > 1
     if multi and (on_plane_rows is None or plane_z_m != z_wrp_m):
         raise ValueError("several recording planes need plane_z_m == z_wrp_m and on_plane_rows")
-    geo = _Geometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
+    geo = TileGeometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
                          plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp,
                          planes=planes if multi else None, ring_rows=rows_per_tile)
     if device is not None:
@@ -190,7 +181,7 @@ def trace_field(
     bands = _PlaneBands(geo, C, frames if cells is not None else 1, dev) if multi else None
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
-        tile = _trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
+        tile = trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
                            seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev)
         _park_drjit_workers()
         t1 = time.perf_counter()
@@ -264,274 +255,3 @@ def _park_drjit_workers() -> None:
     n = dr.thread_count()
     dr.set_thread_count(1)
     dr.set_thread_count(n)
-
-
-@dataclass(frozen=True)
-class _Geometry:
-    """What every tile shares: the plane, the cones, T and its inverse as plain numbers."""
-
-    H: int
-    W: int
-    pitch: float
-    plane_z: float
-    z_wrp: float
-    z_mid: float
-    direct: bool  # the plane lies behind the WRP (the SLM): rays start where they cross the WRP
-    planes: Optional[tuple]  # several recording planes: (z, lo, hi, border) front to back, plane 0 the WRP
-    ring_heights: tuple  # rows of each plane's ring buffer (see _PlaneBands)
-    ring_offsets: tuple  # first slot of each plane's ring in the flat table
-    ring_total: int
-    f: float
-    z_inf: float
-    rot: tuple  # eye-camera -> world, 3x3 row-major
-    rot_inv: tuple
-    origin: tuple
-    cos_max: float
-    omega: float
-    spp: int
-    ks: tuple
-    cos_lim: tuple
-    chans: tuple
-    depth_step: float  # m: depth grid of image points behind delta vertices, min over colors of DOF / 8
-
-    @classmethod
-    def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
-             planes=None, ring_rows: int = 1) -> "_Geometry":
-        thetas = [theta_max_rad(lam, pitch_m) for lam in wavelengths_m]
-        # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
-        thetas = [min(t, math.radians(89.0)) for t in thetas]
-        th_max = max(thetas)
-        H, W = shape_hw
-        pl = None if not planes else tuple((float(z), max(-1e30, float(lo)), float(hi), int(b))
-                                           for z, lo, hi, b in planes)
-        heights = tuple(ring_rows + 2 * b + 1 for _z, _lo, _hi, b in pl) if pl else ()
-        sizes = [h * (W + 2 * b) for h, (_z, _lo, _hi, b) in zip(heights, pl or ())]
-        offsets = tuple(int(v) for v in np.cumsum([0] + sizes[:-1])) if pl else ()
-        return cls(planes=pl, ring_heights=heights, ring_offsets=offsets, ring_total=int(sum(sizes)),
-                   H=H, W=W, pitch=pitch_m, plane_z=plane_z_m, z_wrp=z_wrp_m,
-                   z_mid=hmap.z_inf_m + 0.5 * (z_wrp_m - hmap.z_inf_m), direct=plane_z_m < z_wrp_m,
-                   f=hmap.focal_length_m, z_inf=hmap.z_inf_m,
-                   rot=tuple(map(float, hmap.rotation.ravel())), rot_inv=tuple(map(float, hmap.rotation_inv.ravel())),
-                   origin=tuple(map(float, hmap.origin)), cos_max=math.cos(th_max),
-                   omega=2.0 * math.pi * (1.0 - math.cos(th_max)), spp=spp,
-                   ks=tuple(2.0 * math.pi / lam for lam in wavelengths_m),
-                   cos_lim=tuple(math.cos(t) for t in thetas), chans=tuple(channel_of(lam) for lam in wavelengths_m),
-                   depth_step=min(image_depth_step_m(lam, t) for lam, t in zip(wavelengths_m, thetas)))
-
-
-def image_depth_step_m(wavelength_m: float, theta_max_rad: float) -> float:
-    """Depth grid (m) of image points behind delta vertices: an eighth of the depth of field of a point seen
-    through the recording cone, lambda / sin^2(theta_max) (axial extent of the focus of a cone of that numerical
-    aperture; 0.55 mm for 455 nm at 8 µm pitch, so the grid is 70 µm there)."""
-    return wavelength_m / (8.0 * math.sin(theta_max_rad) ** 2)
-
-
-def _mat(mi, m: tuple, v):
-    return mi.Vector3d(m[0] * v.x + m[1] * v.y + m[2] * v.z, m[3] * v.x + m[4] * v.y + m[5] * v.z,
-                       m[6] * v.x + m[7] * v.y + m[8] * v.z)
-
-
-def _holo_to_camera(mi, g, q):
-    return mi.Vector3d(*holo_to_camera_xyz(q.x, q.y, q.z, f=g.f, z_inf=g.z_inf))
-
-
-def _opaque(mi, g: _Geometry) -> SimpleNamespace:
-    """The geometry as kernel parameters rather than constants: one compiled kernel serves every resolution,
-    pitch, focal length, spp and tile (a megakernel takes seconds to compile)."""
-    import drjit as dr
-
-    def f64(v):
-        return dr.opaque(mi.Float64, float(v))
-
-    o = SimpleNamespace(**{k: f64(getattr(g, k)) for k in ("pitch", "plane_z", "z_wrp", "z_mid", "f", "z_inf",
-                                                            "cos_max", "omega", "depth_step")})
-    u32 = lambda v: dr.opaque(mi.UInt32, int(v))  # noqa: E731
-    o.planes = tuple((f64(z), f64(lo), f64(hi), f64(g.H + 2 * b), f64(g.W + 2 * b), u32(g.W + 2 * b),
-                      u32(g.ring_heights[k]), u32(g.ring_offsets[k])) for k, (z, lo, hi, b) in enumerate(g.planes or ()))
-    o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
-    o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
-    o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))
-    return o
-
-
-def _pixel_directions(mi, pix, n, seed: int):
-    """The 2D sample of each ray: ray i of its pixel's n takes (i / n + s, radinv_2(i) xor t) mod 1, with the
-    rotation s and scramble t random per pixel (seeded). Every point is uniform on its own; together the n of
-    a pixel cover the cone's strata evenly, so each random-phase cell of a small sub-hologram gets its share of
-    rays instead of a Poisson number (far less Monte Carlo noise where n approaches the cell count)."""
-    import drjit as dr
-
-    i = dr.arange(mi.UInt32, dr.width(pix)) % n
-    v0, v1 = mi.sample_tea_32(pix, dr.opaque(mi.UInt32, seed & 0xFFFFFFFF))  # opaque: one kernel for all seeds
-    shift = mi.Float(v0 >> 8) * (1.0 / (1 << 24))
-    x = mi.Float(i) / mi.Float(n) + shift
-    x = x - dr.floor(x)
-    y = mi.radical_inverse_2(i, v1)
-    return mi.Point2f(dr.minimum(x, 1.0 - 2.0 ** -24), y)
-
-
-def _pixel_fraction_in_cone(mi, dq, cos_max, pitch):
-    """The fraction of a pixel (side ``pitch``, centred at the origin of ``dq``) from which the point dq (float64
-    vector from the pixel centre, dq.z < 0) lies inside the cone of half-angle acos(cos_max) around -z. The
-    cone's edge at the pixel is nearly straight (its radius is several pixels), so the fraction is the CDF at
-    s = R - |dq_xy| of n.(x - c) for x uniform in the square, n the unit lateral direction: a trapezoid of
-    half-widths A = p |n_x| / 2 >= B = p |n_y| / 2 (the sum of two uniform variables)."""
-    import drjit as dr
-
-    F64 = mi.Float64
-    dl = dr.sqrt(dq.x * dq.x + dq.y * dq.y)
-    tan_max = dr.safe_sqrt(1.0 - cos_max * cos_max) / cos_max
-    s = (-dq.z) * tan_max - dl
-    inv = 1.0 / dr.maximum(dl, 1e-30)
-    ax, ay = dr.abs(dq.x) * inv, dr.abs(dq.y) * inv
-    ax = dr.select(dl > 0, ax, F64(1.0))
-    A = 0.5 * pitch * dr.maximum(ax, ay)
-    B = 0.5 * pitch * dr.minimum(ax, ay)
-    t = dr.abs(s)
-    flat = 0.5 + t / (2.0 * A)  # |s| <= A - B: the density is 1 / 2A
-    ramp = 1.0 - (A + B - t) ** 2 / dr.maximum(8.0 * A * B, 1e-300)
-    upper = dr.select(t <= A - B, flat, dr.select(t < A + B, ramp, F64(1.0)))
-    return dr.select(s >= 0, upper, 1.0 - upper)
-
-
-def _to_torch(x, dev: torch.device) -> torch.Tensor:
-    """A Dr.Jit array as a torch tensor on ``dev``: zero-copy through DLPack on the GPU, through numpy on the
-    CPU (the tensors' values are the same)."""
-    if dev.type == "cuda":
-        return x.torch()
-    return torch.from_numpy(np.asarray(x))
-
-
-def _trace_tile(scene, g: _Geometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
-                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device) -> dict:
-    """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
-    ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
-    major) and, with ``want_cells``, the bank cell of every ray's image point ("idx")."""
-    mi = mitsuba()
-    import drjit as dr
-
-    from holocore.trace.kernel import trace_wave_paths
-
-    F64, V3d, N = mi.Float64, mi.Vector3d, settings.spp
-    R = (r1 - r0) * g.W * N
-    o = _opaque(mi, g)
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, R)
-    pix = dr.arange(mi.UInt32, R) // o.N + dr.opaque(mi.UInt32, r0 * g.W)
-    s = V3d((F64(pix % o.W) - (o.Wf - 1.0) * 0.5) * o.pitch, ((o.Hf - 1.0) * 0.5 - F64(pix // o.W)) * o.pitch,
-            o.plane_z)
-    # Directions uniform in solid angle in the widest cone around -z: a pixel's N rays form a scrambled
-    # Hammersley set (stratified; each ray still uniform on its own, so the estimate stays unbiased), or N
-    # independent samples.
-    u = _pixel_directions(mi, pix, o.N, seed) if settings.stratified else sampler.next_2d()
-    cos_t = 1.0 - F64(u.x) * (1.0 - o.cos_max)
-    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
-    sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
-    dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
-    if g.planes:
-        # Several recording planes: each ray leaves a point uniform in its WRP pixel. A ray is recorded where
-        # it crosses its plane, and rays from pixel centres would cross a deeper plane on a lattice of spacing
-        # (1 - alpha) p, so each pixel there would take 1..4 bundles of the rays to one image cell (a moire
-        # that adds ~20% of spurious energy and does not fall with N); from spread origins they land evenly.
-        jit = sampler.next_2d()
-        s = s + V3d((F64(jit.x) - 0.5) * o.pitch, (F64(jit.y) - 0.5) * o.pitch, 0.0)
-    if g.direct:
-        # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
-        # WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
-        x = s - ((o.z_wrp - o.plane_z) / cos_t) * dirs
-    else:
-        x = s
-    # T^-1 of the hologram ray (DESIGN §3): through x and the point where it reaches z_mid.
-    c0 = _holo_to_camera(mi, o, x)
-    c1 = _holo_to_camera(mi, o, x + ((o.z_mid - x.z) / dirs.z) * dirs)
-    vc = dr.normalize(c1 - c0)
-    o_w = _mat(mi, o.rot, c0) + V3d(*o.origin)
-    v_w = dr.normalize(_mat(mi, o.rot, vc))
-    wp = trace_wave_paths(scene, mi.Point3d(o_w), v_w, sampler, max_delta=settings.max_delta,
-                          max_depth=settings.max_depth, amp_spp=settings.amp_spp, integrator=integrator,
-                          radiance_cache=radiance_cache)
-    # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
-    cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
-    q = V3d(*camera_to_holo_xyz(cv.x, cv.y, cv.z, f=o.f, z_inf=o.z_inf))
-    ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
-    pos = None
-    if o.planes:  # several recording planes: the plane in front of the image point, where the ray crosses it
-        pos, rec, found = mi.UInt32(0), V3d(s), mi.Bool(False)
-        for k, (z_k, lo, hi, Hk, Wk, Wk_u, ring, off) in enumerate(o.planes):
-            xk = s + ((o.z_wrp - z_k) / cos_t) * dirs
-            j = dr.clip(dr.round(xk.x / o.pitch + (Wk - 1.0) * 0.5), 0.0, Wk - 1.0)
-            i = dr.clip(dr.round((Hk - 1.0) * 0.5 - xk.y / o.pitch), 0.0, Hk - 1.0)
-            centre = V3d((j - (Wk - 1.0) * 0.5) * o.pitch, ((Hk - 1.0) * 0.5 - i) * o.pitch, z_k)
-            here = ok & ~found & (q.z > lo) & (q.z <= hi)
-            pos = dr.select(here, off + (mi.UInt32(i) % ring) * Wk_u + mi.UInt32(j), pos)
-            rec = dr.select(here, centre, rec)
-            found |= here
-        ok &= found
-        s = rec
-    q = dr.select(ok, q, s)
-    r = dr.norm(q - s)
-    if o.planes:
-        # A recorded ray crossed its plane's pixel at a point spread over the pixel (its origin was), not at the
-        # centre, so near the cone's edge the image points it samples are those of a cone blurred by the pixel:
-        # keep those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them inside its
-        # cone), which makes the estimate unbiased again (docs/physics.md). Angles are seen from the centre.
-        cos_t = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
-        frac = _pixel_fraction_in_cone(mi, q - s, o.cos_max, o.pitch)
-        ok &= frac > 0
-        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t / dr.maximum(frac, 1e-3), 0.0)
-    else:
-        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
-    # One depth per image point behind delta vertices (docs/physics.md, "Image points behind delta vertices").
-    # d is each ray's own apparent distance; through a glass ball it varies by ~0.4 % between the rays of one
-    # surface point (astigmatism of the local bundle), which moves Q along each ray by a few micrometres: a
-    # piston of tens of radians in k r that decorrelates the point's sub-hologram (the field's signal fell
-    # 260x). The phase therefore uses Q's depth rounded to a grid of depth_step, an eighth of the recording
-    # cone's depth of field: the rays of one point agree, and the point moves by at most 1/16 of a depth of
-    # field. Weights, the plane choice and the random-phase cell keep the unrounded Q.
-    q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, o.depth_step * (dr.floor(q.z / o.depth_step) + 0.5)), q)
-    r_ph = dr.select(ok, dr.norm(q_ph - s), r)
-    parts = []
-    for c in range(len(g.ks)):
-        inside = cos_t >= o.cos_lim[c] - 1e-15
-        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
-        kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r_ph
-        phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
-        sn, cs = dr.sincos(phase)
-        parts += [amp * cs, amp * sn]
-    idx = None
-    if want_cells:
-        j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
-        i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
-        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
-        idx = mi.UInt32(i) * o.W + mi.UInt32(j)
-    # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
-    # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
-    status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
-              | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
-    dr.eval(parts, idx, status, pos)  # the one kernel: rays, wave paths, contributions
-    if not want_cells and pos is None:  # sum each pixel's N rays (the rays are pixel-major)
-        parts = [dr.block_sum(x, N) for x in parts]
-        dr.eval(parts)
-    if device.type == "cuda":
-        dr.sync_thread()  # Dr.Jit's kernels run on its own stream: done before torch reads their outputs
-    out = {c: torch.complex(_to_torch(parts[2 * c], device), _to_torch(parts[2 * c + 1], device))
-           for c in range(len(g.ks))}
-    if want_cells:
-        out["idx"] = _to_torch(idx, device).to(torch.int64)
-    if pos is not None:
-        out["pos"] = _to_torch(pos, device).to(torch.int64)
-    # The ray counts, reduced where the rays are (one small read back per tile).
-    st = _to_torch(status, device).to(torch.int64)
-    ok_t = (st & 1).bool()
-    nd = st >> 8
-    counts = torch.stack([*[((st >> b) & 1).sum() for b in range(5)], (ok_t & (nd > 0)).sum(),
-                          nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(())]).tolist()
-    stats.rays += R
-    stats.valid += counts[0]
-    stats.behind_plane += counts[1]
-    stats.escaped += counts[2]
-    stats.capped += counts[3]
-    stats.path_samples += counts[4] * settings.amp_spp
-    stats.delta_paths += counts[5]
-    stats.max_delta_seen = max(stats.max_delta_seen, counts[6])
-    return out

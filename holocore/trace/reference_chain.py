@@ -255,7 +255,7 @@ class _DeltaChain:
     def run(self, max_delta: int) -> None:
         import drjit as dr
 
-        from holocore.trace.kernel import igehy_transfer
+        from holocore.trace.differentials import igehy_transfer
 
         mi = self.mi
         for bounce in range(max_delta + 1):

@@ -1,0 +1,101 @@
+"""The ray-differential transfer through a delta vertex (Igehy 1999), in float64, shared by the fused kernel
+(:mod:`holocore.trace.kernel`) and the reference chain (:mod:`holocore.trace.reference_chain`).
+
+A coherent chain carries four differentials of its ray (two lateral shifts of the origin, two angular
+perturbations of the direction) and an orthonormal frame. At a mirror or a smooth dielectric they are carried
+through the vertex (Igehy's Eq. 10 for the transfer to the surface, Eq. 12 for the change of t there, then the
+reflection or refraction of the direction differentials); where the chain ends, at the image point P, the
+apparent distance d = 2 / tr(B^-1 A) is read from them (DESIGN.md §4, docs/physics.md). Units: metres,
+unit direction vectors.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from holocore.runtime.mitsuba_env import mitsuba
+
+if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
+    import mitsuba as mi
+
+__all__ = ["igehy_transfer"]
+
+_EPS_COS = 1e-7  # |cos| below this at a delta vertex: the differential transfer is singular, drop the ray
+
+
+def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
+                    dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32) -> tuple:
+    """At a chain vertex, in float64: the apparent distance d (m) read from the differentials (used where the
+    chain ends here, at P), and, on ``go_on``, the differentials and the frame carried through the delta
+    vertex (Igehy 1999). Returns (d, singular, D, dP, dD, frame, n_cur, nd); ``singular``: the ray grazes the
+    surface (|cos| < 1e-7), the transfer does not exist and the ray is dropped."""
+    mi = mitsuba()
+    import drjit as dr
+
+    F64, V3d = mi.Float64, mi.Vector3d
+    t = F64(si.t)
+    N = V3d(si.sh_frame.n)
+    cosD = dr.dot(D, N)
+    # Transfer along the segment to the surface (Igehy Eq. 10 without dt, which the projection below adds).
+    dPt = [dP[i] + t * dD[i] for i in range(4)]
+    # The image point: 2x2 transfer blocks A (shifts) and B (angles) read along the carried frame, perpendicular
+    # to the last segment; d = 2 / tr(B^-1 A) = 2 det(B) / tr(adj(B) A) (docs/physics.md).
+    lat = [dPt[i] - dr.dot(dPt[i], D) * D for i in range(4)]
+    a11, a12 = dr.dot(lat[0], frame[0]), dr.dot(lat[1], frame[0])
+    a21, a22 = dr.dot(lat[0], frame[1]), dr.dot(lat[1], frame[1])
+    b11, b12 = dr.dot(lat[2], frame[0]), dr.dot(lat[3], frame[0])
+    b21, b22 = dr.dot(lat[2], frame[1]), dr.dot(lat[3], frame[1])
+    det_b = b11 * b22 - b12 * b21
+    tr = b22 * a11 - b12 * a21 - b21 * a12 + b11 * a22  # tr(adj(B) A) = det(B) tr(B^-1 A)
+    d_here = 2.0 * det_b / dr.select(dr.abs(tr) > 0, tr, 1e-300)
+
+    singular = go_on & (dr.abs(cosD) < _EPS_COS)
+    go_on = go_on & ~singular
+    safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
+    # dP on the surface: dt = -(dPt . N) / (D . N) (Igehy Eq. 12), dP' = dPt + dt D.
+    dPh = [dPt[i] - (dr.dot(dPt[i], N) / safe_cos) * D for i in range(4)]
+    # dN = dn/du du + dn/dv dv, (du, dv) from dP' in the tangent basis (dp_du, dp_dv): normal equations.
+    dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
+    dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
+    a, b, c = dr.dot(dpdu, dpdu), dr.dot(dpdu, dpdv), dr.dot(dpdv, dpdv)
+    det = a * c - b * b
+    det_ok = det > 1e-30
+    inv_det = dr.select(det_ok, 1.0 / dr.select(det_ok, det, 1.0), 0.0)
+    dN = []
+    for i in range(4):
+        r1, r2 = dr.dot(dPh[i], dpdu), dr.dot(dPh[i], dpdv)
+        dN.append(dndu * ((c * r1 - b * r2) * inv_det) + dndv * ((a * r2 - b * r1) * inv_det))
+    D_new = dr.normalize(V3d(si.to_world(bs.wo)))
+    is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
+    # Reflection: D' = D - 2 (D.N) N.  Refraction (N facing the ray): D' = eta D + mu N, mu = eta c1 - c2.
+    sgn = dr.select(cosD < 0, 1.0, -1.0)
+    Nf = N * sgn
+    eta = 1.0 / F64(dr.select(bs.eta > 0, bs.eta, 1.0))  # n1 / n2
+    c1 = -dr.dot(D, Nf)
+    c2 = dr.maximum(-dr.dot(D_new, Nf), 1e-9)
+    mu = eta * c1 - c2
+    axis = dr.cross(D, D_new)
+    s_ax = dr.norm(axis)
+    rot_ok = s_ax > 1e-12
+    axis = axis / dr.select(rot_ok, s_ax, 1.0)
+    u_old, u_new = dr.cross(axis, D), dr.cross(axis, D_new)
+    dP, dD = list(dP), list(dD)
+    for i in range(4):  # the derivatives of D' (Igehy's reflection and refraction differentials)
+        dDN = dr.dot(dD[i], N) + dr.dot(D, dN[i])
+        refl = dD[i] - 2.0 * (cosD * dN[i] + dDN * N)
+        dNf = dN[i] * sgn
+        dc1 = -(dr.dot(dD[i], Nf) + dr.dot(D, dNf))
+        dmu = eta * dc1 - eta * eta * c1 * dc1 / c2
+        refr = eta * dD[i] + dmu * Nf + mu * dNf
+        dP[i] = dr.select(go_on, dPh[i], dP[i])
+        dD[i] = dr.select(go_on, dr.select(is_refl, refl, refr), dD[i])
+    frame = list(frame)
+    for i in range(2):  # the frame: mirrored (reflection) or rotated about D x D' (refraction)
+        f = frame[i]
+        refl = f - 2.0 * dr.dot(f, N) * N
+        rotated = dr.select(rot_ok, dr.dot(f, axis) * axis + dr.dot(f, u_old) * u_new, f)
+        frame[i] = dr.select(go_on, dr.select(is_refl, refl, rotated), f)
+    n_cur = dr.select(go_on & ~is_refl, n_cur * F64(bs.eta), n_cur)
+    nd = dr.select(go_on, nd + 1, nd)
+    D = dr.select(go_on, D_new, D)
+    return d_here, singular, D, dP, dD, frame, n_cur, nd
