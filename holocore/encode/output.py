@@ -6,7 +6,6 @@ See docs/encoding.md. Only numpy, json and zipfile here; the streamed writer pro
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional, Sequence, Union
@@ -15,6 +14,7 @@ import numpy as np
 import torch
 
 from holocore.encode.core import ArrayLike, wrap_phase
+from holocore.formats.lut import check_lut_table, load_lut_file
 from holocore.formats.meta import MetaLike
 from holocore.io import phase_to_u8, save_stack
 
@@ -23,23 +23,13 @@ if TYPE_CHECKING:
 
 
 # ---- 8-bit output and lookup tables ------------------------------------------------------------------------
-def _check_table(name: str, table: object) -> np.ndarray:
-    arr = np.asarray(table)
-    if arr.shape != (256,):
-        raise ValueError(f"{name} must have 256 entries (input level 0..255 -> output level), got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number) or arr.dtype == bool:
-        raise ValueError(f"{name} must hold numbers, got dtype {arr.dtype}")
-    if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)) or arr.min() < 0 or arr.max() > 255:
-        raise ValueError(f"{name} entries must be integers in 0..255")
-    return arr.astype(np.uint8)
-
-
 def load_lut(source: Union[str, Path, ArrayLike], *, wavelengths_m: Sequence[float]) -> np.ndarray:
     """Per-color 8-bit lookup tables, uint8 [C, 256] (row c: SLM level for phase level 0..255 of color c).
 
     ``source``: an array [256] (shared) or [C, 256]; a ``.npy`` file holding one; or a JSON calibration file
     ``{"luts": [{"wavelength_nm": 640.0, "table": [256 integers]}, ...]}`` matched to each wavelength within
-    1 nm (a single entry without ``wavelength_nm`` applies to every color).
+    1 nm (entries without ``wavelength_nm``: one applies to every color, C of them go by index). Files are read
+    and checked by :func:`holocore.formats.lut.load_lut_file`, as the display agent reads them.
     """
     lams_nm = [float(v) * 1e9 for v in wavelengths_m]
     if not lams_nm:
@@ -48,33 +38,26 @@ def load_lut(source: Union[str, Path, ArrayLike], *, wavelengths_m: Sequence[flo
         path = Path(source)
         if not path.is_file():
             raise ValueError(f"lookup table file not found: {path}")
-        if path.suffix.lower() == ".npy":
-            return load_lut(np.load(path, allow_pickle=False), wavelengths_m=wavelengths_m)
-        try:
-            doc = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"cannot read lookup table {path}: {exc}") from None
-        entries = doc.get("luts") if isinstance(doc, dict) else None
-        if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
-            raise ValueError(f"{path}: a JSON lookup table needs a non-empty list 'luts' of "
-                             "{'wavelength_nm': ..., 'table': [256 levels]} objects")
-        if len(entries) == 1 and "wavelength_nm" not in entries[0]:
-            return np.stack([_check_table(f"{path}: luts[0].table", entries[0].get("table"))] * len(lams_nm))
+        entries = load_lut_file(path)
+        if all(wl is None for wl, _ in entries):
+            tables = [t for _, t in entries]
+            if len(tables) not in (1, len(lams_nm)):
+                raise ValueError(f"{path}: {len(tables)} tables without wavelengths for {len(lams_nm)} colors")
+            return np.stack(tables * len(lams_nm) if len(tables) == 1 else tables)
         rows = []
         for lam in lams_nm:
-            match = [e for e in entries if isinstance(e.get("wavelength_nm"), (int, float))
-                     and abs(float(e["wavelength_nm"]) - lam) <= 1.0]
+            match = [t for wl, t in entries if wl is not None and abs(wl - lam) <= 1.0]
             if len(match) != 1:
-                have = [e.get("wavelength_nm") for e in entries]
-                raise ValueError(f"{path}: need exactly one table within 1 nm of {lam:.1f} nm, have {have}")
-            rows.append(_check_table(f"{path}: table for {lam:.1f} nm", match[0].get("table")))
+                raise ValueError(f"{path}: need exactly one table within 1 nm of {lam:.1f} nm, "
+                                 f"have {[wl for wl, _ in entries]}")
+            rows.append(match[0])
         return np.stack(rows)
     arr = np.asarray(source.detach().cpu().numpy() if isinstance(source, torch.Tensor) else source)
     if arr.ndim == 1:
-        return np.stack([_check_table("lut", arr)] * len(lams_nm))
+        return np.stack([check_lut_table("lut", arr)] * len(lams_nm))
     if arr.ndim != 2 or arr.shape[0] != len(lams_nm):
         raise ValueError(f"lut must be [256] or [C={len(lams_nm)}, 256], got shape {arr.shape}")
-    return np.stack([_check_table(f"lut[{c}]", arr[c]) for c in range(arr.shape[0])])
+    return np.stack([check_lut_table(f"lut[{c}]", arr[c]) for c in range(arr.shape[0])])
 
 
 def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None) -> np.ndarray:

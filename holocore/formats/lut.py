@@ -19,14 +19,14 @@ LutEntry = tuple[Optional[float], np.ndarray]
 
 
 def check_lut_table(name: str, table: object) -> np.ndarray:
-    """``table`` as uint8[256] if it holds 256 finite integers in [0, 255], else ValueError naming ``name``."""
+    """``table`` as uint8[256] if it holds 256 finite integers in 0..255, else ValueError naming ``name``."""
     arr = np.asarray(table)
     if arr.shape != (256,):
         raise ValueError(f"{name} must hold 256 entries, got shape {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must hold finite numbers")
     if np.any(arr != np.round(arr)) or arr.min() < 0 or arr.max() > 255:
-        raise ValueError(f"{name} entries must be integers in [0, 255]")
+        raise ValueError(f"{name} entries must be integers in 0..255")
     return arr.astype(np.uint8)
 
 
