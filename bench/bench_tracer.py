@@ -63,7 +63,7 @@ def bench_frames(scene_path, H, W, spp):
     """Whole trace (tracing + accumulation) for 1 and 24 frames, same rays."""
     from holocore.pipeline import frame_banks
     from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.trace.hologram_rays import TraceSettings, trace_field
+    from holocore.trace.hologram_rays import RecordingGrid, TraceSettings, trace_field
 
     mi = mitsuba()
     fns = {}
@@ -74,8 +74,9 @@ def bench_frames(scene_path, H, W, spp):
         z = pl.analysis.z_wrp_m
 
         def run(loaded=loaded, optics=optics, pl=pl, banks=banks, integ=integ, z=z, F=F):
-            return trace_field(loaded.scene, pl.hmap, wavelengths_m=list(optics.wavelengths_m),
-                               pitch_m=optics.pitch_m, shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=F,
+            grid = RecordingGrid(wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                                 plane_z_m=z, z_wrp_m=z)
+            return trace_field(loaded.scene, pl.hmap, grid, frames=F,
                                settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta),
                                integrator=integ, seed=0, bank_phasors=banks)
 
@@ -88,7 +89,7 @@ def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
     import drjit as dr
 
     from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.trace.hologram_rays import TraceSettings, trace_field
+    from holocore.trace.hologram_rays import RecordingGrid, TraceSettings, trace_field
 
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 1)
@@ -96,8 +97,9 @@ def bench_vs_mitsuba(scene_path, H, W, spp, depth=6):
     z = pl.analysis.z_wrp_m
 
     def ours():
-        return trace_field(loaded.scene, pl.hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
-                           shape_hw=(H, W), plane_z_m=z, z_wrp_m=z, frames=1,
+        grid = RecordingGrid(wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                             plane_z_m=z, z_wrp_m=z)
+        return trace_field(loaded.scene, pl.hmap, grid, frames=1,
                            settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta, max_depth=depth),
                            integrator=integ, seed=0)
 
@@ -151,7 +153,7 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
     from holocore.optics.propagation import asm
     from holocore.pipeline import frame_banks
     from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.trace.hologram_rays import TraceSettings, trace_field
+    from holocore.trace.hologram_rays import RecordingGrid, TraceSettings, trace_field
 
     mi = mitsuba()
     loaded, optics, pl = _setup(scene_path, H, W, 4, wavelengths=(516.5,))
@@ -162,8 +164,9 @@ def bench_wrp_vs_direct(scene_path, H, W, spps):
 
     def slm_field(method, spp, seed):
         plane = z if method == "wrp" else 0.0
-        u = trace_field(loaded.scene, pl.hmap, wavelengths_m=[lam], pitch_m=optics.pitch_m, shape_hw=(H, W),
-                        plane_z_m=plane, z_wrp_m=z, frames=4,
+        grid = RecordingGrid(wavelengths_m=(lam,), pitch_m=optics.pitch_m, shape_hw=(H, W), plane_z_m=plane,
+                             z_wrp_m=z)
+        u = trace_field(loaded.scene, pl.hmap, grid, frames=4,
                         settings=TraceSettings(spp=spp, amp_spp=1, max_delta=pl.plan.max_delta),
                         integrator=integ, seed=seed, bank_phasors=banks)
         if method == "wrp":

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import inspect
 import json
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -170,6 +169,3 @@ def progress_writer(path: Optional[Path]) -> Callable[[str, int, int], None]:
 
     return write
 
-
-def stderr_is_tty() -> bool:
-    return sys.stderr.isatty()

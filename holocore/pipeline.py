@@ -176,7 +176,12 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     from holocore.optics.propagation import asm, padded_shape
     from holocore.runtime.membudget import memory_budget_bytes as _budget
     from holocore.runtime.mitsuba_env import compute_device, mitsuba, variant
-    from holocore.trace.hologram_rays import TraceSettings, TraceStats, trace_field
+    from holocore.trace.hologram_rays import (
+        RecordingGrid,
+        TraceSettings,
+        TraceStats,
+        trace_field,
+    )
     from holocore.trace.radiance_cache import build_cache
 
     mi = mitsuba()
@@ -231,12 +236,13 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                 if progress:
                     progress(stage, _j * total + done, _nn * total)
 
-            trace_field(loaded.scene, hmap, wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
-                        plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, frames=n_f, settings=settings,
+            grid = RecordingGrid(wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                                 plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, planes=spec)
+            trace_field(loaded.scene, hmap, grid, frames=n_f, settings=settings,
                         integrator=integrator, seed=ray_seed, radiance_cache=cache, bank_phasors=_banks,
                         progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
                         on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
-                        planes=spec, on_plane_rows=on_plane_rows if spec else None)
+                        on_plane_rows=on_plane_rows if spec else None)
 
         chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
                       timings=timings)

@@ -30,7 +30,7 @@ import torch
 from holocore.trace.mapping import HologramMap
 from holocore.trace.tile import TileGeometry, trace_tile
 
-__all__ = ["TraceSettings", "TraceStats", "trace_field", "cell_major", "combined_cells"]
+__all__ = ["RecordingGrid", "TraceSettings", "TraceStats", "trace_field", "cell_major", "combined_cells"]
 
 ProgressFn = Callable[[str, int, int], None]
 
@@ -115,15 +115,42 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     return out
 
 
+@dataclass(frozen=True)
+class RecordingGrid:
+    """Where the rays are recorded (DESIGN §3-4), in metres.
+
+    ``plane_z_m == z_wrp_m``: the two-stage method's WRP; ``plane_z_m == 0``: the direct method on the SLM.
+    ``planes``: several recording planes (:mod:`holocore.plan.wrp_planes`), (z_k, lo_k, hi_k, border_k) front to
+    back, plane 0 the WRP itself: the rays still leave the WRP's pixels, and each ray's contribution is
+    recorded on the plane whose slab (lo_k, hi_k] holds its image point, at the pixel where the ray crosses
+    that plane, with r measured from that pixel's centre (the paper's Sec. 6); plane k's grid is the WRP's
+    widened by border_k pixels on each side. None or one plane: the WRP alone.
+    """
+
+    wavelengths_m: tuple[float, ...]  # one per color (the lit ones)
+    pitch_m: float  # pixel pitch of the plane (the SLM's)
+    shape_hw: tuple[int, int]  # the plane's pixels (the SLM's)
+    plane_z_m: float  # the plane the field is recorded on
+    z_wrp_m: float  # the wave recording plane
+    planes: Optional[tuple[tuple[float, float, float, int], ...]] = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "wavelengths_m", tuple(float(w) for w in self.wavelengths_m))
+        object.__setattr__(self, "shape_hw", (int(self.shape_hw[0]), int(self.shape_hw[1])))
+        if self.planes is not None:
+            object.__setattr__(self, "planes", tuple(tuple(p) for p in self.planes))
+
+    @property
+    def several(self) -> bool:
+        """Whether rays are recorded on more than one plane."""
+        return self.planes is not None and len(self.planes) > 1
+
+
 def trace_field(
     scene,
     hmap: HologramMap,
+    grid: RecordingGrid,
     *,
-    wavelengths_m: Sequence[float],
-    pitch_m: float,
-    shape_hw: tuple[int, int],
-    plane_z_m: float,
-    z_wrp_m: float,
     frames: int,
     settings: TraceSettings,
     integrator,
@@ -134,17 +161,11 @@ def trace_field(
     stats: Optional[TraceStats] = None,
     device: Optional[torch.device] = None,
     on_tile: Optional[Callable[[int, int, torch.Tensor], None]] = None,
-    planes: Optional[Sequence[tuple[float, float, float, int]]] = None,
     on_plane_rows: Optional[Callable[[int, int, torch.Tensor], None]] = None,
 ) -> Optional[np.ndarray]:
-    """Complex field on the plane z = plane_z_m, complex64 [F, C, H, W].
+    """Complex field on the plane ``grid.plane_z_m``, complex64 [F, C, H, W] (:class:`RecordingGrid`).
 
-    ``plane_z_m == z_wrp_m``: the two-stage method's WRP. ``plane_z_m == 0``: the direct method on the SLM.
-    ``planes``: several recording planes (:mod:`holocore.plan.wrp_planes`), (z_k, lo_k, hi_k, border_k) front to
-    back, plane 0 the WRP itself: the rays still leave the WRP's pixels, and each ray's contribution is
-    recorded on the plane whose slab (lo_k, hi_k] holds its image point, at the pixel where the ray crosses
-    that plane, with r measured from that pixel's centre (the paper's Sec. 6). Plane k's grid is the WRP's
-    widened by border_k pixels on each side. The rows of every plane stream out through
+    With several recording planes (``grid.planes``) the rows of every plane stream out through
     ``on_plane_rows(k, r0, block)`` (block [F, C, rows, W + 2 border_k], each row once, in order).
     ``bank_phasors``: per color a complex64 tensor [F, H, W] of exp(i phi_m) (None: no random phase).
     ``integrator``: Mitsuba's ``path`` with ``settings.max_depth``, for the radiance samples beyond the
@@ -155,20 +176,20 @@ def trace_field(
     rows r0..r1 of the field as a complex64 tensor [F, C, r1 - r0, W] on ``device`` (valid during the call)
     instead of one [F, C, H, W] array being filled and returned (the caller streams them; returns None).
     """
-    H, W = shape_hw
-    C = len(wavelengths_m)
+    H, W = grid.shape_hw
+    C = len(grid.wavelengths_m)
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     if bank_phasors is not None and len(bank_phasors) != C:
         raise ValueError("bank_phasors needs one bank per wavelength")
     stats = stats if stats is not None else TraceStats()
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
-    multi = planes is not None and len(planes) > 1
-    if multi and (on_plane_rows is None or plane_z_m != z_wrp_m):
+    multi = grid.several
+    if multi and (on_plane_rows is None or grid.plane_z_m != grid.z_wrp_m):
         raise ValueError("several recording planes need plane_z_m == z_wrp_m and on_plane_rows")
-    geo = TileGeometry.make(hmap, wavelengths_m=wavelengths_m, pitch_m=pitch_m, shape_hw=shape_hw,
-                         plane_z_m=plane_z_m, z_wrp_m=z_wrp_m, spp=settings.spp,
-                         planes=planes if multi else None, ring_rows=rows_per_tile)
+    geo = TileGeometry.make(hmap, wavelengths_m=grid.wavelengths_m, pitch_m=grid.pitch_m, shape_hw=grid.shape_hw,
+                            plane_z_m=grid.plane_z_m, z_wrp_m=grid.z_wrp_m, spp=settings.spp,
+                            planes=grid.planes if multi else None, ring_rows=rows_per_tile)
     if device is not None:
         dev = torch.device(device)
     else:

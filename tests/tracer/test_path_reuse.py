@@ -56,7 +56,7 @@ def test_frames_share_the_traced_paths():
     import torch
 
     from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.trace.hologram_rays import TraceSettings, trace_field
+    from holocore.trace.hologram_rays import RecordingGrid, TraceSettings, trace_field
     from holocore.trace.mapping import HologramMap
 
     loaded = _scene()
@@ -67,8 +67,8 @@ def test_frames_share_the_traced_paths():
     alpha = 0.7
     bank = torch.from_numpy(np.stack([base * np.exp(1j * m * alpha) for m in range(4)]).astype(np.complex64))
     z_wrp = float(hmap.holo_depth_m(0.4))
-    u = trace_field(loaded.scene, hmap, wavelengths_m=[516.5e-9], pitch_m=8e-6, shape_hw=(H, W), plane_z_m=z_wrp,
-                    z_wrp_m=z_wrp, frames=4, settings=TraceSettings(spp=8), integrator=mitsuba().load_dict(
+    grid = RecordingGrid(wavelengths_m=(516.5e-9,), pitch_m=8e-6, shape_hw=(H, W), plane_z_m=z_wrp, z_wrp_m=z_wrp)
+    u = trace_field(loaded.scene, hmap, grid, frames=4, settings=TraceSettings(spp=8), integrator=mitsuba().load_dict(
                         {"type": "path", "max_depth": 2}), seed=1, bank_phasors=[bank])
     assert np.abs(u[0]).max() > 0
     for m in range(1, 4):
