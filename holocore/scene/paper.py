@@ -16,10 +16,12 @@ z_inf + 0.25 mm, 0.9 m at + 2.78 mm, 0.5 m at + 5 mm (the paper's 80 to 85 mm).
 * ``mirror``: a plane mirror 0.5 m away, in a textured frame, turned 12 degrees about y: it shows a poster
   1.5 m from the mirror, behind the eye and out of its view, so the mirror image lies 2.0 m away
   (z_inf + 1.25 mm) while the mirror surface is at z_inf + 5 mm.
-* ``glass``: a glass sphere (n = 1.5, radius 4 cm) 0.9 m away, 9 cm in front of a textured card (Fig. 1):
-  a ball lens of focal length n R / 2 (n - 1) = 6 cm about its centre, so the card's image is real,
-  inverted, magnified 2x and 18 cm in front of the centre: 0.72 m from the eye (z_inf + 3.47 mm), in front of
-  the sphere's surface (0.86 m, + 2.91 mm) and far from the card itself (0.99 m, + 2.53 mm).
+* ``glass``: a glass sphere (n = 1.5, radius 25 cm) whose front surface is 0.5 m away, imaging a textured card
+  5 m behind its centre (Fig. 1: a glass sphere imaging a far object): a ball lens of focal length
+  n R / 2 (n - 1) = 37.5 cm about its centre, so the card's image is real, inverted, minified 12x and 40.5 cm in
+  front of the centre: 0.345 m from the eye (z_inf + 7.25 mm), 2.25 mm of hologram depth in front of the
+  sphere's surface (0.5 m, + 5 mm), more than the depth of field of an eye's 1.6 mm pupil (about 2 mm), and far
+  from the card itself (5.75 m, + 0.43 mm): focusing on the surface or on the card blurs it.
 * ``glossy``: a glossy textured plate (rough plastic, alpha 0.01) 0.5 m away, turned 12 degrees about y, that
   reflects a small bright sphere light 1.5 m from the plate, behind the eye: the highlight lies at the light's
   mirror image, 2 m away, so it slides over the plate's texture when the eye moves (by e (1/0.5 - 1/2.0) rad
@@ -70,7 +72,8 @@ _FAR_ZC = 10.0
 _DEPTH = {"near": {"zc": 0.5, "tan_x": (-0.07, -0.01), "tan_y": (-0.032, 0.022), "texture": "star"},
           "mid": {"zc": 0.9, "tan_x": (-0.02, 0.05), "tan_y": (-0.036, 0.036), "texture": "checker"}}
 _MIRROR = {"zc": 0.5, "half": (0.025, 0.0175), "poster_distance": 1.5, "poster_half": (0.26, 0.19)}
-_GLASS = {"center_zc": 0.9, "radius": 0.04, "ior": 1.5, "card_zc": 0.99, "card_half": (0.07, 0.045)}
+_GLASS = {"center_zc": 0.75, "radius": 0.25, "ior": 1.5, "card_zc": 5.75, "card_half": (0.5, 0.325),
+          "card_repeat": (3.0, 2.0)}
 _GLOSSY = {"zc": 0.5, "half": (0.034, 0.024), "alpha": 0.01, "light_distance": 1.5, "light_radius": 0.01,
            "light_radiance": 500.0}
 _SKY = 1.0
@@ -302,7 +305,7 @@ def _glass_xml() -> str:
     g = _GLASS
     return "".join([
         _far_wall(),
-        _textured_bsdf("card_bsdf", "dots"),
+        _textured_bsdf("card_bsdf", "dots", repeat=g["card_repeat"]),
         _rect("card", center=(0.0, 0.0, -g["card_zc"]), half=g["card_half"], bsdf_ref="card_bsdf"),
         f"""    <shape type="sphere" id="glass_sphere">
         <point name="center" x="0" y="0" z="{_f(-g['center_zc'])}"/><float name="radius" value="{_f(g['radius'])}"/>
