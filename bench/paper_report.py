@@ -184,7 +184,7 @@ class Runner:
     @staticmethod
     def fs_spacing(meta: dict) -> Optional[float]:
         """The paper's 1.25 mm plane spacing where its 5 planes fit between z_inf and the WRP, else None (5
-        planes uniform over the image volume: the glass scene's volume is 3.2 mm deep, its WRP 4.6 mm from z_inf)."""
+        planes uniform over the image volume where they do not)."""
         from holocore.baselines.focal_stack import stack_plane_depths
 
         ana = meta["analysis"]
@@ -560,7 +560,7 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
               f"SLM (the paper's 1080x1920): the paper scenes' cues sit in the middle of the view, and at {H}x{W} the "
               f"view (±{math.degrees(math.atan(W * 8e-6 / 2 / 0.05)):.2f}° x ±{math.degrees(math.atan(H * 8e-6 / 2 / 0.05)):.2f}°) "
               "lies inside the mirror and inside the glass ball: what the eye sees is the mirror image (2.0 m) or the "
-              "ball's image of its card (0.72 m) throughout, not their frame. "
+              "ball's image of its card (0.345 m) throughout, not their frame. "
               f"**Virtual infinity at z_inf = {args.z_inf_mm:g} mm** instead of the paper's 80 mm: an image point z from "
               "the SLM collects light from z (NA + |e|/f) / p pixels around it, so at 80 mm a 1.6 mm pupil's view of "
               f"a {W}-px-wide SLM would be vignetted everywhere; at {args.z_inf_mm:g} mm the border left out of the "
