@@ -42,11 +42,14 @@ export async function request(path, { method = "GET", body, json, tok, signal, a
   const extra = {};
   if (json !== undefined) { extra["Content-Type"] = "application/json"; body = JSON.stringify(json); }
   if (accept) extra["Accept"] = accept;
+  const sent = tok || token.get();
   const resp = await fetch(path, { method, body, signal, headers: headers(extra, tok), credentials: "omit",
                                    redirect: "error", referrerPolicy: "no-referrer" });
   if (!resp.ok) {
     const err = await problem(resp);
-    if (resp.status === 401 && !tok) onUnauthorized(err);
+    // Only the session's own token being refused signs the tab out: a request sent without a token (a timer
+    // that fired after signing out) or with an earlier one must not sign out the session that came after it.
+    if (resp.status === 401 && !tok && sent && sent === token.get()) onUnauthorized(err);
     throw err;
   }
   return resp;

@@ -32,6 +32,7 @@ function signedOut(message = "") {
   token.clear();
   state.me = null;
   stopAll();
+  clearTimeout(estimateTimer); estimateSeq++;  // no estimate goes out after signing out, none comes back in
   show("signin", true); show("home", false); show("job", false); show("signout", false);
   setText($("who"), "");
   setText($("signin-error"), message);
