@@ -248,8 +248,15 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     # piston of tens of radians in k r that decorrelates the point's sub-hologram (the field's signal fell
     # 260x). The phase therefore uses Q's depth rounded to a grid of depth_step, an eighth of the recording
     # cone's depth of field: the rays of one point agree, and the point moves by at most 1/16 of a depth of
-    # field. Weights, the plane choice and the random-phase cell keep the unrounded Q.
-    q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, o.depth_step * (dr.floor(q.z / o.depth_step) + 0.5)), q)
+    # field. Weights, the plane choice and the random-phase cell keep the unrounded Q. The grid is offset by a
+    # random fraction of a step per lateral cell: the points whose rays straddle a grid level (their phases then
+    # disagree) are scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image
+    # field made them coloured rings in the view).
+    cell_x = mi.UInt32(mi.Int32(dr.round(q.x / o.pitch)) + (1 << 24))
+    cell_y = mi.UInt32(mi.Int32(dr.round(q.y / o.pitch)) + (1 << 24))
+    shift = mi.sample_tea_float64(cell_x, cell_y, 4)
+    z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
+    q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
     r_ph = dr.select(ok, dr.norm(q_ph - s), r)
     parts = []
     for c in range(len(g.ks)):
