@@ -252,8 +252,9 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     # random fraction of a step per lateral cell: the points whose rays straddle a grid level (their phases then
     # disagree) are scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image
     # field made them coloured rings in the view).
-    cell_x = mi.UInt32(mi.Int32(dr.round(q.x / o.pitch)) + (1 << 24))
-    cell_y = mi.UInt32(mi.Int32(dr.round(q.y / o.pitch)) + (1 << 24))
+    # (the random-phase cell's own indices, so no point straddles a cell of one and not of the other)
+    cell_x = mi.UInt32(mi.Int32(dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)) + (1 << 24))
+    cell_y = mi.UInt32(mi.Int32(dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)) + (1 << 24))
     shift = mi.sample_tea_float64(cell_x, cell_y, 4)
     z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
     q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
