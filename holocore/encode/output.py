@@ -78,14 +78,21 @@ def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None) -> np.ndarra
     return out
 
 
-def save_encoded(path: Union[str, Path], result: "EncodeResult", *, meta: MetaLike, lut: Optional[np.ndarray] = None,
-                 lut_source: Optional[str] = None) -> None:
-    """Write STACK.npz (``io.save_stack``): the phase, its 8-bit frames (through ``lut`` if given) and
-    ``meta`` (the render's, carried forward) with ``meta["encoder"]`` = the result's summary."""
+def stack_meta(meta: MetaLike, result: "EncodeResult", *, lut: Optional[np.ndarray] = None,
+               lut_source: Optional[str] = None) -> dict:
+    """A stack's meta: the render's carried forward (``display_profile`` and ``display`` always present) with
+    ``encoder`` = the result's summary and the lookup table used."""
     if not isinstance(meta, Mapping):
         raise ValueError(f"meta must be a mapping (a render's meta), got {type(meta).__name__}")
     enc = result.summary()
     enc["lut"] = None if lut is None else {"source": lut_source or "array",
                                             "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}
-    out_meta = {**meta, "display_profile": meta.get("display_profile"), "display": meta.get("display"), "encoder": enc}
+    return {**meta, "display_profile": meta.get("display_profile"), "display": meta.get("display"), "encoder": enc}
+
+
+def save_encoded(path: Union[str, Path], result: "EncodeResult", *, meta: MetaLike, lut: Optional[np.ndarray] = None,
+                 lut_source: Optional[str] = None) -> None:
+    """Write STACK.npz (``io.save_stack``): the phase, its 8-bit frames (through ``lut`` if given) and
+    :func:`stack_meta`."""
+    out_meta = stack_meta(meta, result, lut=lut, lut_source=lut_source)
     save_stack(path, phase=result.phase, meta=out_meta, frames_u8=quantize(result.phase, lut=lut))

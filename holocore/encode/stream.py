@@ -30,7 +30,7 @@ from holocore.encode.encoder import (
     sgd_options,
     supervision_for,
 )
-from holocore.encode.output import quantize
+from holocore.encode.output import quantize, stack_meta
 from holocore.encode.sgd import encoder_grid
 from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
 from holocore.io import NpyMember
@@ -152,11 +152,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                              "efficiency_weight": sgd_opts["efficiency_weight"],
                              "max_iterations": sgd_opts["iterations"], "init": "naive"})
             res = acc.result(method, np.empty((0, C, H, W), np.float32), sup, t0, opts)
-            enc = res.summary()
-            enc["lut"] = None if lut is None else {"source": lut_source or "array",
-                                                    "identity": bool(np.all(np.asarray(lut) == np.arange(256)))}
-            out_meta = parse_stack_meta({**meta, "display_profile": meta.display_profile, "display": display,
-                                         "encoder": enc}, what=str(out_path))
+            out_meta = parse_stack_meta(stack_meta(meta, res, lut=lut, lut_source=lut_source), what=str(out_path))
             with zf.open("meta.npy", "w") as mf:
                 np.lib.format.write_array(mf, np.array(json.dumps(out_meta.to_dict())), allow_pickle=False)
         os.replace(tmp, out_path)

@@ -14,6 +14,7 @@ free-form parts.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
+from functools import cached_property
 from typing import Any, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -21,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 __all__ = ["MetaLike", "ViewMeta", "ResultMeta", "StackMeta", "MetaError", "parse_view_meta", "parse_result_meta",
            "parse_stack_meta"]
 
-_WAVELENGTH_RANGE_M = (100e-9, 10e-6)
+_WAVELENGTH_RANGE_M = (100e-9, 10e-6)  # the formats import nothing else of holocore (the agent's rule)
 
 
 class MetaError(ValueError):
@@ -65,8 +66,13 @@ class _Meta(BaseModel, Mapping):
         return v
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON object as written to the file (optional fields the writer did not set left out)."""
+        """The JSON object as written to the file (optional fields the writer did not set left out); a new dict."""
         return self.model_dump(mode="json", exclude_unset=True)
+
+    @cached_property
+    def _json(self) -> dict[str, Any]:
+        """:meth:`to_dict` once, for the mapping reads below (the model is frozen)."""
+        return self.to_dict()
 
     def with_fields(self, **fields: Any):
         """A copy with ``fields`` set, checked like a file's (e.g. a stack's ``encoder``)."""
@@ -74,19 +80,19 @@ class _Meta(BaseModel, Mapping):
 
     # a read-only mapping over the JSON object, for the free-form parts (``meta["analysis"]``, ``{**meta}``)
     def __getitem__(self, key: str) -> Any:
-        return self.to_dict()[key]  # as stored (lists, not tuples)
+        return self._json[key]  # as stored (lists, not tuples)
 
     def __iter__(self) -> Iterator[str]:  # type: ignore[override]  (pydantic iterates pairs; a mapping keys)
-        return iter(self.to_dict())
+        return iter(self._json)
 
     def __len__(self) -> int:
-        return len(self.to_dict())
+        return len(self._json)
 
     def __contains__(self, key: object) -> bool:
-        return key in self.to_dict()
+        return key in self._json
 
     def get(self, key: str, default: Any = None) -> Any:
-        return self.to_dict().get(key, default)
+        return self._json.get(key, default)
 
 
 class ViewMeta(_Meta):
@@ -126,7 +132,7 @@ MetaLike = Union["_Meta", Mapping[str, Any]]
 
 
 def _parse(cls, raw: Any, what: str):
-    if type(raw) is cls:
+    if isinstance(raw, cls):  # a ResultMeta is already a ViewMeta: nothing to check again
         return raw
     if isinstance(raw, _Meta):
         raw = raw.to_dict()

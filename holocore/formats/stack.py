@@ -38,7 +38,7 @@ def save_stack(path: str | Path, *, phase: np.ndarray, meta: Union[StackMeta, Ma
     u8 = phase_to_u8(ph) if frames_u8 is None else np.asarray(frames_u8, dtype=np.uint8)
     if u8.shape != ph.shape:
         raise ValueError(f"frames_u8 shape {u8.shape} differs from phase shape {ph.shape}")
-    if m.wavelengths_m and len(m.wavelengths_m) != ph.shape[1]:
+    if len(m.wavelengths_m) != ph.shape[1]:
         raise ValueError(f"stack meta lists {len(m.wavelengths_m)} wavelengths for {ph.shape[1]} colors")
     atomic_savez(Path(path), phase=ph, frames_u8=u8, meta=np.array(json.dumps(m.to_dict())))
 

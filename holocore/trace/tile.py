@@ -253,9 +253,9 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     # disagree) are scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image
     # field made them coloured rings in the view).
     # (the random-phase cell's own indices, so no point straddles a cell of one and not of the other)
-    cell_x = mi.UInt32(mi.Int32(dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)) + (1 << 24))
-    cell_y = mi.UInt32(mi.Int32(dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)) + (1 << 24))
-    shift = mi.sample_tea_float64(cell_x, cell_y, 4)
+    j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)  # Q's random-phase cell (column, row), before the wrap
+    i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
+    shift = mi.sample_tea_float64(mi.UInt32(mi.Int32(j) + (1 << 24)), mi.UInt32(mi.Int32(i) + (1 << 24)), 4)
     z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
     q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
     r_ph = dr.select(ok, dr.norm(q_ph - s), r)
@@ -269,8 +269,6 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         parts += [amp * cs, amp * sn]
     idx = None
     if want_cells:
-        j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
-        i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
         j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
         idx = mi.UInt32(i) * o.W + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
