@@ -24,6 +24,7 @@ import numpy as np
 from holocore import __version__
 from holocore.display.optics import OpticsConfig
 from holocore.display.profiles import DisplayProfile
+from holocore.optics.cone_equaliser import plane_equalisers
 from holocore.optics.plane_chain import chain_planes
 from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
@@ -45,6 +46,7 @@ class RenderOptions:
     stratified: bool = True  # each pixel's rays stratified over the cone (holocore.trace.hologram_rays); False: independent
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
+    cone_equaliser: bool = True  # flatten each recording plane's spectrum (holocore.optics.cone_equaliser)
 
     def __post_init__(self) -> None:
         from holocore.plan.wrp_planes import MAX_WRP_PLANES
@@ -203,6 +205,9 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     ft, fp, peak = _chunk_plan(H, W, C, len(wl_lit), F, budget, plan.random_phase, in_memory,
                                padded_shape((H, W), 2))
     direct = options.method == "direct"
+    equalisers = None
+    if options.cone_equaliser and not direct and wl_lit:
+        equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m)
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
@@ -245,7 +250,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                         on_plane_rows=on_plane_rows if spec else None)
 
         chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
-                      timings=timings)
+                     timings=timings, equalisers=equalisers)
         del banks
         timings["trace_s"] += time.perf_counter() - t3
         if not plan.random_phase:
@@ -275,6 +280,9 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "z_inf_m": optics.z_inf_m,
         "z_wrp_m": z_wrp,
         "wrp_planes_m": list(planes.z_m),
+        "cone_equaliser": None if equalisers is None else [
+            {"fresnel_zones": eq.fresnel_zones, "filtered": [eq.active(c) for c in range(len(wl_lit))]}
+            for eq in equalisers],
         "pitch_m": optics.pitch_m,
         "wavelengths_m": list(optics.wavelengths_m),
         "shape_fchw": [F, C, H, W],

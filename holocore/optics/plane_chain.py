@@ -12,12 +12,15 @@ import numpy as np
 __all__ = ["chain_planes"]
 
 
-def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings) -> None:
+def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings,
+                 equalisers=None) -> None:
     """Trace the recording planes into the sink's traced field (frames f0..f0+n_f): one trace from the WRP
     records every ray on the plane in front of its image point (holocore.trace.hologram_rays, ``planes``); each deeper
     plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
     ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
-    ``trace_plane(spec, on_plane_rows)`` runs the trace."""
+    ``trace_plane(spec, on_plane_rows)`` runs the trace. ``equalisers``: one
+    :class:`holocore.optics.cone_equaliser.PlaneEqualiser` per plane (None: none), applied to each plane's own
+    recording before anything is added to it."""
     import torch
 
     from holocore.io import ScratchArray
@@ -40,6 +43,16 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
 
         trace_plane(spec if planes.count > 1 else None, on_plane_rows)
         t0 = time.perf_counter()
+        if equalisers is not None:  # the WRP's own rays, before the deeper planes are added to it
+            for ci, lam in enumerate(lams):
+                for a in range(0, n_f, fp):
+                    e = min(n_f, a + fp)
+                    u = torch.from_numpy(np.ascontiguousarray(sink.read_traced(f0 + a, f0 + e, lit_idx[ci]))).to(dev)
+                    v = equalisers[0].apply(u, ci, lam, optics.pitch_m)
+                    if v is not u:
+                        sink.write_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
+                    del u, v
+            timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
         for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
             d = borders[k] - borders[k - 1]
             Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
@@ -50,6 +63,8 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
                 e = min(n_f, a + step)
                 for ci, lam in enumerate(lams):
                     u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
+                    if equalisers is not None:
+                        u = equalisers[k].apply(u, ci, lam, optics.pitch_m)
                     v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
                     v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
                     if k - 1 == 0:

@@ -70,6 +70,11 @@ class WrpPlanes:
         k, r = self._assign(depths_m)
         return [float(v) for v in np.bincount(k, np.maximum(r, self.margin_m) ** 2, minlength=self.count)]
 
+    def distances_by_plane_m(self, depths_m: Sequence[float]) -> list[np.ndarray]:
+        """Per plane, the distances (m) from it of the depth samples it records."""
+        k, r = self._assign(depths_m)
+        return [r[k == j] for j in range(self.count)]
+
     def farthest_distance_m(self, depths_m: Sequence[float]) -> float:
         """The largest distance from an image point (hologram depths) to the plane that records it."""
         _k, r = self._assign(depths_m)

@@ -93,7 +93,10 @@ def _optics():
 
 
 def _two_estimates(sc, planes: int, spp: int):
-    out = [render_loaded(sc, _optics(), RenderOptions(preset="fast", spp=spp, wrp_planes=planes, ray_seed=s))
+    # The recording planes' own estimates: the cone equaliser (holocore.optics.cone_equaliser) filters each
+    # plane afterwards, differently with one plane and several (pixel averages), and is tested on its own.
+    out = [render_loaded(sc, _optics(), RenderOptions(preset="fast", spp=spp, wrp_planes=planes, ray_seed=s,
+                                                      cone_equaliser=False))
            for s in (1, 2)]
     return [r.wrp_field.astype(np.complex128) for r in out], out[0].meta
 
