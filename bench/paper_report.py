@@ -5,8 +5,9 @@ reduced part of the SLM (default 135x240 px; see the README this writes for why 
 Stages (each writes a JSON under --out, the report is rebuilt from all JSONs present):
 
 * ``equal``: per scene, every method gets the same wall-time budget ``--budget-s`` for 24 phase-only frames:
-  ours = two-stage render (preset balanced) + the SGD phase-only encoder, spp chosen from 16- and 64-spp timing runs
-  to fill the budget; fast = the same with preset fast; layers = the RGB-D layer baseline + the same encoder;
+  ours = two-stage render (preset balanced) + the SGD phase-only encoder (to its own stop rule unless
+  ``--enc-iterations N``), spp chosen from 16- and 64-spp timing runs to fill the budget; fast = the same with
+  preset fast; layers = the RGB-D layer baseline + the same encoder;
   focal stack = `holocore.baselines.focal_stack` (its Mitsuba targets included), Adam iterations chosen from a
   timing probe to fill the budget. Scored with holocore.evaluate.scoring's machinery (eye_view + compare) against
   Mitsuba thin-lens ground truth on 4 focus planes (near / middle / far of the image volume and the depth of the
