@@ -22,7 +22,7 @@ from typing import Any, Callable, Literal, Optional, Union
 import numpy as np
 
 from holocore import __version__
-from holocore.display.optics import OpticsConfig
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.display.profiles import DisplayProfile
 from holocore.optics.cone_equaliser import plane_equalisers
 from holocore.optics.plane_chain import chain_planes
@@ -86,7 +86,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                   shape_hw=optics.resolution_hw, margin_px=optics.wrp_margin_px,
                   max_wrp_distance_m=optics.max_wrp_distance_mm * 1e-3, seed=optics.seed)
     theta_max = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    px_per_m = math.tan(min(theta_max, math.radians(89.0))) / optics.pitch_m  # sub-hologram radius per distance
+    px_per_m = math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD)) / optics.pitch_m  # sub-hologram radius per distance
     depths, margin = ana.image_depths_holo_m, ana.margin_m
     if options.method == "direct" or options.wrp_planes == 1:
         planes = WrpPlanes((ana.z_wrp_m,), margin)

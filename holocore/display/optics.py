@@ -23,6 +23,11 @@ MAX_FRAMES = 256
 DISPLAY_FOCAL_LENGTH_MM = 50.0
 """The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm; DESIGN §3)."""
 
+MAX_CONE_HALF_ANGLE_RAD = math.radians(89.0)
+"""The recording cone's half-angle as the tracer and every estimate use it (rad): rays are kept off exactly grazing,
+where cos theta = 0 gives an infinite ray weight r / cos theta (sub-wavelength pitch: lambda >= 2p)."""
+
+
 def theta_max_rad(wavelength_m: float, pitch_m: float) -> float:
     """Half-angle of the recordable cone (rad), arcsin(lambda / 2p), pi/2 when lambda >= 2p (DESIGN §4; paper
     Sec. 4.3). The one place this formula lives."""

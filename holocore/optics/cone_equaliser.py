@@ -46,7 +46,7 @@ from typing import Optional, Sequence
 import numpy as np
 import torch
 
-from holocore.display.optics import theta_max_rad
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
 from holocore.optics.propagation import ifft2, smooth_at_least
 
 __all__ = ["point_power_spectrum", "ideal_power_spectrum", "mean_point_spectrum", "equaliser_gain", "equalise_plane",
@@ -60,8 +60,13 @@ _MAX_DISTANCES = 16  # distinct distances per plane the mean of (C3) is computed
 
 def _cone(wavelength_m: float, pitch_m: float) -> tuple[float, float]:
     """(tan theta_c, f_c) of the recording cone, theta_c capped at 89 degrees as in the tracer."""
-    th = min(theta_max_rad(wavelength_m, pitch_m), math.radians(89.0))
+    th = min(theta_max_rad(wavelength_m, pitch_m), MAX_CONE_HALF_ANGLE_RAD)
     return math.tan(th), math.sin(th) / wavelength_m
+
+
+def _fresnel_zones(distance_m, wavelength_m: float, pitch_m: float):
+    """N_F = d tan^2(theta_c) / lambda of points at ``distance_m`` (m; a number or an array) from their plane."""
+    return distance_m * _cone(wavelength_m, pitch_m)[0] ** 2 / wavelength_m
 
 
 def point_power_spectrum(distance_m: float, wavelength_m: float, pitch_m: float) -> np.ndarray:
@@ -106,12 +111,11 @@ def mean_point_spectrum(distances_m: Sequence[float], wavelength_m: float, pitch
     None when there are none or the nearest is more than ``MAX_FRESNEL`` zones away (Weyl's spectrum)."""
     d = np.asarray(distances_m, dtype=np.float64).reshape(-1)
     d = d[np.isfinite(d) & (d > 0)]
-    tan_c, _f_c = _cone(wavelength_m, pitch_m)
-    if d.size == 0 or d.min() * tan_c ** 2 / wavelength_m > MAX_FRESNEL:
+    if d.size == 0 or _fresnel_zones(d.min(), wavelength_m, pitch_m) > MAX_FRESNEL:
         return None
     qs = np.quantile(d, (np.arange(_MAX_DISTANCES) + 0.5) / _MAX_DISTANCES)
     ideal = ideal_power_spectrum(wavelength_m, pitch_m)
-    far = qs * tan_c ** 2 / wavelength_m > MAX_FRESNEL  # these count with Weyl's spectrum: costly, and flat
+    far = _fresnel_zones(qs, wavelength_m, pitch_m) > MAX_FRESNEL  # these count with Weyl's spectrum: costly, flat
     return np.mean([ideal if fj else point_power_spectrum(dj, wavelength_m, pitch_m) for dj, fj in zip(qs, far)],
                    axis=0)
 
@@ -149,7 +153,7 @@ def equalise_plane(field_: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
     field's shape."""
     h, w = field_.shape[-2], field_.shape[-1]
     spec = torch.fft.fft2(field_, s=tuple(gain.shape))
-    spec.mul_(gain.to(device=field_.device, dtype=field_.real.dtype))
+    spec.mul_(gain.to(device=field_.device, dtype=field_.real.dtype))  # a no-op for a PlaneEqualiser's gains
     return ifft2(spec)[..., :h, :w].contiguous()
 
 
@@ -162,7 +166,7 @@ class PlaneEqualiser:
     spectra: tuple[Optional[np.ndarray], ...]
     border_px: int
     fresnel_zones: Optional[float]
-    _gains: dict = field(default_factory=dict, compare=False, repr=False)  # (color, shape) -> gain grid
+    _gains: dict = field(default_factory=dict, compare=False, repr=False)  # color -> gain grid of one shape
 
     def active(self, color: int) -> bool:
         """Whether the plane's field of lit color ``color`` is filtered at all."""
@@ -175,11 +179,12 @@ class PlaneEqualiser:
         h, w = field_.shape[-2], field_.shape[-1]
         b = min(self.border_px, h, w)  # at most the ASM's own 2x padding
         shape = (smooth_at_least(h + b), smooth_at_least(w + b))
-        key = (color, shape)
-        if key not in self._gains:
-            self._gains.clear()  # one grid at a time: planes of different sizes follow each other
-            self._gains[key] = equaliser_gain(self.spectra[color], wavelength_m, pitch_m, shape)
-        return equalise_plane(field_, self._gains[key])
+        g = self._gains.get(color)
+        if g is None or tuple(g.shape) != shape or g.device != field_.device:
+            # once per color of a plane (its chunks of frames alternate colors), in the field's precision
+            g = equaliser_gain(self.spectra[color], wavelength_m, pitch_m, shape)
+            g = self._gains[color] = g.to(device=field_.device, dtype=field_.real.dtype)
+        return equalise_plane(field_, g)
 
 
 def plane_equalisers(distances_by_plane_m: Sequence[Sequence[float]], wavelengths_m: Sequence[float],

@@ -45,12 +45,13 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
         t0 = time.perf_counter()
         if equalisers is not None:  # the WRP's own rays, before the deeper planes are added to it
             for ci, lam in enumerate(lams):
+                if not equalisers[0].active(ci):
+                    continue
                 for a in range(0, n_f, fp):
                     e = min(n_f, a + fp)
                     u = torch.from_numpy(np.ascontiguousarray(sink.read_traced(f0 + a, f0 + e, lit_idx[ci]))).to(dev)
                     v = equalisers[0].apply(u, ci, lam, optics.pitch_m)
-                    if v is not u:
-                        sink.write_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
+                    sink.write_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
                     del u, v
             timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
         for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front

@@ -10,7 +10,7 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel
 
-from holocore.display.optics import channel_of, theta_max_rad
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.mapping import HologramMap
 from holocore.trace.reference_chain import aligned, trace_chain
@@ -212,7 +212,7 @@ def analyze(
             f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
         )
     depth_q = _weighted_quantiles(hmap.holo_depth_m(zc_img), res.radiance[good & (zc_img_all > 0)].sum(axis=1))
-    radius_px = 0.0 if z_far is None else (z_wrp - z_far) * math.tan(min(theta_max, math.radians(89))) / pitch_m
+    radius_px = 0.0 if z_far is None else (z_wrp - z_far) * math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD)) / pitch_m
     return SceneAnalysis(
         rays=R,
         hit_fraction=float(hit.mean()) if R else 0.0,

@@ -14,6 +14,7 @@ from typing import Optional
 
 from pydantic import BaseModel, Field
 
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 from holocore.plan.presets import PRESETS, PresetName
 from holocore.runtime.mitsuba_env import mitsuba
 
@@ -23,7 +24,7 @@ MAX_DELTA_CAP = 16
 
 def noise_factor(theta_max: float) -> float:
     """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
-    t = min(theta_max, math.radians(89.0))
+    t = min(theta_max, MAX_CONE_HALF_ANGLE_RAD)
     return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
 
 

@@ -23,6 +23,8 @@ from typing import Sequence
 
 import numpy as np
 
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
+
 __all__ = ["WrpPlanes", "place_planes", "choose_planes", "MAX_WRP_PLANES"]
 
 MAX_WRP_PLANES = 8
@@ -61,7 +63,7 @@ class WrpPlanes:
     def border_px(self, k: int, *, pitch_m: float, theta_max: float) -> int:
         """Pixels a deeper plane's grid extends beyond the WRP's on each side: all the light that reaches the
         WRP's window inside the cone crosses plane k within it, (z_0 - z_k) tan(theta_max) / p."""
-        t = math.tan(min(theta_max, math.radians(89.0)))
+        t = math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD))
         return int(math.ceil((self.z_m[0] - self.z_m[k]) * t / pitch_m - 1e-9))
 
     def noise_energy(self, depths_m: Sequence[float]) -> list[float]:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 import torch
 
-from holocore.display.optics import channel_of, theta_max_rad
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
 
@@ -59,8 +59,7 @@ class TileGeometry:
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
              planes=None, ring_rows: int = 1) -> "TileGeometry":
         thetas = [theta_max_rad(lam, pitch_m) for lam in wavelengths_m]
-        # Keep rays off exactly grazing (theta = 90 deg gives cos = 0 and an infinite weight r / cos theta).
-        thetas = [min(t, math.radians(89.0)) for t in thetas]
+        thetas = [min(t, MAX_CONE_HALF_ANGLE_RAD) for t in thetas]  # off grazing (an infinite r / cos theta)
         th_max = max(thetas)
         H, W = shape_hw
         pl = None if not planes else tuple((float(z), max(-1e30, float(lo)), float(hi), int(b))
