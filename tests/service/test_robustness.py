@@ -128,7 +128,7 @@ def test_server_killed_then_stopped_mid_queue_loses_nothing(server_factory, scen
     srv = server_factory("restart", workers=1).start()
     with srv.client("submit") as c:
         sid = upload(c, scene_bundle("cbox-mirror-glass")).json()["id"]
-        jobs = [c.post("/v1/jobs", json=job_body(sid, 40 + i)).json()["id"] for i in range(3)]
+        jobs = [c.post("/v1/jobs", json=job_body(sid, 40 + i)).json()["id"] for i in range(2)]  # running, queued
         pgid, _ = running_render(c, jobs[0])
     srv.stop(signal.SIGKILL)  # a crash: the drivers die with it (PR_SET_PDEATHSIG)
     wait_for(lambda: not group_alive(pgid), timeout=10, what="the dead server's job to stop")
@@ -142,9 +142,9 @@ def test_server_killed_then_stopped_mid_queue_loses_nothing(server_factory, scen
     srv.start()
     with srv.client("reader") as c:
         states = [wait_state(c, j, ("succeeded", "failed", "cancelled"), timeout=120) for j in jobs]
-        assert [s["state"] for s in states] == ["succeeded"] * 3, [s["error"] for s in states]
-        assert [s["attempts"] for s in states] == [2, 1, 1]
-        assert len(c.get("/v1/jobs").json()["jobs"]) == 3
+        assert [s["state"] for s in states] == ["succeeded"] * 2, [s["error"] for s in states]
+        assert [s["attempts"] for s in states] == [2, 1]
+        assert len(c.get("/v1/jobs").json()["jobs"]) == 2
         assert c.get("/v1/jobs", params={"state": "running"}).json()["jobs"] == []
         shas = {s["stack_sha256"] for s in states}
-        assert len(shas) == 3  # three seeds, three different stacks
+        assert len(shas) == 2  # two seeds, two different stacks
