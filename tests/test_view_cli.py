@@ -212,3 +212,27 @@ def test_bad_input_exits_2_with_a_message(result_npz, tmp_path, args, message):
     r = runner.invoke(app, argv)
     assert r.exit_code == 2, r.output
     assert message in r.output
+
+
+def test_service_preview_is_what_holo_view_writes_and_a_failed_preview_keeps_the_pictures(stack_npz, tmp_path,
+                                                                                          capsys):
+    # The job driver's preview step (service.workers.pictures --preview) makes the preview and the pictures in
+    # one process; its preview must be the picture `holo view --focus-mm` writes.
+    from service.workers.pictures import main as pictures_main
+
+    focus_mm = f"{POINTS[0][2] * 1e3:.6f}"
+    r = runner.invoke(app, ["view", str(stack_npz), "--focus-mm", focus_mm, "--pupil-mm", str(PUPIL_MM),
+                            "--out", str(tmp_path / "cli.png")])
+    assert r.exit_code == 0, r.output
+    assert pictures_main([str(stack_npz), "--out", str(tmp_path / "pics"), "--pupil-mm", str(PUPIL_MM),
+                          "--preview", str(tmp_path / "job.png"), "--preview-focus-mm", focus_mm]) == 0
+    a, b = (np.asarray(Image.open(tmp_path / n)) for n in ("cli.png", "job.png"))
+    assert a.shape == (H, W, 3) and np.array_equal(a, b)
+    assert (tmp_path / "pics" / "index.json").is_file()
+    # a preview that cannot be written is reported, and the pictures are still made
+    capsys.readouterr()
+    assert pictures_main([str(stack_npz), "--out", str(tmp_path / "pics2"), "--pupil-mm", str(PUPIL_MM),
+                          "--preview", str(tmp_path / "no" / "such" / "dir.png"), "--preview-focus-mm", focus_mm]) == 0
+    assert "error: no preview:" in capsys.readouterr().err
+    assert (tmp_path / "pics2" / "index.json").is_file()
+    assert pictures_main([str(stack_npz), "--out", str(tmp_path / "pics3"), "--preview", str(tmp_path / "x.png")]) == 2

@@ -1,5 +1,6 @@
-"""One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, `holo view`, and the
-web page's pictures (``service.workers.pictures``: focal sweep and view grid under ``pictures/``).
+"""One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, then the preview image
+and the web page's pictures (``service.workers.pictures``: the preview as `holo view` makes it, focal sweep and
+view grid under ``pictures/``; one process).
 
 Run as ``python -m service.workers.driver JOB_DIR [--parent-pid PID]``. ``JOB_DIR/job.json`` says what to do;
 the driver writes ``step.json`` as each step starts, each CLI appends ``progress-<step>.jsonl``, and at the end
@@ -77,6 +78,17 @@ class StepFailed(Exception):
     def __init__(self, message: str, retryable: bool) -> None:
         super().__init__(message)
         self.retryable = retryable
+
+
+def _last_line(log: Path, prefix: str) -> str:
+    """The last line of ``log`` that starts with ``error: PREFIX`` (that prefix dropped), else a stock phrase."""
+    try:
+        lines = log.read_text(errors="replace").strip().splitlines()
+    except OSError:
+        return "the step left no log"
+    hits = [ln.removeprefix("error: ").removeprefix(prefix).strip() for ln in lines
+            if ln.startswith("error: " + prefix)]
+    return hits[-1][:500] if hits else "the step did not write it"
 
 
 def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> float:
@@ -164,20 +176,18 @@ def run_job(job_dir: Path) -> RunStatus:
     with open(prog["package"], "a") as fh:
         fh.write(json.dumps({"stage": "frames", "done": n, "total": n, "t": time.time()}) + "\n")
     timings["package_s"] = time.monotonic() - t0
+    # the preview image and the web page's focal sweep and view grid (service/workers/pictures.py), in one
+    # process that reads the stack once (its seconds: pictures_s)
     try:
-        timings["preview_s"] = _run("preview", ["view", "stack.npz", "--focus-mm", f"{preview_focus_mm(meta):.6f}",
-                                                "--pupil-mm", "4", "--out", "preview.png"], job_dir)
-    except StepFailed as exc:
-        if exc.retryable:
-            raise
-        warnings.append(f"no preview: {exc}")
-    try:  # the web page's focal sweep and view grid (service/workers/pictures.py)
-        timings["pictures_s"] = _run("pictures", ["stack.npz", "--out", "pictures"], job_dir,
-                                     module="service.workers.pictures")
+        timings["pictures_s"] = _run("preview", ["stack.npz", "--out", "pictures", "--preview", "preview.png",
+                                                "--preview-focus-mm", f"{preview_focus_mm(meta):.6f}"], job_dir,
+                                    module="service.workers.pictures")
     except StepFailed as exc:
         if exc.retryable:
             raise
         warnings.append(f"no pictures: {exc}")
+    if not (job_dir / "preview.png").is_file():
+        warnings.append("no preview: " + _last_line(job_dir / "preview.log", "no preview: "))
     timings["peak_rss_bytes"] = _peak_rss_bytes()
     if not spec.keep_result:
         (job_dir / "result.npz").unlink(missing_ok=True)

@@ -1,7 +1,9 @@
 """What a job's hologram looks like, for the web page: a focal sweep and a view grid of the simulated
 reconstruction, as PNGs with a JSON index, made by a worker when the job finishes (never inside a request).
 
-Run as ``python -m service.workers.pictures STACK.npz --out DIR`` (the job driver's ``pictures`` step). It uses
+Run as ``python -m service.workers.pictures STACK.npz --out DIR [--preview PNG --preview-focus-mm MM]`` (the job
+driver's ``preview`` step: the job's preview image, as ``holo view`` makes it, and the pictures, in one process
+that reads the stack once). It uses
 holocore's viewing code, as ``holo view --sweep`` does (holocore.evaluate.preview: ``focus_depths``, ``view_rgb``,
 ``to_png8``):
 
@@ -36,7 +38,7 @@ from typing import Optional
 from holocore.evaluate.preview import depth_words
 from holocore.formats.meta import ViewMeta, parse_view_meta
 
-__all__ = ["make_pictures", "picture_key", "PICTURES_VERSION", "depth_words"]
+__all__ = ["make_pictures", "write_preview", "picture_key", "PICTURES_VERSION", "depth_words"]
 
 PICTURES_VERSION = 1
 GRID = 3
@@ -108,8 +110,24 @@ def _save(views, white: float, out: Path, names: list[str]) -> list[dict]:
     return rows
 
 
-def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4.0) -> dict:
-    """Write the sweep and grid PNGs and ``index.json`` into ``out``; returns the index."""
+def write_preview(stack: Path, out_png: Path, *, focus_mm: float, pupil_mm: float = 4.0, loaded=None) -> None:
+    """The job's preview: the centre view focused at ``focus_mm`` (mm from the SLM) through a ``pupil_mm`` pupil,
+    white at its 99.5th percentile, as ``holo view STACK --focus-mm F --pupil-mm P --out PNG`` writes it.
+    ``loaded``: the stack's (field, meta) when the caller has read it already."""
+    from PIL import Image
+
+    from holocore.evaluate.preview import to_png8, view_rgb
+
+    field, meta = loaded if loaded is not None else _field(stack)
+    rgb = view_rgb(field, meta, focus_z_m=focus_mm * 1e-3, pupil_diameter_m=pupil_mm * 1e-3)
+    tmp = out_png.with_name(f".{out_png.name}.tmp")
+    Image.fromarray(to_png8(rgb)).save(tmp, format="PNG")
+    os.replace(tmp, out_png)
+
+
+def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4.0, loaded=None) -> dict:
+    """Write the sweep and grid PNGs and ``index.json`` into ``out``; returns the index. ``loaded``: the
+    stack's (field, meta) when the caller has read it already."""
     import numpy as np
 
     from holocore.evaluate.preview import focus_depths, view_rgb
@@ -125,7 +143,7 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     except (OSError, ValueError, KeyError, TypeError):
         pass
     t0 = time.monotonic()
-    field, meta = _field(stack)
+    field, meta = loaded if loaded is not None else _field(stack)
     f_m = meta.focal_length_m
     tmp = out.with_name(f".{out.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -186,15 +204,31 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--sweep", type=int, default=9)
     ap.add_argument("--pupil-mm", type=float, default=4.0)
+    ap.add_argument("--preview", type=Path, default=None,
+                    help="also write the job's preview PNG here (one view, focused at --preview-focus-mm)")
+    ap.add_argument("--preview-focus-mm", type=float, default=None)
     args = ap.parse_args(argv)
+    if (args.preview is None) != (args.preview_focus_mm is None) or (
+            args.preview_focus_mm is not None and not math.isfinite(args.preview_focus_mm)):
+        print("error: --preview and a finite --preview-focus-mm go together", file=sys.stderr)
+        return 2
     if not 2 <= args.sweep <= 64:
         print("error: --sweep must be in 2..64", file=sys.stderr)
         return 2
     if not (math.isfinite(args.pupil_mm) and 0 < args.pupil_mm <= 100):
         print("error: --pupil-mm must be in (0, 100]", file=sys.stderr)
         return 2
+    loaded = None
+    if args.preview is not None:  # first, and on its own: a failed preview does not stop the pictures
+        try:
+            loaded = _field(args.stack)
+            write_preview(args.stack, args.preview, focus_mm=args.preview_focus_mm, pupil_mm=args.pupil_mm,
+                          loaded=loaded)
+            print(f"preview: {args.preview}", file=sys.stderr)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"error: no preview: {type(exc).__name__}: {exc}", file=sys.stderr)
     try:
-        index = make_pictures(args.stack, args.out, sweep=args.sweep, pupil_mm=args.pupil_mm)
+        index = make_pictures(args.stack, args.out, sweep=args.sweep, pupil_mm=args.pupil_mm, loaded=loaded)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1

@@ -17,7 +17,7 @@ __all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_a
 ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
 RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
              *(f"{s}.log" for s in STEPS))
-# Share of the whole run of each step with progress (pictures, the last, is not counted).
+# Share of the whole run of each step with progress (the preview step makes the pictures too).
 STEP_WEIGHTS: dict[Step, float] = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
 # Where each stage of `holo render` ends, as a fraction of the render step (the stages it reports, in order).
 RENDER_STAGE_END: dict[RenderStage, float] = {"analysis": 0.1, "trace": 0.9, "propagate": 1.0}
