@@ -2,7 +2,7 @@
 
 Each stage's peak resident set grows with the number of complex field samples it holds, N = H W C F (SLM rows,
 columns, colors, frames). The model interpolates peak RSS measured with ``/usr/bin/time -f %M`` on the demo
-scene (a 2-core x86_64 CPU, torch 2.13 CPU, Mitsuba 3.9 llvm_ad_rgb; 2026-12-01) linearly in N between the
+scene (a 2-core x86_64 CPU, torch 2.13 CPU, Mitsuba 3.9 llvm_ad_rgb; 2026-12-02) linearly in N between the
 measured sizes and extrapolates with the last segment's slope; below the smallest size it keeps the smallest
 measurement (the processes' fixed cost: Python, torch, Mitsuba). Re-measure with ``bench/bench_memory.py``
 when the hot code changes (its results: ``bench/results/memory.md``).
@@ -19,16 +19,15 @@ Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
 
 _MB = 1e6
-# (N = H*W*C*F samples, peak RSS in bytes) per stage, increasing N. The 1080x1920x3x24 points: render and view
-# measured after the chunked, streamed render and view (issue 14 item 1; default 8 GiB budget, view of a
-# full-size stack: bench/results/memory.md), SGD encode the streamed encoder's (7.34 GiB, bench/results/encode.md;
-# its small points are the older encoder's, an upper estimate).
-# Render and view no longer grow in proportion to N beyond these points (their chunks are sized by the budget),
-# so the extrapolation above them is an upper estimate.
+# (N = H*W*C*F samples, peak RSS in bytes) per stage, increasing N: bench/results/memory.md, 2026-12-02 (after the
+# cone equaliser; demo scene, fast preset, default 8 GiB budget, render and view chunked and streamed, SGD encode
+# streamed; a view of the full-size stack). Render and view no longer grow in proportion to N beyond the
+# 1080x1920x3x24 points (their chunks are sized by the budget), so the extrapolation above them is an upper
+# estimate.
 MEASURED_PEAKS: dict[Stage, tuple[tuple[float, float], ...]] = {
-    "render": ((135 * 240 * 3 * 8, 612 * _MB), (270 * 480 * 3 * 8, 781 * _MB), (1080 * 1920 * 3 * 24, 6245 * _MB)),
-    "encode": ((135 * 240 * 3 * 8, 521 * _MB), (270 * 480 * 3 * 8, 1171 * _MB), (1080 * 1920 * 3 * 24, 7.34 * 2**30)),
-    "view": ((135 * 240 * 3 * 8, 316 * _MB), (270 * 480 * 3 * 8, 465 * _MB), (1080 * 1920 * 3 * 24, 1695 * _MB)),
+    "render": ((135 * 240 * 3 * 8, 634 * _MB), (270 * 480 * 3 * 8, 853 * _MB), (1080 * 1920 * 3 * 24, 7840 * _MB)),
+    "encode": ((135 * 240 * 3 * 8, 405 * _MB), (270 * 480 * 3 * 8, 744 * _MB), (1080 * 1920 * 3 * 24, 7158 * _MB)),
+    "view": ((135 * 240 * 3 * 8, 306 * _MB), (270 * 480 * 3 * 8, 496 * _MB), (1080 * 1920 * 3 * 24, 1754 * _MB)),
 }
 
 
