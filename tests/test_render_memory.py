@@ -69,6 +69,37 @@ def test_streamed_chunked_render_equals_the_unchunked_one(demo, tmp_path, method
     assert np.array_equal(NpyMember(out, "wrp_field").read_fc(1, 3, 2), wrp[1:3, 2])
 
 
+def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monkeypatch):
+    # The chunk planner sizes the WRP -> SLM propagation without the trace pass's phase bank (F x C complex64
+    # frames: 1.2 GB at the paper's size). A closure that kept it alive put the full-size render 1 GB over
+    # the planner's estimate; every ASM of a one-plane render is that propagation, and none may see a bank.
+    import gc
+    import weakref
+
+    import holocore.optics.propagation as prop
+    import holocore.pipeline as pipeline
+
+    banks, alive_at_asm = [], []
+    make_banks, asm = pipeline.frame_banks, prop.asm
+
+    def tracked_banks(*a, **k):
+        out = make_banks(*a, **k)
+        banks.extend(weakref.ref(t) for t in out)
+        return out
+
+    def spy_asm(*a, **k):
+        gc.collect()
+        alive_at_asm.append(sum(r() is not None for r in banks))
+        return asm(*a, **k)
+
+    monkeypatch.setattr(pipeline, "frame_banks", tracked_banks)
+    monkeypatch.setattr(prop, "asm", spy_asm)
+    optics = OpticsConfig(resolution_hw=(24, 32), frames=2, seed=3)
+    pipeline.render_to_file(demo, tmp_path / "RESULT.npz", optics,
+                            pipeline.RenderOptions(preset="fast", wrp_planes=1, cone_equaliser=False))
+    assert banks and alive_at_asm and max(alive_at_asm) == 0, alive_at_asm
+
+
 def test_budget_from_keyword_env_and_default(monkeypatch):
     monkeypatch.delenv(ENV, raising=False)
     assert memory_budget_bytes() == 8192 << 20
