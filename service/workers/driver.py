@@ -80,15 +80,16 @@ class StepFailed(Exception):
         self.retryable = retryable
 
 
-def _last_line(log: Path, prefix: str) -> str:
-    """The last line of ``log`` that starts with ``error: PREFIX`` (that prefix dropped), else a stock phrase."""
+def _log_message(log: Path, prefix: str = "") -> Optional[str]:
+    """The last ``error: PREFIX...`` line of a step's log without that prefix; with no ``PREFIX`` and no error
+    line, its last line; None when there is neither (or no log)."""
     try:
         lines = log.read_text(errors="replace").strip().splitlines()
     except OSError:
-        return "the step left no log"
-    hits = [ln.removeprefix("error: ").removeprefix(prefix).strip() for ln in lines
-            if ln.startswith("error: " + prefix)]
-    return hits[-1][:500] if hits else "the step did not write it"
+        return None
+    errs = [ln for ln in lines if ln.startswith("error: " + prefix if prefix else "error:")]
+    last = errs[-1] if errs else (lines[-1] if lines and not prefix else None)
+    return None if last is None else last.removeprefix("error: ").removeprefix(prefix).strip()[:500]
 
 
 def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> float:
@@ -100,13 +101,10 @@ def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> fl
         proc = subprocess.run([sys.executable, "-m", module, *args], stdout=log, stderr=subprocess.STDOUT,
                               stdin=subprocess.DEVNULL, cwd=job_dir, preexec_fn=_child_dies_with_driver)
     if proc.returncode != 0:
-        lines = (job_dir / f"{step}.log").read_text(errors="replace").strip().splitlines()
-        errs = [ln for ln in lines if ln.startswith("error:")]
-        last = (errs[-1] if errs else (lines[-1] if lines else "")).removeprefix("error: ").strip()
         if proc.returncode < 0:
             raise StepFailed(f"holo {step} was killed by signal {-proc.returncode}", retryable=True)
-        raise StepFailed(f"holo {step} failed (exit {proc.returncode}): {last[:500] or 'no message'}",
-                         retryable=False)
+        last = _log_message(job_dir / f"{step}.log")
+        raise StepFailed(f"holo {step} failed (exit {proc.returncode}): {last or 'no message'}", retryable=False)
     return time.monotonic() - t0
 
 
@@ -187,7 +185,8 @@ def run_job(job_dir: Path) -> RunStatus:
             raise
         warnings.append(f"no pictures: {exc}")
     if not (job_dir / "preview.png").is_file():
-        warnings.append("no preview: " + _last_line(job_dir / "preview.log", "no preview: "))
+        warnings.append("no preview: " + (_log_message(job_dir / "preview.log", "no preview: ")
+                                          or "the step did not write it"))
     timings["peak_rss_bytes"] = _peak_rss_bytes()
     if not spec.keep_result:
         (job_dir / "result.npz").unlink(missing_ok=True)

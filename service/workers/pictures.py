@@ -110,15 +110,15 @@ def _save(views, white: float, out: Path, names: list[str]) -> list[dict]:
     return rows
 
 
-def write_preview(stack: Path, out_png: Path, *, focus_mm: float, pupil_mm: float = 4.0, loaded=None) -> None:
-    """The job's preview: the centre view focused at ``focus_mm`` (mm from the SLM) through a ``pupil_mm`` pupil,
-    white at its 99.5th percentile, as ``holo view STACK --focus-mm F --pupil-mm P --out PNG`` writes it.
-    ``loaded``: the stack's (field, meta) when the caller has read it already."""
+def write_preview(loaded, out_png: Path, *, focus_mm: float, pupil_mm: float = 4.0) -> None:
+    """The job's preview of a stack read by ``_field`` (``loaded``: field, meta): the centre view focused at
+    ``focus_mm`` (mm from the SLM) through a ``pupil_mm`` pupil, white at its 99.5th percentile, as
+    ``holo view STACK --focus-mm F --pupil-mm P --out PNG`` writes it."""
     from PIL import Image
 
     from holocore.evaluate.preview import to_png8, view_rgb
 
-    field, meta = loaded if loaded is not None else _field(stack)
+    field, meta = loaded
     rgb = view_rgb(field, meta, focus_z_m=focus_mm * 1e-3, pupil_diameter_m=pupil_mm * 1e-3)
     tmp = out_png.with_name(f".{out_png.name}.tmp")
     Image.fromarray(to_png8(rgb)).save(tmp, format="PNG")
@@ -222,8 +222,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     if args.preview is not None:  # first, and on its own: a failed preview does not stop the pictures
         try:
             loaded = _field(args.stack)
-            write_preview(args.stack, args.preview, focus_mm=args.preview_focus_mm, pupil_mm=args.pupil_mm,
-                          loaded=loaded)
+            write_preview(loaded, args.preview, focus_mm=args.preview_focus_mm, pupil_mm=args.pupil_mm)
             print(f"preview: {args.preview}", file=sys.stderr)
         except (OSError, ValueError, KeyError) as exc:
             print(f"error: no preview: {type(exc).__name__}: {exc}", file=sys.stderr)
