@@ -20,18 +20,24 @@ too dim in the centre view against the side views, blue 11 % too bright). The eq
 average over the image points a plane records (their distances d_j, luminance-weighted samples from the
 analysis):
 
-    E(f) = sqrt(G_ideal(f) / S(f)),  S(f) = sum_{m,n in -1..1} mean_j |H_{d_j}(f + (m, n)/p)|^2
-                                     inside the cone (clipped to E_MAX), 0 outside,                     (C3)
+    E(f) = sqrt(G_ideal(f) / S(f)),  S(f) = sum_{m,n in -1..1} mean_j |H_{d_j}(g)|^2 B(g),  g = f + (m, n)/p,
+    B(g) = sinc^2(g_x p) sinc^2(g_y p)     inside the cone (clipped to E_MAX), 0 outside,               (C3)
 
 S being what the plane's pixels hold: the rim's diffraction reaches past the grid's Nyquist frequency and
 folds back (the aliases add in power, the image points sitting anywhere in their pixels; the rays leave
-the pixel centres, DESIGN §4). Both spectra are in absolute units (the cut spherical
+the pixel centres, DESIGN §4). B is the power spectrum of one random-phase cell: the tracer looks phi_m(Q) up
+in the bank cell that holds Q, so the image points of a surface form a sheet whose phase is constant over
+p x p cells, and its light falls off with angle as B does (at the cone's rim, sin theta_c = lambda / 2p, to
+0.41 on the axes). The viewer's pupil spans a wider part of the cone the shorter the wavelength, so without B
+a white card came out red about 4 % too bright and blue 3-5 % too dim in every view (measured at the paper's
+wavelengths). B holds for every point, so a plane whose points are all far (Weyl's spectrum) is filtered
+too, by 1 / sqrt(B). Both spectra are in absolute units (the cut spherical
 wave's power, pi ln(1 + tan^2 theta_c) for every d, partly leaks past the cone's rim at small N_F; the
 ideal's is pi sin^2 theta_c). The filter is applied to each recording plane's own field before anything is
 added to it or it is propagated (:mod:`holocore.optics.plane_chain`). Outside the cone the field of a
 band-limited point is zero: what the estimator put there is Monte Carlo noise and the rim's diffraction,
 which no view inside the cone sees, so the filter is 0 there. Image points more than ``MAX_FRESNEL`` zones
-from their plane count with Weyl's spectrum; a plane with no nearer point is untouched.
+from their plane count with Weyl's spectrum (times B); a plane that records no point is untouched.
 
 Units: metres; frequencies in cycles per metre; rho_n = f / f_c (dimensionless).
 """
@@ -120,10 +126,17 @@ def mean_point_spectrum(distances_m: Sequence[float], wavelength_m: float, pitch
                    axis=0)
 
 
+def _cell_box(f: torch.Tensor, pitch_m: float) -> torch.Tensor:
+    """B's factor along one axis at frequency ``f`` (1/m): sinc^2(f p), the power spectrum of a random-phase
+    cell p wide. (Rays that leave points spread over their pixel, with several planes, still estimate the
+    field at the pixel's centre: no further factor.)"""
+    return torch.sinc(f * pitch_m) ** 2
+
+
 def equaliser_gain(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m: float,
                    shape_hw: tuple[int, int]) -> torch.Tensor:
     """E(f) of Eq. C3 on the DFT grid ``shape_hw`` (numpy's frequency order), float64: ``spectrum`` the mean
-    point spectrum at RHO_N (None: Weyl's, which leaves 1 inside the cone)."""
+    point spectrum at RHO_N (None: Weyl's, which leaves 1 / sqrt(B) inside the cone)."""
     _tan_c, f_c = _cone(wavelength_m, pitch_m)
     table = torch.from_numpy(ideal_power_spectrum(wavelength_m, pitch_m) if spectrum is None else spectrum)
     step = RHO_N[1] - RHO_N[0]
@@ -140,7 +153,7 @@ def equaliser_gain(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m:
     for m in (-1, 0, 1):
         for n in (-1, 0, 1):
             gy, gx = fy + m / pitch_m, fx + n / pitch_m
-            s += lookup(torch.sqrt(gy * gy + gx * gx) / f_c)
+            s += lookup(torch.sqrt(gy * gy + gx * gx) / f_c) * _cell_box(gy, pitch_m) * _cell_box(gx, pitch_m)
     rho = torch.sqrt(fy * fy + fx * fx) / f_c
     ideal = torch.from_numpy(ideal_power_spectrum(wavelength_m, pitch_m, rho.numpy()))
     gain = torch.sqrt(ideal / s.clamp_min(1e-300)).clamp(max=E_MAX)
@@ -169,8 +182,9 @@ class PlaneEqualiser:
     _gains: dict = field(default_factory=dict, compare=False, repr=False)  # color -> gain grid of one shape
 
     def active(self, color: int) -> bool:
-        """Whether the plane's field of lit color ``color`` is filtered at all."""
-        return self.spectra[color] is not None
+        """Whether the plane's field of lit color ``color`` is filtered at all: whenever it records a point (the
+        cell spectrum B of Eq. C3 holds for all of them)."""
+        return self.fresnel_zones is not None and 0 <= color < len(self.spectra)
 
     def apply(self, field_: torch.Tensor, color: int, wavelength_m: float, pitch_m: float) -> torch.Tensor:
         """``field_`` [..., H, W] of lit color ``color`` equalised (the same tensor when there is nothing to do)."""
