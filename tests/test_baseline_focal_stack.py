@@ -91,6 +91,27 @@ def test_each_plane_is_sharp_at_its_own_focus_and_the_loss_falls():
     assert a_own > a_other + 12 and b_own > b_other + 12, (a_own, a_other, b_own, b_other)
 
 
+def test_a_time_limit_stops_each_colour_early_and_otherwise_changes_nothing():
+    """The equal-time report gives the stack a wall-time budget. Under a limit no step can meet (1 ms) every
+    colour takes exactly one step (a step's duration is known only after one) and the fit is the one-step fit,
+    phases and loss; under a limit nothing reaches it is the unlimited fit. Both deterministic: no timing."""
+    rng = np.random.default_rng(2)
+    T = rng.random((2, 2, 24, 24))
+    kw = dict(wavelengths_m=[640e-9, 455.4e-9], pitch_m=P, focal_length_m=F_M, pupil_diameter_m=1.6e-3, frames=3,
+              lr=0.05, seed=3)
+    zs = [2e-3, 3e-3]
+    tight = optimise_focal_stack(T, zs, iterations=50, time_limit_s=1e-3, **kw)
+    one = optimise_focal_stack(T, zs, iterations=1, **kw)
+    assert tight.iterations == [1, 1] and one.iterations == [1, 1]
+    assert np.array_equal(tight.phase, one.phase) and tight.loss == one.loss and len(tight.loss) == 2
+    loose = optimise_focal_stack(T, zs, iterations=6, time_limit_s=1e6, **kw)
+    free = optimise_focal_stack(T, zs, iterations=6, **kw)
+    assert loose.iterations == [6, 6] and np.array_equal(loose.phase, free.phase) and loose.loss == free.loss
+    assert loose.loss[-1] < loose.loss[0]
+    with pytest.raises(ValueError, match="time_limit_s"):
+        optimise_focal_stack(T, zs, iterations=2, time_limit_s=0.0, **kw)
+
+
 def _two_plane_bundle(folder):
     """Two glowing textured cards: the left one 0.5 m away, the right one 0.9 m, seen by an eye at the origin."""
     from PIL import Image

@@ -83,11 +83,13 @@ class FocalStackFit:
     (target ~ s_c^2 x frame-averaged intensity of the unit-amplitude SLM), loss per iteration (summed over
     colours, each normalised by its target's energy) and seconds spent."""
 
-    def __init__(self, phase: np.ndarray, scale: np.ndarray, loss: list[float], seconds: float) -> None:
+    def __init__(self, phase: np.ndarray, scale: np.ndarray, loss: list[float], seconds: float,
+                 iterations: Optional[list[int]] = None) -> None:
         self.phase = phase
         self.scale = scale
         self.loss = loss
         self.seconds = seconds
+        self.iterations = iterations  # Adam steps taken per colour (fewer than asked under a time limit)
 
     @property
     def illumination(self) -> np.ndarray:
@@ -100,13 +102,17 @@ class FocalStackFit:
 def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wavelengths_m: Sequence[float],
                          pitch_m: float, focal_length_m: float, pupil_diameter_m: float, frames: int,
                          iterations: int = 200, lr: float = 0.05, seed: int = 0, device: str = "cpu",
-                         progress: Optional[Callable[[str, int, int], None]] = None) -> FocalStackFit:
+                         progress: Optional[Callable[[str, int, int], None]] = None,
+                         time_limit_s: Optional[float] = None) -> FocalStackFit:
     """Optimise ``frames`` phase-only SLM frames per colour so that their frame-averaged intensity at each
     plane (SLM at z = 0 -> ASM to ``plane_z_m[k]`` through the centred pupil of ``pupil_diameter_m``) matches
     ``targets[k]`` ([K, C, H, W], intensities >= 0, one channel per wavelength) up to one scale per colour.
 
     Adam on the phases (learning rate ``lr``, ``iterations`` steps), initialised uniform in [0, 2pi) from
     ``seed`` (a different draw per frame and colour). See the module docstring for the loss.
+    ``time_limit_s``: stop a colour's steps early so that the whole fit takes about this many seconds (each
+    colour gets an equal share of what is left, and a step is started only if its mean duration still fits);
+    ``iterations`` stays the most. The loss history then holds each colour's final loss from its last step on.
     """
     import torch
 
@@ -131,6 +137,8 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     frames = validate.integer("frames", frames, 1, 4096)
     iterations = validate.integer("iterations", iterations, 0, MAX_ITERATIONS)
     lr = validate.positive("lr", lr, unit="")
+    if time_limit_s is not None:
+        time_limit_s = validate.positive("time_limit_s", time_limit_s, unit="s")
     dev = torch.device(device)
     hp, wp = padded_shape((H, W))
     t0 = time.perf_counter()
@@ -138,7 +146,11 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     phase_out = np.zeros((frames, C, H, W), dtype=np.float32)
     scales = np.zeros(C, dtype=np.float64)
     loss_total = np.zeros(iterations + 1, dtype=np.float64)
+    steps = [0] * C
     for c, lam in enumerate(lams):
+        # this colour's deadline: an equal share of the time left (None: no limit)
+        deadline = None if time_limit_s is None else \
+            time.perf_counter() + (t0 + time_limit_s - time.perf_counter()) / (C - c)
         amp = torch.from_numpy(np.sqrt(T[:, c])).to(dev, torch.float32)  # [K, H, W]
         energy = float(amp.square().sum()) or 1.0
         mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, device=dev).to(torch.float32)
@@ -161,10 +173,14 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
             num = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
             den = sum(float(rk.square().sum()) for rk in r)
         s = num / den if den > 0 else 1.0
+        t_c = time.perf_counter()
         for it in range(iterations + 1):
             opt.zero_grad(set_to_none=True)
             num = den = loss_sum = 0.0
-            last = it == iterations  # the final loss only, no step
+            now = time.perf_counter()
+            # the final loss only, no step: at the last iteration, or when one more step would pass the deadline
+            last = it == iterations or (deadline is not None and it > 0
+                                        and now + (now - t_c) / it > deadline)
             with torch.set_grad_enabled(not last):
                 sp = spectrum()
             for k in range(K):  # one plane's graph at a time (the shared spectrum kept); gradients add up
@@ -177,24 +193,29 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
                 num += float((rd * amp[k]).sum())
                 den += float(rd.square().sum())
                 loss_sum += float(lk.detach())
+            if last:  # this colour's final loss, held to the end of the history if it stopped early
+                loss_total[it:] += loss_sum * (K * H * W) / energy
+                steps[c] = it
+                break
             loss_total[it] += loss_sum * (K * H * W) / energy
-            if not last:
-                opt.step()
-                s = num / den if den > 0 else s
-                if progress is not None:
-                    progress("focal-stack", c * iterations + it + 1, C * iterations)
+            opt.step()
+            s = num / den if den > 0 else s
+            if progress is not None:
+                progress("focal-stack", c * iterations + it + 1, C * iterations)
         with torch.no_grad():
             phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
         scales[c] = s
+    loss_total = loss_total[:max(steps) + 1]
     return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - t0)
+                         seconds=time.perf_counter() - t0, iterations=steps)
 
 
 def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAULT_PLANES,
                        spacing_m: Optional[float] = DEFAULT_SPACING_M, plane_z_m: Optional[Sequence[float]] = None,
                        pupil_diameter_m: Optional[float] = None, iterations: int = 200, lr: float = 0.05,
                        gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
-                       progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
+                       progress: Optional[Any] = None, display: Optional[Any] = None,
+                       time_limit_s: Optional[float] = None) -> Any:
     """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
 
     Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
@@ -203,6 +224,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
     their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
     ``optics`` and the renderer's own scene analysis; ``display`` is recorded in the meta as the renderer does.
+    ``time_limit_s``: the whole baseline's wall time (s), targets included: the Adam steps stop early to keep
+    it (:func:`optimise_focal_stack`; the SLM fields' last propagation, about a second, is not counted).
     """
     import torch
 
@@ -254,9 +277,10 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     timings["targets_s"] = time.perf_counter() - t1
     if progress:
         progress("targets", 1, 1)
+    left = None if time_limit_s is None else max(1e-3, float(time_limit_s) - (time.perf_counter() - t0))
     fit = optimise_focal_stack(targets, zs, wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m,
                                focal_length_m=f, pupil_diameter_m=D, frames=optics.frames, iterations=iterations,
-                               lr=lr, seed=optics.seed, device=device, progress=progress)
+                               lr=lr, seed=optics.seed, device=device, progress=progress, time_limit_s=left)
     timings["optimise_s"] = fit.seconds
     t2 = time.perf_counter()
     power = fit.illumination
@@ -279,13 +303,15 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
         "analysis": json.loads(ana.model_dump_json()),
         "focal_stack": {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
                         "spacing_m": None if plane_z_m is not None else spacing_m,
-                        "pupil_diameter_m": D, "iterations": iterations, "lr": lr, "gt_spp": gt_spp,
+                        "pupil_diameter_m": D, "iterations": iterations, "iterations_done": fit.iterations,
+                        "time_limit_s": time_limit_s, "lr": lr, "gt_spp": gt_spp,
                         "white_percentile": wp, "target_white": white, "scale": [float(v) for v in fit.scale],
                         "illumination": [float(v) for v in power], "loss_first": hist[0], "loss_final": hist[-1],
                         "loss_every": step, "loss": hist[::step], "phase_only": True},
         "plan": {"summary": [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
                              f"Mitsuba thin-lens targets through a {D * 1e3:.3g} mm pupil at {gt_spp} spp, "
-                             f"{F} phase-only frame(s) per colour optimised together ({iterations} Adam steps) on "
+                             f"{F} phase-only frame(s) per colour optimised together "
+                             f"({'/'.join(str(n) for n in fit.iterations)} Adam steps) on "
                              f"the frame-averaged amplitude, colours balanced by laser power",
                              pl.field_of_view["summary"]]},
         "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
