@@ -225,6 +225,9 @@ def test_cli_writes_result_and_stack(tmp_path):
     assert slm.shape == phase.shape == u8.shape == (2, 1, 32, 32)
     assert meta["focal_stack"]["planes"] == 2 and smeta["encoder"]["method"] == "focal-stack"
     np.testing.assert_allclose(np.diff(meta["focal_stack"]["plane_z_m"]), 1e-3, rtol=1e-9)
-    bad = CliRunner().invoke(app, ["baseline", "focal-stack", str(scene), "--out", str(tmp_path / "x.npz"),
-                                   "--planes", "0"])
-    assert bad.exit_code == 2
+    assert meta["focal_stack"]["iterations_done"] == [5] and meta["focal_stack"]["time_limit_s"] is None
+    for flag, value in (("--planes", "0"), ("--time-limit-s", "0"), ("--time-limit-s", "nan")):
+        bad = CliRunner().invoke(app, ["baseline", "focal-stack", str(scene), "--out", str(tmp_path / "x.npz"),
+                                       flag, value])
+        assert bad.exit_code == 2 and "Traceback" not in bad.output, (flag, value, bad.output)
+        assert not (tmp_path / "x.npz").exists()
