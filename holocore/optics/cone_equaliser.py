@@ -141,18 +141,19 @@ def mean_sheet_spectrum(distances_m: Sequence[float], wavelength_m: float,
     qs = np.quantile(d, (np.arange(_MAX_DISTANCES) + 0.5) / _MAX_DISTANCES)
     far = _fresnel_zones(qs, wavelength_m, pitch_m) > MAX_FRESNEL  # these count with Weyl's spectrum times B
     size = max(_grid_size(dj, wavelength_m, pitch_m) for dj in qs[~far])
-    f_y, f_x = _grid_freqs((size, size), pitch_m)
-    weyl = ideal_power_spectrum(wavelength_m, pitch_m, f_y, f_x) * cell_spectrum(pitch_m, f_y, f_x)
     total = np.zeros((size, size), dtype=np.float64)
-    for dj, fj in zip(qs, far):
-        total += weyl if fj else sheet_spectrum(dj, wavelength_m, pitch_m, size)
+    if far.any():
+        f_y, f_x = _grid_freqs((size, size), pitch_m)
+        total += far.sum() * ideal_power_spectrum(wavelength_m, pitch_m, f_y, f_x) * cell_spectrum(pitch_m, f_y, f_x)
+    near, count = np.unique(qs[~far], return_counts=True)  # a flat surface: 16 equal quantiles, one spectrum
+    for dj, n in zip(near, count):
+        total += n * sheet_spectrum(dj, wavelength_m, pitch_m, size)
     return (total / qs.size).astype(np.float32)
 
 
 def _interpolate(spectrum: np.ndarray, f_y: np.ndarray, f_x: np.ndarray, pitch_m: float) -> np.ndarray:
-    """The lattice-periodic M x M ``spectrum`` bilinearly interpolated at (f_y [h, 1], f_x [1, w]) (1/m)."""
-    m = spectrum.shape[0]
-    s = spectrum.astype(np.float64)
+    """The lattice-periodic M x M ``spectrum`` (float64) bilinearly interpolated at (f_y [h, 1], f_x [1, w]) (1/m)."""
+    m, s = spectrum.shape[0], spectrum
 
     def taps(f):
         pos = np.mod(f.reshape(-1) * pitch_m * m, m)
@@ -172,6 +173,7 @@ def equaliser_gain(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m:
     S on its M x M grid (:func:`mean_sheet_spectrum`; None: Weyl's times B, which leaves 1 / sqrt(B)). Built
     in blocks of rows, so its float64 temporaries stay small at the paper's size."""
     f_y, f_x = _grid_freqs(shape_hw, pitch_m)
+    spectrum = None if spectrum is None else spectrum.astype(np.float64)  # once, not per block
     out = np.empty(tuple(shape_hw), dtype=np.float32)
     for a in range(0, shape_hw[0], 256):
         fy = f_y[a:a + 256]
@@ -205,7 +207,7 @@ class PlaneEqualiser:
     def active(self, color: int) -> bool:
         """Whether the plane's field of lit color ``color`` is filtered at all: whenever it records a point (the
         cell's mean of Eq. C2 shapes all of them)."""
-        return self.fresnel_zones is not None and 0 <= color < len(self.spectra)
+        return self.fresnel_zones is not None
 
     def apply(self, field_: torch.Tensor, color: int, wavelength_m: float, pitch_m: float) -> torch.Tensor:
         """``field_`` [..., H, W] of lit color ``color`` equalised (the same tensor when there is nothing to do)."""
