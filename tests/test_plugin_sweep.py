@@ -1,12 +1,15 @@
 """Every plugin the bundle allow-list admits either renders a finite, lit hologram or is refused in one clear
 line (issue 11 item 1). One generated scene per plugin (a sphere, its light and its camera, plus the files the
 plugin reads, all written here), through the public path a user takes: the bundle check, Mitsuba, the plan and a
-16x16 render. The refused set is pinned, so a plugin that starts or stops working fails the test."""
+32x32 render (two scenes at a time, in worker processes). The refused set is pinned, so a plugin that starts or
+stops working fails the test."""
 
 from __future__ import annotations
 
+import multiprocessing
 import struct
 import zlib
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -188,32 +191,58 @@ def _one_line(msg: str) -> bool:
     return bool(msg) and "\n" not in msg and "Traceback" not in msg and len(msg) <= 600
 
 
-@pytest.mark.parametrize("key", sorted(BODIES), ids=lambda k: f"{k[0]}-{k[1]}")
-def test_every_admitted_plugin_renders_or_is_refused_clearly(tmp_path, key):
+def _outcome(root: str) -> tuple:
+    """Runs in a worker process: ("refused", message) for a ValueError (BundleError and SceneLoadError are
+    ValueErrors: the CLI prints them in one line), else ("rendered", all fields finite, the hologram's light per
+    channel, Mitsuba's path render's light per channel)."""
     from holocore.display.optics import OpticsConfig
     from holocore.pipeline import RenderOptions, render
+
+    try:
+        # the hologram sees the camera's view (fitted f), so it can be compared with Mitsuba's render of it
+        result = render(Path(root), OpticsConfig(resolution_hw=(32, 32), frames=1, fit_camera_fov=True),
+                        RenderOptions(preset="fast", spp=4))
+    except ValueError as exc:
+        return ("refused", str(exc))
+    finite = all(np.isfinite(np.asarray(getattr(result, n))).all() for n in ("slm_field", "wrp_field"))
+    holo = np.sum(np.abs(np.asarray(result.slm_field)) ** 2, axis=(0, 2, 3))
+    return ("rendered", finite, holo, _mitsuba_path(Path(root)))
+
+
+@pytest.fixture(scope="module")
+def renders(request, tmp_path_factory):
+    """(tag, type) -> (bundle dir, future of :func:`_outcome`) for the plugins selected to run. Two worker
+    processes: each plugin's scene compiles its own kernels (seconds, one core each), most of the sweep's time."""
+    base = tmp_path_factory.mktemp("sweep")
+    chosen = {item.callspec.params["key"] for item in request.session.items
+              if getattr(item, "originalname", "") == "test_every_admitted_plugin_renders_or_is_refused_clearly"}
+    roots = {key: _write(base / f"{key[0]}-{key[1]}", key) for key in sorted(chosen)}
+    with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {key: pool.submit(_outcome, str(root)) for key, root in roots.items() if key not in CHECK_ONLY}
+        yield {key: (root, futures.get(key)) for key, root in roots.items()}
+        for f in futures.values():
+            f.cancel()
+
+
+@pytest.mark.parametrize("key", sorted(BODIES), ids=lambda k: f"{k[0]}-{k[1]}")
+def test_every_admitted_plugin_renders_or_is_refused_clearly(renders, key):
     from holocore.scene.bundle import validate_bundle
 
-    root = _write(tmp_path / "b", key)
+    root, future = renders[key]
     report = validate_bundle(root)  # every admitted plugin passes the bundle check itself
     assert f"{key[0]}:{key[1]}" in report.plugins or key[0] == "integrator"
     if key in CHECK_ONLY:
         return
-    try:
-        # the hologram sees the camera's view (fitted f), so it can be compared with Mitsuba's render of it
-        result = render(root, OpticsConfig(resolution_hw=(32, 32), frames=1, fit_camera_fov=True),
-                        RenderOptions(preset="fast", spp=4))
-    except ValueError as exc:  # BundleError and SceneLoadError are ValueErrors: the CLI prints them in one line
-        assert key in REFUSED, f"{key} refused unexpectedly: {exc}"
-        assert REFUSED[key] in str(exc) and _one_line(str(exc)), str(exc)
+    outcome = future.result(timeout=600)
+    if outcome[0] == "refused":
+        msg = outcome[1]
+        assert key in REFUSED, f"{key} refused unexpectedly: {msg}"
+        assert REFUSED[key] in msg and _one_line(msg), msg
         return
     assert key not in REFUSED, f"{key} rendered, but the test expects a refusal ({REFUSED[key]!r})"
-    for name in ("slm_field", "wrp_field"):
-        field = np.asarray(getattr(result, name))
-        assert np.isfinite(field).all(), (key, name)
+    _, finite, holo, ref = outcome
+    assert finite, key
     # lit in the colors Mitsuba's own path tracer shows light in, and dark where it shows none
-    holo = np.sum(np.abs(np.asarray(result.slm_field)) ** 2, axis=(0, 2, 3))
-    ref = _mitsuba_path(root)
     assert list(holo > 0) == list(ref > 1e-3 * max(float(ref.max()), 1e-30)), (key, holo, ref)
 
 
