@@ -62,6 +62,14 @@ def fit_count(budget_s: float, fixed_s: float, per_unit_s: float, *, lo: int = 1
     return int(min(hi, max(lo, n)))
 
 
+def refit_count(budget_s: float, fixed_s: float, n: int, seconds: float, *, lo: int = 1, hi: int = 1 << 16) -> int:
+    """The count for ``budget_s`` from a run of ``n`` units that took ``seconds``: the cost per unit measured at
+    that count (not extrapolated from a small probe, which missed by up to 70 % here: memory traffic grows with
+    the count), with the probe's fixed cost."""
+    per_unit = max(1e-9, (float(seconds) - float(fixed_s)) / max(1, int(n)))
+    return fit_count(budget_s, fixed_s, per_unit, lo=lo, hi=hi)
+
+
 def convergence_ratio(psnr_db: float, ref_psnr_db: float) -> float:
     """PSNR (vs ground truth) relative to the converged reference's PSNR (vs the same ground truth)."""
     if not (math.isfinite(ref_psnr_db) and ref_psnr_db > 0):
@@ -272,6 +280,17 @@ class Runner:
             fixed = max(0.0, t_probe - 16 * per_spp)
             spp = fit_count(B - t_enc, fixed, per_spp, lo=4, hi=a.max_spp)
             res, t_r = self.render(loaded, F, preset, spp)
+            tries = [[spp, t_r]]
+            # A run that misses the budget by more than 3 % is redone at the spp its own time gives (twice at
+            # most): the probe's line, extrapolated 30-60x, put ours 4-14 % over and fast up to 40 % over.
+            while len(tries) < 3 and abs(t_r + t_enc - B) > 0.03 * B:
+                nxt = refit_count(B - t_enc, fixed, spp, t_r, lo=4, hi=a.max_spp)
+                if nxt == spp:
+                    break
+                del res
+                spp = nxt
+                res, t_r = self.render(loaded, F, preset, spp)
+                tries.append([spp, t_r])
             e, t_e = self.encode(res)
             fields[name] = phase_only_field(e)
             if name == "ours":
@@ -279,7 +298,7 @@ class Runner:
                 meta = res.meta
             out["methods"][name] = {"render_s": t_r, "encode_s": t_e, "time_s": t_r + t_e, "spp": spp,
                                     "probe": {"spp": [16, 64], "seconds": [t_probe, t_probe64], "fixed_s": fixed,
-                                              "per_spp_s": per_spp},
+                                              "per_spp_s": per_spp, "runs_spp_s": tries},
                                     "config": f"{spp} spp, {self.enc_label(e)}",
                                     "plan": res.meta["plan"]["summary"]}
             self.log(f"[{scene}] {name}: {spp} spp {t_r:.1f} s + encoder {t_e:.1f} s")
