@@ -740,7 +740,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--fs-gt-spp", type=int, default=64, help="Focal-stack target samples per pixel.")
     ap.add_argument("--layer-planes", type=int, default=8)
     ap.add_argument("--layer-spp", type=int, default=64)
-    ap.add_argument("--max-spp", type=int, default=4096)
+    ap.add_argument("--max-spp", type=int, default=16384)
     ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
     ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
     ap.add_argument("--view-deg", type=float, default=0.5)
