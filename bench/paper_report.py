@@ -617,7 +617,8 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
         L += ["## Equal time (24 frames, phase-only)", "",
               f"Stage `equal`. Budget per method: {first['budget_s']:g} s of wall time for all 24 frames, encoder "
               "included. ours / fast: 16- and 64-spp runs of the same scene and frames give the fixed cost and the cost per "
-              "spp, and the spp that fills the budget is used; layers: RGB-D baseline (8 planes, 64 spp) plus the "
+              "spp, and the spp that fills the budget is used (a run more than 3 % off the budget is redone at the spp its "
+              "own time gives, twice at most: `probe.runs_spp_s` in the JSON); layers: RGB-D baseline (8 planes, 64 spp) plus the "
               "encoder (it has nothing to spend more time on: more RGB-D samples or planes do not move the mirror "
               "image off the mirror); focal stack: its Mitsuba targets, then Adam steps until the budget's wall time "
               "runs out (each colour an equal share of what is left). Measured times in the table.",
