@@ -64,8 +64,8 @@ def fit_count(budget_s: float, fixed_s: float, per_unit_s: float, *, lo: int = 1
 
 def refit_count(budget_s: float, fixed_s: float, n: int, seconds: float, *, lo: int = 1, hi: int = 1 << 16) -> int:
     """The count for ``budget_s`` from a run of ``n`` units that took ``seconds``: the cost per unit measured at
-    that count (not extrapolated from a small probe, which missed by up to 70 % here: memory traffic grows with
-    the count), with the probe's fixed cost."""
+    that count (not extrapolated from a small probe, which missed by up to 2.8x here), with the probe's fixed
+    cost."""
     per_unit = max(1e-9, (float(seconds) - float(fixed_s)) / max(1, int(n)))
     return fit_count(budget_s, fixed_s, per_unit, lo=lo, hi=hi)
 
@@ -282,7 +282,7 @@ class Runner:
             res, t_r = self.render(loaded, F, preset, spp)
             tries = [[spp, t_r]]
             # A run that misses the budget by more than 3 % is redone at the spp its own time gives (twice at
-            # most): the probe's line, extrapolated 30-60x, put ours 4-14 % over and fast up to 40 % over.
+            # most): the probe's line, extrapolated 30-100x, put ours 4-14 % over and fast up to 2.8x over.
             while len(tries) < 3 and abs(t_r + t_enc - B) > 0.03 * B:
                 nxt = refit_count(B - t_enc, fixed, spp, t_r, lo=4, hi=a.max_spp)
                 if nxt == spp:
