@@ -37,7 +37,11 @@ def render(
     scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
     out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
-    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
+    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset; with "
+                                                 "--time-limit-s, the most)."),
+    time_limit_s: Optional[float] = typer.Option(
+        None, "--time-limit-s", help="Render for about this many seconds of wall time (setup, tracing and "
+                                     "propagation; not the file writing): passes of rays until the time is spent."),
     method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
     wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
@@ -78,10 +82,14 @@ def render(
 
     try:
         options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects,
-                                wrp_planes=parse_wrp_planes(wrp_planes))
+                                wrp_planes=parse_wrp_planes(wrp_planes), time_limit_s=time_limit_s)
     except ValueError as exc:
-        fail(str(exc))
+        fail(str(exc).replace("time_limit_s", "--time-limit-s").replace("spp must", "--spp must"))
     console = Console(stderr=True)
+    if estimate and time_limit_s is not None:
+        console.print(f"estimated time of `holo render`: {time_limit_s:.1f} s (the time limit: the render traces "
+                      f"rays until it is spent)")
+        return
     if estimate:
         from holocore.pipeline import plan_scene
         from holocore.plan.estimate import (
@@ -146,6 +154,10 @@ def render(
         f"({st['valid'] / max(1, st['rays']):.0%} with an image point), z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
         f"in {time.perf_counter() - t0:.1f} s on {m['device']} -> {out}"
     )
+    sm = m["sampling"]
+    if sm["time_limit_s"] is not None:
+        console.print(f"  - time limit {sm['time_limit_s']:g} s: {sm['spp']} rays per pixel in {len(sm['passes'])} "
+                      f"pass(es) of {', '.join(str(p['spp']) for p in sm['passes'])}")
     mem = m["memory"]
     if mem["trace_passes"] > 1 or mem["frames_per_propagation_chunk"] < F:
         console.print(f"  - memory budget {mem['budget_bytes'] / 2**20:.0f} MiB: {mem['trace_passes']} trace "

@@ -15,7 +15,7 @@ import json
 import math
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Literal, Optional, Union
 
@@ -28,6 +28,7 @@ from holocore.optics.cone_equaliser import plane_equalisers
 from holocore.optics.plane_chain import chain_planes
 from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
+from holocore.plan.time_budget import SppSchedule
 from holocore.sinks import FileSink, MemorySink
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
@@ -47,6 +48,8 @@ class RenderOptions:
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
     cone_equaliser: bool = True  # flatten each recording plane's spectrum (holocore.optics.cone_equaliser)
+    time_limit_s: Optional[float] = None  # wall time of the whole render, s: passes of rays until it is spent
+    # (holocore.plan.time_budget; ``spp`` is then the most rays per pixel); None: one pass of ``spp``
 
     def __post_init__(self) -> None:
         from holocore.plan.wrp_planes import MAX_WRP_PLANES
@@ -60,6 +63,9 @@ class RenderOptions:
             raise ValueError("several recording planes need method 'wrp' (the direct method records on the SLM)")
         if self.spp is not None and not 1 <= self.spp <= 1_000_000:
             raise ValueError(f"spp must be in 1..1000000, got {self.spp}")
+        if self.time_limit_s is not None and not (isinstance(self.time_limit_s, (int, float))
+                                                  and 0 < self.time_limit_s < 1e7):
+            raise ValueError(f"time_limit_s must be in (0, 1e7) s, got {self.time_limit_s!r}")
 
 
 @dataclass
@@ -145,8 +151,9 @@ _FIXED_BYTES = 1.0 * 2**30
 _ASM_GRIDS = 3
 
 
-def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
-    """(frames per trace pass, frames per propagation chunk, estimated peak bytes)."""
+def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw, time_limited=False):
+    """(frames per trace pass, frames per propagation chunk, estimated peak bytes). ``time_limited``: a pass of
+    rays after the first is held beside the result while it is traced (in memory when the result is)."""
     from holocore.runtime.membudget import frames_per_chunk
 
     hp, wp = pad_hw
@@ -154,11 +161,13 @@ def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
     held = 2 * F * C * plane if in_memory else 0  # the in-memory result holds both fields
     tf = 2 * C * 8 * hp * wp  # cached transfer functions (H and conj(H)/N per color)
     fixed = _FIXED_BYTES + held
-    ft = F if not random_phase else frames_per_chunk(F, per_frame_bytes=C_lit * plane, fixed_bytes=fixed,
+    extra = C_lit * plane if time_limited and in_memory else 0  # per frame: the pass being traced
+    ft = F if not random_phase else frames_per_chunk(F, per_frame_bytes=C_lit * plane + extra, fixed_bytes=fixed,
                                                     budget_bytes=budget)
     per_prop = _ASM_GRIDS * 8 * hp * wp + 2 * plane + (0 if in_memory else C * plane)
     fp = frames_per_chunk(F, per_frame_bytes=per_prop, fixed_bytes=fixed + tf, budget_bytes=budget)
-    peak = max(fixed + (ft * C_lit * plane if random_phase else 0), fixed + tf + fp * per_prop)
+    trace_peak = fixed + (ft * C_lit * plane if random_phase else 0) + (ft if random_phase else F) * extra
+    peak = max(trace_peak, fixed + tf + fp * per_prop)
     return ft, fp, int(peak)
 
 
@@ -203,7 +212,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     lit_idx = [i for i, on in enumerate(lit) if on]
     wl_lit = [optics.wavelengths_m[i] for i in lit_idx]
     ft, fp, peak = _chunk_plan(H, W, C, len(wl_lit), F, budget, plan.random_phase, in_memory,
-                               padded_shape((H, W), 2))
+                               padded_shape((H, W), 2), time_limited=options.time_limit_s is not None)
     direct = options.method == "direct"
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
@@ -226,6 +235,15 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     timings["bank_s"] = 0.0
     timings["trace_s"] = 0.0
     passes = list(range(0, F, ft)) if wl_lit else []
+    n_chunk = len(passes) if plan.random_phase else min(1, len(passes))
+    schedule = None
+    if options.time_limit_s is not None and passes:
+        # The budget left for tracing: the limit less the setup so far and the final propagation's estimate.
+        reserve = _propagation_seconds(optics, lit_idx, z_wrp, dev)
+        left = float(options.time_limit_s) - (time.perf_counter() - t0) - reserve
+        schedule = SppSchedule(budget_s=max(1e-3, left / n_chunk), max_spp=options.spp or 1_000_000,
+                               first_spp=min(16, options.spp or 16))
+        timings["propagation_reserve_s"] = reserve
     for pi, f0 in enumerate(passes):
         f1 = min(F, f0 + ft)
         t1 = time.perf_counter()
@@ -233,27 +251,33 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
             if plan.random_phase else None
         timings["bank_s"] += time.perf_counter() - t1
         t3 = time.perf_counter()
-        n_pass = len(passes)
         n_f = (f1 - f0) if banks else F
 
-        def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi, _n=n_pass):
-            def tile_progress(stage, done, total, _j=_pi, _nn=_n):
-                if progress:
-                    progress(stage, _j * total + done, _nn * total)
+        def trace_pass(target, at_frame, spp, seed, *, _banks=banks, _pi=pi, _report=schedule is None):
+            def trace_plane(spec, on_plane_rows):
+                def tile_progress(stage, done, total):
+                    if progress and _report:
+                        progress(stage, _pi * total + done, n_chunk * total)
 
-            grid = RecordingGrid(wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
-                                 plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, planes=spec)
-            trace_field(loaded.scene, hmap, grid, frames=n_f, settings=settings,
-                        integrator=integrator, seed=ray_seed, radiance_cache=cache, bank_phasors=_banks,
-                        progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
-                        on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
-                        on_plane_rows=on_plane_rows if spec else None)
+                grid = RecordingGrid(wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
+                                     plane_z_m=0.0 if direct else z_wrp, z_wrp_m=z_wrp, planes=spec)
+                trace_field(loaded.scene, hmap, grid, frames=n_f, settings=replace(settings, spp=spp),
+                            integrator=integrator, seed=seed, radiance_cache=cache, bank_phasors=_banks,
+                            progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
+                            on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
+                            on_plane_rows=on_plane_rows if spec else None)
 
-        chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
-                     timings=timings, equalisers=equalisers)
+            chain_planes(target, planes, trace_plane, f0=at_frame, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics,
+                         dev=dev, timings=timings, equalisers=equalisers)
+
+        if schedule is None:
+            trace_pass(sink, f0, plan.spp, ray_seed)
+        else:
+            _trace_to_deadline(schedule, trace_pass, sink, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, shape=(n_f, C, H, W),
+                               ray_seed=ray_seed, first_chunk=pi == 0, progress=progress, chunk=(pi, n_chunk))
         # the closure's default argument holds the pass's phase bank too (F x C complex64 frames: 1.2 GB at
         # 1080x1920 x 3 x 24): both go before the propagation, which the chunk planner sized without it
-        del banks, trace_plane
+        del banks, trace_pass
         timings["trace_s"] += time.perf_counter() - t3
         if not plan.random_phase:
             break  # one pass wrote every frame
@@ -293,19 +317,92 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "scene": str(loaded.entry),
         "scene_sha256": getattr(loaded.bundle, "sha256", None),
         "optics": json.loads(optics.model_dump_json()),
-        "plan": json.loads(plan.model_dump_json()),
+        "plan": json.loads(_sampled_plan(plan, schedule).model_dump_json()),
         "analysis": json.loads(ana.model_dump_json()),
         "inventory": json.loads(pl.inventory.model_dump_json()),
         "field_of_view": pl.field_of_view,
         **display_meta_fields(display, optics),
         "stats": stats.as_dict(),
         "timings": timings,
+        "sampling": _sampling_meta(options, plan.spp, schedule),
         "memory": {"budget_bytes": budget, "estimated_peak_bytes": peak, "trace_passes": len(passes),
                    "frames_per_trace_pass": ft, "frames_per_propagation_chunk": fp, "streamed": not in_memory},
         "device": str(dev),
         "versions": software_versions(variant()),
     }
     return sink, meta
+
+
+def _propagation_seconds(optics: OpticsConfig, lit_idx, z_wrp: float, dev) -> float:
+    """Seconds the final propagation of every frame and lit colour will take, from one timed ASM of one frame
+    (the first call, which also builds and caches the colour's transfer function, is not the one timed)."""
+    import torch
+
+    from holocore.optics.propagation import asm
+
+    u = torch.zeros((1, *optics.resolution_hw), dtype=torch.complex64, device=dev)
+    lam = optics.wavelengths_m[lit_idx[0]]
+    asm(u, -z_wrp, lam, optics.pitch_m)
+    t = time.perf_counter()
+    asm(u, -z_wrp, lam, optics.pitch_m)
+    return (time.perf_counter() - t) * optics.frames * len(lit_idx) * 1.1
+
+
+def _trace_to_deadline(schedule: SppSchedule, trace_pass, sink, *, f0, n_f, fp, lit_idx, shape, ray_seed,
+                       first_chunk, progress, chunk) -> None:
+    """Passes of rays into frames f0..f0+n_f of ``sink`` until ``schedule`` says the budget is spent (the first
+    chunk of frames), or the first chunk's passes again, same spp and seeds (the others: every frame sees the same
+    rays). Pass k has ray seed ``ray_seed + 7919 k`` and is blended into the sink as the spp-weighted mean
+    (holocore.plan.time_budget)."""
+    from holocore.sinks import PassSink, blend_pass
+
+    plan_k = None if first_chunk else [s for s, _ in schedule.passes]
+    t0, done, k = time.perf_counter(), 0, 0
+    while True:
+        spp = schedule.next_spp(time.perf_counter() - t0) if first_chunk else (
+            plan_k[k] if k < len(plan_k) else None)
+        if spp is None:
+            break
+        tk = time.perf_counter()
+        seed = ray_seed + 7919 * k
+        if k == 0:
+            trace_pass(sink, f0, spp, seed)
+        else:
+            extra = PassSink(shape, like=sink)
+            try:
+                trace_pass(extra, 0, spp, seed)
+                blend_pass(sink, extra, f0=f0, n_f=n_f, colors=lit_idx, w_old=done / (done + spp),
+                           w_new=spp / (done + spp), step=fp)
+            finally:
+                extra.close()
+        done += spp
+        k += 1
+        if first_chunk:
+            schedule.record(spp, time.perf_counter() - tk)
+        if progress:
+            ms = int(1000 * schedule.budget_s)
+            progress("trace", chunk[0] * ms + min(ms, int(1000 * (time.perf_counter() - t0))), chunk[1] * ms)
+
+
+def _sampled_plan(plan, schedule: Optional[SppSchedule]):
+    """The plan as rendered: a time-limited render's rays per pixel, noise and summary line are the passes'."""
+    if schedule is None or not schedule.passes:
+        return plan
+    n = schedule.spp
+    line = (f"{n} rays per WRP pixel (time limit: {len(schedule.passes)} pass(es) filled "
+            f"{schedule.budget_s:.1f} s of tracing), Monte Carlo noise about "
+            f"{plan.noise_to_signal * plan.spp / n:.2g}x the farthest image point's signal power")
+    summary = [line if w.startswith(f"{plan.spp} rays per WRP pixel") else w for w in plan.summary]
+    return plan.model_copy(update={"spp": n, "noise_to_signal": plan.noise_to_signal * plan.spp / n,
+                                   "summary": summary})
+
+
+def _sampling_meta(options: RenderOptions, planned_spp: int, schedule: Optional[SppSchedule]) -> dict:
+    """How many rays per pixel the render traced, and in which passes (a time-limited render)."""
+    if schedule is None:
+        return {"time_limit_s": None, "spp": planned_spp, "passes": [{"spp": planned_spp}]}
+    return {"time_limit_s": options.time_limit_s, "spp": schedule.spp, "trace_budget_s": schedule.budget_s,
+            "passes": [{"spp": s, "seconds": round(t, 4)} for s, t in schedule.passes]}
 
 
 def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,

@@ -71,6 +71,8 @@ def test_plan_json(demo):
     (["--frames", "-3"], "frames"),
     (["--wavelengths-nm", "640,abc"], "wavelengths"),
     (["--preset", "turbo"], "preset"),
+    (["--time-limit-s", "0"], "--time-limit-s"),
+    (["--time-limit-s", "nan"], "--time-limit-s"),
 ])
 def test_bad_options_are_refused_clearly(demo, tmp_path, args, message):
     p = run("render", demo, "--out", tmp_path / "x.npz", *args)
