@@ -25,7 +25,10 @@ def submit(
     entry: Optional[str] = typer.Option(None, "--entry", help="Scene XML inside the bundle, when it holds several."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
     frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames."),
-    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset)."),
+    spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset; with "
+                                                 "--time-limit-s, the most)."),
+    time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="Render for about this many "
+                                                 "seconds (rays until the time is spent)."),
     resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
     pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
     wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
@@ -49,7 +52,7 @@ def submit(
     optics = optics_from_options(optics_json=optics_json, resolution=resolution, pitch_um=pitch_um,
                                  wavelengths_nm=wavelengths_nm, seed=seed)
     body = {"optics": optics.model_dump(mode="json"), "preset": preset, "frames": frames, "spp": spp,
-            "encoder": encoder, "iterations": iterations, "method": method, "display": display}
+            "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method, "display": display}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console

@@ -34,7 +34,8 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(frozen=True, extra="ignore")
     preset: Preset = "balanced"
     frames: Optional[int] = None
-    spp: Optional[int] = None
+    spp: Optional[int] = None  # with render_time_limit_s: the most rays per pixel
+    render_time_limit_s: Optional[float] = None
     encoder: Encoder = "sgd"
     iterations: Optional[int] = None
     method: Method = "wrp"

@@ -18,7 +18,7 @@ from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
            "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "job_memory", "memory_admission_error", "cache_key", "effective_optics",
-           "estimate_cost"]
+           "estimate_cost", "spp_cap"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -35,6 +35,9 @@ class JobRequest(BaseModel):
     frames: Optional[int] = Field(default=None, ge=1, le=256, description="Frames; overrides optics.frames.")
     spp: Optional[int] = Field(default=None, ge=1, le=1_000_000, description="Rays per WRP pixel (default: "
                                                                              "chosen by the preset).")
+    render_time_limit_s: Optional[float] = Field(
+        default=None, gt=0, allow_inf_nan=False, description="Render for about this many seconds: passes of rays "
+        "until the time is spent (spp is then the most rays per pixel; default the service's max_spp).")
     encoder: Literal["sgd", "dpac"] = "sgd"
     iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
     method: Literal["wrp", "direct"] = "wrp"
@@ -179,12 +182,23 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
         errs.append(f"optics.wavelengths_nm: at most {limits.max_wavelengths} colors, got {c}")
     if req.spp is not None and req.spp > limits.max_spp:
         errs.append(f"spp: must be in 1..{limits.max_spp}, got {req.spp}")
+    if req.render_time_limit_s is not None and req.render_time_limit_s > limits.max_render_time_s:
+        errs.append(f"render_time_limit_s: must be in (0, {limits.max_render_time_s:g}] s, "
+                    f"got {req.render_time_limit_s:g}")
     if req.iterations is not None and req.iterations > limits.max_iterations:
         errs.append(f"iterations: must be in 0..{limits.max_iterations}, got {req.iterations}")
-    rays = h * w * c * _spp(req)
+    rays = h * w * c * (spp_cap(req, limits) if req.render_time_limit_s is not None else _spp(req))
     if rays > limits.max_ray_budget:
-        errs.append(f"job traces {rays:.3g} rays (H*W*colors*spp), more than the limit {limits.max_ray_budget:.3g}")
+        what = "up to " if req.render_time_limit_s is not None else ""
+        errs.append(f"job traces {what}{rays:.3g} rays (H*W*colors*spp), more than the limit "
+                    f"{limits.max_ray_budget:.3g}" + ("; give a smaller spp, the most rays per pixel of a "
+                                                     "time-limited render" if what else ""))
     return errs
+
+
+def spp_cap(req: JobRequest, limits: JobLimits) -> int:
+    """The most rays per pixel a time-limited job may trace: its spp, else the service's max_spp."""
+    return req.spp if req.spp is not None else limits.max_spp
 
 
 # Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
@@ -223,13 +237,20 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
 
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method)
         radius = ana.get("subhologram_radius_px")
-        work = estimate_seconds(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
-                                encode_iterations=iters if req.encoder == "sgd" else 0)
+        kw = dict(scene_primitives=inv.get("primitives"), subhologram_radius_px=radius)
+        work = estimate_seconds(o, options, encode_iterations=iters if req.encoder == "sgd" else 0, **kw)
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
+        if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
+            work += req.render_time_limit_s - estimate_seconds(o, options, encode_iterations=0, **kw)
+            return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
+                    "model": "render time limit + calibrated encoder", "memory": memory}
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
                 "model": "calibrated" + (" + scene plan" if ana else ""), "memory": memory}
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
+        if req.render_time_limit_s is not None:
+            return {"seconds": round(fixed + req.render_time_limit_s + enc, 1), "rays": None, "spp_assumed": None,
+                    "model": "render time limit + cpu-linear-v1 encoder", "memory": memory}
         return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
                 "model": "cpu-linear-v1", "memory": memory}
 
@@ -257,5 +278,6 @@ def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: s
     doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
            "preset": req.preset, "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations,
            "method": req.method, "code": code_version,
+           **({"render_time_limit_s": req.render_time_limit_s} if req.render_time_limit_s is not None else {}),
            **({"wrp_planes": req.wrp_planes} if req.wrp_planes != 1 else {})}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

@@ -26,6 +26,7 @@ class JobLimits(BaseModel):
     max_spp: int = Field(default=4096, ge=1, description="Most rays per WRP pixel.")
     max_wavelengths: int = Field(default=3, ge=1, description="Most colors.")
     max_iterations: int = Field(default=5000, ge=0, description="Most encoder iterations.")
+    max_render_time_s: float = Field(default=4 * 3600.0, gt=0, description="Longest render time limit, s.")
     max_ray_budget: float = Field(default=4e10, gt=0, description="Most rays in a job: H*W*C*spp.")
 
 

@@ -27,7 +27,9 @@ from service.models import (
     job_limit_errors,
     memory_admission_error,
     optics_sanity_errors,
+    spp_cap,
 )
+from service.settings import JobLimits
 
 __all__ = ["admit_job", "reusable_job", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
 
@@ -75,11 +77,13 @@ def reusable_job(ctx: ServiceContext, key: str) -> Optional[dict]:
     return None
 
 
-def job_spec(req: JobRequest) -> JobSpec:
-    """The job's stored options (its ``spec``): the effective optics and the request's render options."""
+def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
+    """The job's stored options (its ``spec``): the effective optics and the request's render options (a
+    time-limited render's spp is its cap: the request's, else the service's max_spp)."""
+    timed = req.render_time_limit_s is not None
     return JobSpec(optics=effective_optics(req).model_dump(mode="json"), preset=req.preset, frames=req.frames,
-                   spp=req.spp, encoder=req.encoder, iterations=req.iterations, method=req.method,
-                   wrp_planes=req.wrp_planes)
+                   spp=spp_cap(req, limits) if timed else req.spp, render_time_limit_s=req.render_time_limit_s,
+                   encoder=req.encoder, iterations=req.iterations, method=req.method, wrp_planes=req.wrp_planes)
 
 
 def _job(ctx: ServiceContext, job_id: str) -> dict:
@@ -112,7 +116,7 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     job_id = "j" + secrets.token_hex(10)
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
-           "spec": job_spec(req).model_dump(mode="json"), "cache_key": key, "created_at": now,
+           "spec": job_spec(req, ctx.settings.job_limits).model_dump(mode="json"), "cache_key": key, "created_at": now,
            "estimate": estimate_cost(req, scene_plan=scene["plan"]), "token_id": principal.token_id,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),

@@ -225,6 +225,7 @@ function jobBody() {
   const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
                  encoder: $("encoder").value };
   if ($("spp").value) body.spp = Number($("spp").value);
+  if ($("time-limit").value) body.render_time_limit_s = Number($("time-limit").value);
   const planes = $("wrp-planes").value;
   body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
   if ($("display").value.trim()) body.display = $("display").value.trim();
@@ -301,8 +302,9 @@ async function estimate() {
     const e = await postJSON("/v1/jobs/estimate", jobBody());
     if (seq !== estimateSeq) return;
     const m = e.estimate.memory || {};
-    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${e.estimate.spp_assumed} rays per `
-      + `pixel), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
+    const rays = e.estimate.spp_assumed === null ? "rays until the time limit"
+      : `${e.estimate.spp_assumed} rays per pixel`;
+    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     $("submit-button").disabled = false;
@@ -353,7 +355,8 @@ function renderJob(job) {
   const optics = o.optics || {};
   fact(dl, "Options", `${(optics.resolution_hw || []).join("x")} px, ${optics.frames} frames, `
     + `${(optics.wavelengths_nm || []).length} colors, preset ${o.preset}, encoder ${o.encoder}`
-    + (o.spp ? `, ${o.spp} rays per pixel` : ""));
+    + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
+    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${o.spp} rays per pixel` : ""));
   fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
   fact(dl, "Memory", `estimated peak ${fmtBytes((est.memory || {}).peak_bytes)} (${(est.memory || {}).peak_stage || "–"}), `

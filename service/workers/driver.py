@@ -148,17 +148,23 @@ def _peak_rss_bytes() -> int:
     return int(kib) * 1024
 
 
+def render_args(spec: JobFile, progress_path: str) -> list[str]:
+    """The job's `holo render` command line (after ``holo``), run in its job folder."""
+    args = ["render", spec.scene_path, "--out", "result.npz", "--optics-json", "optics.json",
+            "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", progress_path]
+    if spec.spp is not None:
+        args += ["--spp", str(spec.spp)]
+    if spec.render_time_limit_s is not None:
+        args += ["--time-limit-s", repr(float(spec.render_time_limit_s))]
+    return args + ["--wrp-planes", str(spec.wrp_planes)]  # jobs stored before the option: 1 (JobOptions)
+
+
 def run_job(job_dir: Path) -> RunStatus:
     spec: JobFile = read_job_file(job_dir)
     timings: dict[str, float] = {}
     warnings: list[str] = []
     prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
-    render = ["render", spec.scene_path, "--out", "result.npz", "--optics-json", "optics.json",
-              "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", prog["render"]]
-    if spec.spp is not None:
-        render += ["--spp", str(spec.spp)]
-    render += ["--wrp-planes", str(spec.wrp_planes)]  # jobs stored before the option: 1 (JobOptions)
-    timings["render_s"] = _run("render", render, job_dir)
+    timings["render_s"] = _run("render", render_args(spec, prog["render"]), job_dir)
     encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec.encoder,
               "--progress-jsonl", prog["encode"]]
     if spec.iterations is not None:

@@ -227,3 +227,23 @@ def test_files_upload_gives_the_same_content_address(server, rendered, scene_bun
         r = c.post("/v1/scenes", files=files)
     assert r.status_code == 200, r.text  # already there: same files, same entry -> same id
     assert r.json()["id"] == rendered["scene"]["id"] and r.json()["sha256"] == rendered["scene"]["sha256"]
+
+
+def test_a_time_limited_job_renders_until_its_limit(server, rendered, tmp_path):
+    """A job with render_time_limit_s: the worker's `holo render` traces passes of rays until the limit (at most
+    the job's spp); the stack's meta says how many."""
+    body = {"scene_id": rendered["scene"]["id"], **SMALL_JOB, "spp": 512, "render_time_limit_s": 4.0}
+    with server.client("submit") as c:
+        job = c.post("/v1/jobs", json=body)
+        assert job.status_code == 202, job.text
+        jid = job.json()["id"]
+        assert job.json()["options"]["render_time_limit_s"] == 4.0 and job.json()["options"]["spp"] == 512
+        with c.stream("GET", f"/v1/jobs/{jid}/events", timeout=120) as resp:
+            list(iter_sse(resp.iter_lines()))
+        final = c.get(f"/v1/jobs/{jid}").json()
+        assert final["state"] == "succeeded", final
+        (tmp_path / "s.npz").write_bytes(c.get(f"/v1/jobs/{jid}/stack").content)
+    _, _, meta = load_stack(tmp_path / "s.npz")
+    sm = meta["sampling"]
+    assert sm["time_limit_s"] == 4.0 and 16 <= sm["spp"] <= 512 and sm["passes"][0]["spp"] == 16
+    assert meta["plan"]["spp"] == sm["spp"]

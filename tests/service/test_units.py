@@ -121,6 +121,8 @@ def test_cache_key_names_what_changes_the_result():
         cache_key(base, scene_sha256="a" * 64, entry="s.xml", code_version="2"),
         cache_key(base.model_copy(update={"spp": 5}), scene_sha256="a" * 64, entry="s.xml", code_version="1"),
         cache_key(base.model_copy(update={"encoder": "dpac"}), scene_sha256="a" * 64, entry="s.xml", code_version="1"),
+        cache_key(base.model_copy(update={"render_time_limit_s": 30.0}), scene_sha256="a" * 64, entry="s.xml",
+                  code_version="1"),
         cache_key(base.model_copy(update={"optics": base.optics.model_copy(update={"seed": 1})}),
                   scene_sha256="a" * 64, entry="s.xml", code_version="1"),
     ]
@@ -138,6 +140,35 @@ def test_limits_and_estimate():
     sgd = estimate_cost(ok.model_copy(update={"encoder": "sgd", "iterations": 1000}))
     dpac = estimate_cost(ok.model_copy(update={"encoder": "dpac"}))
     assert sgd["seconds"] > dpac["seconds"]
+
+
+def test_a_time_limited_job():
+    # The render takes its limit, rays up to the cap (the job's spp, else the service's max_spp); the cap counts
+    # against the ray budget; the driver passes both to `holo render`.
+    from service.jobfiles import JobFile
+    from service.submission import job_spec
+    from service.workers.driver import render_args
+
+    lim = JobLimits(max_spp=64, max_ray_budget=1e7, max_render_time_s=600)
+    timed = JobRequest(scene_id="s", optics=OpticsConfig(resolution_hw=(128, 128)), frames=4, encoder="dpac",
+                       render_time_limit_s=30.0)
+    assert job_limit_errors(timed, lim) == []  # 128 * 128 * 3 * 64 rays at most
+    spec = job_spec(timed, lim)
+    assert spec.spp == 64 and spec.render_time_limit_s == 30.0
+    assert job_spec(timed.model_copy(update={"spp": 8}), lim).spp == 8
+    args = render_args(JobFile(**spec.model_dump(), job_id="j1", scene_path="scene.xml"), "p.jsonl")
+    assert args[args.index("--time-limit-s") + 1] == "30.0" and args[args.index("--spp") + 1] == "64"
+    assert "--time-limit-s" not in render_args(JobFile(job_id="j", scene_path="s.xml", optics={}), "p.jsonl")
+    e = estimate_cost(timed)
+    assert e["spp_assumed"] is None and e["rays"] is None
+    assert 30.0 < e["seconds"] < estimate_cost(timed.model_copy(update={"render_time_limit_s": 90.0}))["seconds"]
+    wide = timed.model_copy(update={"optics": OpticsConfig(resolution_hw=(512, 512))})
+    assert "give a smaller spp" in " ".join(job_limit_errors(wide, lim))
+    assert "render_time_limit_s" in " ".join(job_limit_errors(timed.model_copy(update={"render_time_limit_s": 700.0}),
+                                                              lim))
+    for bad in (0, -1, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            JobRequest(scene_id="s", render_time_limit_s=bad)
 
 def test_claim_is_atomic_across_threads(tmp_path):
     db = Database(tmp_path / "db.sqlite")

@@ -263,7 +263,12 @@ def test_browser_signs_in_submits_follows_and_views_a_job(server, scene, tmp_pat
             box.send_keys(value)
         wait.until(lambda d: text("estimate").startswith("Estimate:") and
                    d.find_element(By.ID, "submit-button").is_enabled())
-        assert "peak memory" in text("estimate")
+        assert "peak memory" in text("estimate") and "4 rays per pixel" in text("estimate")
+        limit = driver.find_element(By.ID, "time-limit")  # a render time limit: the estimate says so, then cleared
+        limit.send_keys("5")
+        wait.until(lambda d: "rays until the time limit" in text("estimate"))
+        limit.send_keys(Keys.BACKSPACE)  # typed away (an input event): the estimate follows the empty box
+        wait.until(lambda d: "4 rays per pixel" in text("estimate"))
         _shot(driver, shots, "web-submit.png")
         driver.find_element(By.ID, "submit-button").click()
 
