@@ -52,7 +52,8 @@ def submit(
     optics = optics_from_options(optics_json=optics_json, resolution=resolution, pitch_um=pitch_um,
                                  wavelengths_nm=wavelengths_nm, seed=seed)
     body = {"optics": optics.model_dump(mode="json"), "preset": preset, "frames": frames, "spp": spp,
-            "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method, "display": display}
+            "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method,
+            "display": display}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console
