@@ -62,14 +62,6 @@ def fit_count(budget_s: float, fixed_s: float, per_unit_s: float, *, lo: int = 1
     return int(min(hi, max(lo, n)))
 
 
-def refit_count(budget_s: float, fixed_s: float, n: int, seconds: float, *, lo: int = 1, hi: int = 1 << 16) -> int:
-    """The count for ``budget_s`` from a run of ``n`` units that took ``seconds``: the cost per unit measured at
-    that count (not extrapolated from a small probe, which missed by up to 2.8x here), with the probe's fixed
-    cost."""
-    per_unit = max(1e-9, (float(seconds) - float(fixed_s)) / max(1, int(n)))
-    return fit_count(budget_s, fixed_s, per_unit, lo=lo, hi=hi)
-
-
 def convergence_ratio(psnr_db: float, ref_psnr_db: float) -> float:
     """PSNR (vs ground truth) relative to the converged reference's PSNR (vs the same ground truth)."""
     if not (math.isfinite(ref_psnr_db) and ref_psnr_db > 0):
@@ -162,14 +154,16 @@ class Runner:
                    pitch_m=r.meta["pitch_m"], iterations=2, stop_db=0.0)
         render_layers(loaded, small, planes=2, spp=4)
 
-    def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp"):
+    def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp",
+               time_limit_s: Optional[float] = None):
         from holocore.display.profiles import PAPER
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
         planes = self.args.wrp_planes if method == "wrp" else 1
         r = render_loaded(loaded, self.optics(frames), RenderOptions(preset=preset, method=method, spp=spp,
-                                                                     wrp_planes=planes), display=PAPER)
+                                                                     wrp_planes=planes, time_limit_s=time_limit_s),
+                          display=PAPER)
         return r, time.perf_counter() - t0
 
     def encode(self, res):
@@ -268,37 +262,19 @@ class Runner:
                                     "config": f"{a.layer_planes} planes, RGB-D {a.layer_spp} spp, {self.enc_label(enc)}"}
         self.log(f"[{scene}] layers {t_lay:.1f} s + encoder {t_enc:.1f} s")
         del lay
-        # ours and fast: 16- and 64-spp runs give the fixed cost and the cost per spp
+        # ours and fast: a render with a time limit (the budget less the encoder's time measured on the layers'
+        # field, the same size): passes of rays until it is spent (holocore.plan.time_budget), at most max_spp
         for name, preset in (("ours", "balanced"), ("fast", "fast")):
-            # Two probes (16 and 64 spp): the slope is the cost per spp, the rest is fixed (the analysis, the
-            # cache, the planes' ASMs, and per-tile overheads that one small probe would count per spp).
-            probe, t_probe = self.render(loaded, F, preset, 16)
-            del probe
-            probe, t_probe64 = self.render(loaded, F, preset, 64)
-            del probe
-            per_spp = max(1e-6, (t_probe64 - t_probe) / 48.0)
-            fixed = max(0.0, t_probe - 16 * per_spp)
-            spp = fit_count(B - t_enc, fixed, per_spp, lo=4, hi=a.max_spp)
-            res, t_r = self.render(loaded, F, preset, spp)
-            tries = [[spp, t_r]]
-            # A run that misses the budget by more than 3 % is redone at the spp its own time gives (twice at
-            # most): the probe's line, extrapolated 30-100x, put ours 4-14 % over and fast up to 2.8x over.
-            while len(tries) < 3 and abs(t_r + t_enc - B) > 0.03 * B:
-                nxt = refit_count(B - t_enc, fixed, spp, t_r, lo=4, hi=a.max_spp)
-                if nxt == spp:
-                    break
-                del res
-                spp = nxt
-                res, t_r = self.render(loaded, F, preset, spp)
-                tries.append([spp, t_r])
+            res, t_r = self.render(loaded, F, preset, a.max_spp, time_limit_s=max(1.0, B - t_enc))
+            sampling = res.meta["sampling"]
+            spp = sampling["spp"]
             e, t_e = self.encode(res)
             fields[name] = phase_only_field(e)
             if name == "ours":
                 fields["ours (complex)"] = res.slm_field
                 meta = res.meta
             out["methods"][name] = {"render_s": t_r, "encode_s": t_e, "time_s": t_r + t_e, "spp": spp,
-                                    "probe": {"spp": [16, 64], "seconds": [t_probe, t_probe64], "fixed_s": fixed,
-                                              "per_spp_s": per_spp, "runs_spp_s": tries},
+                                    "sampling": sampling,
                                     "config": f"{spp} spp, {self.enc_label(e)}",
                                     "plan": res.meta["plan"]["summary"]}
             self.log(f"[{scene}] {name}: {spp} spp {t_r:.1f} s + encoder {t_e:.1f} s")
@@ -580,6 +556,17 @@ def summary(eq: dict) -> dict:
     return out
 
 
+def _how_ours_fills(eq: dict) -> str:
+    """How the equal stage gave ours and fast their budget (the JSON says which way it was run)."""
+    if "sampling" in eq["methods"]["ours"]:
+        return ("a render with a time limit (`holo render --time-limit-s`, holocore.plan.time_budget) of the budget "
+                "less the encoder's time measured on the layers' field: passes of rays (16 spp, then more) until it is "
+                "spent, blended into the estimate of all their rays (`sampling` in the JSON)")
+    return ("16- and 64-spp runs of the same scene and frames give the fixed cost and the cost per spp, and the spp "
+            "that fills the budget is used (a run more than 3 % off the budget is redone at the spp its own time gives, "
+            "twice at most: `probe.runs_spp_s` in the JSON)")
+
+
 def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
     eqs, convs, rts = _load_json(out, "equal"), _load_json(out, "conv"), _load_json(out, "runtime")
     L = ["# The paper's figures, regenerated (Figs. 5, 6, 7 and an equal-time table)", "",
@@ -616,9 +603,7 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
     if eqs:
         L += ["## Equal time (24 frames, phase-only)", "",
               f"Stage `equal`. Budget per method: {first['budget_s']:g} s of wall time for all 24 frames, encoder "
-              "included. ours / fast: 16- and 64-spp runs of the same scene and frames give the fixed cost and the cost per "
-              "spp, and the spp that fills the budget is used (a run more than 3 % off the budget is redone at the spp its "
-              "own time gives, twice at most: `probe.runs_spp_s` in the JSON); layers: RGB-D baseline (8 planes, 64 spp) plus the "
+              f"included. ours / fast: {_how_ours_fills(first)}; layers: RGB-D baseline (8 planes, 64 spp) plus the "
               "encoder (it has nothing to spend more time on: more RGB-D samples or planes do not move the mirror "
               "image off the mirror); focal stack: its Mitsuba targets, then Adam steps until the budget's wall time "
               "runs out (each colour an equal share of what is left). Measured times in the table.",

@@ -33,12 +33,6 @@ def test_equal_time_bookkeeping(rep):
     assert rep.fit_count(1e9, 0.0, 1.0, hi=4096) == 4096
     with pytest.raises(ValueError):
         rep.fit_count(10.0, 1.0, 0.0)
-    # a cost that grows faster than the probe's line: 1 s fixed, 0.05 s per unit at 1000 units (51 s measured where
-    # the line said 41): the refit count, run, lands on the budget; the line's count would have overrun it
-    cost = lambda n: 1.0 + 0.03 * n + 2e-5 * n * n  # noqa: E731
-    n = rep.refit_count(40.0, 1.0, 1000, cost(1000))
-    assert cost(n) <= 40.0 and cost(n) > 0.9 * 40.0
-    assert rep.refit_count(40.0, 1.0, 1000, 1e-12, hi=5000) == 5000  # a clock that says nothing: the cap
 
 
 def test_convergence_ratio(rep):
