@@ -73,20 +73,23 @@ def _forced(monkeypatch, spps):
     monkeypatch.setattr(SppSchedule, "next_spp", next_spp)
 
 
-@pytest.mark.parametrize("streamed", [False, True])
-def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, streamed):
+@pytest.mark.parametrize("streamed, planes", [(False, 1), (True, 1), (False, 3)])
+def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, streamed, planes):
     # A pass is an unbiased estimate of the same field from its own rays (seed ray_seed + 7919 k, the same
     # random-phase bank): the time-limited render must equal (4 U(4 spp, seed 5) + 12 U(12 spp, seed 5 + 7919)) / 16,
     # on both planes, in memory, and streamed to a file in one-frame chunks (the later chunks replay the first
-    # chunk's passes).
+    # chunk's passes), and with three recording planes chained to the WRP (each pass's deeper planes in their own
+    # scratch files).
     from holocore.io import load_result
     from holocore.pipeline import RenderOptions, render, render_to_file
 
-    optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5)
-    one = [render(demo, optics, RenderOptions(preset="fast", spp=n, ray_seed=seed))
+    # f = 20 mm: this small view holds the wall and two objects at other depths (several planes have work)
+    optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5, **({"focal_length_mm": 20.0} if planes > 1 else {}))
+    one = [render(demo, optics, RenderOptions(preset="fast", spp=n, ray_seed=seed, wrp_planes=planes))
            for n, seed in ((4, 5), (12, 5 + 7919))]
+    assert len(one[0].meta["wrp_planes_m"]) == planes
     _forced(monkeypatch, [4, 12])
-    opts = RenderOptions(preset="fast", time_limit_s=60.0)
+    opts = RenderOptions(preset="fast", time_limit_s=60.0, wrp_planes=planes)
     if streamed:
         out = tmp_path / "RESULT.npz"
         meta = render_to_file(demo, out, optics, opts, memory_budget_bytes=256 << 20)
