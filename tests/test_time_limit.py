@@ -87,7 +87,7 @@ def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, stre
     optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5, **({"focal_length_mm": 20.0} if planes > 1 else {}))
     one = [render(demo, optics, RenderOptions(preset="fast", spp=n, ray_seed=seed, wrp_planes=planes))
            for n, seed in ((4, 5), (12, 5 + 7919))]
-    assert len(one[0].meta["wrp_planes_m"]) == planes
+    assert (len(one[0].meta["wrp_planes_m"]) > 1) == (planes > 1)  # 3 asked: as many as the depth holds
     _forced(monkeypatch, [4, 12])
     opts = RenderOptions(preset="fast", time_limit_s=60.0, wrp_planes=planes)
     if streamed:
