@@ -151,9 +151,8 @@ _FIXED_BYTES = 1.0 * 2**30
 _ASM_GRIDS = 3
 
 
-def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw, time_limited=False):
-    """(frames per trace pass, frames per propagation chunk, estimated peak bytes). ``time_limited``: a pass of
-    rays after the first is held beside the result while it is traced (in memory when the result is)."""
+def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
+    """(frames per trace pass, frames per propagation chunk, estimated peak bytes)."""
     from holocore.runtime.membudget import frames_per_chunk
 
     hp, wp = pad_hw
@@ -161,13 +160,11 @@ def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw, time
     held = 2 * F * C * plane if in_memory else 0  # the in-memory result holds both fields
     tf = 2 * C * 8 * hp * wp  # cached transfer functions (H and conj(H)/N per color)
     fixed = _FIXED_BYTES + held
-    extra = C_lit * plane if time_limited and in_memory else 0  # per frame: the pass being traced
-    ft = F if not random_phase else frames_per_chunk(F, per_frame_bytes=C_lit * plane + extra, fixed_bytes=fixed,
+    ft = F if not random_phase else frames_per_chunk(F, per_frame_bytes=C_lit * plane, fixed_bytes=fixed,
                                                     budget_bytes=budget)
     per_prop = _ASM_GRIDS * 8 * hp * wp + 2 * plane + (0 if in_memory else C * plane)
     fp = frames_per_chunk(F, per_frame_bytes=per_prop, fixed_bytes=fixed + tf, budget_bytes=budget)
-    trace_peak = fixed + (ft * C_lit * plane if random_phase else 0) + (ft if random_phase else F) * extra
-    peak = max(trace_peak, fixed + tf + fp * per_prop)
+    peak = max(fixed + (ft * C_lit * plane if random_phase else 0), fixed + tf + fp * per_prop)
     return ft, fp, int(peak)
 
 
@@ -212,7 +209,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     lit_idx = [i for i, on in enumerate(lit) if on]
     wl_lit = [optics.wavelengths_m[i] for i in lit_idx]
     ft, fp, peak = _chunk_plan(H, W, C, len(wl_lit), F, budget, plan.random_phase, in_memory,
-                               padded_shape((H, W), 2), time_limited=options.time_limit_s is not None)
+                               padded_shape((H, W), 2))
     direct = options.method == "direct"
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
@@ -238,8 +235,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     n_chunk = len(passes) if plan.random_phase else min(1, len(passes))
     schedule = None
     if options.time_limit_s is not None and passes:
-        # The budget left for tracing: the limit less the setup so far and the final propagation's estimate.
-        reserve = _propagation_seconds(optics, lit_idx, z_wrp, dev)
+        # The budget left for tracing: the limit less the setup so far and what follows the trace (estimated).
+        reserve = _after_trace_seconds(optics, lit_idx, z_wrp, planes, equalisers is not None, dev)
         left = float(options.time_limit_s) - (time.perf_counter() - t0) - reserve
         schedule = SppSchedule(budget_s=max(1e-3, left / n_chunk), max_spp=options.spp or 1_000_000,
                                first_spp=min(16, options.spp or 16))
@@ -253,10 +250,10 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         t3 = time.perf_counter()
         n_f = (f1 - f0) if banks else F
 
-        def trace_pass(target, at_frame, spp, seed, *, _banks=banks, _pi=pi, _report=schedule is None):
-            def trace_plane(spec, on_plane_rows):
+        def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi):
+            def run(spp, seed, rows, report):
                 def tile_progress(stage, done, total):
-                    if progress and _report:
+                    if progress and report:
                         progress(stage, _pi * total + done, n_chunk * total)
 
                 grid = RecordingGrid(wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
@@ -264,20 +261,20 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                 trace_field(loaded.scene, hmap, grid, frames=n_f, settings=replace(settings, spp=spp),
                             integrator=integrator, seed=seed, radiance_cache=cache, bank_phasors=_banks,
                             progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
-                            on_tile=None if spec else (lambda r0, r1, block: on_plane_rows(0, r0, block)),
-                            on_plane_rows=on_plane_rows if spec else None)
+                            on_tile=None if spec else (lambda r0, r1, block: rows(0, r0, block)),
+                            on_plane_rows=rows if spec else None)
 
-            chain_planes(target, planes, trace_plane, f0=at_frame, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics,
-                         dev=dev, timings=timings, equalisers=equalisers)
+            if schedule is None:
+                run(plan.spp, ray_seed, on_plane_rows, True)
+                return None
+            return _trace_to_deadline(schedule, run, on_plane_rows, ray_seed=ray_seed, first_chunk=_pi == 0,
+                                      progress=progress, chunk=(_pi, n_chunk))
 
-        if schedule is None:
-            trace_pass(sink, f0, plan.spp, ray_seed)
-        else:
-            _trace_to_deadline(schedule, trace_pass, sink, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, shape=(n_f, C, H, W),
-                               ray_seed=ray_seed, first_chunk=pi == 0, progress=progress, chunk=(pi, n_chunk))
+        chain_planes(sink, planes, trace_plane, f0=f0, n_f=n_f, fp=fp, lit_idx=lit_idx, optics=optics, dev=dev,
+                     timings=timings, equalisers=equalisers)
         # the closure's default argument holds the pass's phase bank too (F x C complex64 frames: 1.2 GB at
         # 1080x1920 x 3 x 24): both go before the propagation, which the chunk planner sized without it
-        del banks, trace_pass
+        del banks, trace_plane
         timings["trace_s"] += time.perf_counter() - t3
         if not plan.random_phase:
             break  # one pass wrote every frame
@@ -333,48 +330,49 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     return sink, meta
 
 
-def _propagation_seconds(optics: OpticsConfig, lit_idx, z_wrp: float, dev) -> float:
-    """Seconds the final propagation of every frame and lit colour will take, from one timed ASM of one frame
-    (the first call, which also builds and caches the colour's transfer function, is not the one timed)."""
+def _after_trace_seconds(optics: OpticsConfig, lit_idx, z_wrp: float, planes, equalised: bool, dev) -> float:
+    """Seconds of what follows the trace, from one timed ASM of one frame (the first call, which also builds
+    and caches the colour's transfer function, is not the one timed), counted in frame-sized ASMs per frame and
+    lit colour: the final propagation, each plane's equaliser and each deeper plane's ASM to the plane in
+    front, on grids wider by their borders (holocore.optics.plane_chain), with a margin for their files."""
     import torch
 
     from holocore.optics.propagation import asm
 
-    u = torch.zeros((1, *optics.resolution_hw), dtype=torch.complex64, device=dev)
+    H, W = optics.resolution_hw
+    u = torch.zeros((1, H, W), dtype=torch.complex64, device=dev)
     lam = optics.wavelengths_m[lit_idx[0]]
     asm(u, -z_wrp, lam, optics.pitch_m)
     t = time.perf_counter()
     asm(u, -z_wrp, lam, optics.pitch_m)
-    return (time.perf_counter() - t) * optics.frames * len(lit_idx) * 1.1
+    t_asm = time.perf_counter() - t
+    theta = max(optics.theta_max(x) for x in optics.wavelengths_m)
+    units = 1.0 + (1.0 if equalised else 0.0)  # the final propagation; the WRP's equaliser
+    for k in range(1, planes.count):
+        b = planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta)
+        units += (H + 2 * b) * (W + 2 * b) / (H * W) * (2.0 if equalised else 1.0)
+    return 1.3 * t_asm * units * optics.frames * len(lit_idx)
 
 
-def _trace_to_deadline(schedule: SppSchedule, trace_pass, sink, *, f0, n_f, fp, lit_idx, shape, ray_seed,
-                       first_chunk, progress, chunk) -> None:
-    """Passes of rays into frames f0..f0+n_f of ``sink`` until ``schedule`` says the budget is spent (the first
-    chunk of frames), or the first chunk's passes again, same spp and seeds (the others: every frame sees the same
-    rays). Pass k has ray seed ``ray_seed + 7919 k`` and is blended into the sink as the spp-weighted mean
-    (holocore.plan.time_budget)."""
-    from holocore.sinks import PassSink, blend_pass
-
-    plan_k = None if first_chunk else [s for s, _ in schedule.passes]
+def _trace_to_deadline(schedule: SppSchedule, run, on_plane_rows, *, ray_seed, first_chunk, progress, chunk) -> float:
+    """Passes of rays until ``schedule`` says the budget is spent (the first chunk of frames), or the first
+    chunk's passes again, same spp and seeds (the others: every frame sees the same rays). Pass k has ray seed
+    ``ray_seed + 7919 k``; each pass's recordings, times its spp, are added to the planes (the first written),
+    so the planes hold sum_k s_k U_k; returns 1 / sum_k s_k, the factor that makes that the spp-weighted mean
+    (holocore.plan.time_budget), which the recording-plane chain applies once."""
+    replay = None if first_chunk else [s for s, _ in schedule.passes]
     t0, done, k = time.perf_counter(), 0, 0
     while True:
         spp = schedule.next_spp(time.perf_counter() - t0) if first_chunk else (
-            plan_k[k] if k < len(plan_k) else None)
+            replay[k] if k < len(replay) else None)
         if spp is None:
             break
         tk = time.perf_counter()
-        seed = ray_seed + 7919 * k
-        if k == 0:
-            trace_pass(sink, f0, spp, seed)
-        else:
-            extra = PassSink(shape, like=sink)
-            try:
-                trace_pass(extra, 0, spp, seed)
-                blend_pass(sink, extra, f0=f0, n_f=n_f, colors=lit_idx, w_old=done / (done + spp),
-                           w_new=spp / (done + spp), step=fp)
-            finally:
-                extra.close()
+
+        def rows(plane, r0, block, _w=float(spp), _add=k > 0):
+            on_plane_rows(plane, r0, block * _w, add=_add)
+
+        run(spp, ray_seed + 7919 * k, rows, False)
         done += spp
         k += 1
         if first_chunk:
@@ -382,6 +380,7 @@ def _trace_to_deadline(schedule: SppSchedule, trace_pass, sink, *, f0, n_f, fp, 
         if progress:
             ms = int(1000 * schedule.budget_s)
             progress("trace", chunk[0] * ms + min(ms, int(1000 * (time.perf_counter() - t0))), chunk[1] * ms)
+    return 1.0 / done
 
 
 def _sampled_plan(plan, schedule: Optional[SppSchedule]):

@@ -1,5 +1,6 @@
 """A render with a time limit (``RenderOptions.time_limit_s``, ``holo render --time-limit-s``): passes of rays
-until the budget is spent (holocore.plan.time_budget), blended into the estimate of all their rays."""
+until the budget is spent (holocore.plan.time_budget), added into the recording planes as the estimate of all
+their rays."""
 
 from __future__ import annotations
 

@@ -18,7 +18,9 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
     records every ray on the plane in front of its image point (holocore.trace.hologram_rays, ``planes``); each deeper
     plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
     ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
-    ``trace_plane(spec, on_plane_rows)`` runs the trace. ``equalisers``: one
+    ``trace_plane(spec, on_plane_rows)`` runs the trace: ``on_plane_rows(k, r0, block, add=False)`` writes (or
+    adds) rows of plane k; it returns a factor for every recording (None: 1), applied once after all the trace's
+    passes (a time-limited render adds its passes' sums and divides by their rays here). ``equalisers``: one
     :class:`holocore.optics.cone_equaliser.PlaneEqualiser` per plane (None: none), applied to each plane's own
     recording before anything is added to it."""
     import torch
@@ -34,38 +36,58 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
     scratch = [None] + [ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
                                      dir=getattr(sink, "scratch_dir", None)) for b in borders[1:]]
     try:
-        def on_plane_rows(k, r0, block):
+        def on_plane_rows(k, r0, block, add=False):
             rows = block.cpu().numpy()  # the one transfer to the host per block
             if k == 0:
-                sink.write_rows(f0, lit_idx, r0, rows)
+                (sink.add_rows if add else sink.write_rows)(f0, lit_idx, r0, rows)
             else:
-                scratch[k].write_rows(0, range(len(lams)), r0, rows)
+                (scratch[k].add_rows if add else scratch[k].write_rows)(0, range(len(lams)), r0, rows)
 
-        trace_plane(spec if planes.count > 1 else None, on_plane_rows)
+        scale = trace_plane(spec if planes.count > 1 else None, on_plane_rows)
+        scale = 1.0 if scale is None else float(scale)
         t0 = time.perf_counter()
-        if equalisers is not None:  # the WRP's own rays, before the deeper planes are added to it
-            for ci, lam in enumerate(lams):
-                if not equalisers[0].active(ci):
-                    continue
-                for a in range(0, n_f, fp):
-                    e = min(n_f, a + fp)
-                    u = torch.from_numpy(np.ascontiguousarray(sink.read_traced(f0 + a, f0 + e, lit_idx[ci]))).to(dev)
-                    v = equalisers[0].apply(u, ci, lam, optics.pitch_m)
-                    sink.write_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
-                    del u, v
+        # the WRP's own rays (scaled, equalised), before the deeper planes are added to it
+        for ci, lam in enumerate(lams):
+            active = equalisers is not None and equalisers[0].active(ci)
+            if not active and scale == 1.0:
+                continue
+            for a in range(0, n_f, fp):
+                e = min(n_f, a + fp)
+                u = torch.from_numpy(np.ascontiguousarray(sink.read_traced(f0 + a, f0 + e, lit_idx[ci]))).to(dev)
+                if scale != 1.0:
+                    u = u * scale
+                v = equalisers[0].apply(u, ci, lam, optics.pitch_m) if active else u
+                sink.write_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
+                del u, v
+        if equalisers is not None:
             timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
+        def own(k, a, e, ci, lam):
+            """Plane k's own recording, frames a..e of lit colour ci, scaled and equalised (on the device)."""
+            u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
+            if scale != 1.0:
+                u = u * scale
+            return equalisers[k].apply(u, ci, lam, optics.pitch_m) if equalisers is not None else u
+
+        # The chunk planner sized fp for the WRP's grid; a deeper plane's grid is wider, and the sum with the
+        # plane in front is held too: fewer frames per chunk.
+        steps = [max(1, fp * H * W // (2 * (H + 2 * b) * (W + 2 * b))) for b in borders]
         for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
             d = borders[k] - borders[k - 1]
             Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
-            # The chunk planner sized fp for the WRP's grid; this plane's grid is wider, and the sum with the
-            # plane in front is held too: fewer frames per chunk.
-            step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
-            for a in range(0, n_f, step):
-                e = min(n_f, a + step)
+            if k - 1 >= 1 and (scale != 1.0 or equalisers is not None):
+                # the plane in front gets its own recording scaled and equalised before this plane's field is
+                # added to it: each recording is filtered by its own plane's equaliser, once
+                for a in range(0, n_f, steps[k - 1]):
+                    e = min(n_f, a + steps[k - 1])
+                    for ci, lam in enumerate(lams):
+                        scratch[k - 1].write_rows(a, [ci], 0, own(k - 1, a, e, ci, lam).cpu().numpy()[:, None])
+            for a in range(0, n_f, steps[k]):
+                e = min(n_f, a + steps[k])
                 for ci, lam in enumerate(lams):
-                    u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
-                    if equalisers is not None:
-                        u = equalisers[k].apply(u, ci, lam, optics.pitch_m)
+                    if k == planes.count - 1:  # the deepest plane holds its own recording alone
+                        u = own(k, a, e, ci, lam)
+                    else:  # done in place above, with the deeper planes' fields added since
+                        u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
                     v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
                     v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
                     if k - 1 == 0:

@@ -5,7 +5,9 @@ pixel (each with its own ray seed, the same random-phase bank) combine into the 
 
     U = sum_k s_k U_k / sum_k s_k,
 
-exactly what one pass of that many rays would estimate (holocore.pipeline blends them so). This module decides
+exactly what one pass of that many rays would estimate: the recording planes add s_k U_k, and the chain of
+recording planes divides by sum_k s_k once (holocore.pipeline, holocore.optics.plane_chain), so the passes cost no
+memory and no propagation of their own. This module decides
 the s_k, from the seconds the passes before took, so that the passes end near the budget: a pass costs
 t = a + b s (a: kernel launches, recording-plane chain, host copies; b: seconds per ray per pixel), fitted
 through the two largest passes so far (the cost is only locally linear: a 16/64-spp fit missed a 16384-spp
