@@ -368,15 +368,18 @@ def _trace_to_deadline(schedule: SppSchedule, run, on_plane_rows, *, ray_seed, f
         if spp is None:
             break
         tk = time.perf_counter()
+        stored = [0.0]  # seconds spent storing this pass's rows: the part of a pass that does not grow with spp
 
-        def rows(plane, r0, block, _w=float(spp), _add=k > 0):
+        def rows(plane, r0, block, _w=float(spp), _add=k > 0, _t=stored):
+            ts = time.perf_counter()
             on_plane_rows(plane, r0, block * _w, add=_add)
+            _t[0] += time.perf_counter() - ts
 
         run(spp, ray_seed + 7919 * k, rows, False)
         done += spp
         k += 1
         if first_chunk:
-            schedule.record(spp, time.perf_counter() - tk)
+            schedule.record(spp, time.perf_counter() - tk, fixed_s=stored[0])
         if progress:
             ms = int(1000 * schedule.budget_s)
             progress("trace", chunk[0] * ms + min(ms, int(1000 * (time.perf_counter() - t0))), chunk[1] * ms)

@@ -46,6 +46,21 @@ def test_the_passes_fill_the_budget(cost, budget_s):
     assert COSTS[cost](sc.spp) >= 0.8 * budget_s
 
 
+@pytest.mark.parametrize("budget_s", [97.0, 300.0])
+def test_a_large_fixed_part_per_pass(budget_s):
+    # The paper's display with five recording planes: storing a pass's rows took 20 s whatever its rays (15 s for
+    # the first, which writes instead of adding), a ray per pixel 2.3 s. The renderer measures that part; the
+    # schedule must not spend 20 s on a pass of one ray per pixel, nor run past the budget.
+    sc, spent = SppSchedule(budget_s=budget_s), 0.0
+    while (n := sc.next_spp(spent)) is not None:
+        fixed = 20.0 if sc.passes else 15.0
+        spent += fixed + 2.3 * n
+        sc.record(n, fixed + 2.3 * n, fixed_s=fixed)
+    assert 0.85 * budget_s <= spent <= budget_s, (spent, sc.passes)
+    assert all(s >= 0.25 * sum(x for x, _ in sc.passes[:i]) for i, (s, _) in enumerate(sc.passes) if i), sc.passes
+    assert sc.cost_model() == (20.0, pytest.approx(2.3))
+
+
 def test_the_cap_and_a_budget_shorter_than_one_pass():
     sc = SppSchedule(budget_s=90.0, max_spp=300)
     _run(sc, COSTS["line"])

@@ -13,7 +13,7 @@ t = a + b s (a: kernel launches, recording-plane chain, host copies; b: seconds 
 through the two largest passes so far (the cost is only locally linear: a 16/64-spp fit missed a 16384-spp
 render by 2.8x on a glass scene). A pass is extrapolated at most ``GROWTH`` times beyond the largest pass
 measured; until the budget's remainder is within that reach, passes aim at half of it, and then at ``SAFETY`` of
-what is left (the cost grows faster than the line where a tracer tile shrinks to one row: a 4x extrapolation was
+the rays that would fill what is left (the cost grows faster than the line where a tracer tile shrinks to one row: a 4x extrapolation was
 28 % short on a 96-px-wide demo scene), each pass measuring the line again, until a pass would add fewer than
 ``MIN_GAIN`` of the rays done. Units: seconds, rays per pixel (spp).
 """
@@ -29,7 +29,8 @@ __all__ = ["SppSchedule", "GROWTH", "MAX_PASSES"]
 GROWTH = 4  # a pass has at most this many times the rays of the largest pass measured
 MAX_PASSES = 8  # passes in one budget (each repeats the fixed cost a)
 MIN_GAIN = 0.02  # a last pass that would add fewer rays than this fraction of those done is not run
-SAFETY = 0.75  # a pass within reach aims at this fraction of the seconds left (the last allowed pass: all)
+SAFETY = 0.75  # a pass within reach has this fraction of the spp that would fill the time left (the last allowed
+# pass: all of them)
 
 
 @dataclass
@@ -42,6 +43,7 @@ class SppSchedule:
     max_spp: int = 1_000_000
     first_spp: int = 16
     passes: list[tuple[int, float]] = field(default_factory=list)  # (spp, seconds) of each pass run
+    fixed_s: list[float] = field(default_factory=list)  # each pass's measured part that does not grow with spp
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.budget_s) and self.budget_s > 0):
@@ -56,17 +58,29 @@ class SppSchedule:
         """Rays per pixel of the passes run so far."""
         return sum(s for s, _ in self.passes)
 
-    def record(self, spp: int, seconds: float) -> None:
+    def record(self, spp: int, seconds: float, *, fixed_s: Optional[float] = None) -> None:
+        """A pass of ``spp`` took ``seconds``; ``fixed_s``: the part of them measured not to grow with spp (the
+        renderer's: storing each pass's recordings, which at 1080x1920 x 24 frames with five recording planes
+        is 20 s a pass, more than a 16-spp trace's share of the line could tell)."""
         self.passes.append((int(spp), max(0.0, float(seconds))))
+        if fixed_s is not None:
+            self.fixed_s.append(min(max(0.0, float(fixed_s)), self.passes[-1][1]))
 
     def cost_model(self) -> tuple[float, float]:
-        """(a s, b s per spp) of t = a + b spp: the line through the two largest passes; with one pass (or a
+        """(a s, b s per spp) of t = a + b spp. With measured fixed parts (every pass recorded one): a is the
+        largest of them and b the largest pass's rest per spp. Otherwise the line through the two largest
+        passes; with one pass (or a
         line that makes no sense, as timing noise can), a = 0, which overestimates b and so errs short. The fixed
         cost a is at most the quickest pass's time (a cost per spp that falls with the pass's size, as a
         tracer's fuller tiles give, would otherwise read as a fixed cost: 6.7 s on a scene whose 16-spp pass
         took 0.9 s, which stopped its passes 6 % short of the budget)."""
         if not self.passes:
             raise ValueError("no pass measured yet")
+        if len(self.fixed_s) == len(self.passes):
+            a = max(self.fixed_s)
+            k = max(range(len(self.passes)), key=lambda i: self.passes[i][0])
+            s, t = self.passes[k]
+            return a, max(t - self.fixed_s[k], 1e-9) / s
         by_size = sorted(self.passes)
         (s2, t2) = by_size[-1]
         t2 = max(t2, 1e-9)
@@ -101,5 +115,5 @@ class SppSchedule:
         elif len(self.passes) >= MAX_PASSES - 1:
             n = fill
         else:
-            n = math.floor((SAFETY * left - a) / b)
+            n = math.floor(SAFETY * fill)
         return int(min(max(1, n), room))
