@@ -9,12 +9,13 @@ exactly what one pass of that many rays would estimate: the recording planes add
 recording planes divides by sum_k s_k once (holocore.pipeline, holocore.optics.plane_chain), so the passes cost no
 memory and no propagation of their own. This module decides
 the s_k, from the seconds the passes before took, so that the passes end near the budget: a pass costs
-t = a + b s (a: kernel launches, recording-plane chain, host copies; b: seconds per ray per pixel), fitted
-through the two largest passes so far (the cost is only locally linear: a 16/64-spp fit missed a 16384-spp
-render by 2.8x on a glass scene). A pass is extrapolated at most ``GROWTH`` times beyond the largest pass
-measured; until the budget's remainder is within that reach, passes aim at half of it, and then at ``SAFETY`` of
-the rays that would fill what is left (the cost grows faster than the line where a tracer tile shrinks to one row: a 4x extrapolation was
-28 % short on a 96-px-wide demo scene), each pass measuring the line again, until a pass would add fewer than
+t = a + b s. The renderer measures a, the part of a pass that does not grow with spp (storing its recordings in
+the planes), and b is the largest pass's rest per spp; without a measured a, the line through the two largest
+passes gives both (the cost is only locally linear: a 16/64-spp fit missed a 16384-spp render by 2.8x on a glass
+scene). A pass is extrapolated at most ``GROWTH`` times beyond the largest pass measured; until the budget's
+remainder is within that reach, passes aim at half of it, and then at ``SAFETY`` of the rays that would fill what
+is left (the cost grows faster than the line where a tracer tile shrinks to one row: a 4x extrapolation was 28 %
+short on a 96-px-wide demo scene), each pass measuring again, until a pass would add fewer than
 ``MIN_GAIN`` of the rays done. Units: seconds, rays per pixel (spp).
 """
 
