@@ -251,9 +251,11 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         n_f = (f1 - f0) if banks else F
 
         def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi):
-            def run(spp, seed, rows, report):
+            def run(spp, seed, rows, tick=None):
                 def tile_progress(stage, done, total):
-                    if progress and report:
+                    if tick is not None:
+                        tick()
+                    elif progress:
                         progress(stage, _pi * total + done, n_chunk * total)
 
                 grid = RecordingGrid(wavelengths_m=wl_lit, pitch_m=optics.pitch_m, shape_hw=(H, W),
@@ -265,7 +267,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                             on_plane_rows=rows if spec else None)
 
             if schedule is None:
-                run(plan.spp, ray_seed, on_plane_rows, True)
+                run(plan.spp, ray_seed, on_plane_rows)
                 return None
             return _trace_to_deadline(schedule, run, on_plane_rows, ray_seed=ray_seed, first_chunk=_pi == 0,
                                       progress=progress, chunk=(_pi, n_chunk))
@@ -362,6 +364,12 @@ def _trace_to_deadline(schedule: SppSchedule, run, on_plane_rows, *, ray_seed, f
     (holocore.plan.time_budget), which the recording-plane chain applies once."""
     replay = None if first_chunk else [s for s, _ in schedule.passes]
     t0, done, k = time.perf_counter(), 0, 0
+    whole = max(1, math.ceil(schedule.budget_s))
+
+    def tick():  # progress in seconds of the trace budget (each tile of each pass)
+        if progress:
+            progress("trace", chunk[0] * whole + min(whole, int(time.perf_counter() - t0)), chunk[1] * whole)
+
     while True:
         spp = schedule.next_spp(time.perf_counter() - t0) if first_chunk else (
             replay[k] if k < len(replay) else None)
@@ -375,14 +383,11 @@ def _trace_to_deadline(schedule: SppSchedule, run, on_plane_rows, *, ray_seed, f
             on_plane_rows(plane, r0, block * _w, add=_add)
             _t[0] += time.perf_counter() - ts
 
-        run(spp, ray_seed + 7919 * k, rows, False)
+        run(spp, ray_seed + 7919 * k, rows, tick)
         done += spp
         k += 1
         if first_chunk:
             schedule.record(spp, time.perf_counter() - tk, fixed_s=stored[0])
-        if progress:
-            ms = int(1000 * schedule.budget_s)
-            progress("trace", chunk[0] * ms + min(ms, int(1000 * (time.perf_counter() - t0))), chunk[1] * ms)
     return 1.0 / done
 
 
