@@ -5,6 +5,7 @@ their rays."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 
@@ -126,10 +127,10 @@ def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, stre
 
 
 def test_holo_render_with_a_time_limit(demo, tmp_path):
-    out = tmp_path / "RESULT.npz"
+    out, progress = tmp_path / "RESULT.npz", tmp_path / "progress.jsonl"
     p = subprocess.run([sys.executable, "-m", "holo", "render", str(demo), "--out", str(out), "--preset", "fast",
-                        "--frames", "2", "--resolution", "24x32", "--time-limit-s", "3", "--spp", "4000"],
-                       capture_output=True, text=True, timeout=600)
+                        "--frames", "2", "--resolution", "24x32", "--time-limit-s", "3", "--spp", "4000",
+                        "--progress-jsonl", str(progress)], capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     assert "time limit 3 s" in p.stderr
     with np.load(out, allow_pickle=False) as z:
@@ -138,3 +139,6 @@ def test_holo_render_with_a_time_limit(demo, tmp_path):
     sm = meta["sampling"]
     assert 16 <= sm["spp"] <= 4000 and sm["passes"][0]["spp"] == 16 and sm["trace_budget_s"] < 3.0
     assert meta["stats"]["rays"] == 24 * 32 * sm["spp"]  # every pass's rays were traced and counted
+    # the trace's progress counts seconds of its budget, never past it
+    trace = [json.loads(line) for line in progress.read_text().splitlines() if '"trace"' in line]
+    assert trace and all(0 <= t["done"] <= t["total"] == max(1, math.ceil(sm["trace_budget_s"])) for t in trace)
