@@ -561,7 +561,7 @@ def _how_ours_fills(eq: dict) -> str:
     if "sampling" in eq["methods"]["ours"]:
         return ("a render with a time limit (`holo render --time-limit-s`, holocore.plan.time_budget) of the budget "
                 "less the encoder's time measured on the layers' field: passes of rays (16 spp, then more) until it is "
-                "spent, blended into the estimate of all their rays (`sampling` in the JSON)")
+                "spent, added into the recording planes as the estimate of all their rays (`sampling` in the JSON)")
     return ("16- and 64-spp runs of the same scene and frames give the fixed cost and the cost per spp, and the spp "
             "that fills the budget is used (a run more than 3 % off the budget is redone at the spp its own time gives, "
             "twice at most: `probe.runs_spp_s` in the JSON)")

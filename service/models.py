@@ -233,15 +233,16 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
     try:
-        from holocore.plan.estimate import estimate_seconds, features
+        from holocore.plan.estimate import estimate_breakdown, features
 
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method)
         radius = ana.get("subhologram_radius_px")
-        kw = dict(scene_primitives=inv.get("primitives"), subhologram_radius_px=radius)
-        work = estimate_seconds(o, options, encode_iterations=iters if req.encoder == "sgd" else 0, **kw)
+        stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
+                                    encode_iterations=iters if req.encoder == "sgd" else 0)
+        work = stages["total"]
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
-            work += req.render_time_limit_s - estimate_seconds(o, options, encode_iterations=0, **kw)
+            work = req.render_time_limit_s + stages.get("encode", 0.0)
             return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
                     "model": "render time limit + calibrated encoder", "memory": memory}
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
