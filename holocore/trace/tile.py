@@ -53,7 +53,7 @@ class TileGeometry:
     ks: tuple
     cos_lim: tuple
     chans: tuple
-    depth_step: float  # m: depth grid of image points behind delta vertices, min over colors of DOF / 8
+    depth_step: float  # m: depth grid of the phase of image points (see trace_tile), min over colors of DOF / 8
 
     @classmethod
     def make(cls, hmap: HologramMap, *, wavelengths_m, pitch_m, shape_hw, plane_z_m, z_wrp_m, spp,
@@ -80,9 +80,10 @@ class TileGeometry:
 
 
 def image_depth_step_m(wavelength_m: float, theta_max_rad: float) -> float:
-    """Depth grid (m) of image points behind delta vertices: an eighth of the depth of field of a point seen
-    through the recording cone, lambda / sin^2(theta_max) (axial extent of the focus of a cone of that numerical
-    aperture; 0.55 mm for 455 nm at 8 µm pitch, so the grid is 70 µm there)."""
+    """Depth grid (m) of the image points' phase (behind delta vertices; all of them with random phases): an
+    eighth of the depth of field of a point seen through the recording cone, lambda / sin^2(theta_max) (axial
+    extent of the focus of a cone of that numerical aperture; 0.55 mm for 455 nm at 8 µm pitch, so the grid is
+    70 µm there)."""
     return wavelength_m / (8.0 * math.sin(theta_max_rad) ** 2)
 
 
@@ -251,12 +252,17 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     # random fraction of a step per lateral cell: the points whose rays straddle a grid level (their phases then
     # disagree) are scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image
     # field made them coloured rings in the view).
+    # With random phases (want_cells) every image point takes the rounded depth, not only those behind delta
+    # vertices (docs/physics.md, "Random-phase cells lie flat in hologram space"): the points of one random-phase
+    # cell share its phase, so with their own depths a cell of a surface tilted in hologram space radiated like a
+    # small tilted mirror, its light leaning by the tilt (a 12-degree plate at 0.5 m looked 0.68x as bright from
+    # the left as from the right, and red from one side, blue from the other). On the grid a cell lies flat.
     # (the random-phase cell's own indices, so no point straddles a cell of one and not of the other)
     j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)  # Q's random-phase cell (column, row), before the wrap
     i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
     shift = mi.sample_tea_float64(mi.UInt32(mi.Int32(j) + (1 << 24)), mi.UInt32(mi.Int32(i) + (1 << 24)), 4)
     z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
-    q_ph = dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
+    q_ph = V3d(q.x, q.y, z_grid) if want_cells else dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
     r_ph = dr.select(ok, dr.norm(q_ph - s), r)
     parts = []
     for c in range(len(g.ks)):
