@@ -306,7 +306,9 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "z_wrp_m": z_wrp,
         "wrp_planes_m": list(planes.z_m),
         "cone_equaliser": None if equalisers is None else [
-            {"fresnel_zones": eq.fresnel_zones, "filtered": [eq.active(c) for c in range(len(wl_lit))]}
+            {"fresnel_zones": eq.fresnel_zones, "filtered": [eq.active(c) for c in range(len(wl_lit))],
+             "noise_to_signal": [round(eq.noise[c].noise_to_signal, 4) if c in eq.noise else None
+                                 for c in range(len(wl_lit))]}
             for eq in equalisers],
         "pitch_m": optics.pitch_m,
         "wavelengths_m": list(optics.wavelengths_m),

@@ -30,6 +30,18 @@ shorter the wavelength). The equaliser divides both out on average over the imag
     E(f) = sqrt(G_ideal(f) / S(f)),  S(f) = mean_j |K_{d_j}(f)|^2   inside the cone (clipped to E_MAX),
                                                                         0 outside.                     (C3)
 
+With few rays the recording also holds Monte Carlo noise, white over the lattice's band (the pixels' rays are
+independent): N per frequency where the signal has A S(f). Through (C3) a view then sees E^2 (A S + N) =
+A G + N G / S, brighter where S is weak (the rim, the ripples' minima), by a pattern that differs per colour: a
+white card at 128 rays came out red / blue 1.07 in the centre view and 0.95 in the side views (1.00 at 1024
+rays). The gain therefore flattens the total power instead:
+
+    E(f) = sqrt(G_ideal(f) / (S(f) + N / A)),   N / A from the least-squares fit P = A S + N of the power
+                                                 P(f) of the plane's frame 0 inside the cone.           (C4)
+
+A view then sees the band-limited points' brightness in every colour and direction, on average; the noise
+stays (no filter can take it away) but no longer tints. With many rays N / A -> 0 and (C4) is (C3).
+
 Points more than ``MAX_FRESNEL`` zones from their plane count with |K|^2 = G_ideal B, B = sinc^2(f_x p)
 sinc^2(f_y p) (their rim's diffraction is negligible), so every plane that records a point is filtered; one
 that records none is untouched. S is computed on an M x M DFT grid of the lattice (M at least 4 sub-hologram
@@ -54,7 +66,7 @@ from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
 from holocore.optics.propagation import ifft2, smooth_at_least
 
 __all__ = ["sheet_spectrum", "ideal_power_spectrum", "cell_spectrum", "mean_sheet_spectrum", "equaliser_gain",
-           "equalise_plane", "PlaneEqualiser", "plane_equalisers", "E_MAX", "MAX_FRESNEL"]
+           "equalise_plane", "PlaneEqualiser", "plane_equalisers", "NoiseFit", "noise_floor", "E_MAX", "MAX_FRESNEL"]
 
 E_MAX = 2.5  # largest gain of the equaliser (ripple minima of a single distance would otherwise amplify noise)
 MAX_FRESNEL = 40.0  # Fresnel zones beyond which a point's spectrum counts as Weyl's (its ringing is fine-grained)
@@ -167,19 +179,77 @@ def _interpolate(spectrum: np.ndarray, f_y: np.ndarray, f_x: np.ndarray, pitch_m
             + ty * ((1 - tx) * s[np.ix_(y1, x0)] + tx * s[np.ix_(y1, x1)]))
 
 
-def equaliser_gain(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m: float,
-                   shape_hw: tuple[int, int]) -> torch.Tensor:
-    """E(f) of Eq. C3 on the DFT grid ``shape_hw`` (numpy's frequency order), float32: ``spectrum`` the plane's
-    S on its M x M grid (:func:`mean_sheet_spectrum`; None: Weyl's times B, which leaves 1 / sqrt(B)). Built
-    in blocks of rows, so its float64 temporaries stay small at the paper's size."""
+def _rows_of_s(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m: float, shape_hw: tuple[int, int]):
+    """Yield (row slice, G, S) in blocks of rows of the DFT grid ``shape_hw`` (float64): the band-limited point's
+    G = lambda^2 / cos^2 and the plane's S (``spectrum`` interpolated; None: G B), so that the float64
+    temporaries stay small at the paper's size."""
     f_y, f_x = _grid_freqs(shape_hw, pitch_m)
     spectrum = None if spectrum is None else spectrum.astype(np.float64)  # once, not per block
-    out = np.empty(tuple(shape_hw), dtype=np.float32)
     for a in range(0, shape_hw[0], 256):
         fy = f_y[a:a + 256]
         ideal = ideal_power_spectrum(wavelength_m, pitch_m, fy, f_x)
         s = ideal * cell_spectrum(pitch_m, fy, f_x) if spectrum is None else _interpolate(spectrum, fy, f_x, pitch_m)
-        out[a:a + 256] = np.minimum(np.where(ideal > 0, np.sqrt(ideal / np.maximum(s, 1e-300)), 0.0), E_MAX)
+        yield slice(a, a + 256), ideal, s
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """Eq. C4's fit on one recording: ``noise`` = N / A (m^2, S's units; 0: none found) and ``mean_s``, the mean
+    of S over the fitted frequencies, so that noise / mean_s is the noise-to-signal power in the cone."""
+
+    noise: float
+    mean_s: float
+
+    @property
+    def noise_to_signal(self) -> float:
+        return self.noise / self.mean_s if self.mean_s > 0 else 0.0
+
+
+def noise_floor(power: np.ndarray, spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m: float, *,
+                lit_px: Optional[float] = None) -> NoiseFit:
+    """The Monte Carlo noise of a recording in the units of its plane's S (Eq. C4): N / A of the least-squares
+    fit P(f) = A S(f) + N over the cone's inside (to 0.9 of its rim), ``power`` = |DFT|^2 of one frame of the
+    recorded field on the gain's grid (float, [H', W']), ``lit_px`` the number of pixels the field lights (its
+    spectrum has about that many independent samples on the whole band, fewer than the padded grid's). Noise 0
+    when the fit finds no noise or no signal, shrunk towards 0 by its standard error."""
+    sums = np.zeros(6)  # n, sum S, sum S^2, sum P, sum S P, sum P^2
+    shape = tuple(power.shape)
+    lim = (0.9 / (2.0 * pitch_m)) ** 2  # f_c = 1 / 2p for every wavelength below 2p (sin theta_c = lambda / 2p)
+    f_y, f_x = _grid_freqs(shape, pitch_m)
+    for rows, ideal, s in _rows_of_s(spectrum, wavelength_m, pitch_m, shape):
+        m = (ideal > 0) & (f_y[rows] ** 2 + f_x ** 2 <= lim)
+        sv, pv = s[m], power[rows][m].astype(np.float64)
+        sums += (sv.size, sv.sum(), (sv * sv).sum(), pv.sum(), (sv * pv).sum(), (pv * pv).sum())
+    n, sx, sxx, sy, sxy, syy = sums
+    mean_s = float(sx / n) if n > 0 else 0.0
+    det = n * sxx - sx * sx
+    if n < 16 or not det > 0:
+        return NoiseFit(0.0, mean_s)
+    a = (n * sxy - sx * sy) / det
+    noise = (sy - a * sx) / n
+    if not (math.isfinite(a) and math.isfinite(noise) and a > 0 and noise > 0):
+        return NoiseFit(0.0, mean_s)
+    # The fit's own uncertainty: one frame's signal fluctuates per frequency (its random phases' spectrum), so on a
+    # small grid N is poorly determined (+-0.05 of the signal at 48 x 48). N is shrunk towards 0 by its standard
+    # error, so a noise the fit cannot tell from zero is not divided out (3 standard errors: none of it).
+    var_res = max(0.0, syy - a * sxy - noise * sy) / max(1.0, n - 2.0)
+    se = math.sqrt(var_res * sxx / det)
+    if lit_px is not None:  # neighbouring samples of a padded or partly lit field are correlated
+        independent = max(1.0, float(lit_px) * n / (shape[0] * shape[1]))
+        se *= math.sqrt(max(1.0, n / independent))
+    noise *= max(0.0, 1.0 - (3.0 * se / noise) ** 2)
+    return NoiseFit(float(noise / a), mean_s)
+
+
+def equaliser_gain(spectrum: Optional[np.ndarray], wavelength_m: float, pitch_m: float,
+                   shape_hw: tuple[int, int], *, noise: float = 0.0) -> torch.Tensor:
+    """E(f) of Eq. C3 (``noise`` = 0) or C4 (``noise`` = N / A from :func:`noise_floor`) on the DFT grid
+    ``shape_hw`` (numpy's frequency order), float32: ``spectrum`` the plane's S on its M x M grid
+    (:func:`mean_sheet_spectrum`; None: Weyl's times B, which leaves 1 / sqrt(B))."""
+    out = np.empty(tuple(shape_hw), dtype=np.float32)
+    for rows, ideal, s in _rows_of_s(spectrum, wavelength_m, pitch_m, shape_hw):
+        den = np.maximum(s + max(0.0, float(noise)), 1e-300)
+        out[rows] = np.minimum(np.where(ideal > 0, np.sqrt(ideal / den), 0.0), E_MAX)
     return torch.from_numpy(out)
 
 
@@ -202,7 +272,9 @@ class PlaneEqualiser:
     spectra: tuple[Optional[np.ndarray], ...]
     border_px: int
     fresnel_zones: Optional[float]
+    noise_aware: bool = True  # Eq. C4: the gain also divides by the recording's Monte Carlo noise
     _gains: dict = field(default_factory=dict, compare=False, repr=False)  # color -> gain grid of one shape
+    noise: dict = field(default_factory=dict, compare=False, repr=False)  # color -> the NoiseFit it used (Eq. C4)
 
     def active(self, color: int) -> bool:
         """Whether the plane's field of lit color ``color`` is filtered at all: whenever it records a point (the
@@ -219,15 +291,26 @@ class PlaneEqualiser:
         g = self._gains.get(color)
         if g is None or tuple(g.shape) != shape or g.device != field_.device:
             # once per color of a plane (its chunks of frames alternate colors), in the field's precision
-            g = equaliser_gain(self.spectra[color], wavelength_m, pitch_m, shape)
+            fit = NoiseFit(0.0, 0.0)
+            if self.noise_aware:  # Eq. C4: the noise of the first frame it sees (frame 0 of the render)
+                first = field_.reshape(-1, h, w)[0]
+                power = (torch.fft.fft2(first, s=shape).abs() ** 2).cpu().numpy()
+                pix = first.abs().double() ** 2
+                # pixels lit: 2 (sum I)^2 / sum I^2, the count of a uniformly lit region under full speckle
+                lit = float(2.0 * pix.sum() ** 2 / max(float((pix * pix).sum()), 1e-300))
+                fit = noise_floor(power, self.spectra[color], wavelength_m, pitch_m, lit_px=min(lit, h * w))
+                del power
+            self.noise[color] = fit
+            g = equaliser_gain(self.spectra[color], wavelength_m, pitch_m, shape, noise=fit.noise)
             g = self._gains[color] = g.to(device=field_.device, dtype=field_.real.dtype)
         return equalise_plane(field_, g)
 
 
 def plane_equalisers(distances_by_plane_m: Sequence[Sequence[float]], wavelengths_m: Sequence[float],
-                     pitch_m: float) -> list[PlaneEqualiser]:
+                     pitch_m: float, *, noise_aware: bool = True) -> list[PlaneEqualiser]:
     """One :class:`PlaneEqualiser` per recording plane from the distances (m) of the image points it records
-    (:meth:`holocore.plan.wrp_planes.WrpPlanes.distances_by_plane_m`), for the lit ``wavelengths_m``."""
+    (:meth:`holocore.plan.wrp_planes.WrpPlanes.distances_by_plane_m`), for the lit ``wavelengths_m``;
+    ``noise_aware``: Eq. C4 (the default) rather than C3."""
     out = []
     tan_w = max(_cone(lam, pitch_m)[0] for lam in wavelengths_m)
     for dists in distances_by_plane_m:
@@ -237,5 +320,5 @@ def plane_equalisers(distances_by_plane_m: Sequence[Sequence[float]], wavelength
         zones = float(d.min() * tan_w ** 2 / min(wavelengths_m)) if d.size else None
         # The filter's reach: about the diameter of the widest sub-hologram it was computed from.
         border = int(math.ceil(2.0 * float(np.max(d, initial=0.0)) * tan_w / pitch_m)) + 8
-        out.append(PlaneEqualiser(spectra, border, zones))
+        out.append(PlaneEqualiser(spectra, border, zones, noise_aware))
     return out
