@@ -48,6 +48,8 @@ class RenderOptions:
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
     cone_equaliser: bool = True  # flatten each recording plane's spectrum (holocore.optics.cone_equaliser)
+    equalise_noise: bool = True  # ... signal plus its fitted Monte Carlo noise (Eq. C4); False: signal alone (C3),
+    # a linear filter, for comparing estimators by their noise
     time_limit_s: Optional[float] = None  # wall time of the whole render, s: passes of rays until it is spent
     # (holocore.plan.time_budget; ``spp`` is then the most rays per pixel); None: one pass of ``spp``
 
@@ -213,7 +215,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     direct = options.method == "direct"
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
-        equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m)
+        equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
+                                      noise_aware=options.equalise_noise)
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})

@@ -102,14 +102,14 @@ def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, stre
 
     # f = 20 mm: this small view holds the wall and two objects at other depths (several planes have work)
     optics = OpticsConfig(resolution_hw=(36, 48), frames=3, seed=5, **({"focal_length_mm": 20.0} if planes > 1 else {}))
-    # Without the cone equaliser: its gain depends on the recording's own noise (Eq. C4 of
-    # holocore.optics.cone_equaliser), so a render is not a linear function of its passes' rays with it.
+    # With the signal-only equaliser (C3, a fixed linear filter): the default one's gain depends on the recording's
+    # own noise (Eq. C4 of holocore.optics.cone_equaliser), so a render is not linear in its passes' rays with it.
     one = [render(demo, optics, RenderOptions(preset="fast", spp=n, ray_seed=seed, wrp_planes=planes,
-                                              cone_equaliser=False))
+                                              equalise_noise=False))
            for n, seed in ((4, 5), (12, 5 + 7919))]
     assert (len(one[0].meta["wrp_planes_m"]) > 1) == (planes > 1)  # 3 asked: as many as the depth holds
     _forced(monkeypatch, [4, 12])
-    opts = RenderOptions(preset="fast", time_limit_s=60.0, wrp_planes=planes, cone_equaliser=False)
+    opts = RenderOptions(preset="fast", time_limit_s=60.0, wrp_planes=planes, equalise_noise=False)
     if streamed:
         out = tmp_path / "RESULT.npz"
         meta = render_to_file(demo, out, optics, opts, memory_budget_bytes=256 << 20)
