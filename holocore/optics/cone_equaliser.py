@@ -291,8 +291,8 @@ class PlaneEqualiser:
         g = self._gains.get(color)
         if g is None or tuple(g.shape) != shape or g.device != field_.device:
             # once per color of a plane (its chunks of frames alternate colors), in the field's precision
-            fit = NoiseFit(0.0, 0.0)
-            if self.noise_aware:  # Eq. C4: the noise of the first frame it sees (frame 0 of the render)
+            fit = self.noise.get(color, NoiseFit(0.0, 0.0))  # fitted once: a gain rebuilt keeps frame 0's fit
+            if self.noise_aware and color not in self.noise:  # Eq. C4: the first frame it sees (the render's 0)
                 first = field_.reshape(-1, h, w)[0]
                 power = (torch.fft.fft2(first, s=shape).abs() ** 2).cpu().numpy()
                 pix = first.abs().double() ** 2
