@@ -65,30 +65,20 @@ def fov_deg(width_px: int, pitch_m: float, f_m: float) -> float:
     return 2 * math.degrees(math.atan(width_px * pitch_m / 2 / f_m))
 
 
-def white_plate(tilt_deg: float = 0.0, *, distance_m: float = 0.5) -> dict:
-    """A glowing white (Lambertian, radiance 1) square, 0.4 m wide, ``distance_m`` in front of the eye, turned
-    ``tilt_deg`` about y: it fills a paper-display view of any SLM size used here."""
-    from tests.tracer.scenes import T
-
-    return {"type": "rectangle",
-            "to_world": T().translate([0, 0, -distance_m]).rotate([0, 1, 0], tilt_deg).scale(0.2),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}},
-            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1.0}}}
-
-
 def plate_view_colours(tilt_deg: float, *, spp: int, frames: int = 8, views_deg=(-0.5, 0.0, 0.5),
                        **render_kw) -> dict:
-    """Mean R, G, B (float64 [3]) of the frame-averaged eye view of :func:`white_plate` focused on the plate, per
-    horizontal eye offset (degrees), through the paper report's pupil: paper display, 135x240, z_inf 4 mm, one
-    recording plane."""
+    """Mean R, G, B (float64 [3]) of the frame-averaged eye view of a glowing white plate (radiance 1, 0.4 m wide,
+    0.5 m away, turned ``tilt_deg`` about y; it fills the view) focused on the plate, per horizontal eye offset
+    (degrees), through the paper report's pupil: paper display, 135x240, z_inf 4 mm, one recording plane."""
     import math
 
     from holocore.display.profiles import PAPER
     from holocore.evaluate.scoring import default_pupil_m, eye_view, lit_margin_px
     from holocore.pipeline import RenderOptions, render_loaded
-    from tests.tracer.scenes import camera, scene
+    from holocore.scene.paper import paper_fov_x_deg
+    from tests.tracer.scenes import camera, emitting_plane, scene
 
-    loaded = scene(sensor=camera(fov=17.46), plate=white_plate(tilt_deg))
+    loaded = scene(sensor=camera(fov=paper_fov_x_deg()), plate=emitting_plane(-0.5, size=0.2, rotate_y_deg=tilt_deg))
     opt = PAPER.optics(resolution_hw=(135, 240), frames=frames, z_inf_mm=4.0)
     res = render_loaded(loaded, opt, RenderOptions(preset="balanced", spp=spp, wrp_planes=1, **render_kw),
                         display=PAPER)

@@ -17,12 +17,13 @@ def camera(fov: float = 10.0, origin=(0, 0, 0), target=(0, 0, -1), up=(0, 1, 0))
 
 
 def emitting_plane(z: float, *, size: float = 5.0, radiance: float = 1.0, texture: str | None = None,
-                   x: float = 0.0) -> dict:
-    """A rectangle facing the camera (+z normal) at depth z, glowing with the given radiance."""
+                   x: float = 0.0, rotate_y_deg: float = 0.0) -> dict:
+    """A rectangle facing the camera (+z normal) at depth z, turned ``rotate_y_deg`` about y, glowing with the
+    given radiance (a Lambertian emitter)."""
     em: dict[str, Any] = {"type": "area", "radiance": {"type": "rgb", "value": radiance}}
     if texture is not None:
         em["radiance"] = {"type": "bitmap", "filename": texture}
-    return {"type": "rectangle", "to_world": T().translate([x, 0, z]).scale(size),
+    return {"type": "rectangle", "to_world": T().translate([x, 0, z]).rotate([0, 1, 0], rotate_y_deg).scale(size),
             "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}, "emitter": em}
 
 
