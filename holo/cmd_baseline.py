@@ -1,6 +1,6 @@
-"""`holo baseline layers` and `holo baseline focal-stack`: the layer-based (RGB-D) and the focal-stack baseline
-holograms, in the renderer's RESULT.npz format, so that `holo view` and `holo evaluate` (and, for the layers,
-`holo encode`) treat them like a render."""
+"""`holo baseline layers`, `holo baseline focal-stack` and `holo baseline light-field`: the layer-based (RGB-D),
+the focal-stack and the light-field (stereogram) baseline holograms, in the renderer's RESULT.npz format, so that
+`holo view` and `holo evaluate` (and, for the layers and the light field, `holo encode`) treat them like a render."""
 
 from __future__ import annotations
 
@@ -132,3 +132,46 @@ def focal_stack(
                f"{'/'.join(str(n) for n in fs['iterations_done'])} steps (per colour), in "
                f"{time.perf_counter() - t0:.1f} s -> {out}"
                + (f" and {stack}" if stack is not None else ""), err=True)
+
+
+@baseline_app.command("light-field")
+@with_optics_options
+def light_field(
+    scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
+    out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
+    hogel_px: int = typer.Option(3, "--hogel-px", help="Hogel side in SLM pixels (1..256): its directions are a "
+                                 "hogel_px x hogel_px grid over each colour's cone."),
+    spp: int = typer.Option(16, "--spp", help="Jittered Mitsuba rays per light-field sample (1..16384)."),
+    rs_mm: Optional[float] = typer.Option(None, "--rs-mm", help="Hologram depth of the ray-sampling plane, mm "
+                                          "(default: the middle of the image volume)."),
+    optics: OpticsOptions = OpticsOptions(),
+) -> None:
+    """Light field: a holographic stereogram on a ray-sampling plane (one plane wave per hogel and direction,
+    random phase per frame, radiance from Mitsuba), ASM to the WRP and the SLM."""
+    profile, optics_cfg = optics.resolve()
+    if not 1 <= hogel_px <= 256:
+        fail(f"--hogel-px must be in 1..256, got {hogel_px}")
+    if not 1 <= spp <= 16384:
+        fail(f"--spp must be in 1..16384, got {spp}")
+    if rs_mm is not None and not (0 < rs_mm < 1e6):
+        fail(f"--rs-mm must be a depth in mm > 0, got {rs_mm}")
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+    from holocore.baselines.light_field import render_light_field
+    from holocore.io import save_result
+    from holocore.scene.load import load_scene
+
+    t0 = time.perf_counter()
+    try:
+        result = render_light_field(load_scene(scene), optics_cfg, hogel_px=hogel_px, spp=spp,
+                                    z_rs_m=None if rs_mm is None else rs_mm * 1e-3, display=profile)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
+    m = result.meta
+    lf = m["light_field"]
+    F, C, H, W = m["shape_fchw"]
+    typer.echo(f"light-field baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x "
+               f"{H}x{W}, {lf['hogels_hw'][0]}x{lf['hogels_hw'][1]} hogels of {hogel_px} px at "
+               f"{lf['z_rs_m'] * 1e3:.4f} mm, {spp} rays per sample, z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, in "
+               f"{time.perf_counter() - t0:.1f} s -> {out}", err=True)

@@ -112,8 +112,9 @@ def test_a_time_limit_stops_each_colour_early_and_otherwise_changes_nothing():
         optimise_focal_stack(T, zs, iterations=2, time_limit_s=0.0, **kw)
 
 
-def _two_plane_bundle(folder):
-    """Two glowing textured cards: the left one 0.5 m away, the right one 0.9 m, seen by an eye at the origin."""
+def two_card_bundle(folder, *, near_m: float = 0.5, far_m: float = 0.9):
+    """Two glowing textured cards: the left one ``near_m`` away, the right one ``far_m``, seen by an eye at the
+    origin; each fills its half of a 64-px view and more."""
     from PIL import Image
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -133,7 +134,8 @@ def _two_plane_bundle(folder):
         <float name="fov" value="0.587"/><string name="fov_axis" value="x"/>
         <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, -1" up="0, 1, 0"/></transform>
     </sensor>
-{card.format(h=0.004, x=-0.004, z=-0.5)}{card.format(h=0.007, x=0.007, z=-0.9)}</scene>
+{card.format(h=0.008 * near_m, x=-0.008 * near_m, z=-near_m)}{
+    card.format(h=0.007 / 0.9 * far_m, x=0.007 / 0.9 * far_m, z=-far_m)}</scene>
 """)
     return folder
 
@@ -146,7 +148,7 @@ def fs_result(tmp_path_factory):
     from holocore.scene.load import load_scene
 
     root = tmp_path_factory.mktemp("fs")
-    scene = _two_plane_bundle(root / "scene")
+    scene = two_card_bundle(root / "scene")
     optics = display_optics(PAPER, overrides={"resolution_hw": (64, 64), "wavelengths_nm": [516.5], "frames": 3,
                                               "z_inf_mm": 2.0})
     res = render_focal_stack(load_scene(scene), optics, planes=2, spacing_m=None, iterations=120, gt_spp=16,
@@ -214,7 +216,7 @@ def test_cli_writes_result_and_stack(tmp_path):
     from holo.app import app
     from holocore.io import load_result, load_stack
 
-    scene = _two_plane_bundle(tmp_path / "scene")
+    scene = two_card_bundle(tmp_path / "scene")
     r = CliRunner().invoke(app, ["baseline", "focal-stack", str(scene), "--out", str(tmp_path / "R.npz"),
                                  "--stack", str(tmp_path / "S.npz"), "--resolution", "32x32", "--wavelengths-nm",
                                  "516.5", "--frames", "2", "--z-inf-mm", "2", "--planes", "2", "--spacing-mm", "1",
