@@ -7,7 +7,8 @@ Stages (each writes a JSON under --out, the report is rebuilt from all JSONs pre
 * ``equal``: per scene, every method gets the same wall-time budget ``--budget-s`` for 24 phase-only frames:
   ours = two-stage render (preset balanced) + the SGD phase-only encoder (``--enc-iterations``, default 60),
   spp chosen from 16- and 64-spp timing runs to fill the budget; fast = the same with
-  preset fast; layers = the RGB-D layer baseline + the same encoder;
+  preset fast; layers = the RGB-D layer baseline + the same encoder; light field = the stereogram baseline
+  (`holocore.baselines.light_field`, ``--lf-hogel-px``, ``--lf-spp``) + the same encoder;
   focal stack = `holocore.baselines.focal_stack` (its Mitsuba targets included), Adam steps until the budget's
   wall time runs out (``time_limit_s``). Scored with holocore.evaluate.scoring's machinery (eye_view + compare) against
   Mitsuba thin-lens ground truth on 4 focus planes (near / middle / far of the image volume and the depth of the
@@ -20,8 +21,8 @@ Stages (each writes a JSON under --out, the report is rebuilt from all JSONs pre
   PSNR(vs ground truth) / PSNR(converged reference vs ground truth), the reference a two-stage render at
   ``--ref-spp`` with 24 frames; the 80 % contour is drawn. PSNR against the reference's first F frames (Monte
   Carlo error alone) is kept too.
-* ``runtime``: wall time over 1, 3, 8, 24 frames (Fig. 6) for ours, fast, layers, focal stack at the settings
-  the equal-time stage chose (24 frames: taken from it).
+* ``runtime``: wall time over 1, 3, 8, 24 frames (Fig. 6) for ours, fast, layers, light field, focal stack at the
+  settings the equal-time stage chose (24 frames: taken from it).
 
     .venv/bin/python bench/paper_report.py                   # or: holo bench paper
     .venv/bin/python bench/paper_report.py --stages report   # rebuild README/figures from the JSONs
@@ -36,6 +37,7 @@ import math
 import os
 import platform
 import sys
+import textwrap
 import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
@@ -49,7 +51,8 @@ if str(ROOT) not in sys.path:
 RESULTS = ROOT / "bench" / "results" / "paper"
 FRAMES = (1, 3, 8, 24)
 METHOD_LABEL = {"ours": "ours (two-stage, balanced)", "fast": "fast (two-stage + radiance cache)",
-                "direct": "direct (scene -> SLM)", "layers": "layers (RGB-D, 8 planes)", "focal-stack": "focal stack"}
+                "direct": "direct (scene -> SLM)", "layers": "layers (RGB-D, 8 planes)",
+                "light-field": "light field (stereogram)", "focal-stack": "focal stack"}
 
 
 # ---- bookkeeping (pure, tested) -------------------------------------------------------------------------------
@@ -153,6 +156,9 @@ class Runner:
         encode_sgd(r.wrp_field, z_wrp_m=r.meta["z_wrp_m"], wavelengths_m=r.meta["wavelengths_m"],
                    pitch_m=r.meta["pitch_m"], iterations=2, stop_db=0.0)
         render_layers(loaded, small, planes=2, spp=4)
+        from holocore.baselines.light_field import render_light_field
+
+        render_light_field(loaded, small, hogel_px=min(3, self.args.lf_hogel_px), spp=1)
 
     def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp",
                time_limit_s: Optional[float] = None):
@@ -192,6 +198,15 @@ class Runner:
         t0 = time.perf_counter()
         r = render_layers(loaded, self.optics(frames), planes=self.args.layer_planes, spp=self.args.layer_spp,
                           display=PAPER)
+        return r, time.perf_counter() - t0
+
+    def light_field(self, loaded, frames: int):
+        from holocore.baselines.light_field import render_light_field
+        from holocore.display.profiles import PAPER
+
+        t0 = time.perf_counter()
+        r = render_light_field(loaded, self.optics(frames), hogel_px=self.args.lf_hogel_px, spp=self.args.lf_spp,
+                               display=PAPER)
         return r, time.perf_counter() - t0
 
     @staticmethod
@@ -262,6 +277,19 @@ class Runner:
                                     "config": f"{a.layer_planes} planes, RGB-D {a.layer_spp} spp, {self.enc_label(enc)}"}
         self.log(f"[{scene}] layers {t_lay:.1f} s + encoder {t_enc:.1f} s")
         del lay
+        # light field + encoder: its rays, the stereogram and the same encoder
+        lf, t_lf = self.light_field(loaded, F)
+        enc, t_e = self.encode(lf)
+        fields["light-field"] = phase_only_field(enc)
+        fields["light-field (complex)"] = lf.slm_field
+        lfm = lf.meta["light_field"]
+        out["methods"]["light-field"] = {"render_s": t_lf, "encode_s": t_e, "time_s": t_lf + t_e,
+                                         "z_rs_m": lfm["z_rs_m"], "hogel_px": lfm["hogel_px"], "spp": lfm["spp"],
+                                         "config": f"{lfm['hogel_px']}-px hogels, RS plane "
+                                                   f"{lfm['z_rs_m'] * 1e3:.3f} mm, {lfm['spp']} spp, "
+                                                   f"{self.enc_label(enc)}"}
+        self.log(f"[{scene}] light field {t_lf:.1f} s + encoder {t_e:.1f} s")
+        del lf
         # ours and fast: a render with a time limit (the budget less the encoder's time measured on the layers'
         # field, the same size): passes of rays until it is spent (holocore.plan.time_budget), at most max_spp
         for name, preset in (("ours", "balanced"), ("fast", "fast")):
@@ -419,6 +447,9 @@ class Runner:
             lay, t = self.layers(loaded, F)
             _, te = self.encode(lay)
             rows.append({"method": "layers", "frames": F, "render_s": t, "encode_s": te})
+            lf, t = self.light_field(loaded, F)
+            _, te = self.encode(lf)
+            rows.append({"method": "light-field", "frames": F, "render_s": t, "encode_s": te})
             _, t = self.focal_stack(loaded, F, em["focal-stack"]["iterations"], em["focal-stack"].get("spacing_m", 1.25e-3))
             rows.append({"method": "focal-stack", "frames": F, "render_s": t, "encode_s": 0.0})
             self.log(f"[{scene}] runtime F={F}: " + ", ".join(f"{r['method']} {r['render_s'] + r['encode_s']:.1f} s"
@@ -475,8 +506,8 @@ def plot_runtime(rt: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = ["ours", "fast", "layers", "focal-stack"]
-    fig, ax = plt.subplots(figsize=(8, 3.8))
+    names = ["ours", "fast", "layers", "light-field", "focal-stack"]
+    fig, ax = plt.subplots(figsize=(9, 3.8))
     width = 0.2
     cols = {1: "#c6dbef", 3: "#6baed6", 8: "#2171b5", 24: "#08306b"}
     for k, F in enumerate(FRAMES):
@@ -489,7 +520,7 @@ def plot_runtime(rt: dict, path: Path) -> None:
             if r["encode_s"] > 0:
                 ax.bar(x, r["encode_s"], width, bottom=r["render_s"], color=cols[F], hatch="//", edgecolor="w")
     ax.set_xticks(range(len(names)))
-    ax.set_xticklabels([f"{n}\n{rt['settings'].get(n, '')}" for n in names], fontsize=7)
+    ax.set_xticklabels([f"{n}\n" + textwrap.fill(rt["settings"].get(n, ""), 24) for n in names], fontsize=7)
     ax.set_ylabel("wall time (s); hatched: phase-only encoder")
     ax.set_title(f"{rt['scene']}: runtime over frames (measured, one process at a time)", fontsize=10)
     ax.legend(fontsize=8)
@@ -510,7 +541,8 @@ def image_grid(eq: dict, npz: Path, path: Path, *, zoom: int = 1) -> None:
     with np.load(npz) as z:
         imgs = {k.replace("__", "|"): z[k] for k in z.files}
     wl = eq["meta"]["wavelengths_m"]
-    methods = ["ours", "fast", "layers", "focal-stack", "ground truth"]
+    methods = [m for m in ("ours", "fast", "layers", "light-field", "focal-stack")
+               if any(k.startswith(m + "|") for k in imgs)] + ["ground truth"]
     cols = [("near", "centre"), ("middle", "centre"), ("far", "centre"), ("image", "centre"), ("image", "left"),
             ("image", "right")]
     H, W = next(iter(imgs.values())).shape[-2:]
@@ -605,7 +637,10 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
               f"Stage `equal`. Budget per method: {first['budget_s']:g} s of wall time for all 24 frames, encoder "
               f"included. ours / fast: {_how_ours_fills(first)}; layers: RGB-D baseline (8 planes, 64 spp) plus the "
               "encoder (it has nothing to spend more time on: more RGB-D samples or planes do not move the mirror "
-              "image off the mirror); focal stack: its Mitsuba targets, then Adam steps until the budget's wall time "
+              "image off the mirror); light field: a stereogram (holocore.baselines.light_field) of "
+              f"{first['methods'].get('light-field', {}).get('hogel_px', '-')}-px hogels on a ray-sampling plane "
+              "in the middle of the image volume, its radiance traced by Mitsuba, plus the encoder (it too has nothing "
+              "to spend more on: a hogel's samples converge in tens of rays); focal stack: its Mitsuba targets, then Adam steps until the budget's wall time "
               "runs out (each colour an equal share of what is left). Measured times in the table.",
               "", "Focus planes: near / middle / far of the image volume (the renderer's analysis) and `image` = the "
               "depth of the mirror image (mirror) or of the glass ball's image (glass); views: left / centre / right "
@@ -628,12 +663,13 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
                      else (f"{m['render_s']:.1f} + 0" if m else "-"))
                 L.append(f"| {name} | {m.get('config', '') if not name.endswith(')') else 'no encoder'} | {t} | "
                          f"{s['psnr_db']:.2f} | {s['ssim']:.3f} | {s['psnr_image_db']:.2f} | {s['ssim_image']:.3f} |")
-            o, lay, fs = sm.get("ours"), sm.get("layers"), sm.get("focal-stack")
-            if o and lay and fs:
-                L += ["", f"ours - layers: {o['psnr_db'] - lay['psnr_db']:+.2f} dB mean, "
-                          f"{o['psnr_image_db'] - lay['psnr_image_db']:+.2f} dB at the image's focus; ours - focal stack: "
-                          f"{o['psnr_db'] - fs['psnr_db']:+.2f} dB mean, {o['psnr_image_db'] - fs['psnr_image_db']:+.2f} dB "
-                          "at the image's focus."]
+            o = sm.get("ours")
+            diffs = [f"ours - {label}: {o['psnr_db'] - b['psnr_db']:+.2f} dB mean, "
+                     f"{o['psnr_image_db'] - b['psnr_image_db']:+.2f} dB at the image's focus"
+                     for label, b in (("layers", sm.get("layers")), ("light field", sm.get("light-field")),
+                                      ("focal stack", sm.get("focal-stack"))) if o and b]
+            if diffs:
+                L += ["", "; ".join(diffs) + "."]
             L += ["", "Per cell (PSNR dB / SSIM):", "",
                   "| method | " + " | ".join(f"{f['name']} {v['name']}" for f in eq["focus"] for v in eq["views"]) + " |",
                   "|---|" + "---|" * (len(eq["focus"]) * len(eq["views"]))]
@@ -680,7 +716,7 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
             L += [f"## Runtime over frames (Fig. 6): {scene}", "", "Stage `runtime`, the equal-time stage's settings "
                   "(24 frames: that stage's runs). Wall time in s, render + encoder.", "",
                   "| method | settings | " + " | ".join(f"{F} frames" for F in FRAMES) + " |", "|---|---|" + "---|" * len(FRAMES)]
-            for name in ("ours", "fast", "layers", "focal-stack"):
+            for name in ("ours", "fast", "layers", "light-field", "focal-stack"):
                 vals = []
                 for F in FRAMES:
                     r = next((r for r in rt["rows"] if r["method"] == name and r["frames"] == F), None)
@@ -726,6 +762,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--fs-gt-spp", type=int, default=64, help="Focal-stack target samples per pixel.")
     ap.add_argument("--layer-planes", type=int, default=8)
     ap.add_argument("--layer-spp", type=int, default=64)
+    ap.add_argument("--lf-hogel-px", type=int, default=3, help="Light-field baseline: hogel side in pixels.")
+    ap.add_argument("--lf-spp", type=int, default=64, help="Light-field baseline: rays per light-field sample.")
     ap.add_argument("--max-spp", type=int, default=16384)
     ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
     ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
