@@ -39,11 +39,12 @@ from holocore import validate
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
-           "stereogram_fields", "render_light_field"]
+           "stereogram_fields", "stereogram_colours", "render_light_field"]
 
 MAX_HOGEL_PX = 256
 MAX_SPP = 1 << 14
 DEFAULT_MAX_DEPTH = 12
+_PROPAGATE_PIXELS = 1 << 23  # pixels of the frames one ASM call takes (4 frames of 1080 x 1920)
 # A 3-px hogel splits each colour's cone into 3 x 3 directions, about one to two across the eye's pupil of the
 # evaluation (1.6 mm at f = 50 mm: 0.4-0.57 of the cone): fine enough in angle for parallax, the finest hogel in
 # space. Measured on the paper's mirror scene (135 x 240 px, 24 frames, 9 cells): 2 / 3 / 4 / 8 / 16 px hogels
@@ -168,12 +169,27 @@ def stereogram_fields(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_
     module docstring); each colour reads the RGB channel that holds its laser line."""
     import torch
 
+    out = None
+    for c, field in enumerate(stereogram_colours(radiance, shape_hw=shape_hw, hogel_px=hogel_px, pitch_m=pitch_m,
+                                                 wavelengths_m=wavelengths_m, frames=frames, seed=seed, coded=coded)):
+        if out is None:
+            out = torch.zeros((field.shape[0], len(wavelengths_m)) + tuple(field.shape[1:]), dtype=torch.complex64)
+        out[:, c] = field
+    return out
+
+
+def stereogram_colours(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_px: int, pitch_m: float,
+                       wavelengths_m: Sequence[float], frames: int, seed: int = 0, coded: bool = True):
+    """:func:`stereogram_fields` one colour at a time: yields complex64 torch [F, H, W] per wavelength, so that a
+    caller holds one colour's frames, not all of them."""
+    import torch
+
     from holocore.display.optics import channel_of
-    from holocore.trace.randomfield import phase_bank
+    from holocore.trace.randomfield import phase_frames
 
     Hh, Wh, B = _hogel_grid(shape_hw, hogel_px)
     H, W = (int(s) for s in shape_hw)
-    rad = np.asarray(radiance, dtype=np.float64)
+    rad = np.asarray(radiance)
     if rad.shape != (len(wavelengths_m), 3, Hh * B, Wh * B):
         raise ValueError(f"radiance must be [C, 3, {Hh * B}, {Wh * B}], got {rad.shape}")
     frames = validate.integer("frames", frames, 1, 4096)
@@ -185,18 +201,18 @@ def stereogram_fields(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_
     ramp2 = (ramp[:, None] * ramp[None, :]).to(torch.complex64)
     n_in = max(1, int(inside.sum()))
     cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]
-    out = torch.zeros((frames, len(wavelengths_m), H, W), dtype=torch.complex64)
     for c, lam in enumerate(wavelengths_m):
-        amp = np.sqrt(rad[c, channel_of(float(lam))] / n_in) * (B * B) * cone[c] / max(cone)  # [Hh B, Wh B]
-        amp = amp * np.tile(inside, (Hh, Wh))  # directions outside the cone carry nothing
-        ph = phase_bank(frames, (Hh * B, Wh * B), float(lam), p, seed=int(seed), coded_frames=frames if coded else None)
-        spec = torch.polar(torch.from_numpy(amp.astype(np.float32)).expand(frames, -1, -1).contiguous(), ph)
-        # [F, Hh B, Wh B] -> [F, Hh, Wh, B, B] spectra -> hogel fields by the inverse DFT and the ramp
-        spec = spec.reshape(frames, Hh, B, Wh, B).permute(0, 1, 3, 2, 4)
-        hog = torch.fft.ifft2(spec) * ramp2  # batched, B x B: not the 2048^2 case
-        field = hog.permute(0, 1, 3, 2, 4).reshape(frames, Hh * B, Wh * B)
-        out[:, c] = field[:, :H, :W]
-    return out
+        amp = np.sqrt(rad[c, channel_of(float(lam))].astype(np.float64) / n_in) * (B * B) * cone[c] / max(cone)
+        amp = (amp * np.tile(inside, (Hh, Wh))).astype(np.float32)  # directions outside the cone carry nothing
+        field = torch.empty((frames, Hh * B, Wh * B), dtype=torch.complex64)
+        for m, ph in enumerate(phase_frames(frames, (Hh * B, Wh * B), float(lam), p, seed=int(seed),
+                                            coded_frames=frames if coded else None)):
+            spec = torch.polar(torch.from_numpy(amp), torch.from_numpy(ph))
+            # [Hh B, Wh B] -> [Hh, Wh, B, B] spectra -> hogel fields by the inverse DFT and the ramp
+            spec = spec.reshape(Hh, B, Wh, B).permute(0, 2, 1, 3)
+            hog = torch.fft.ifft2(spec) * ramp2  # batched, B x B: not the 2048^2 case
+            field[m] = hog.permute(0, 2, 1, 3).reshape(Hh * B, Wh * B)
+        yield field[:, :H, :W]
 
 
 def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEFAULT_HOGEL_PX, spp: int = 16,
@@ -239,14 +255,19 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     if progress:
         progress("light field", 1, 1)
     t2 = time.perf_counter()
-    rs = stereogram_fields(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m, wavelengths_m=lams,
-                           frames=optics.frames, seed=optics.seed, coded=optics.frame_phases == "coded")
-    wrp = np.empty(tuple(rs.shape), dtype=np.complex64)
+    F = optics.frames
+    wrp = np.empty((F, len(lams), H, W), dtype=np.complex64)
     slm = np.empty_like(wrp)
-    for c, lam in enumerate(lams):
-        wrp[:, c] = asm(rs[:, c].contiguous(), zw - z_rs_m, lam, optics.pitch_m).numpy()
-        slm[:, c] = asm(rs[:, c].contiguous(), -z_rs_m, lam, optics.pitch_m).numpy()
-    del rs
+    step = max(1, min(F, _PROPAGATE_PIXELS // (H * W)))  # frames per ASM call: its padded workspace stays small
+    for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
+                                              wavelengths_m=lams, frames=F, seed=optics.seed,
+                                              coded=optics.frame_phases == "coded")):
+        for a in range(0, F, step):
+            chunk = rs[a:a + step].contiguous()
+            wrp[a:a + step, c] = asm(chunk, zw - z_rs_m, lams[c], optics.pitch_m).numpy()
+            slm[a:a + step, c] = asm(chunk, -z_rs_m, lams[c], optics.pitch_m).numpy()
+        del rs
+    del rad
     timings["propagate_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
     if progress:
