@@ -168,3 +168,21 @@ def test_cli_light_field_writes_a_result_and_rejects_bad_input(lf_result, tmp_pa
                                 "--resolution", "32x32", "--frames", "1", "--spp", "1", *bad])
         assert r.exit_code != 0 and msg in r.output and "Traceback" not in r.output, r.output
         assert not (tmp_path / "x.npz").exists()
+
+
+def test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite():
+    """Never NaN: a scene with nothing lit gives a zero field; a glowing card seen almost edge-on (grazing hogel
+    rays) and the sky behind it give finite radiance and a finite field."""
+    from holocore.baselines.light_field import render_light_field
+    from holocore.display.profiles import PAPER, display_optics
+    from tests.tracer.scenes import T, camera, emitting_plane, scene
+
+    optics = display_optics(PAPER, overrides={"resolution_hw": (24, 32), "frames": 2, "z_inf_mm": 1.0})
+    wall = {"type": "rectangle", "to_world": T().translate([0, 0, -2]).scale(5),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}}
+    res = render_light_field(scene(sensor=camera(fov=0.4), wall=wall), optics, hogel_px=4, spp=2)
+    assert res.slm_field.shape == (2, 3, 24, 32) and np.abs(res.slm_field).max() == 0
+    grazing = emitting_plane(-1.0, size=0.5, rotate_y_deg=89.9)
+    res = render_light_field(scene(sensor=camera(fov=0.4), card=grazing), optics, hogel_px=4, spp=2)
+    assert np.all(np.isfinite(res.slm_field)) and np.all(np.isfinite(res.wrp_field))
+    assert np.abs(res.slm_field).max() > 0  # the card is seen: a thin glowing line
