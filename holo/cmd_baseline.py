@@ -144,11 +144,29 @@ def light_field(
     spp: int = typer.Option(16, "--spp", help="Jittered Mitsuba rays per light-field sample (1..16384)."),
     rs_mm: Optional[float] = typer.Option(None, "--rs-mm", help="Hologram depth of the ray-sampling plane, mm "
                                           "(default: the middle of the image volume)."),
+    fit: str = typer.Option("stereogram", "--fit", help="stereogram: a complex field for `holo encode`; sgd: "
+                            "phase-only frames fitted by Adam to the light field (the paper's LF)."),
+    iterations: int = typer.Option(200, "--iterations", help="--fit sgd: Adam steps (0..100000)."),
+    lr: float = typer.Option(0.05, "--lr", help="--fit sgd: Adam learning rate on the phases (rad)."),
+    time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="--fit sgd: wall time of the whole "
+                                                 "baseline, s; the Adam steps stop early to keep it."),
+    device: str = typer.Option("cpu", "--device", help="--fit sgd: torch device, cpu, cuda or auto."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Light field: a holographic stereogram on a ray-sampling plane (one plane wave per hogel and direction,
-    random phase per frame, radiance from Mitsuba), ASM to the WRP and the SLM."""
+    random phase per frame, radiance from Mitsuba), ASM to the WRP and the SLM; or phase-only frames fitted to
+    that light field (--fit sgd)."""
     profile, optics_cfg = optics.resolve()
+    if fit not in ("stereogram", "sgd"):
+        fail(f"--fit must be stereogram or sgd, got {fit!r}")
+    if not 0 <= iterations <= 100_000:
+        fail(f"--iterations must be in 0..100000, got {iterations}")
+    if not (lr > 0 and lr < 100):
+        fail(f"--lr must be in (0, 100), got {lr}")
+    if time_limit_s is not None and not (time_limit_s > 0 and time_limit_s < 1e7):
+        fail(f"--time-limit-s must be in (0, 1e7) s, got {time_limit_s}")
+    if device not in ("cpu", "cuda", "auto"):
+        fail(f"--device must be cpu, cuda or auto, got {device!r}")
     if not 1 <= hogel_px <= 256:
         fail(f"--hogel-px must be in 1..256, got {hogel_px}")
     if not 1 <= spp <= 16384:
@@ -157,14 +175,21 @@ def light_field(
         fail(f"--rs-mm must be a depth in mm > 0, got {rs_mm}")
     if not scene.exists():
         fail(f"scene not found: {scene}")
+    import torch
+
     from holocore.baselines.light_field import render_light_field
     from holocore.io import save_result
     from holocore.scene.load import load_scene
 
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and not torch.cuda.is_available():
+        fail("--device cuda: no CUDA device here")
     t0 = time.perf_counter()
     try:
         result = render_light_field(load_scene(scene), optics_cfg, hogel_px=hogel_px, spp=spp,
-                                    z_rs_m=None if rs_mm is None else rs_mm * 1e-3, display=profile)
+                                    z_rs_m=None if rs_mm is None else rs_mm * 1e-3, fit=fit, iterations=iterations,
+                                    lr=lr, time_limit_s=time_limit_s, device=device, display=profile)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
@@ -173,5 +198,7 @@ def light_field(
     F, C, H, W = m["shape_fchw"]
     typer.echo(f"light-field baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x "
                f"{H}x{W}, {lf['hogels_hw'][0]}x{lf['hogels_hw'][1]} hogels of {hogel_px} px at "
-               f"{lf['z_rs_m'] * 1e3:.4f} mm, {spp} rays per sample, z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, in "
+               f"{lf['z_rs_m'] * 1e3:.4f} mm, {spp} rays per sample, "
+               + (f"{'/'.join(map(str, lf['iterations_done']))} Adam steps, " if fit == "sgd" else "")
+               + f"z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, in "
                f"{time.perf_counter() - t0:.1f} s -> {out}", err=True)

@@ -88,8 +88,8 @@ ZI = 0.5e-3
 NEAR_M, FAR_M = 1.5, 5.0  # the cards: hologram depths ZI + f^2 / zc = 2.17 and 1.0 mm
 
 
-@pytest.fixture(scope="module")
-def lf_result(tmp_path_factory):
+@pytest.fixture(scope="module", params=["stereogram", "sgd"])
+def lf_result(request, tmp_path_factory):
     from holocore.baselines.light_field import render_light_field
     from holocore.display.profiles import PAPER, display_optics
     from holocore.io import save_result
@@ -100,7 +100,7 @@ def lf_result(tmp_path_factory):
     optics = display_optics(PAPER, overrides={"resolution_hw": (N, N), "wavelengths_nm": [516.5], "frames": 6,
                                               "z_inf_mm": ZI * 1e3})
     res = render_light_field(load_scene(scene), optics, hogel_px=2, spp=8, z_rs_m=ZI + F_M ** 2 / NEAR_M,
-                             display=PAPER)
+                             display=PAPER, fit=request.param, iterations=100, lr=0.1)
     save_result(root / "RESULT.npz", slm_field=res.slm_field, wrp_field=res.wrp_field, meta=res.meta)
     return root, scene, res
 
@@ -134,22 +134,25 @@ def test_parallax_is_right_and_the_card_off_the_rs_plane_never_focuses(lf_result
     def gt(z, ex):
         return truth.channels(focus_z_m=z, pupil_diameter_m=D, view_offset_m=(ex, 0.0))[0]
 
+    # Measured (stereogram / SGD fit): own / other side view near card 14.6 / 6.2 and 10.1 / 5.3 dB, far card
+    # 14.4 / 11.3 and 9.4 / 8.2 dB; the near card 14.1 and 10.4 dB; the far card at its focus against the blurred
+    # / sharp view 14.1 / 11.9 and 9.8 / 8.7 dB. The fit matches every hogel's 2 x 2 direction powers and leaves
+    # what lies inside a hogel free: a noisier image, with the same rays.
+    margin, floor, blur = (2.0, 12.0, 1.0) if m["light_field"]["fit"] == "stereogram" else (1.0, 9.0, 0.5)
     # Parallax, focused on the RS plane: between eyes 2 mm apart the near card moves 8.3 px, the far one 2.5 px.
     # Each side view must match its own ground truth better than the other side's, for both cards (a mirrored
-    # or missing parallax fails; measured own / other: near card 14.6 / 6.2 dB, far card 14.4 / 11.3 dB).
+    # or missing parallax fails).
     near, far = halves(z_near)
     for ex in (-e, e):
         r, own, other = view(z_near, ex), gt(z_near, ex), gt(z_near, -ex)
         for reg in (near, far):
-            assert _psnr(r[reg], own[reg]) > _psnr(r[reg], other[reg]) + 2.0, (ex, reg)
-    # The near card on the RS plane comes back (measured 14.1 dB against its sharp view; a 2-px hogel and 6 frames
-    # of speckle limit it) ...
-    assert _psnr(view(z_near, 0.0)[near], gt(z_near, 0.0)[near]) > 12.0
-    # ... the far card never focuses: at its own depth it still looks as it does out of focus (measured 14.1 dB
-    # against the blurred view, 11.9 against the sharp one)
+            assert _psnr(r[reg], own[reg]) > _psnr(r[reg], other[reg]) + margin, (ex, reg)
+    # The near card on the RS plane comes back (a 2-px hogel and 6 frames of speckle limit it) ...
+    assert _psnr(view(z_near, 0.0)[near], gt(z_near, 0.0)[near]) > floor
+    # ... the far card never focuses: at its own depth it still looks as it does out of focus
     near, far = halves(z_far)
     r = view(z_far, 0.0)
-    assert _psnr(r[far], gt(z_near, 0.0)[far]) > _psnr(r[far], gt(z_far, 0.0)[far]) + 1.0
+    assert _psnr(r[far], gt(z_near, 0.0)[far]) > _psnr(r[far], gt(z_far, 0.0)[far]) + blur
 
 
 def test_cli_light_field_writes_a_result_and_rejects_bad_input(lf_result, tmp_path):
@@ -162,8 +165,12 @@ def test_cli_light_field_writes_a_result_and_rejects_bad_input(lf_result, tmp_pa
                             "--frames", "2", "--spp", "2", "--hogel-px", "4"])
     assert r.exit_code == 0, r.output
     assert out.exists() and "8x8 hogels of 4 px" in r.output
+    r = runner.invoke(app, ["baseline", "light-field", str(scene), "--out", str(out), "--resolution", "24x24",
+                            "--frames", "2", "--spp", "2", "--fit", "sgd", "--iterations", "3"])
+    assert r.exit_code == 0 and "3/3/3 Adam steps" in r.output, r.output
     for bad, msg in ((["--hogel-px", "0"], "--hogel-px"), (["--spp", "0"], "--spp"), (["--rs-mm", "-1"], "--rs-mm"),
-                     (["--rs-mm", "1"], "between optical infinity")):
+                     (["--rs-mm", "1"], "between optical infinity"), (["--fit", "best"], "--fit"),
+                     (["--fit", "sgd", "--lr", "0"], "--lr"), (["--device", "tpu"], "--device")):
         r = runner.invoke(app, ["baseline", "light-field", str(scene), "--out", str(tmp_path / "x.npz"),
                                 "--resolution", "32x32", "--frames", "1", "--spp", "1", *bad])
         assert r.exit_code != 0 and msg in r.output and "Traceback" not in r.output, r.output
@@ -186,3 +193,41 @@ def test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite():
     res = render_light_field(scene(sensor=camera(fov=0.4), card=grazing), optics, hogel_px=4, spp=2)
     assert np.all(np.isfinite(res.slm_field)) and np.all(np.isfinite(res.wrp_field))
     assert np.abs(res.slm_field).max() > 0  # the card is seen: a thin glowing line
+
+
+def test_the_fit_reads_a_stereogram_back_and_fits_phase_only_frames_to_a_light_field():
+    """The SGD fit's light field (holocore.baselines.light_field_fit) is the exact analysis of the stereogram's
+    synthesis: a complex stereogram taken to the SLM and back gives its own hogel powers. Phase-only frames fitted
+    to that light field reach it far closer than random phases do."""
+    import torch
+
+    from holocore.baselines.light_field import hogel_amplitudes, stereogram_fields
+    from holocore.baselines.light_field_fit import light_field_of, optimise_light_field
+    from holocore.optics.propagation import asm
+
+    H, W, B, zr = 36, 48, 3, 0.6e-3
+    rng = np.random.default_rng(4)
+    rad = rng.random((1, 3, H, W)) + 0.2
+    target = hogel_amplitudes(rad, shape_hw=(H, W), hogel_px=B, pitch_m=P, wavelengths_m=[LAM])[0].astype(float) ** 2
+    rs = stereogram_fields(rad, shape_hw=(H, W), hogel_px=B, pitch_m=P, wavelengths_m=[LAM], frames=4, seed=2)[:, 0]
+    # on the RS plane itself (a vanishing distance): exactly its hogel powers, in every frame's average
+    got = light_field_of(rs, hogel_px=B, z_rs_m=1e-12, wavelength_m=LAM, pitch_m=P).numpy()
+    np.testing.assert_allclose(got, target, rtol=1e-4, atol=1e-5 * target.max())
+    # through the SLM 0.6 mm away and back: the same up to the light the SLM's window crops (1 % in amplitude)
+    slm = asm(rs, -zr, LAM, P)
+    got = light_field_of(slm, hogel_px=B, z_rs_m=zr, wavelength_m=LAM, pitch_m=P).numpy()
+    inner = (slice(6, H - 6), slice(6, W - 6))
+    assert np.corrcoef(got[inner].ravel(), target[inner].ravel())[0, 1] > 0.995
+
+    fit = optimise_light_field(target[None], shape_hw=(H, W), hogel_px=B, z_rs_m=zr, wavelengths_m=[LAM], pitch_m=P,
+                               frames=4, iterations=150, lr=0.1, seed=0)
+    assert fit.phase.shape == (4, 1, H, W) and fit.iterations == [150]
+    assert all(np.isfinite(fit.loss)) and fit.loss[-1] < 0.5 * fit.loss[0], fit.loss[::30]
+    u = torch.polar(torch.ones(4, H, W), torch.from_numpy(fit.phase[:, 0]))
+    lf = light_field_of(u, hogel_px=B, z_rs_m=zr, wavelength_m=LAM, pitch_m=P).numpy()
+    lit = target > 0
+    corr_fit = np.corrcoef(np.sqrt(lf[lit]), np.sqrt(target[lit]))[0, 1]
+    u0 = torch.polar(torch.ones(4, H, W), torch.from_numpy(rng.random((4, H, W)).astype(np.float32) * 6.283))
+    lf0 = light_field_of(u0, hogel_px=B, z_rs_m=zr, wavelength_m=LAM, pitch_m=P).numpy()
+    corr_rand = np.corrcoef(np.sqrt(lf0[lit]), np.sqrt(target[lit]))[0, 1]
+    assert corr_fit > corr_rand + 0.3

@@ -39,7 +39,8 @@ from holocore import validate
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
-           "stereogram_fields", "stereogram_colours", "render_light_field"]
+           "hogel_amplitudes", "stereogram_fields", "stereogram_colours",
+           "render_light_field"]
 
 MAX_HOGEL_PX = 256
 MAX_SPP = 1 << 14
@@ -178,32 +179,47 @@ def stereogram_fields(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_
     return out
 
 
+def hogel_amplitudes(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_px: int, pitch_m: float,
+                     wavelengths_m: Sequence[float]) -> np.ndarray:
+    """Each plane wave's amplitude, float32 [C, Hh B, Wh B] on the hogel-major grid: B^2 sqrt(L_c / n) a_c inside the
+    cone, 0 outside (step 3 of the module docstring); L_c the RGB channel that holds the colour's laser line."""
+    from holocore.display.optics import channel_of
+
+    Hh, Wh, B = _hogel_grid(shape_hw, hogel_px)
+    rad = np.asarray(radiance)
+    if rad.shape != (len(wavelengths_m), 3, Hh * B, Wh * B):
+        raise ValueError(f"radiance must be [C, 3, {Hh * B}, {Wh * B}], got {rad.shape}")
+    p = validate.positive("pitch_m", pitch_m)
+    fk = _bin_frequencies(B, p)  # the same bins as hogel_rays
+    inside = (fk[:, None] ** 2 + fk[None, :] ** 2) <= (1.0 / (2.0 * p)) ** 2 * (1.0 + 1e-12)
+    n_in = max(1, int(inside.sum()))
+    cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]
+    out = np.empty((len(wavelengths_m), Hh * B, Wh * B), dtype=np.float32)
+    for c, lam in enumerate(wavelengths_m):
+        amp = np.sqrt(rad[c, channel_of(float(lam))].astype(np.float64) / n_in) * (B * B) * cone[c] / max(cone)
+        out[c] = amp * np.tile(inside, (Hh, Wh))  # directions outside the cone carry nothing
+    return out
+
+
 def stereogram_colours(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_px: int, pitch_m: float,
                        wavelengths_m: Sequence[float], frames: int, seed: int = 0, coded: bool = True):
     """:func:`stereogram_fields` one colour at a time: yields complex64 torch [F, H, W] per wavelength, so that a
     caller holds one colour's frames, not all of them."""
     import torch
 
-    from holocore.display.optics import channel_of
     from holocore.trace.randomfield import phase_frames
 
     Hh, Wh, B = _hogel_grid(shape_hw, hogel_px)
     H, W = (int(s) for s in shape_hw)
-    rad = np.asarray(radiance)
-    if rad.shape != (len(wavelengths_m), 3, Hh * B, Wh * B):
-        raise ValueError(f"radiance must be [C, 3, {Hh * B}, {Wh * B}], got {rad.shape}")
+    amps = hogel_amplitudes(radiance, shape_hw=shape_hw, hogel_px=hogel_px, pitch_m=pitch_m,
+                            wavelengths_m=wavelengths_m)
     frames = validate.integer("frames", frames, 1, 4096)
     p = validate.positive("pitch_m", pitch_m)
-    fk = _bin_frequencies(B, p)  # the same bins as hogel_rays
-    inside = (fk[:, None] ** 2 + fk[None, :] ** 2) <= (1.0 / (2.0 * p)) ** 2 * (1.0 + 1e-12)
     # sum_k S_k exp(2 pi i (k - (B-1)/2) r / B) = B ifft(S)[r] exp(-i pi (B-1) r / B): the DFT and a ramp
     ramp = torch.polar(torch.ones(B), torch.from_numpy(-math.pi * (B - 1) / B * np.arange(B)).float())
     ramp2 = (ramp[:, None] * ramp[None, :]).to(torch.complex64)
-    n_in = max(1, int(inside.sum()))
-    cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]
     for c, lam in enumerate(wavelengths_m):
-        amp = np.sqrt(rad[c, channel_of(float(lam))].astype(np.float64) / n_in) * (B * B) * cone[c] / max(cone)
-        amp = (amp * np.tile(inside, (Hh, Wh))).astype(np.float32)  # directions outside the cone carry nothing
+        amp = amps[c]
         field = torch.empty((frames, Hh * B, Wh * B), dtype=torch.complex64)
         for m, ph in enumerate(phase_frames(frames, (Hh * B, Wh * B), float(lam), p, seed=int(seed),
                                             coded_frames=frames if coded else None)):
@@ -216,13 +232,18 @@ def stereogram_colours(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel
 
 
 def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEFAULT_HOGEL_PX, spp: int = 16,
-                       z_rs_m: Optional[float] = None, progress: Optional[Any] = None,
-                       display: Optional[Any] = None) -> Any:
-    """The light-field (stereogram) baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult`.
+                       z_rs_m: Optional[float] = None, fit: str = "stereogram", iterations: int = 200,
+                       lr: float = 0.05, time_limit_s: Optional[float] = None, device: str = "cpu",
+                       progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
+    """The light-field baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult`.
 
     ``hogel_px`` (1..256) pixels per hogel side, ``spp`` (1..16384) jittered rays per light-field sample,
     ``z_rs_m`` the RS plane's hologram depth (m; default :func:`rs_plane_depth`); frames, colours, pitch, seed
-    and the WRP come from ``optics`` and the renderer's own scene analysis.
+    and the WRP come from ``optics`` and the renderer's own scene analysis. ``fit``: "stereogram" (a complex
+    field, for the phase encoder) or "sgd" (phase-only frames fitted to the light field by
+    :func:`holocore.baselines.light_field_fit.optimise_light_field`: ``iterations`` Adam steps at ``lr`` on
+    ``device``, stopped early to keep the whole baseline within ``time_limit_s``; the SLM field is then
+    sqrt(P_c) exp(i phi), P_c the colour's laser power).
     """
     from holocore.optics.propagation import asm
     from holocore.pipeline import RenderOptions, RenderResult, display_meta_fields, plan_scene, software_versions
@@ -230,6 +251,8 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
 
     hogel_px = validate.integer("hogel_px", hogel_px, 1, MAX_HOGEL_PX)
     spp = validate.integer("spp", spp, 1, MAX_SPP)
+    if fit not in ("stereogram", "sgd"):
+        raise ValueError(f"fit must be 'stereogram' or 'sgd', got {fit!r}")
     H, W = optics.resolution_hw
     if hogel_px > min(H, W):
         raise ValueError(f"hogel_px = {hogel_px} is larger than the SLM ({H}x{W} px)")
@@ -259,15 +282,39 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     wrp = np.empty((F, len(lams), H, W), dtype=np.complex64)
     slm = np.empty_like(wrp)
     step = max(1, min(F, _PROPAGATE_PIXELS // (H * W)))  # frames per ASM call: its padded workspace stays small
-    for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
-                                              wavelengths_m=lams, frames=F, seed=optics.seed,
-                                              coded=optics.frame_phases == "coded")):
-        for a in range(0, F, step):
-            chunk = rs[a:a + step].contiguous()
-            wrp[a:a + step, c] = asm(chunk, zw - z_rs_m, lams[c], optics.pitch_m).numpy()
-            slm[a:a + step, c] = asm(chunk, -z_rs_m, lams[c], optics.pitch_m).numpy()
-        del rs
-    del rad
+    fit_meta: dict[str, Any] = {"fit": fit}
+    if fit == "sgd":
+        import torch
+
+        from holocore.baselines.light_field_fit import optimise_light_field
+
+        target = hogel_amplitudes(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
+                                  wavelengths_m=lams).astype(np.float64) ** 2
+        del rad
+        left = None if time_limit_s is None else max(1e-3, time_limit_s - (time.perf_counter() - t0))
+        res = optimise_light_field(target, shape_hw=(H, W), hogel_px=hogel_px, z_rs_m=z_rs_m, wavelengths_m=lams,
+                                   pitch_m=optics.pitch_m, frames=F, iterations=iterations, lr=lr, seed=optics.seed,
+                                   device=device, time_limit_s=left)
+        power = res.illumination
+        for c, lam in enumerate(lams):
+            for a in range(0, F, step):
+                u = torch.polar(torch.full(res.phase[a:a + step, c].shape, math.sqrt(power[c])),
+                                torch.from_numpy(res.phase[a:a + step, c]))
+                slm[a:a + step, c] = u.numpy()
+                wrp[a:a + step, c] = asm(u, zw, lam, optics.pitch_m).numpy()
+        fit_meta.update(iterations_done=list(res.iterations), loss_first=res.loss[0], loss_final=res.loss[-1],
+                        illumination=[float(v) for v in power])
+        timings["fit_s"] = res.seconds
+    else:
+        for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
+                                                  wavelengths_m=lams, frames=F, seed=optics.seed,
+                                                  coded=optics.frame_phases == "coded")):
+            for a in range(0, F, step):
+                chunk = rs[a:a + step].contiguous()
+                wrp[a:a + step, c] = asm(chunk, zw - z_rs_m, lams[c], optics.pitch_m).numpy()
+                slm[a:a + step, c] = asm(chunk, -z_rs_m, lams[c], optics.pitch_m).numpy()
+            del rs
+        del rad
     timings["propagate_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
     if progress:
@@ -282,10 +329,12 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
         "analysis": json.loads(ana.model_dump_json()),
         "light_field": {"hogel_px": hogel_px, "spp": spp, "z_rs_m": float(z_rs_m),
                         "hogels_hw": [-(-H // hogel_px), -(-W // hogel_px)],
-                        "hogel_size_um": hogel_px * optics.pitch_m * 1e6},
-        "plan": {"summary": [f"light-field baseline: stereogram of {hogel_px}x{hogel_px}-px hogels on a ray-sampling "
-                             f"plane at {z_rs_m * 1e3:.4f} mm, {spp} rays per sample, random phase per frame, ASM "
-                             "RS plane -> WRP / SLM", pl.field_of_view["summary"]]},
+                        "hogel_size_um": hogel_px * optics.pitch_m * 1e6, **fit_meta},
+        "plan": {"summary": [f"light-field baseline: {hogel_px}x{hogel_px}-px hogels on a ray-sampling plane at "
+                             f"{z_rs_m * 1e3:.4f} mm, {spp} rays per sample, "
+                             + ("stereogram with random phase per frame, ASM RS plane -> WRP / SLM"
+                                if fit == "stereogram" else "phase-only frames fitted by SGD to the light field"),
+                             pl.field_of_view["summary"]]},
         "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
         "stats": {}, "timings": timings, "versions": software_versions(variant()),
     }
