@@ -20,6 +20,29 @@ def register(app: typer.Typer) -> None:
     app.add_typer(baseline_app, name="baseline")
 
 
+def _check_adam(iterations: int, lr: float, time_limit_s: Optional[float], device: str) -> None:
+    """One-line errors for the options of an Adam fit (the focal stack's, the light field's)."""
+    if not 0 <= iterations <= 100_000:
+        fail(f"--iterations must be in 0..100000, got {iterations}")
+    if time_limit_s is not None and not (time_limit_s > 0 and time_limit_s < 1e7):
+        fail(f"--time-limit-s must be in (0, 1e7) s, got {time_limit_s}")
+    if not (lr > 0 and lr < 100):
+        fail(f"--lr must be in (0, 100), got {lr}")
+    if device not in ("cpu", "cuda", "auto"):
+        fail(f"--device must be cpu, cuda or auto, got {device!r}")
+
+
+def _torch_device(device: str) -> str:
+    """cpu, cuda or auto (cuda where there is one) -> the torch device to use; cuda without one is an error."""
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        fail("--device cuda: no CUDA device here")
+    return device
+
+
 @baseline_app.command("layers")
 @with_optics_options
 def layers(
@@ -87,28 +110,16 @@ def focal_stack(
         fail(f"--spacing-mm must be in [0, 1000) mm, got {spacing_mm}")
     if pupil_mm is not None and not (0 < pupil_mm <= 1000):
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
-    if not 0 <= iterations <= 100_000:
-        fail(f"--iterations must be in 0..100000, got {iterations}")
-    if time_limit_s is not None and not (time_limit_s > 0 and time_limit_s < 1e7):
-        fail(f"--time-limit-s must be in (0, 1e7) s, got {time_limit_s}")
-    if not (lr > 0 and lr < 100):
-        fail(f"--lr must be in (0, 100), got {lr}")
+    _check_adam(iterations, lr, time_limit_s, device)
     if not 1 <= gt_spp <= 65536:
         fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
-    if device not in ("cpu", "cuda", "auto"):
-        fail(f"--device must be cpu, cuda or auto, got {device!r}")
     if not scene.exists():
         fail(f"scene not found: {scene}")
-    import torch
-
     from holocore.baselines.focal_stack import render_focal_stack, stack_of
     from holocore.io import save_result, save_stack
     from holocore.scene.load import load_scene
 
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    elif device == "cuda" and not torch.cuda.is_available():
-        fail("--device cuda: no CUDA device here")
+    device = _torch_device(device)
     t0 = time.perf_counter()
     try:
         result = render_focal_stack(load_scene(scene), optics_cfg, planes=planes,
@@ -159,14 +170,7 @@ def light_field(
     profile, optics_cfg = optics.resolve()
     if fit not in ("stereogram", "sgd"):
         fail(f"--fit must be stereogram or sgd, got {fit!r}")
-    if not 0 <= iterations <= 100_000:
-        fail(f"--iterations must be in 0..100000, got {iterations}")
-    if not (lr > 0 and lr < 100):
-        fail(f"--lr must be in (0, 100), got {lr}")
-    if time_limit_s is not None and not (time_limit_s > 0 and time_limit_s < 1e7):
-        fail(f"--time-limit-s must be in (0, 1e7) s, got {time_limit_s}")
-    if device not in ("cpu", "cuda", "auto"):
-        fail(f"--device must be cpu, cuda or auto, got {device!r}")
+    _check_adam(iterations, lr, time_limit_s, device)
     if not 1 <= hogel_px <= 256:
         fail(f"--hogel-px must be in 1..256, got {hogel_px}")
     if not 1 <= spp <= 16384:
@@ -175,16 +179,11 @@ def light_field(
         fail(f"--rs-mm must be a depth in mm > 0, got {rs_mm}")
     if not scene.exists():
         fail(f"scene not found: {scene}")
-    import torch
-
     from holocore.baselines.light_field import render_light_field
     from holocore.io import save_result
     from holocore.scene.load import load_scene
 
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    elif device == "cuda" and not torch.cuda.is_available():
-        fail("--device cuda: no CUDA device here")
+    device = _torch_device(device)
     t0 = time.perf_counter()
     try:
         result = render_light_field(load_scene(scene), optics_cfg, hogel_px=hogel_px, spp=spp,

@@ -34,6 +34,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from holocore import validate
+from holocore.baselines.adam_budget import MAX_ITERATIONS, AdamOptions, StepBudget
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "stack_plane_depths",
@@ -42,7 +43,6 @@ __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS"
 DEFAULT_PLANES = 5
 DEFAULT_SPACING_M = 1.25e-3  # the paper's 5 planes at 1.25 mm spacing within 80-85 mm
 MAX_PLANES = 64
-MAX_ITERATIONS = 100_000
 _EPS = 1e-10  # inside sqrt(I): a finite gradient where no light arrives
 
 
@@ -134,23 +134,18 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     p = validate.positive("pitch_m", pitch_m, unit="")
     f = validate.positive("focal_length_m", focal_length_m, unit="")
     D = validate.positive("pupil_diameter_m", pupil_diameter_m, unit="")
-    frames = validate.integer("frames", frames, 1, 4096)
-    iterations = validate.integer("iterations", iterations, 0, MAX_ITERATIONS)
-    lr = validate.positive("lr", lr, unit="")
-    if time_limit_s is not None:
-        time_limit_s = validate.positive("time_limit_s", time_limit_s, unit="s")
+    opts = AdamOptions.check(frames=frames, iterations=iterations, lr=lr, time_limit_s=time_limit_s)
+    frames, iterations, lr = opts.frames, opts.iterations, opts.lr
     dev = torch.device(device)
     hp, wp = padded_shape((H, W))
-    t0 = time.perf_counter()
+    budget = StepBudget(opts.time_limit_s, colours=C)
     gen = torch.Generator(device="cpu").manual_seed(int(seed) % (2**63))
     phase_out = np.zeros((frames, C, H, W), dtype=np.float32)
     scales = np.zeros(C, dtype=np.float64)
     loss_total = np.zeros(iterations + 1, dtype=np.float64)
     steps = [0] * C
     for c, lam in enumerate(lams):
-        # this colour's deadline: an equal share of the time left (None: no limit)
-        deadline = None if time_limit_s is None else \
-            time.perf_counter() + (t0 + time_limit_s - time.perf_counter()) / (C - c)
+        budget.start_colour(c)  # an equal share of the time left
         amp = torch.from_numpy(np.sqrt(T[:, c])).to(dev, torch.float32)  # [K, H, W]
         energy = float(amp.square().sum()) or 1.0
         mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, device=dev).to(torch.float32)
@@ -173,14 +168,12 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
             num = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
             den = sum(float(rk.square().sum()) for rk in r)
         s = num / den if den > 0 else 1.0
-        t_c = time.perf_counter()
+        budget.begin_steps()
         for it in range(iterations + 1):
             opt.zero_grad(set_to_none=True)
             num = den = loss_sum = 0.0
-            now = time.perf_counter()
             # the final loss only, no step: at the last iteration, or when one more step would pass the deadline
-            last = it == iterations or (deadline is not None and it > 0
-                                        and now + (now - t_c) / it > deadline)
+            last = budget.last(it, iterations)
             with torch.set_grad_enabled(not last):
                 sp = spectrum()
             for k in range(K):  # one plane's graph at a time (the shared spectrum kept); gradients add up
@@ -207,7 +200,7 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
         scales[c] = s
     loss_total = loss_total[:max(steps) + 1]
     return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - t0, iterations=steps)
+                         seconds=time.perf_counter() - budget.t0, iterations=steps)
 
 
 def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAULT_PLANES,

@@ -27,14 +27,14 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from holocore import validate
+from holocore.baselines.adam_budget import AdamOptions, StepBudget
 from holocore.baselines.focal_stack import FocalStackFit
 
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["MAX_ITERATIONS", "light_field_of", "optimise_light_field"]
+__all__ = ["light_field_of", "optimise_light_field"]
 
-MAX_ITERATIONS = 100_000
 _EPS = 1e-10  # inside sqrt(P): a finite gradient where no light arrives
 
 
@@ -89,23 +89,19 @@ def optimise_light_field(targets: np.ndarray, *, shape_hw: tuple[int, int], hoge
         raise ValueError("targets must be finite powers >= 0")
     p = validate.positive("pitch_m", pitch_m, unit="")
     z_rs = validate.positive("z_rs_m", z_rs_m, unit="")
-    frames = validate.integer("frames", frames, 1, 4096)
-    iterations = validate.integer("iterations", iterations, 0, MAX_ITERATIONS)
-    lr = validate.positive("lr", lr, unit="")
-    if time_limit_s is not None:
-        time_limit_s = validate.positive("time_limit_s", time_limit_s, unit="s")
+    opts = AdamOptions.check(frames=frames, iterations=iterations, lr=lr, time_limit_s=time_limit_s)
+    frames, iterations, lr = opts.frames, opts.iterations, opts.lr
     dev = torch.device(device)
     hp, wp = padded_shape((H, W))
     C = len(lams)
-    t0 = time.perf_counter()
+    budget = StepBudget(opts.time_limit_s, colours=C)
     gen = torch.Generator(device="cpu").manual_seed(int(seed) % (2**63))
     phase_out = np.zeros((frames, C, H, W), dtype=np.float32)
     scales = np.zeros(C, dtype=np.float64)
     loss_total = np.zeros(iterations + 1, dtype=np.float64)
     steps = [0] * C
     for c, lam in enumerate(lams):
-        deadline = None if time_limit_s is None else \
-            time.perf_counter() + (t0 + time_limit_s - time.perf_counter()) / (C - c)
+        budget.start_colour(c)  # an equal share of the time left
         amp = torch.from_numpy(np.sqrt(T[c])).to(dev, torch.float32)  # [Hh B, Wh B]
         lit = amp > 0
         n = max(1, int(lit.sum()))
@@ -123,11 +119,10 @@ def optimise_light_field(targets: np.ndarray, *, shape_hw: tuple[int, int], hoge
             r = torch.sqrt(light_field() + _EPS)
             den = float(r[lit].square().sum())
             s = float((r[lit] * amp[lit]).sum()) / den if den > 0 else 1.0
-        t_c = time.perf_counter()
+        budget.begin_steps()
         for it in range(iterations + 1):
             opt.zero_grad(set_to_none=True)
-            now = time.perf_counter()
-            last = it == iterations or (deadline is not None and it > 0 and now + (now - t_c) / it > deadline)
+            last = budget.last(it, iterations)  # the final loss only, no step after it
             with torch.set_grad_enabled(not last):
                 r = torch.sqrt(light_field() + _EPS)
                 loss = (s * r[lit] - amp[lit]).square().sum() / n
@@ -146,4 +141,4 @@ def optimise_light_field(targets: np.ndarray, *, shape_hw: tuple[int, int], hoge
         scales[c] = s
     loss_total = loss_total[:max(steps) + 1]
     return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - t0, iterations=steps)
+                         seconds=time.perf_counter() - budget.t0, iterations=steps)
