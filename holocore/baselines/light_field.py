@@ -73,6 +73,12 @@ def _bin_frequencies(B: int, p: float) -> np.ndarray:
     return (np.arange(B) - 0.5 * (B - 1)) / (B * p)
 
 
+def _cone_mask(B: int, p: float) -> np.ndarray:
+    """[B, B] bool: the hogel's frequencies inside the cone |f| <= 1 / 2p (the renderer's passband)."""
+    fk = _bin_frequencies(B, p)
+    return (fk[:, None] ** 2 + fk[None, :] ** 2) <= (1.0 / (2.0 * p)) ** 2 * (1.0 + 1e-12)
+
+
 def _hogel_grid(shape_hw: tuple[int, int], hogel_px: int) -> tuple[int, int, int]:
     H, W = (int(s) for s in shape_hw)
     B = validate.integer("hogel_px", hogel_px, 1, MAX_HOGEL_PX)
@@ -109,7 +115,7 @@ def hogel_rays(shape_hw: tuple[int, int], *, hogel_px: int, pitch_m: float, wave
     fx = _bin_frequencies(B, p)[v]
     Y0, X0 = np.meshgrid(y0, x0, indexing="ij")
     FY, FX = np.meshgrid(fy, fx, indexing="ij")
-    inside = (FX * FX + FY * FY) <= (1.0 / (2.0 * p)) ** 2 * (1.0 + 1e-12)
+    inside = np.tile(_cone_mask(B, p), (Hh, Wh))
     if rng is not None:
         Y0 = Y0 + (rng.random(Y0.shape) - 0.5) * B * p
         X0 = X0 + (rng.random(X0.shape) - 0.5) * B * p
@@ -143,22 +149,22 @@ def trace_light_field(scene: Any, hmap: Any, shape_hw: tuple[int, int], *, hogel
         integrator = scene.integrator() or mi.load_dict({"type": "path", "max_depth": DEFAULT_MAX_DEPTH})
     out = np.zeros((len(wavelengths_m), 3, Hh * B, Wh * B), dtype=np.float64)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1F7D]))
+    sampler = mi.load_dict({"type": "independent"})
     for c, lam in enumerate(wavelengths_m):
         acc = None
         for s in range(spp):
-            o, d, inside = hogel_rays(shape_hw, hogel_px=B, pitch_m=pitch_m, wavelength_m=float(lam),
+            o, d, _ = hogel_rays(shape_hw, hogel_px=B, pitch_m=pitch_m, wavelength_m=float(lam),
                                       focal_length_m=hmap.focal_length_m, z_inf_m=hmap.z_inf_m, z_rs_m=z_rs_m,
                                       rng=rng)
             ow, dw = hmap.camera_to_world(o), hmap.camera_dir_to_world(d)
             ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(ow[:, i])) for i in range(3)]),
                            mi.Vector3f(*[mi.Float(aligned(dw[:, i])) for i in range(3)]))
-            sampler = mi.load_dict({"type": "independent"})
             sampler.seed(int(seed) * 7919 + c * spp + s, len(o))
             spec, valid, _ = integrator.sample(scene, sampler, mi.RayDifferential3f(ray), None, True)
             L = dr.select(valid, spec, 0.0)
             dr.eval(L)
             rgb = np.stack([np.asarray(L[i], dtype=np.float64) for i in range(3)], axis=0)
-            rgb = np.where(np.isfinite(rgb), rgb, 0.0).clip(min=0.0) * inside[None]
+            rgb = np.where(np.isfinite(rgb), rgb, 0.0).clip(min=0.0)  # outside the cone: hogel_amplitudes
             acc = rgb if acc is None else acc + rgb
         out[c] = (acc / spp).reshape(3, Hh * B, Wh * B)
     return out.astype(np.float32)
@@ -190,8 +196,7 @@ def hogel_amplitudes(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_p
     if rad.shape != (len(wavelengths_m), 3, Hh * B, Wh * B):
         raise ValueError(f"radiance must be [C, 3, {Hh * B}, {Wh * B}], got {rad.shape}")
     p = validate.positive("pitch_m", pitch_m)
-    fk = _bin_frequencies(B, p)  # the same bins as hogel_rays
-    inside = (fk[:, None] ** 2 + fk[None, :] ** 2) <= (1.0 / (2.0 * p)) ** 2 * (1.0 + 1e-12)
+    inside = _cone_mask(B, p)  # the same bins as hogel_rays
     n_in = max(1, int(inside.sum()))
     cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]
     out = np.empty((len(wavelengths_m), Hh * B, Wh * B), dtype=np.float32)
