@@ -136,7 +136,8 @@ class Runner:
     def optics(self, frames: int):
         from holocore.display.profiles import PAPER
 
-        return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm)
+        return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm,
+                            frame_phases=self.args.frame_phases)
 
     def load(self, scene: str):
         from holocore.scene.load import load_scene
@@ -151,7 +152,8 @@ class Runner:
         from holocore.encode.encoder import encode_sgd
         from holocore.pipeline import RenderOptions, render_loaded
 
-        small = PAPER.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm)
+        small = PAPER.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm,
+                             frame_phases=self.args.frame_phases)
         for key in methods:
             method, preset = key.split("/")
             r = render_loaded(loaded, small, RenderOptions(preset=preset, method=method, spp=4))
@@ -267,6 +269,7 @@ class Runner:
         loaded = self.load(scene)
         self.warm(loaded, methods=("wrp/balanced", "wrp/fast"))
         out: dict[str, Any] = {"scene": scene, "budget_s": B, "frames": F, "shape_hw": [self.H, self.W],
+                               "frame_phases": a.frame_phases,
                                "z_inf_mm": a.z_inf_mm, "enc_iterations": a.enc_iterations, "methods": {}}
         fields: dict[str, np.ndarray] = {}
         # layers + encoder (this also measures the encoder's time at this size, the same for every WRP field)
@@ -619,6 +622,14 @@ def _how_ours_fills(eq: dict) -> str:
             "twice at most: `probe.runs_spp_s` in the JSON)")
 
 
+_PHASE_WORDS = {
+    "directional": "directional frames: frame m lights every image point with a plane wave towards one of 24 eye "
+                   "positions, holocore.trace.beams",
+    "coded": "coded random frame phases, holocore.trace.randomfield",
+    "independent": "independent random frame phases (the paper's Eq. 4), holocore.trace.randomfield",
+}
+
+
 def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
     eqs, convs, rts = _load_json(out, "equal"), _load_json(out, "conv"), _load_json(out, "runtime")
     L = ["# The paper's figures, regenerated (Figs. 5, 6, 7 and an equal-time table)", "",
@@ -634,7 +645,8 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
                      "iterations")
         L += ["## Setup", "",
               f"Paper display (holocore.display.profiles.PAPER): pitch 8 µm, f = 50 mm, 640.0 / 516.5 / 455.4 nm, 24 frames "
-              f"(coded frame phases, the default: holocore.trace.randomfield; the layers use the same bank), "
+              f"({_PHASE_WORDS[first.get('frame_phases', 'coded')]}; the layers use the same frames, the light "
+              "field coded ones), "
               f"Fourier filter (the encoder supervises the recording cone). Reduced here to a **{H}x{W}** part of the "
               f"SLM (the paper's 1080x1920): the paper scenes' cues sit in the middle of the view, and at {H}x{W} the "
               f"view (±{math.degrees(math.atan(W * 8e-6 / 2 / 0.05)):.2f}° x ±{math.degrees(math.atan(H * 8e-6 / 2 / 0.05)):.2f}°) "
@@ -793,6 +805,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
     ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
     ap.add_argument("--view-deg", type=float, default=0.5)
+    ap.add_argument("--frame-phases", choices=("directional", "coded", "independent"), default="directional",
+                    help="Phases of the frames of ours, fast and the layers (OpticsConfig.frame_phases).")
     ap.add_argument("--wrp-planes", type=lambda v: v if v == "auto" else int(v), default="auto",
                     help="Recording planes of ours and fast: 1..8 or auto (default).")
     ap.add_argument("--out", type=Path, default=RESULTS)

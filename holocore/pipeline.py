@@ -30,6 +30,7 @@ from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
 from holocore.sinks import FileSink, MemorySink
+from holocore.trace.beams import BeamDepthTerms
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
@@ -131,19 +132,39 @@ def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: in
     frame (no [F, H, W] temporaries)."""
     import torch
 
+    from holocore.trace.beams import beam_gain, beam_phase_frames
     from holocore.trace.randomfield import phase_frames
 
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
     lams = list(optics.wavelengths_m if wavelengths_m is None else wavelengths_m)
     C = len(lams)
+    beams = optics.frame_phases == "directional"
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
     for c, lam in enumerate(lams):
-        for m, phi in enumerate(phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed,
-                                             first_frame=first_frame, coded_frames=coded_frames(optics))):
+        if beams:  # Eq. B1's lateral part, each colour's amplitude scaled to the same share in a pupil
+            gain = beam_gain(lam, optics.pitch_m, optics.wavelengths_m)
+            maps = beam_phase_frames(F, shape_hw, lam, optics.pitch_m, wavelengths_m=optics.wavelengths_m,
+                                     first_frame=first_frame, bank_frames=optics.frames)
+        else:
+            gain = 1.0
+            maps = phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, first_frame=first_frame,
+                                coded_frames=coded_frames(optics))
+        for m, phi in enumerate(maps):
             ph = torch.from_numpy(phi).to(device)
-            cells[:, :, c, m] = torch.polar(torch.ones_like(ph), ph).to(torch.complex64)
+            cells[:, :, c, m] = torch.polar(torch.full_like(ph, gain), ph).to(torch.complex64)
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
+
+
+def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int, wavelengths_m,
+                      z_ref_m: float) -> Optional[BeamDepthTerms]:
+    """The depth part of directional frames (Eq. B1) for frames first_frame.. of colours ``wavelengths_m``; None
+    for random phases."""
+    if optics.frame_phases != "directional":
+        return None
+    return BeamDepthTerms.make(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
+                               wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
+                               pitch_m=optics.pitch_m, z_ref_m=z_ref_m)
 
 
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
@@ -216,7 +237,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
         equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
-                                      noise_aware=options.equalise_noise)
+                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional")
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
@@ -249,11 +270,13 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         t1 = time.perf_counter()
         banks = frame_banks(optics, (H, W), dev, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
             if plan.random_phase else None
+        depth_terms = frame_depth_terms(optics, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit,
+                                        z_ref_m=z_wrp) if plan.random_phase else None
         timings["bank_s"] += time.perf_counter() - t1
         t3 = time.perf_counter()
         n_f = (f1 - f0) if banks else F
 
-        def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi):
+        def trace_plane(spec, on_plane_rows, _banks=banks, _pi=pi, _depth=depth_terms):
             def run(spp, seed, rows, tick=None):
                 def tile_progress(stage, done, total):
                     if tick is not None:
@@ -267,7 +290,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                             integrator=integrator, seed=seed, radiance_cache=cache, bank_phasors=_banks,
                             progress=tile_progress, stats=stats if _pi == 0 else TraceStats(), device=dev,
                             on_tile=None if spec else (lambda r0, r1, block: rows(0, r0, block)),
-                            on_plane_rows=rows if spec else None)
+                            on_plane_rows=rows if spec else None, depth_terms=_depth)
 
             if schedule is None:
                 run(plan.spp, ray_seed, on_plane_rows)
@@ -279,7 +302,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
                      timings=timings, equalisers=equalisers)
         # the closure's default argument holds the pass's phase bank too (F x C complex64 frames: 1.2 GB at
         # 1080x1920 x 3 x 24): both go before the propagation, which the chunk planner sized without it
-        del banks, trace_plane
+        del banks, depth_terms, trace_plane
         timings["trace_s"] += time.perf_counter() - t3
         if not plan.random_phase:
             break  # one pass wrote every frame

@@ -89,18 +89,21 @@ def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
 def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_inf_m: float, z_wrp_m: float,
                  pitch_m: float, wavelengths_m: Sequence[float], frames: int, planes: int = 8,
                  seed: int = 0, z_range_m: Optional[tuple[float, float]] = None, coded: bool = True,
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 directional: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(SLM field, WRP field) complex64 [F, C, H, W], plane depths (m) and pixels per plane, from RGB-D.
 
     ``rgb`` [3, H, W] linear radiance, ``zc`` [H, W] eye-camera depth (m; <= 0 or non-finite: nothing hit,
     put on the farthest plane). ``z_range_m`` (far, near): hologram depths outside it (pixels that mix a
     surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``coded``: the
     frames' random phases are coded (:func:`holocore.trace.randomfield.phase_bank`), as the renderer's by default.
+    ``directional``: the renderer's directional frames instead (:mod:`holocore.trace.beams`, Eq. B1: the bank's
+    lateral part, and per plane its depth part, one phase per frame).
     """
     import torch
 
     from holocore.display.optics import channel_of
     from holocore.optics.propagation import asm
+    from holocore.trace.beams import BeamDepthTerms, beam_gain, beam_phase_frames
     from holocore.trace.randomfield import phase_bank
 
     img = np.asarray(rgb, dtype=np.float64)
@@ -133,14 +136,28 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]  # s_c, the sine of theta_max
     for c, lam in enumerate(wavelengths_m):
         amp = torch.from_numpy((np.sqrt(img[channel_of(float(lam))]) * cone[c] / max(cone)).astype(np.float32))
-        ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed),
-                        coded_frames=frames if coded else None)
+        depth_terms = None
+        if directional:
+            amp = amp * beam_gain(float(lam), p, wavelengths_m)
+            ph = torch.from_numpy(np.stack(list(beam_phase_frames(frames, (H, W), float(lam), p,
+                                                                  wavelengths_m=wavelengths_m))))
+            depth_terms = BeamDepthTerms.make(frames=frames, first_frame=0, bank_frames=frames, wavelengths_m=[lam],
+                                              all_wavelengths_m=wavelengths_m, pitch_m=p, z_ref_m=zw)
+        else:
+            ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed), coded_frames=frames if coded else None)
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
         for i, z in enumerate(zs):
             if counts[i] == 0:
                 continue
             mask = torch.from_numpy(k == i)
-            wrp[:, c] += asm(base * mask, zw - float(z), float(lam), p)
+            plane = base * mask
+            if depth_terms is not None:  # Eq. B1's depth part: exp(i k w_m (z - z_wrp)) for each frame m
+                dz = torch.tensor([float(z) - zw], dtype=torch.float64)
+                ring = depth_terms.ring_phasors(dz)[0, 0]  # [rings]
+                common = complex(np.exp(1j * depth_terms.ks[0] * (float(z) - zw)))
+                per_frame = ring[list(depth_terms.frame_ring)] * common
+                plane = plane * per_frame[:, None, None]
+            wrp[:, c] += asm(plane, zw - float(z), float(lam), p)
         slm[:, c] = asm(wrp[:, c].contiguous(), -zw, float(lam), p)
     return slm.numpy(), wrp.numpy(), zs, counts
 
@@ -180,6 +197,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
                                         z_wrp_m=ana.z_wrp_m, pitch_m=optics.pitch_m,
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
                                         seed=optics.seed, coded=optics.frame_phases == "coded",
+                                        directional=optics.frame_phases == "directional",
                                         z_range_m=None if ana.z_far_holo_m is None else (ana.z_far_holo_m,
                                                                                           ana.z_near_holo_m))
     timings["propagate_s"] = time.perf_counter() - t2

@@ -27,6 +27,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 import torch
 
+from holocore.trace.beams import BeamDepthTerms
 from holocore.trace.mapping import HologramMap
 from holocore.trace.tile import TileGeometry, trace_tile
 
@@ -96,9 +97,10 @@ def combined_cells(banks: Sequence[torch.Tensor]) -> torch.Tensor:
 _CHUNK_RAYS = 1 << 12  # rays per gather: the [rays, C, F] block stays in cache
 
 
-def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tensor, n: int) -> torch.Tensor:
+def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tensor, n: int,
+                       depth: Optional[BeamDepthTerms] = None, dz: Optional[torch.Tensor] = None) -> torch.Tensor:
     """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all colors and frames m at once; complex64
-    [P, C, F].
+    [P, C, F]. ``depth``: directional frames' per-frame depth factor of each ray (its ``dz``), Eq. B1.
 
     ``cells``: [H*W, C, F] (see :func:`combined_cells`), ``idx``: bank cell of each ray, ``base``: complex64
     [P*n, C] (pixel-major). Per chunk of pixels: gather the rays' rows [p, n, C, F], scale them by base and sum
@@ -108,10 +110,15 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     out = torch.empty((P, C, F), dtype=torch.complex64, device=cells.device)
     step = max(1, _CHUNK_RAYS // n)
     b = base.view(P, n, C, 1)
+    scaled = None if depth is None else depth.scaled_base(base, dz)  # [P*n, C, rings]
     for p0 in range(0, P, step):
         p1 = min(P, p0 + step)
-        rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, C, F)
-        torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
+        if depth is None:
+            rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, C, F)
+            torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
+        else:
+            rows = depth.apply(cells.index_select(0, idx[p0 * n:p1 * n]), scaled[p0 * n:p1 * n])
+            torch.sum(rows.view(p1 - p0, n, C, F), dim=1, out=out[p0:p1])
     return out
 
 
@@ -162,6 +169,7 @@ def trace_field(
     device: Optional[torch.device] = None,
     on_tile: Optional[Callable[[int, int, torch.Tensor], None]] = None,
     on_plane_rows: Optional[Callable[[int, int, torch.Tensor], None]] = None,
+    depth_terms: Optional[BeamDepthTerms] = None,
 ) -> Optional[np.ndarray]:
     """Complex field on the plane ``grid.plane_z_m``, complex64 [F, C, H, W] (:class:`RecordingGrid`).
 
@@ -175,6 +183,8 @@ def trace_field(
     outputs reach torch through DLPack without leaving the GPU. ``on_tile(r0, r1, block)``: receives each tile's
     rows r0..r1 of the field as a complex64 tensor [F, C, r1 - r0, W] on ``device`` (valid during the call)
     instead of one [F, C, H, W] array being filled and returned (the caller streams them; returns None).
+    ``depth_terms``: directional frames (:mod:`holocore.trace.beams`): the banks hold Eq. B1's lateral part, these
+    its depth part (with ``bank_phasors`` only).
     """
     H, W = grid.shape_hw
     C = len(grid.wavelengths_m)
@@ -196,6 +206,8 @@ def trace_field(
         dev = bank_phasors[0].device if bank_phasors is not None else torch.device("cpu")
     out = None if on_tile is not None else torch.zeros((frames, C, H, W), dtype=torch.complex64, device=dev)
     cells = None if bank_phasors is None else combined_cells(bank_phasors)
+    if depth_terms is not None and (cells is None or len(depth_terms.ks) != C):
+        raise ValueError("depth_terms need bank_phasors and one wavenumber per wavelength")
     if cells is not None and cells.device != dev:
         raise ValueError(f"bank_phasors are on {cells.device}, the trace runs on {dev}")
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
@@ -203,19 +215,20 @@ def trace_field(
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
         tile = trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
-                           seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev)
+                           seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev,
+                           want_dz=depth_terms is not None)
         _park_drjit_workers()
         t1 = time.perf_counter()
         block = None
         if bands is not None:  # several planes: every ray's contribution into its plane's rows
-            bands.deposit(tile, cells)
+            bands.deposit(tile, cells, depth_terms)
             for k, a, blk in bands.flush(r1 if ti + 1 < len(tiles) else None):
                 on_plane_rows(k, a, blk.expand(frames, *blk.shape[1:]))
         elif cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
             block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
         else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
             base = torch.stack([tile[c] for c in range(C)], dim=1)
-            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp)  # [P, C, F]
+            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp, depth_terms, tile.get("dz"))  # [P, C, F]
             block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
         if block is not None and on_tile is not None:
             on_tile(r0, r1, block)
@@ -239,15 +252,17 @@ class _PlaneBands:
         self.table = torch.zeros((g.ring_total, C, F), dtype=torch.complex64, device=dev)
         self.flushed = [0] * len(g.planes)
 
-    def deposit(self, tile: dict, cells) -> None:
+    def deposit(self, tile: dict, cells, depth: Optional[BeamDepthTerms] = None) -> None:
         base = torch.stack([tile[c] for c in range(self.C)], dim=1)  # [R, C] per ray
         pos = tile["pos"]
+        scaled = None if depth is None else depth.scaled_base(base, tile["dz"])  # [R, C, rings]
         for a in range(0, base.shape[0], _CHUNK_RAYS):
             b = min(base.shape[0], a + _CHUNK_RAYS)
             if cells is None:
                 add = base[a:b, :, None]
             else:
-                add = cells.index_select(0, tile["idx"][a:b]) * base[a:b, :, None]
+                add = cells.index_select(0, tile["idx"][a:b])
+                add = add * base[a:b, :, None] if depth is None else depth.apply(add, scaled[a:b])
             self.table.index_add_(0, pos[a:b], add)
 
     def flush(self, upto: Optional[int]):

@@ -164,10 +164,12 @@ def _to_torch(x, dev: torch.device) -> torch.Tensor:
 
 
 def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
-                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device) -> dict:
+                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False) -> dict:
     """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
     ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
-    major) and, with ``want_cells``, the bank cell of every ray's image point ("idx")."""
+    major) and, with ``want_cells``, the bank cell of every ray's image point ("idx"). ``want_dz`` (directional
+    frames, :mod:`holocore.trace.beams`): each ray's phase also holds k (Q_z - z_wrp), the depth part of Eq. B1
+    common to all frames, and "dz" returns Q_z - z_wrp (m, float32) for the part that differs between frames."""
     mi = mitsuba()
     import drjit as dr
 
@@ -269,6 +271,8 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         inside = cos_t >= o.cos_lim[c] - 1e-15
         amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
         kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r_ph
+        if want_dz:  # Eq. B1's k (Q_z - z_ref) with the depth the phase uses (on the grid: the two agree there)
+            kr = kr + o.ks[c] * (q_ph.z - o.z_wrp)
         phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
         sn, cs = dr.sincos(phase)
         parts += [amp * cs, amp * sn]
@@ -280,7 +284,8 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.
     status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
               | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
-    dr.eval(parts, idx, status, pos)  # the one kernel: rays, wave paths, contributions
+    dz = mi.Float(q_ph.z - o.z_wrp) if want_dz else None
+    dr.eval(parts, idx, status, pos, dz)  # the one kernel: rays, wave paths, contributions
     if not want_cells and pos is None:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
         dr.eval(parts)
@@ -292,6 +297,8 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         out["idx"] = _to_torch(idx, device).to(torch.int64)
     if pos is not None:
         out["pos"] = _to_torch(pos, device).to(torch.int64)
+    if dz is not None:
+        out["dz"] = _to_torch(dz, device)
     # The ray counts, reduced where the rays are (one small read back per tile).
     st = _to_torch(status, device).to(torch.int64)
     ok_t = (st & 1).bool()
