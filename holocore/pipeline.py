@@ -156,15 +156,15 @@ def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: in
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 
 
-def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int, wavelengths_m,
-                      z_ref_m: float) -> Optional[BeamDepthTerms]:
-    """The depth part of directional frames (Eq. B1) for frames first_frame.. of colours ``wavelengths_m``; None
-    for random phases."""
+def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int,
+                      wavelengths_m) -> Optional[BeamDepthTerms]:
+    """The depth part of directional frames (Eq. B1, relative to the WRP) for frames first_frame.. of colours
+    ``wavelengths_m``; None for random phases."""
     if optics.frame_phases != "directional":
         return None
     return BeamDepthTerms.make(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
                                wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
-                               pitch_m=optics.pitch_m, z_ref_m=z_ref_m)
+                               pitch_m=optics.pitch_m)
 
 
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
@@ -270,8 +270,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         t1 = time.perf_counter()
         banks = frame_banks(optics, (H, W), dev, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
             if plan.random_phase else None
-        depth_terms = frame_depth_terms(optics, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit,
-                                        z_ref_m=z_wrp) if plan.random_phase else None
+        depth_terms = frame_depth_terms(optics, first_frame=f0, frames=f1 - f0, wavelengths_m=wl_lit) \
+            if plan.random_phase else None
         timings["bank_s"] += time.perf_counter() - t1
         t3 = time.perf_counter()
         n_f = (f1 - f0) if banks else F

@@ -142,7 +142,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
             ph = torch.from_numpy(np.stack(list(beam_phase_frames(frames, (H, W), float(lam), p,
                                                                   wavelengths_m=wavelengths_m))))
             depth_terms = BeamDepthTerms.make(frames=frames, first_frame=0, bank_frames=frames, wavelengths_m=[lam],
-                                              all_wavelengths_m=wavelengths_m, pitch_m=p, z_ref_m=zw)
+                                              all_wavelengths_m=wavelengths_m, pitch_m=p)
         else:
             ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed), coded_frames=frames if coded else None)
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
@@ -152,11 +152,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
             mask = torch.from_numpy(k == i)
             plane = base * mask
             if depth_terms is not None:  # Eq. B1's depth part: exp(i k w_m (z - z_wrp)) for each frame m
-                dz = torch.tensor([float(z) - zw], dtype=torch.float64)
-                ring = depth_terms.ring_phasors(dz)[0, 0]  # [rings]
-                common = complex(np.exp(1j * depth_terms.ks[0] * (float(z) - zw)))
-                per_frame = ring[list(depth_terms.frame_ring)] * common
-                plane = plane * per_frame[:, None, None]
+                plane = plane * depth_terms.plane_factors(float(z) - zw)[0][:, None, None]
             wrp[:, c] += asm(plane, zw - float(z), float(lam), p)
         slm[:, c] = asm(wrp[:, c].contiguous(), -zw, float(lam), p)
     return slm.numpy(), wrp.numpy(), zs, counts

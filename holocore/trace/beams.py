@@ -111,24 +111,31 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
 
 @dataclass(frozen=True)
 class BeamDepthTerms:
-    """The depth part of (B1) that differs between frames, exp(-i k_c (1 - w_m) dz), dz = Q_z - z_ref (m), for the
-    frames of one pass. ``ks``: wavenumbers (rad/m) of the colours traced; ``one_minus_w``: 1 - w of each ring of
-    directions; ``frame_ring``: the ring of each frame of the pass."""
+    """The depth part of (B1) that differs between frames, exp(-i k_c (1 - w_m) dz), dz = Q_z - z_ref (m; the
+    tracer's z_ref is the WRP), for the frames of one pass. ``ks``: wavenumbers (rad/m) of the colours traced;
+    ``one_minus_w``: 1 - w of each ring of directions; ``frame_ring``: the ring of each frame of the pass;
+    ``ring_runs``: (ring, first frame, end frame) of each run of consecutive frames of one ring."""
 
     ks: tuple[float, ...]
     one_minus_w: tuple[float, ...]
     frame_ring: tuple[int, ...]
-    z_ref_m: float
+    ring_runs: tuple[tuple[int, int, int], ...]
 
     @classmethod
     def make(cls, *, frames: int, first_frame: int, bank_frames: int, wavelengths_m: Sequence[float],
-             pitch_m: float, z_ref_m: float, all_wavelengths_m: Sequence[float] | None = None) -> "BeamDepthTerms":
+             pitch_m: float, all_wavelengths_m: Sequence[float] | None = None) -> "BeamDepthTerms":
         u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)[first_frame:first_frame + frames]
         s2 = np.round((u * u).sum(axis=1), 15)
         rings, ring_of = np.unique(s2, return_inverse=True)
         omw = [float(v / (1.0 + math.sqrt(1.0 - v))) for v in rings]  # 1 - sqrt(1 - s^2) without cancellation
+        runs: list[tuple[int, int, int]] = []
+        for f, r in enumerate(int(v) for v in ring_of):
+            if runs and runs[-1][0] == r and runs[-1][2] == f:
+                runs[-1] = (r, runs[-1][1], f + 1)
+            else:
+                runs.append((r, f, f + 1))
         return cls(ks=tuple(2.0 * math.pi / float(lam) for lam in wavelengths_m), one_minus_w=tuple(omw),
-                   frame_ring=tuple(int(r) for r in ring_of), z_ref_m=float(z_ref_m))
+                   frame_ring=tuple(int(r) for r in ring_of), ring_runs=tuple(runs))
 
     def ring_phasors(self, dz):
         """complex64 torch [R, C, rings] of the rays' dz (torch float [R], m): one factor per ring of directions."""
@@ -142,15 +149,14 @@ class BeamDepthTerms:
             out.append(torch.polar(torch.ones_like(ph), ph))
         return torch.stack(out, dim=1)
 
-    def runs(self) -> list[tuple[int, int, int]]:
-        """(ring, first frame, end frame) of each run of consecutive frames of one ring (frames of the pass)."""
-        out: list[tuple[int, int, int]] = []
-        for f, r in enumerate(self.frame_ring):
-            if out and out[-1][0] == r and out[-1][2] == f:
-                out[-1] = (r, out[-1][1], f + 1)
-            else:
-                out.append((r, f, f + 1))
-        return out
+    def plane_factors(self, dz_m: float):
+        """The whole depth part of (B1), exp(i k_c w_m dz), of one depth dz (m) for every colour and frame: complex64
+        torch [C, F] (a layer at one depth: the tracer's k dz and the ring factor in one)."""
+        import torch
+
+        ring = self.ring_phasors(torch.tensor([float(dz_m)], dtype=torch.float64))[0]  # [C, rings]
+        common = torch.tensor([complex(np.exp(1j * k * float(dz_m))) for k in self.ks], dtype=torch.complex64)
+        return ring[:, list(self.frame_ring)] * common[:, None]
 
     def scaled_base(self, base, dz):
         """base [R, C] times each ring's depth factor of the rays (dz [R], m): complex [R, C, rings]."""
@@ -162,6 +168,6 @@ class BeamDepthTerms:
         import torch
 
         out = rows.new_empty(rows.shape)
-        for r, a, b in self.runs():
+        for r, a, b in self.ring_runs:
             torch.mul(rows[:, :, a:b], scaled[:, :, r:r + 1], out=out[:, :, a:b])
         return out

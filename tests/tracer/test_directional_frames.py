@@ -60,7 +60,7 @@ def test_eq_b1_puts_points_at_any_depth_in_phase_towards_the_frame_direction():
     F, lam, z_ref = 24, 516.5e-9, 10e-3
     k = 2 * math.pi / lam
     terms = BeamDepthTerms.make(frames=F, first_frame=0, bank_frames=F, wavelengths_m=[lam],
-                                all_wavelengths_m=LAMS, pitch_m=PITCH, z_ref_m=z_ref)
+                                all_wavelengths_m=LAMS, pitch_m=PITCH)
     u = beam_layout(F) * beam_disc_sine(LAMS, PITCH)
     q = np.column_stack([rng.uniform(-1e-3, 1e-3, 50), rng.uniform(-1e-3, 1e-3, 50), rng.uniform(4e-3, 9e-3, 50)])
     dz = q[:, 2] - z_ref
