@@ -1,0 +1,350 @@
+"""The viewer-faithful score: what a real eye sees of a hologram, over pupils, eye positions and focus planes, at
+one fixed brightness per colour (DESIGN.md §7; docs/evaluation.md, "The viewer-faithful score").
+
+The per-cell score of :mod:`holocore.evaluate.scoring` fits a brightness scale to every (focus, view) cell, and
+its views sit where a method's layout may favour them (on the axis, on a beam). An eye does neither: its pupil
+is 2-6 mm in daylight to dim rooms, it moves, and it never re-calibrates the display's brightness as it moves.
+This score therefore
+
+* views the hologram through every pupil of ``pupils_m`` (default 1.6, 2, 3, 4, 6 mm) from every eye position
+  of a jittered n x n grid (:func:`eye_grid_m`; the jitter, from ``seed``, keeps the positions off any lattice
+  a method's frames may be laid out on), at every focus plane;
+* divides each colour's view by the share of that colour's recording cone the pupil holds
+  (:func:`aperture_share`): the light an ideal display sends through the pupil, so that a pupil partly outside
+  the eyebox (a property of the display's pitch, not of the hologram) or a larger pupil (more light) does not
+  count as an error, while brightness that steps with the eye does;
+* fits **one** brightness scale per colour for the whole grid (least squares, over the ground truth's
+  unsaturated pixels) and scores every cell with it: PSNR / SSIM against the thin-lens ground truth through
+  the same pupil, white at the 99th percentile of all ground-truth cells of that colour;
+* reports what the one scale hides or blends: the spread of the per-cell best scales, the brightness over the
+  eye grid per pupil (largest / smallest, and its coefficient of variation), the colour cast per pupil (how the
+  per-colour best scales of one pupil differ from the global ones), the defocus-blur fidelity (the edge
+  profile: relative error of the luminance gradient against the ground truth's, and the ratio of their
+  energies, > 1 for copies, halos or speckle, < 1 for too much blur) and the motion parallax (the image shift
+  between the two outer eye positions of a grid row, by phase correlation, against the ground truth's).
+
+Units: metres inside, ``_mm`` in the outputs; intensities linear; shifts in pixels of the view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
+from holocore.formats.meta import MetaLike, parse_view_meta
+
+__all__ = ["DEFAULT_PUPILS_M", "eye_grid_m", "aperture_share", "ViewerCell", "PupilSummary", "ViewerScore",
+           "viewer_score", "image_shift_px"]
+
+DEFAULT_PUPILS_M = (1.6e-3, 2e-3, 3e-3, 4e-3, 6e-3)
+MAX_EYE_GRID = 9
+_JITTER = 0.3  # of the grid spacing, each axis
+
+
+def _cone_sine(wavelength_m: float, pitch_m: float) -> float:
+    return math.sin(min(theta_max_rad(wavelength_m, pitch_m), MAX_CONE_HALF_ANGLE_RAD))
+
+
+def eye_grid_m(meta: MetaLike, *, n: int = 5, span_m: Optional[float] = None,
+               seed: int = 0) -> list[tuple[tuple[int, int], tuple[float, float]]]:
+    """An n x n grid of eye offsets (m) over +-``span_m`` on both axes, each point jittered by up to 0.3 of the
+    spacing (uniform, from ``seed``); [((col, row), (e_x, e_y))], row 0 at the top. Default span: half the
+    eyebox radius of the bluest line, f sin(theta_max) / 2 (1.4 mm / 2 at the paper's display)."""
+    meta = parse_view_meta(meta)
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_EYE_GRID:
+        raise ValueError(f"the eye grid must be an integer in 1..{MAX_EYE_GRID} (an n x n grid), got {n!r}")
+    f, p = meta.focal_length_m, float(meta.pitch_m)
+    span = 0.5 * f * min(_cone_sine(float(lam), p) for lam in meta.wavelengths_m) if span_m is None else float(span_m)
+    if not (math.isfinite(span) and 0.0 <= span <= f):
+        raise ValueError(f"the eye grid's span must be in [0, f] m, got {span_m!r}")
+    if n == 1:
+        return [((0, 0), (0.0, 0.0))]
+    step = 2.0 * span / (n - 1)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xE7E]))
+    jit = rng.uniform(-_JITTER, _JITTER, size=(n, n, 2)) * step
+    out = []
+    for row in range(n):
+        for col in range(n):
+            ex = -span + col * step + jit[row, col, 0]
+            ey = span - row * step + jit[row, col, 1]
+            out.append(((col, row), (float(ex), float(ey))))
+    return out
+
+
+def _disc_overlap(r1: float, r2: float, d: float) -> float:
+    """Area of the intersection of two discs of radii r1, r2 whose centres are d apart."""
+    if d >= r1 + r2:
+        return 0.0
+    if d <= abs(r1 - r2):
+        return math.pi * min(r1, r2) ** 2
+    a1 = r1 * r1 * math.acos((d * d + r1 * r1 - r2 * r2) / (2 * d * r1))
+    a2 = r2 * r2 * math.acos((d * d + r2 * r2 - r1 * r1) / (2 * d * r2))
+    tri = 0.5 * math.sqrt(max(0.0, (-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)))
+    return a1 + a2 - tri
+
+
+def aperture_share(meta: MetaLike, *, pupil_diameter_m: float, eye_offset_m: tuple[float, float],
+                   wavelength_m: float) -> float:
+    """The share of a colour's recording cone (in direction sines) that the pupil of an eye at ``eye_offset_m``
+    holds: what an ideal display with a flat angular spectrum sends through it, relative to all it sends."""
+    meta = parse_view_meta(meta)
+    f = meta.focal_length_m
+    s_c = _cone_sine(float(wavelength_m), float(meta.pitch_m))
+    na = float(pupil_diameter_m) / (2.0 * f)
+    d = math.hypot(float(eye_offset_m[0]), float(eye_offset_m[1])) / f
+    return _disc_overlap(na, s_c, d) / (math.pi * s_c * s_c)
+
+
+def image_shift_px(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(rows, cols) shift of image ``b`` against ``a`` (float [H, W]), b(x) = a(x - shift): the peak of their
+    cross-correlation (means removed, a Hann window against the borders, both smoothed by a 1-px Gaussian so that
+    speckle and Monte Carlo noise do not make the peak), refined by a parabola through its neighbours."""
+    from scipy.ndimage import gaussian_filter
+
+    a = gaussian_filter(np.asarray(a, dtype=np.float64), 1.0)
+    b = gaussian_filter(np.asarray(b, dtype=np.float64), 1.0)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"images must be [H, W] of one shape, got {a.shape} and {b.shape}")
+    win = np.outer(np.hanning(a.shape[0]), np.hanning(a.shape[1]))
+    A = np.fft.fft2((a - a.mean()) * win)
+    B = np.fft.fft2((b - b.mean()) * win)
+    corr = np.fft.ifft2(B * np.conj(A)).real
+    i, j = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    H, W = corr.shape
+
+    def sub(c_m, c_0, c_p):
+        den = c_m - 2 * c_0 + c_p
+        return 0.0 if abs(den) < 1e-30 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
+
+    di = sub(corr[(i - 1) % H, j], corr[i, j], corr[(i + 1) % H, j])
+    dj = sub(corr[i, (j - 1) % W], corr[i, j], corr[i, (j + 1) % W])
+    return float((i + H // 2) % H - H // 2 + di), float((j + W // 2) % W - W // 2 + dj)
+
+
+@dataclass(frozen=True)
+class ViewerCell:
+    pupil_mm: float
+    focus_index: int
+    focus_mm: float
+    eye_index: tuple[int, int]  # (column, row) of the eye grid
+    eye_mm: tuple[float, float]
+    psnr_db: float  # with the one scale per colour
+    ssim: float
+    brightness: float  # luminance through the pupil (share-normalised, scaled) over the ground truth's, lit part
+    best_scales: tuple[float, ...]  # this cell's own least-squares scale per colour, over the global one
+    edge_error: float  # ||grad R - grad G|| / ||grad G||, luminance
+    sharpness: float  # ||grad R||^2 / ||grad G||^2
+    margin_px: int
+
+
+@dataclass(frozen=True)
+class PupilSummary:
+    pupil_mm: float
+    mean_psnr_db: float
+    mean_ssim: float
+    brightness_max_over_min: float  # over the eye grid (each eye: mean over the focus planes)
+    brightness_cv: float  # standard deviation / mean over the eye grid
+    colour_cast: float  # max / min over colours of (this pupil's best scale / the global scale)
+    edge_error: float
+    sharpness: float
+    parallax_error_px: float  # mean |shift(recon) - shift(truth)| between the outer eyes of each grid row
+    parallax_ratio: float  # mean shift(recon) / shift(truth) (1: right parallax), over pairs that move >= 0.5 px
+
+
+@dataclass
+class ViewerScore:
+    cells: list[ViewerCell]
+    pupils: list[PupilSummary]
+    scales: tuple[float, ...]  # the one brightness scale per colour
+    whites: tuple[float, ...]  # ground-truth white per colour
+    wavelengths_m: tuple[float, ...]
+    focus_z_m: tuple[float, ...]
+    eye_offsets_m: tuple[tuple[float, float], ...]
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def mean_psnr_db(self) -> float:
+        v = [c.psnr_db for c in self.cells if math.isfinite(c.psnr_db)]
+        return float(np.mean(v)) if v else math.nan
+
+    def mean_over(self, pupils_mm: Sequence[float]) -> float:
+        """Mean PSNR (dB) over the cells of the listed pupils (mm, matched to 1 µm)."""
+        want = {round(float(p), 3) for p in pupils_mm}
+        v = [c.psnr_db for c in self.cells if round(c.pupil_mm, 3) in want and math.isfinite(c.psnr_db)]
+        return float(np.mean(v)) if v else math.nan
+
+    @property
+    def scale_spread(self) -> float:
+        """Largest / smallest per-cell best scale (luminance-weighted over colours): how much a per-cell fit hides."""
+        v = np.array([float(np.mean(c.best_scales)) for c in self.cells])
+        v = v[np.isfinite(v) & (v > 0)]
+        return float(v.max() / v.min()) if v.size else math.nan
+
+    def to_dict(self) -> dict:
+        return {"mean_psnr_db": self.mean_psnr_db, "scale_spread": self.scale_spread, "scales": list(self.scales),
+                "whites": list(self.whites), "wavelengths_m": list(self.wavelengths_m),
+                "focus_z_m": list(self.focus_z_m), "eye_offsets_m": [list(e) for e in self.eye_offsets_m],
+                "pupils": [asdict(p) for p in self.pupils], "cells": [asdict(c) for c in self.cells], **self.meta}
+
+
+def _lum_weights(wavelengths_m: Sequence[float]) -> np.ndarray:
+    from holocore.display.optics import channel_of
+
+    rgb_w = (0.2126, 0.7152, 0.0722)
+    w = np.array([rgb_w[channel_of(float(lam))] for lam in wavelengths_m], dtype=np.float64)
+    return w / w.sum() if w.sum() > 0 else np.full(len(wavelengths_m), 1.0 / max(1, len(wavelengths_m)))
+
+
+def _grad_norms(r: np.ndarray, g: np.ndarray) -> tuple[float, float]:
+    gy_r, gx_r = np.gradient(r)
+    gy_g, gx_g = np.gradient(g)
+    den = float(np.sum(gy_g ** 2 + gx_g ** 2))
+    if den <= 0:
+        return math.nan, math.nan
+    err = float(np.sqrt(np.sum((gy_r - gy_g) ** 2 + (gx_r - gx_g) ** 2) / den))
+    return err, float(np.sum(gy_r ** 2 + gx_r ** 2) / den)
+
+
+def _finite_mean(values: Sequence[float]) -> float:
+    v = [float(x) for x in values if math.isfinite(x)]
+    return float(np.mean(v)) if v else math.nan
+
+
+def _lit_margin(meta, *, focus_z_m: float, pupil_m: float, eye_m: tuple[float, float]) -> int:
+    """holocore.evaluate.scoring.lit_margin_px with the accepted directions capped at the widest colour's cone: a
+    hologram sends nothing beyond it, so a pupil larger than the eyebox gathers from no farther."""
+    f, p = meta.focal_length_m, float(meta.pitch_m)
+    s_max = max(_cone_sine(float(lam), p) for lam in meta.wavelengths_m)
+    e = max(abs(float(eye_m[0])), abs(float(eye_m[1])))
+    reach = min(float(pupil_m) / (2.0 * f) + e / f, s_max)
+    return int(math.ceil(max(0.0, float(focus_z_m)) * reach / p - 1e-9))
+
+
+def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequence[float] = DEFAULT_PUPILS_M,
+                 eye_grid: int = 5, eye_span_m: Optional[float] = None, seed: int = 0, focus_planes: int = 3,
+                 focus_z_m: Optional[Sequence[float]] = None, white_percentile: float = 99.0,
+                 progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None,
+                 device=None) -> ViewerScore:
+    """Score a hologram as an eye sees it (module docstring). ``field_slm``: complex [F, C, H, W] on the SLM or a
+    chunked source; ``truth``: anything with ``channels(focus_z_m=, pupil_diameter_m=, view_offset_m=)`` ->
+    [C, H, W] (a :class:`holocore.evaluate.groundtruth.GroundTruth`); pupils in m; the eye grid n x n over
+    +-``eye_span_m`` (default :func:`eye_grid_m`'s), jittered by ``seed``; ``focus_planes`` uniform over the
+    image volume unless ``focus_z_m`` lists depths (m)."""
+    from holocore.evaluate.metrics import psnr, ssim
+    from holocore.evaluate.scoring import eye_view, focus_planes_m
+
+    meta = parse_view_meta(meta)
+    pupils = [float(p) for p in pupils_m]
+    if not pupils or not all(math.isfinite(p) and 0 < p <= 0.05 for p in pupils):
+        raise ValueError(f"pupils must be diameters in (0, 50] mm, got {[p * 1e3 for p in pupils]}")
+    zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
+    eyes = eye_grid_m(meta, n=eye_grid, span_m=eye_span_m, seed=seed)
+    lams = [float(v) for v in meta.wavelengths_m]
+    C = len(lams)
+    lum = _lum_weights(lams)
+    # Pass 1: every view (share-normalised) and its ground truth, on the lit part.
+    views: list[tuple[int, int, int, np.ndarray, np.ndarray, int]] = []
+    total = len(pupils) * len(eyes) * len(zs)
+    n_done = 0
+    for pi_, D in enumerate(pupils):
+        for ei, (_idx, e) in enumerate(eyes):
+            share = np.array([aperture_share(meta, pupil_diameter_m=D, eye_offset_m=e, wavelength_m=lam)
+                              for lam in lams])
+            for zi, z in enumerate(zs):
+                rec = eye_view(field_slm, meta, focus_z_m=z, pupil_diameter_m=D, view_offset_m=e,
+                               memory_budget_bytes=memory_budget_bytes, device=device)
+                gt = np.asarray(truth.channels(focus_z_m=z, pupil_diameter_m=D, view_offset_m=e), dtype=np.float64)
+                if gt.shape != rec.shape:
+                    raise ValueError(f"ground truth {gt.shape} and reconstruction {rec.shape} differ in shape")
+                H, W = rec.shape[-2:]
+                m = min(_lit_margin(meta, focus_z_m=z, pupil_m=D, eye_m=e), max(0, (min(H, W) - 16) // 2))
+                r = rec[:, m:H - m, m:W - m] / np.maximum(share, 1e-12)[:, None, None]
+                views.append((pi_, ei, zi, r.astype(np.float32), gt[:, m:H - m, m:W - m].astype(np.float32), m))
+                n_done += 1
+                if progress is not None:
+                    progress("viewer", n_done, total)
+    # The white of each colour over all cells, and the one scale per colour.
+    whites = []
+    for c in range(C):
+        allg = np.concatenate([v[4][c].reshape(-1) for v in views])
+        w = float(np.percentile(allg, white_percentile))
+        whites.append(w if w > 0 else (float(allg.max()) if allg.max() > 0 else 1.0))
+    num, den = np.zeros(C), np.zeros(C)
+    cell_num, cell_den = np.zeros((len(views), C)), np.zeros((len(views), C))
+    for k, (_p, _e, _z, r, g, _m) in enumerate(views):
+        for c in range(C):
+            un = g[c] < whites[c]
+            if int(un.sum()) < 16:  # a flat or saturated colour: all its pixels (as compare does)
+                un = np.ones_like(un)
+            rc, gc = r[c][un].astype(np.float64), g[c][un].astype(np.float64)
+            cell_num[k, c], cell_den[k, c] = float(np.sum(rc * gc)), float(np.sum(rc * rc))
+    num, den = cell_num.sum(axis=0), cell_den.sum(axis=0)
+    scales = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
+    # Pass 2: the cells at the one scale.
+    wv = np.asarray(whites)[:, None, None]
+    cells: list[ViewerCell] = []
+    shifts: dict[tuple[int, int, int], tuple[float, float]] = {}  # (pupil, focus, eye) -> (recon, truth) col shift
+    lumimg: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for k, (pi_, ei, zi, r, g, m) in enumerate(views):
+        rs = scales[:, None, None] * r.astype(np.float64)
+        rd = np.clip(rs / wv, 0.0, 1.0)
+        gd = np.clip(g.astype(np.float64) / wv, 0.0, 1.0)
+        lr, lg = np.tensordot(lum, rs / wv, axes=1), np.tensordot(lum, g / wv, axes=1)
+        bright = float(lr.sum() / lg.sum()) if lg.sum() > 0 else math.nan
+        best = tuple(float(cell_num[k, c] / cell_den[k, c] / scales[c]) if cell_den[k, c] > 0 and scales[c] != 0
+                     else math.nan for c in range(C))
+        err, sharp = _grad_norms(np.tensordot(lum, rd, axes=1), np.tensordot(lum, gd, axes=1))
+        (col, row), e = eyes[ei]
+        cells.append(ViewerCell(pupil_mm=pupils[pi_] * 1e3, focus_index=zi, focus_mm=zs[zi] * 1e3, eye_index=(col, row),
+                                eye_mm=(e[0] * 1e3, e[1] * 1e3), psnr_db=float(psnr(rd, gd, data_range=1.0, channel_axis=0)),
+                                ssim=float(ssim(rd, gd, data_range=1.0, channel_axis=0)), brightness=bright,
+                                best_scales=best, edge_error=err, sharpness=sharp, margin_px=m))
+        lumimg[(pi_, zi, ei)] = (np.tensordot(lum, rd, axes=1), np.tensordot(lum, gd, axes=1))
+    # Motion parallax: the outer eyes of each grid row, on the part both views score.
+    n = int(eye_grid)
+    pairs = [(row * n, row * n + n - 1) for row in range(n)] if n > 1 else []
+    par: dict[int, list[tuple[float, float]]] = {pi_: [] for pi_ in range(len(pupils))}
+    for pi_ in range(len(pupils)):
+        for zi in range(len(zs)):
+            for a, b in pairs:
+                (ra, ga), (rb, gb) = lumimg[(pi_, zi, a)], lumimg[(pi_, zi, b)]
+                h, w = min(ra.shape[0], rb.shape[0]), min(ra.shape[1], rb.shape[1])
+                crop = lambda x: x[(x.shape[0] - h) // 2:(x.shape[0] - h) // 2 + h, (x.shape[1] - w) // 2:(x.shape[1] - w) // 2 + w]  # noqa: E731
+                sr = image_shift_px(crop(ra), crop(rb))[1]
+                sg = image_shift_px(crop(ga), crop(gb))[1]
+                par[pi_].append((sr, sg))
+    summaries = []
+    for pi_, D in enumerate(pupils):
+        mine = [c for c in cells if round(c.pupil_mm, 6) == round(D * 1e3, 6)]
+        by_eye = {}
+        for c in mine:
+            by_eye.setdefault(c.eye_index, []).append(c.brightness)
+        b = np.array([np.mean(v) for v in by_eye.values()])
+        b = b[np.isfinite(b)]
+        ks = [k for k, v in enumerate(views) if v[0] == pi_]
+        p_scale = [float(cell_num[ks, c].sum() / cell_den[ks, c].sum() / scales[c]) if cell_den[ks, c].sum() > 0
+                   else math.nan for c in range(C)]
+        pr = par[pi_]
+        moving = [(sr, sg) for sr, sg in pr if abs(sg) >= 0.5]
+        finite = lambda xs: [x for x in xs if math.isfinite(x)]  # noqa: E731
+        summaries.append(PupilSummary(
+            pupil_mm=D * 1e3, mean_psnr_db=float(np.mean(finite([c.psnr_db for c in mine]))),
+            mean_ssim=float(np.mean([c.ssim for c in mine])),
+            brightness_max_over_min=float(b.max() / b.min()) if b.size and b.min() > 0 else math.nan,
+            brightness_cv=float(b.std() / b.mean()) if b.size and b.mean() > 0 else math.nan,
+            colour_cast=float(max(p_scale) / min(p_scale)) if all(math.isfinite(v) and v > 0 for v in p_scale)
+            else math.nan,
+            edge_error=_finite_mean([c.edge_error for c in mine]),
+            sharpness=_finite_mean([c.sharpness for c in mine]),
+            parallax_error_px=float(np.mean([abs(sr - sg) for sr, sg in pr])) if pr else math.nan,
+            parallax_ratio=float(np.mean([sr / sg for sr, sg in moving])) if moving else math.nan))
+    return ViewerScore(cells=cells, pupils=summaries, scales=tuple(float(s) for s in scales),
+                       whites=tuple(whites), wavelengths_m=tuple(lams), focus_z_m=tuple(zs),
+                       eye_offsets_m=tuple(e for _i, e in eyes),
+                       meta={"eye_grid": int(eye_grid), "seed": int(seed),
+                             "eye_span_m": float(eye_span_m) if eye_span_m is not None else
+                             max(abs(e[0]) for _i, e in eyes) if eyes else 0.0})

@@ -1,0 +1,96 @@
+"""The viewer-faithful score (holocore.evaluate.viewer): its eye grid, the pupil's share of the cone, the shift
+estimator, and that it tells a display whose brightness steps with the eye from one whose brightness does not."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from holocore.evaluate.viewer import aperture_share, eye_grid_m, image_shift_px, viewer_score
+from holocore.trace.beams import beam_layout, beam_disc_sine
+
+META = {"focal_length_m": 0.05, "z_inf_m": 4e-3, "pitch_m": 8e-6, "wavelengths_m": [640e-9, 516.5e-9, 455.4e-9]}
+
+
+def test_eye_grid_is_jittered_seeded_and_spans_the_eyebox():
+    g = eye_grid_m(META, n=5, seed=3)
+    assert len(g) == 25 and g[0][0] == (0, 0) and g[-1][0] == (4, 4)
+    span = 0.5 * 0.05 * 455.4e-9 / 16e-6  # half the blue eyebox radius
+    step = 2 * span / 4
+    e = np.array([v for _i, v in g])
+    ideal = np.array([(-span + c * step, span - r * step) for (c, r), _v in g])
+    off = np.abs(e - ideal)
+    assert off.max() <= 0.3 * step + 1e-12 and off.max() > 0.1 * step  # jittered, within 0.3 of the spacing
+    assert np.array_equal(e, np.array([v for _i, v in eye_grid_m(META, n=5, seed=3)]))
+    assert not np.allclose(e, np.array([v for _i, v in eye_grid_m(META, n=5, seed=4)]))
+    with pytest.raises(ValueError, match="eye grid"):
+        eye_grid_m(META, n=0)
+
+
+def test_aperture_share_is_the_overlap_of_pupil_and_cone():
+    s_b = 455.4e-9 / 16e-6
+    na = 1.6e-3 / 0.1
+    assert aperture_share(META, pupil_diameter_m=1.6e-3, eye_offset_m=(0, 0), wavelength_m=455.4e-9) == \
+        pytest.approx((na / s_b) ** 2)
+    assert aperture_share(META, pupil_diameter_m=20e-3, eye_offset_m=(1e-3, 0), wavelength_m=640e-9) == pytest.approx(1.0)
+    assert aperture_share(META, pupil_diameter_m=1e-3, eye_offset_m=(5e-3, 0), wavelength_m=455.4e-9) == 0.0
+    # a pupil centred on the rim holds just under half of it
+    half = aperture_share(META, pupil_diameter_m=0.4e-3, eye_offset_m=(0.05 * s_b, 0), wavelength_m=455.4e-9)
+    assert half == pytest.approx(0.5 * (0.004 / s_b) ** 2, rel=0.1)
+
+
+def test_image_shift_finds_a_subpixel_shift():
+    rng = np.random.default_rng(0)
+    from scipy.ndimage import gaussian_filter, shift
+
+    a = gaussian_filter(rng.random((64, 96)), 2.0)
+    b = shift(a, (0.0, 3.4), mode="wrap", order=3)
+    si, sj = image_shift_px(a, b)
+    assert abs(si) < 0.15 and sj == pytest.approx(3.4, abs=0.15)
+
+
+class _Flat:
+    """Ground truth of a flat white scene: the same radiance in every colour, at any focus, pupil and eye."""
+
+    def channels(self, *, focus_z_m, pupil_diameter_m, view_offset_m):
+        return np.ones((3, 48, 64))
+
+
+def _cone_field(kind: str, F: int = 24, shape=(48, 64)) -> np.ndarray:
+    """[F, 3, H, W] on the SLM of a flat scene: 'spread' lights each colour's whole cone with random phases in
+    every frame (an ideal display's flat angular spectrum); 'beams' gives frame m one plane wave per colour towards
+    eye position m of beam_layout (no spread)."""
+    H, W = shape
+    rng = np.random.default_rng(1)
+    out = np.zeros((F, 3, H, W), dtype=np.complex64)
+    p = META["pitch_m"]
+    fy = np.fft.fftfreq(H, d=p)[:, None]
+    fx = np.fft.fftfreq(W, d=p)[None, :]
+    u = beam_layout(F) * beam_disc_sine(META["wavelengths_m"], p)
+    for c, lam in enumerate(META["wavelengths_m"]):
+        cone = (fx ** 2 + fy ** 2) <= (min(1 / lam, 1 / (2 * p))) ** 2
+        for m in range(F):
+            spec = np.zeros((H, W), dtype=np.complex128)
+            if kind == "spread":
+                spec[cone] = np.exp(2j * np.pi * rng.random(int(cone.sum()))) / math.sqrt(cone.sum())
+            else:
+                j = int(round(u[m, 0] / lam * W * p)) % W
+                i = int(round(-u[m, 1] / lam * H * p)) % H  # rows run down
+                spec[i, j] = 1.0
+            out[m, c] = (np.fft.ifft2(spec) * H * W).astype(np.complex64)
+    return out
+
+
+def test_one_scale_sees_brightness_that_steps_with_the_eye():
+    kw = dict(pupils_m=(2e-3, 3e-3), eye_grid=3, seed=0, focus_z_m=[4e-3])
+    spread = viewer_score(_cone_field("spread"), META, _Flat(), **kw)
+    beams = viewer_score(_cone_field("beams"), META, _Flat(), **kw)
+    for p in spread.pupils:  # the share of the cone each pupil holds is divided out: flat over the eye grid
+        assert p.brightness_max_over_min < 1.06, p
+        assert p.colour_cast < 1.06, p
+    # 24 beams: a 2 mm pupil holds a different number of them at each eye position
+    assert beams.pupils[0].brightness_max_over_min > 1.15, beams.pupils[0]
+    assert beams.scale_spread > spread.scale_spread
+    assert all(math.isfinite(c.psnr_db) for c in spread.cells + beams.cells)
