@@ -37,6 +37,7 @@ from holocore.scene.filekinds import (
     image_pixels,
     obj_counts,
     ply_counts,
+    serialized_counts,
     sniff_kind,
 )
 
@@ -60,6 +61,10 @@ class BundleLimits:
     max_xml_bytes: int = 8 * 1024 * 1024
     max_include_depth: int = 8
     max_includes: int = 256
+    # every XML byte walked (an include counts each time it is included) plus what substitution adds
+    max_xml_total_bytes: int = 16 * 1024 * 1024
+    max_defaults: int = 100
+    max_xml_depth: int = 100  # element nesting, through includes (Mitsuba's parser recurses per level)
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -120,6 +125,14 @@ _EXPECTED_KINDS = {"shape:obj": ({"text"}, "an OBJ mesh"), "shape:ply": ({"ply"}
                    "texture:bitmap": (IMAGE_KINDS, "a readable image"), "emitter:envmap": (IMAGE_KINDS,
                                                                                          "a readable image")}
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
+# Plugins that read a file named by their ``filename`` string property. Mitsuba's bitmap texture dereferences
+# a missing one (SIGSEGV); the others fail later with a less clear message, so all of them must name it.
+_NEEDS_FILENAME = {"texture:bitmap", "emitter:envmap", "shape:obj", "shape:ply", "shape:serialized",
+                   "shape:bsplinecurve", "shape:linearcurve", "bsdf:measured", "volume:gridvolume"}
+# Shared objects by name (``libx.so.1``, ``x.dylib``, ``x.dll``, ``x.pyd``): Mitsuba looks plugins up as
+# ``plugins/<type>.so`` through its file resolver, so no such name may sit in a bundle, whatever it holds.
+_SHARED_OBJECT = re.compile(r"\.(?:so(?:\.[0-9]+)*|dylib|dll|pyd)$", re.IGNORECASE)
+_XML_ENCODING = re.compile(rb"^(?:\xef\xbb\xbf)?\s*<\?xml[^>]*?\bencoding\s*=\s*([\"'])(.*?)\1", re.DOTALL)
 
 
 def _rel(root: Path, p: Path) -> str:
@@ -159,28 +172,70 @@ def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
 
 
 def _parse(path: Path, limits: BundleLimits, name: str):
+    """The root element of an XML file, parsed with defusedxml; nesting deeper than ``limits.max_xml_depth``
+    is refused while parsing (no deep tree is ever built). Every failure is a BundleError on one line."""
+    import io
     from xml.etree.ElementTree import ParseError
 
     from defusedxml import DefusedXmlException
-    from defusedxml.ElementTree import parse
+    from defusedxml.ElementTree import iterparse
 
     if path.stat().st_size > limits.max_xml_bytes:
         raise BundleError(f"{name}: XML larger than {limits.max_xml_bytes} bytes")
+    raw = path.read_bytes()
+    m = _XML_ENCODING.match(raw[:1024])
+    if m is not None and m.group(2).strip().lower() not in (b"utf-8", b"utf8"):
+        # Mitsuba's parser reads anything but Latin-1 as UTF-8: any other declared encoding would make the two
+        # parsers see different attribute values
+        raise BundleError(f"{name}: XML declares encoding {m.group(2)[:40].decode('ascii', 'replace')!r}; scene "
+                          "files must be UTF-8")
+    depth = 0
+    root = None
     try:
-        return parse(str(path), forbid_dtd=True, forbid_entities=True, forbid_external=True).getroot()
+        for event, el in iterparse(io.BytesIO(raw), events=("start", "end"), forbid_dtd=True,
+                                   forbid_entities=True, forbid_external=True):
+            if event == "start":
+                depth += 1
+                if root is None:
+                    root = el
+                if depth > limits.max_xml_depth:
+                    raise BundleError(f"{name}: XML elements nested deeper than {limits.max_xml_depth}")
+            else:
+                depth -= 1
+    except BundleError:
+        raise
     except DefusedXmlException as exc:
         raise BundleError(f"{name}: refused XML construct ({type(exc).__name__}): DTDs, entities and external "
                           "references are not allowed") from None
-    except (ParseError, UnicodeError, ValueError) as exc:
-        raise BundleError(f"{name}: not well-formed XML: {exc}") from None
+    except (ParseError, UnicodeError, ValueError, LookupError) as exc:
+        raise BundleError(f"{name}: not well-formed XML: {_one_line(exc)}") from None
+    except Exception as exc:  # noqa: BLE001 - whatever else the parser raises, the user gets one line
+        raise BundleError(f"{name}: XML could not be parsed ({type(exc).__name__}: {_one_line(exc)})") from None
+    if root is None:
+        raise BundleError(f"{name}: XML holds no element")
+    return root
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text[:200]
 
 
 class _Params:
-    """Mitsuba's ``<default>`` namespace: ordered, global over includes, substituted longest name first."""
+    """Mitsuba's ``<default>`` namespace: ordered, global over includes.
 
-    def __init__(self) -> None:
+    Mitsuba substitutes an attribute by replacing every ``$name`` of every parameter in turn, longest name
+    first (ties in no set order). Values hold no ``$``, so at each ``$`` that is the longest parameter name
+    starting there, unless a replacement made later in that order completes a longer name across the next
+    ``$`` (``$a$bc`` with parameters ``a``, ``aX`` and ``bc`` = ``X``): such an attribute is refused, and all
+    others are substituted in one pass, at most 64 dictionary lookups per ``$``."""
+
+    _LONGEST = 64  # _NAME's longest name
+
+    def __init__(self, limits: BundleLimits) -> None:
+        self.limits = limits
         self.values: dict[str, str] = {}
-        self._pattern: Optional[re.Pattern] = None
+        self._stems: set[str] = set()  # proper prefixes of the names ("" once there is one)
 
     def define(self, name: str, value: str, where: str) -> None:
         if not _NAME.match(name):
@@ -190,15 +245,35 @@ class _Params:
             raise BundleError(f"{where}: <default name={name!r}> is defined twice; define each parameter once")
         if "$" in value:
             raise BundleError(f"{where}: <default name={name!r}> has a value holding '$'; values are not expanded")
+        if len(self.values) >= self.limits.max_defaults:
+            raise BundleError(f"{where}: more than {self.limits.max_defaults} <default> parameters")
         self.values[name] = value
-        names = sorted(self.values, key=len, reverse=True)
-        self._pattern = re.compile(r"\$(" + "|".join(re.escape(n) for n in names) + ")")
+        self._stems.update(name[:i] for i in range(len(name)))
 
-    def substitute(self, value: str, where: str) -> str:
-        out = self._pattern.sub(lambda m: self.values[m.group(1)], value) if self._pattern else value
-        if "$" in out:
-            raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
-        return out
+    def substitute(self, value: str, where: str, budget: int) -> str:
+        """``value`` as Mitsuba substitutes it; BundleError for an undefined or ambiguous ``$parameter``, or
+        when the result would be longer than ``budget`` characters."""
+        if "$" not in value:
+            return value
+        pieces = value.split("$")
+        out = [pieces[0]]
+        size = len(pieces[0])
+        for i, seg in enumerate(pieces[1:], start=1):
+            if i + 1 < len(pieces) and seg in self._stems:
+                raise BundleError(f"{where}: {value[:80]!r}: '${seg[:40]}' followed by another $parameter could "
+                                  "join it into a longer parameter name; separate them")
+            for n in range(min(len(seg), self._LONGEST), 0, -1):
+                if seg[:n] in self.values:
+                    out.append(self.values[seg[:n]])
+                    out.append(seg[n:])
+                    size += len(out[-2]) + len(out[-1])
+                    break
+            else:
+                raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
+            if size > budget:
+                raise BundleError(f"{where}: $parameters expand the scene's XML past "
+                                  f"{self.limits.max_xml_total_bytes} bytes")
+        return "".join(out)
 
 
 def _file_reference(tag: str, attrs: dict[str, str]) -> Optional[str]:
@@ -244,6 +319,9 @@ def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int, dict
                 kinds[rel] = sniff_kind(p, rel)
             except FileKindError as exc:
                 raise BundleError(str(exc)) from None
+            if _SHARED_OBJECT.search(name):  # by name too: whatever it holds, it is no scene data
+                raise BundleError(f"{rel}: shared-object names (.so, .dylib, .dll, .pyd) are not allowed in a "
+                                  "scene bundle")
     return files, total, kinds
 
 
@@ -266,7 +344,9 @@ class _Walker:
     def __init__(self, root: Path, entry: Path, limits: BundleLimits, kinds: dict[str, str]) -> None:
         self.root, self.base, self.limits, self.kinds = root, entry.parent, limits, kinds
         self.entry = entry
-        self.params = _Params()
+        self.params = _Params(limits)
+        self.xml_bytes = 0  # charged against limits.max_xml_total_bytes
+        self.parsed: dict[Path, object] = {}  # each XML file is parsed once, however often it is included
         self.plugins: set[str] = set()
         self.ignored: list[str] = []
         self.warnings: list[str] = []
@@ -274,16 +354,17 @@ class _Walker:
         self.counted: set[Path] = set()
         self.faces = self.verts = self.pixels = self.includes = 0
         self.stack: list[Path] = []
+        self.shape_index = 0  # of the serialized shape being walked
 
-    def account(self, ref: Path, plugin: Optional[str]) -> None:
+    def account(self, ref: Path, plugin: Optional[str], shape_index: int = 0) -> None:
+        """Count what loading ``ref`` for ``plugin`` costs. Every use counts: each plugin element loads its own
+        copy of its file (two shapes naming one mesh hold it twice)."""
         rel = _rel(self.root, ref)
         kind = self.kinds.get(rel, "")
         expected = _EXPECTED_KINDS.get(plugin or "")
         if expected is not None and kind not in expected[0]:
             raise BundleError(f"{rel}: {plugin} needs {expected[1]}, but the file is not one (by its content: "
                               f"{kind})")
-        if ref in self.counted:  # a mesh or image used twice is loaded once
-            return
         self.counted.add(ref)
         try:
             if kind in IMAGE_KINDS:
@@ -291,9 +372,9 @@ class _Walker:
             elif kind == "ply":
                 f, v = ply_counts(ref, rel)
                 self.faces, self.verts = self.faces + f, self.verts + v
-            elif kind == "serialized":
-                self.warnings.append(f"{rel}: face count of .serialized meshes is not checked before loading "
-                                     "(bytes are)")
+            elif kind == "serialized" and plugin == "shape:serialized":
+                f, v = serialized_counts(ref, rel, shape_index)
+                self.faces, self.verts = self.faces + f, self.verts + v
             elif kind == "text" and plugin == "shape:obj":
                 f, v = obj_counts(ref)
                 self.faces, self.verts = self.faces + f, self.verts + v
@@ -306,7 +387,13 @@ class _Walker:
         if self.pixels > self.limits.max_image_pixels:
             raise BundleError(f"images hold more than {self.limits.max_image_pixels} pixels ({rel})")
 
-    def visit(self, xml: Path) -> None:
+    def charge(self, n: int) -> None:
+        self.xml_bytes += n
+        if self.xml_bytes > self.limits.max_xml_total_bytes:
+            raise BundleError(f"the scene's XML (entry and includes, each time it is included, and what $parameters "
+                              f"add) is larger than {self.limits.max_xml_total_bytes} bytes")
+
+    def visit(self, xml: Path, depth: int = 0) -> None:
         name = _rel(self.root, xml)
         if xml in self.stack:
             raise BundleError(f"{name}: includes itself (include cycle)")
@@ -315,13 +402,21 @@ class _Walker:
         if self.kinds.get(name) != "xml":
             raise BundleError(f"{name}: is not an XML file (by its content)")
         self.stack.append(xml)
-        el = _parse(xml, self.limits, name)
+        self.charge(xml.stat().st_size)
+        el = self.parsed.get(xml)
+        if el is None:
+            el = self.parsed[xml] = _parse(xml, self.limits, name)
         if el.tag != "scene":
             raise BundleError(f"{name}: root element is <{str(el.tag)[:40]}>, expected <scene>")
-        self.element(el, name, parent=None, top=True)
+        self.element(el, name, parent=None, top=True, depth=depth + 1)
         self.stack.pop()
 
-    def element(self, node, name: str, *, parent: Optional[str], top: bool) -> None:
+    def element(self, node, name: str, *, parent: Optional[str], top: bool, depth: int) -> dict[str, str]:
+        """Walk ``node``'s children; returns the property names they define (name -> element tag)."""
+        if depth > self.limits.max_xml_depth:  # through includes: each file alone is capped while parsing
+            raise BundleError(f"{name}: XML elements nested deeper than {self.limits.max_xml_depth} (through "
+                              "includes)")
+        props: dict[str, str] = {}
         for child in node:
             tag = child.tag
             if not isinstance(tag, str):
@@ -334,7 +429,17 @@ class _Walker:
             if tag == "default":
                 self.params.define(child.get("name", ""), child.get("value", ""), name)
                 continue
-            attrs = {k: self.params.substitute(v, where) for k, v in child.attrib.items()}
+            attrs = {}
+            for k, v in child.attrib.items():
+                attrs[k] = out = self.params.substitute(v, where, self.limits.max_xml_total_bytes - self.xml_bytes)
+                if out is not v:
+                    self.charge(max(0, len(out) - len(v)))
+            pname = attrs.get("name")
+            if pname is not None:
+                if not pname or any(ch.isspace() or ord(ch) < 32 or ord(ch) == 127 for ch in pname):
+                    raise BundleError(f"{where}: name {pname[:60]!r}: property names may not be empty or hold "
+                                      "spaces or control characters")
+                props[pname] = tag
             if tag in IGNORED_PLUGIN_TAGS and top and len(self.stack) == 1:
                 self.ignored.append(f"the scene's <{tag} type={attrs.get('type', '')[:40]!r}> (the hologram "
                                     "renderer brings its own)")
@@ -345,19 +450,38 @@ class _Walker:
                     raise BundleError(f"scene has more than {self.limits.max_includes} includes")
                 inc = _check_reference(self.root, self.base, attrs.get("filename", ""), f"{name}: include")
                 self.referenced.add(inc)
-                self.visit(inc)
+                self.visit(inc, depth)
                 continue
             kind = attrs.get("type")
             if tag in ALLOWED_PLUGINS and kind is not None:
                 if kind not in ALLOWED_PLUGINS[tag]:
                     raise BundleError(f"{name}: unknown or disallowed {tag} plugin {kind[:40]!r}")
                 self.plugins.add(f"{tag}:{kind}")
+            plugin = f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None
             value = _file_reference(tag, attrs)
             if value is not None:
                 ref = _check_reference(self.root, self.base, value, f"{name}: filename")
                 self.referenced.add(ref)
-                self.account(ref, parent if tag == "string" else f"{tag}:{kind}")
-            self.element(child, name, parent=f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None, top=False)
+                user = parent if tag == "string" else plugin
+                self.account(ref, user, self.shape_index if user == "shape:serialized" else 0)
+            if plugin == "shape:serialized":
+                self.shape_index = _shape_index(child, self.params, where)
+            inner = self.element(child, name, parent=plugin, top=False, depth=depth + 1)
+            if plugin in _NEEDS_FILENAME and inner.get("filename") != "string":
+                raise BundleError(f"{where} type={kind!r}: needs a <string name=\"filename\" value=\"...\"/> "
+                                  "naming its file (exactly that name, lower case)")
+        return props
+
+
+def _shape_index(node, params: _Params, where: str) -> int:
+    """A serialized shape's ``shape_index`` (default 0), as Mitsuba reads the integer."""
+    for child in node:
+        if child.tag == "integer" and child.get("name") == "shape_index":
+            text = params.substitute(child.get("value", ""), where, 1 << 10)
+            if not re.fullmatch(r"\s*\+?[0-9]{1,9}", text):
+                raise BundleError(f"{where}: shape_index {text[:40]!r} is not a non-negative integer")
+            return int(text)
+    return 0
 
 
 def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: BundleLimits = BundleLimits()

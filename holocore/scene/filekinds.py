@@ -14,7 +14,8 @@ import re
 import struct
 from pathlib import Path
 
-__all__ = ["FileKindError", "IMAGE_KINDS", "ALLOWED_KINDS", "sniff_kind", "image_pixels", "obj_counts", "ply_counts"]
+__all__ = ["FileKindError", "IMAGE_KINDS", "ALLOWED_KINDS", "sniff_kind", "image_pixels", "obj_counts", "ply_counts",
+           "serialized_counts"]
 
 
 class FileKindError(ValueError):
@@ -154,6 +155,92 @@ def ply_counts(path: Path, name: str) -> tuple[int, int]:
     return counts.get("face", 0), counts.get("vertex", 0)
 
 
+_SERIALIZED_HEADER, _SERIALIZED_V3, _SERIALIZED_V4 = 0x041C, 3, 4
+_SERIALIZED_MAX_NAME = 4096  # bytes of a mesh name Mitsuba reads before its counts (a NUL-terminated string)
+_DEFLATE_MAX_RATIO = 1100  # no zlib stream inflates to more than about 1032 times its size
+
+
+def _inflate_head(fh, offset: int, size: int, want: int) -> bytes:
+    """The first ``want`` inflated bytes of the zlib stream at ``offset`` (or fewer when the stream ends);
+    reads at most what it needs, so a bomb inside a mesh costs nothing here."""
+    import zlib
+
+    fh.seek(offset)
+    d = zlib.decompressobj()
+    out = b""
+    left = size - offset
+    while len(out) < want and left > 0 and not d.eof:
+        chunk = fh.read(min(4096, left))
+        if not chunk:
+            break
+        left -= len(chunk)
+        out += d.decompress(chunk, want - len(out))
+        while d.unconsumed_tail and len(out) < want:
+            out += d.decompress(d.unconsumed_tail, want - len(out))
+    return out[:want]
+
+
+def serialized_counts(path: Path, name: str, shape_index: int) -> tuple[int, int]:
+    """(faces, vertices) of mesh ``shape_index`` of a Mitsuba serialized file, as its loader finds them
+    (serialized.cpp, Mitsuba 3.9): index 0 is the stream right after the file's 4-byte header, any other one is
+    found through the offset table at the end of the file (the first header's version decides its layout); the
+    counts are the uint64 vertex and face counts inside the zlib stream, after the flags word and (version 4)
+    the mesh name. The loader allocates for those counts before reading any vertex, so they are what a mesh
+    costs; counts that need more data than the compressed bytes can hold, streams that cannot be read and
+    indices out of the table are refused."""
+    import zlib
+
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        head = fh.read(4)
+        if len(head) < 4:
+            raise FileKindError(f"{name}: serialized mesh shorter than its header")
+        fmt, version = struct.unpack("<HH", head)
+        if fmt != _SERIALIZED_HEADER or version not in (_SERIALIZED_V3, _SERIALIZED_V4):
+            raise FileKindError(f"{name}: not a Mitsuba serialized mesh of version 3 or 4")
+        offset = 4
+        if shape_index != 0:
+            if size < 8:
+                raise FileKindError(f"{name}: serialized mesh has no offset table for shape_index {shape_index}")
+            fh.seek(size - 4)
+            (count,) = struct.unpack("<I", fh.read(4))
+            if shape_index >= count:
+                raise FileKindError(f"{name}: shape_index {shape_index} is out of range (the file's table lists "
+                                    f"{count} meshes)")
+            width = 8 if version == _SERIALIZED_V4 else 4
+            at = size - 4 - width * (count - shape_index)
+            if at < 4:
+                raise FileKindError(f"{name}: serialized mesh offset table is larger than the file")
+            fh.seek(at)
+            (start,) = struct.unpack("<Q" if width == 8 else "<I", fh.read(width))
+            offset = start + 4  # the loader skips the mesh's own 4-byte header without reading it
+            if offset >= size:
+                raise FileKindError(f"{name}: shape_index {shape_index} points past the end of the file")
+        want = 4 + (_SERIALIZED_MAX_NAME + 1 if version == _SERIALIZED_V4 else 0) + 16
+        try:
+            data = _inflate_head(fh, offset, size, want)
+        except zlib.error:
+            raise FileKindError(f"{name}: serialized mesh {shape_index}: damaged zlib stream") from None
+    pos = 4
+    if version == _SERIALIZED_V4:
+        end = data.find(b"\0", 4)
+        if end < 0:
+            raise FileKindError(f"{name}: serialized mesh {shape_index}: no mesh name within "
+                                f"{_SERIALIZED_MAX_NAME} bytes (or the stream ends)")
+        pos = end + 1
+    if len(data) < pos + 16:
+        raise FileKindError(f"{name}: serialized mesh {shape_index}: the stream ends inside its header")
+    flags = struct.unpack_from("<I", data, 0)[0]
+    verts, faces = struct.unpack_from("<QQ", data, pos)
+    scalar = 8 if flags & 0x2000 else 4
+    per_vertex = 3 + 3 * bool(flags & 0x1) + 2 * bool(flags & 0x2) + 3 * bool(flags & 0x8)
+    need = verts * per_vertex * scalar + faces * 12
+    if need > (size - offset) * _DEFLATE_MAX_RATIO:
+        raise FileKindError(f"{name}: serialized mesh {shape_index} declares {faces} faces and {verts} vertices, "
+                            f"more than its {size - offset} compressed bytes can hold")
+    return faces, verts
+
+
 def _exr_pixels(path: Path, name: str) -> int:
     with path.open("rb") as fh:
         head = fh.read(65536)
@@ -175,16 +262,62 @@ def _exr_pixels(path: Path, name: str) -> int:
     raise FileKindError(f"{name}: OpenEXR header without a readable dataWindow")
 
 
+_HDR_HEADER_BYTES = 65536
+_C_SPACE = b" \t\n\v\f\r"
+
+
+def _stoull32(token: bytes) -> int | None:
+    """The uint32 Mitsuba makes of a resolution token (``(uint32_t) std::stoull``: leading C whitespace, an
+    optional sign, decimal digits, anything after them ignored); None where that would throw, wrap or go
+    negative (a value Mitsuba would read as something else than it says)."""
+    m = re.match(rb"([-+]?)(\d+)", token.lstrip(_C_SPACE))
+    if m is None:
+        return None
+    value = int(m.group(2))
+    if value >= 1 << 32 or (m.group(1) == b"-" and value != 0):
+        return None
+    return value
+
+
+def _rgbe_size(line: bytes) -> tuple[int, int] | None | bool:
+    """What Mitsuba's Radiance reader makes of one header line (Bitmap::read_rgbe, Mitsuba 3.9): a resolution
+    line is one that splits on spaces and commas into exactly ``-Y H +X W``. Returns (height, width), None
+    for any other line, False for a resolution line whose numbers it would not read as written."""
+    if line.startswith((b"FORMAT=32-bit_rle_rgbe", b"FORMAT=32-bit_rle_xyze")):
+        return None
+    tokens = [t for t in re.split(rb"[ ,]", line) if t]
+    if len(tokens) != 4 or tokens[0] != b"-Y" or tokens[2] != b"+X":
+        return None
+    h, w = _stoull32(tokens[1]), _stoull32(tokens[3])
+    return False if h is None or w is None else (h, w)
+
+
 def _hdr_pixels(path: Path, name: str) -> int:
+    """Pixels of a Radiance HDR file, read the way Mitsuba reads its header: after the ``#?`` line, every line
+    up to the first resolution line, which may come with extra spaces, commas, zero padding or ``+`` signs
+    (``-Y  +09000 +X 9000``) and need not follow an empty line. A header Mitsuba could read in two ways (its file
+    stream keeps carriage returns, its other streams drop them) or that this reader cannot follow is refused."""
     with path.open("rb") as fh:
-        for _ in range(200):
-            line = fh.readline(4096)
-            if not line:
-                break
-            m = re.match(rb"^([-+])([YX]) (\d{1,9}) ([-+])([YX]) (\d{1,9})\s*$", line)
-            if m:
-                return int(m.group(3)) * int(m.group(6))
-    raise FileKindError(f"{name}: Radiance HDR header without a resolution line")
+        head = fh.read(_HDR_HEADER_BYTES)
+    lines = head.split(b"\n")
+    if not lines[0].startswith(b"#?"):
+        raise FileKindError(f"{name}: Radiance HDR file without its '#?' first line")
+    seen_format = False
+    for line in lines[1:-1]:  # the last piece has no newline yet: it may be cut
+        kept, dropped = _rgbe_size(line), _rgbe_size(line.replace(b"\r", b""))
+        if kept != dropped:
+            raise FileKindError(f"{name}: Radiance HDR header line {line[:60]!r} reads differently with and "
+                                "without its carriage returns")
+        if kept is False:
+            raise FileKindError(f"{name}: Radiance HDR resolution line {line[:60]!r} holds a size that is "
+                                "negative, too large or not a number")
+        if kept is not None:
+            if not seen_format:
+                raise FileKindError(f"{name}: Radiance HDR header has no FORMAT line before its resolution")
+            return kept[0] * kept[1]
+        seen_format = seen_format or line.startswith((b"FORMAT=32-bit_rle_rgbe", b"FORMAT=32-bit_rle_xyze"))
+    raise FileKindError(f"{name}: Radiance HDR header without a resolution line in its first "
+                        f"{_HDR_HEADER_BYTES} bytes")
 
 
 def _pfm_pixels(path: Path, name: str) -> int:
