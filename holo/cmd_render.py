@@ -39,6 +39,8 @@ def render(
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset; with "
                                                  "--time-limit-s, the most)."),
+    max_spp: Optional[int] = typer.Option(None, "--max-spp", help="Without --spp: the most rays per WRP pixel the "
+                                                                  "preset may choose (a cap below its own)."),
     time_limit_s: Optional[float] = typer.Option(
         None, "--time-limit-s", help="Render for about this many seconds of wall time (setup, tracing and "
                                      "propagation; not the file writing): passes of rays until the time is spent."),
@@ -81,10 +83,12 @@ def render(
     from holocore.pipeline import RenderOptions, render_to_file
 
     try:
-        options = RenderOptions(preset=preset, spp=spp, method=method, force_all_effects=force_all_effects,
+        options = RenderOptions(preset=preset, spp=spp, max_spp=max_spp, method=method,
+                                force_all_effects=force_all_effects,
                                 wrp_planes=parse_wrp_planes(wrp_planes), time_limit_s=time_limit_s)
     except ValueError as exc:
-        fail(str(exc).replace("time_limit_s", "--time-limit-s").replace("spp must", "--spp must"))
+        msg = str(exc).replace("time_limit_s", "--time-limit-s")
+        fail("--max-spp" + msg[len("max_spp"):] if msg.startswith("max_spp") else msg.replace("spp must", "--spp must"))
     console = Console(stderr=True)
     if estimate and time_limit_s is not None:
         console.print(f"estimated time of `holo render`: {time_limit_s:.1f} s (the time limit: the render traces "

@@ -25,6 +25,7 @@ from holocore import __version__
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.display.profiles import DisplayProfile
 from holocore.optics.cone_equaliser import plane_equalisers
+from holocore.trace.beams import BEAM_MODES
 from holocore.optics.plane_chain import chain_planes
 from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
@@ -41,6 +42,7 @@ ProgressFn = Callable[[str, int, int], None]
 class RenderOptions:
     preset: PresetName = "balanced"
     spp: Optional[int] = None
+    max_spp: Optional[int] = None  # without spp: the most rays per pixel the preset may choose (a service's cap)
     method: RenderMethod = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
@@ -66,6 +68,8 @@ class RenderOptions:
             raise ValueError("several recording planes need method 'wrp' (the direct method records on the SLM)")
         if self.spp is not None and not 1 <= self.spp <= 1_000_000:
             raise ValueError(f"spp must be in 1..1000000, got {self.spp}")
+        if self.max_spp is not None and not 1 <= self.max_spp <= 1_000_000:
+            raise ValueError(f"max_spp must be in 1..1000000, got {self.max_spp}")
         if self.time_limit_s is not None and not (isinstance(self.time_limit_s, (int, float))
                                                   and 0 < self.time_limit_s < 1e7):
             raise ValueError(f"time_limit_s must be in (0, 1e7) s, got {self.time_limit_s!r}")
@@ -107,7 +111,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     radius_px = ana.subhologram_radius_px if planes.count == 1 or not depths else \
         planes.farthest_distance_m(depths) * px_per_m
     plan = make_plan(inv, preset=options.preset, frames=optics.frames, n_colors=len(optics.wavelengths_m),
-                     colors_lit=ana.colors_lit, spp=options.spp, force_all=options.force_all_effects,
+                     colors_lit=ana.colors_lit, spp=options.spp, max_spp=options.max_spp,
+                     force_all=options.force_all_effects,
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
                      subhologram_radius_px=radius_px, theta_max=theta_max, wrp_planes_m=list(planes.z_m),
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
@@ -132,20 +137,21 @@ def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: in
     frame (no [F, H, W] temporaries)."""
     import torch
 
-    from holocore.trace.beams import beam_gain, beam_phase_frames
+    from holocore.trace.beams import BEAM_MODES, beam_frames, beam_gain
     from holocore.trace.randomfield import phase_frames
 
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
     lams = list(optics.wavelengths_m if wavelengths_m is None else wavelengths_m)
     C = len(lams)
-    beams = optics.frame_phases == "directional"
+    beams = optics.frame_phases in BEAM_MODES
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
     for c, lam in enumerate(lams):
         if beams:  # Eq. B1's lateral part, each colour's amplitude scaled to the same share in a pupil
             gain = beam_gain(lam, optics.pitch_m, optics.wavelengths_m)
-            maps = beam_phase_frames(F, shape_hw, lam, optics.pitch_m, wavelengths_m=optics.wavelengths_m,
-                                     first_frame=first_frame, bank_frames=optics.frames)
+            maps = beam_frames(optics.frame_phases, F, shape_hw, lam, optics.pitch_m,
+                               wavelengths_m=optics.wavelengths_m, seed=optics.seed, first_frame=first_frame,
+                               bank_frames=optics.frames)
         else:
             gain = 1.0
             maps = phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, first_frame=first_frame,
@@ -160,11 +166,13 @@ def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int,
                       wavelengths_m) -> Optional[BeamDepthTerms]:
     """The depth part of directional frames (Eq. B1, relative to the WRP) for frames first_frame.. of colours
     ``wavelengths_m``; None for random phases."""
-    if optics.frame_phases != "directional":
+    from holocore.trace.beams import BEAM_MODES, beam_rho
+
+    if optics.frame_phases not in BEAM_MODES:
         return None
     return BeamDepthTerms.make(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
                                wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
-                               pitch_m=optics.pitch_m)
+                               pitch_m=optics.pitch_m, rho=beam_rho(optics.frame_phases))
 
 
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
@@ -237,7 +245,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
         equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
-                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional")
+                                      noise_aware=options.equalise_noise and optics.frame_phases not in BEAM_MODES)
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
@@ -341,7 +349,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
         "shape_fchw": [F, C, H, W],
         "method": options.method,
         "preset": options.preset,
-        "scene": str(loaded.entry),
+        "scene": loaded.entry.name,  # bundle-relative (the loader's root is the XML's folder): no server path
         "scene_sha256": getattr(loaded.bundle, "sha256", None),
         "optics": json.loads(optics.model_dump_json()),
         "plan": json.loads(_sampled_plan(plan, schedule).model_dump_json()),

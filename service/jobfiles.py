@@ -35,6 +35,7 @@ class JobOptions(BaseModel):
     preset: Preset = "balanced"
     frames: Optional[int] = None
     spp: Optional[int] = None  # with render_time_limit_s: the most rays per pixel
+    max_spp: Optional[int] = None  # without spp: the most rays per pixel the preset may choose (the service's cap)
     render_time_limit_s: Optional[float] = None
     encoder: Encoder = "sgd"
     iterations: Optional[int] = None

@@ -14,11 +14,12 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from holocore.display.optics import OpticsConfig
 from holocore.plan.memory_estimate import MemoryEstimate, estimate_memory
+from holocore.plan.presets import PRESETS
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
            "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "job_memory", "memory_admission_error", "cache_key", "effective_optics",
-           "estimate_cost", "spp_cap"]
+           "estimate_cost", "spp_cap", "preset_spp_cap", "binding_max_spp"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -187,13 +188,34 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
                     f"got {req.render_time_limit_s:g}")
     if req.iterations is not None and req.iterations > limits.max_iterations:
         errs.append(f"iterations: must be in 0..{limits.max_iterations}, got {req.iterations}")
-    rays = h * w * c * (spp_cap(req, limits) if req.render_time_limit_s is not None else _spp(req))
+    # The most rays the job may trace: a preset chooses its spp from the scene depth at render time, up to its
+    # spp_max (clamped to max_spp), so that bound is what is counted, not a typical value.
+    timed = req.render_time_limit_s is not None
+    most_spp = spp_cap(req, limits) if timed else (req.spp if req.spp is not None else preset_spp_cap(req, limits))
+    rays = h * w * c * most_spp
     if rays > limits.max_ray_budget:
-        what = "up to " if req.render_time_limit_s is not None else ""
+        what = "up to " if timed or req.spp is None else ""
+        hint = ("; give a smaller spp, the most rays per pixel of a time-limited render" if timed else
+                f"; the {req.preset} preset may choose up to {most_spp} rays per pixel: give a smaller spp or "
+                "another preset" if req.spp is None else "")
         errs.append(f"job traces {what}{rays:.3g} rays (H*W*colors*spp), more than the limit "
-                    f"{limits.max_ray_budget:.3g}" + ("; give a smaller spp, the most rays per pixel of a "
-                                                     "time-limited render" if what else ""))
+                    f"{limits.max_ray_budget:.3g}" + hint)
     return errs
+
+
+def preset_spp_cap(req: JobRequest, limits: JobLimits) -> int:
+    """The most rays per pixel the job's preset may choose when spp is not given: its spp_max, clamped to the
+    service's max_spp (the render is told the clamp: JobOptions.max_spp)."""
+    return min(PRESETS[req.preset].spp_max, limits.max_spp)
+
+
+def binding_max_spp(req: JobRequest, limits: JobLimits) -> Optional[int]:
+    """The clamp the render must apply to its preset's choice of spp: max_spp when it is below the preset's own
+    spp_max and spp is not given (None otherwise: the preset's bounds already hold)."""
+    if req.spp is not None or req.render_time_limit_s is not None:
+        return None
+    cap = preset_spp_cap(req, limits)
+    return cap if cap < PRESETS[req.preset].spp_max else None
 
 
 def spp_cap(req: JobRequest, limits: JobLimits) -> int:
@@ -210,7 +232,8 @@ def _spp(req: JobRequest) -> int:
     return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
 
 
-def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict[str, Any]:
+def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None,
+                  max_spp: Optional[int] = None) -> dict[str, Any]:
     """Predicted seconds of a job, shown at submit time.
 
     The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
@@ -225,7 +248,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     c = len(o.wavelengths_nm)
     f = o.frames
     memory = job_memory(req).as_dict()
-    spp = _spp(req)
+    spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
     iters = req.iterations if req.iterations is not None else 500
@@ -235,7 +258,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None) -> dict
     try:
         from holocore.plan.estimate import estimate_breakdown, features
 
-        options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method)
+        options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
         radius = ana.get("subhologram_radius_px")
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0)
@@ -274,11 +297,14 @@ def memory_admission_error(req: JobRequest, worker_memory_bytes: int) -> Optiona
             "(memory grows with their product)")
 
 
-def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str) -> str:
-    """Content address of a job's result: scene content + optics + options + code version (not the display)."""
+def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str,
+              max_spp: Optional[int] = None) -> str:
+    """Content address of a job's result: scene content + optics + options + code version (not the display).
+    ``max_spp``: the clamp on the preset's choice of spp (:func:`binding_max_spp`), when there is one."""
     doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
            "preset": req.preset, "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations,
            "method": req.method, "code": code_version,
+           **({"max_spp": max_spp} if max_spp is not None else {}),
            **({"render_time_limit_s": req.render_time_limit_s} if req.render_time_limit_s is not None else {}),
            **({"wrp_planes": req.wrp_planes} if req.wrp_planes != 1 else {})}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

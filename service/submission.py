@@ -21,6 +21,7 @@ from service.integrity import artifact_intact
 from service.jobfiles import JobSpec
 from service.models import (
     JobRequest,
+    binding_max_spp,
     cache_key,
     effective_optics,
     estimate_cost,
@@ -79,10 +80,12 @@ def reusable_job(ctx: ServiceContext, key: str) -> Optional[dict]:
 
 def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
     """The job's stored options (its ``spec``): the effective optics and the request's render options (a
-    time-limited render's spp is its cap: the request's, else the service's max_spp)."""
+    time-limited render's spp is its cap: the request's, else the service's max_spp; a preset's own choice of
+    spp is clamped to max_spp: ``max_spp``)."""
     timed = req.render_time_limit_s is not None
     return JobSpec(optics=effective_optics(req).model_dump(mode="json"), preset=req.preset, frames=req.frames,
-                   spp=spp_cap(req, limits) if timed else req.spp, render_time_limit_s=req.render_time_limit_s,
+                   spp=spp_cap(req, limits) if timed else req.spp, max_spp=binding_max_spp(req, limits),
+                   render_time_limit_s=req.render_time_limit_s,
                    encoder=req.encoder, iterations=req.iterations, method=req.method, wrp_planes=req.wrp_planes)
 
 
@@ -112,12 +115,14 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
         prior = ctx.db.get_idempotency(principal.token_id, idempotency_key)
         if prior is not None:
             return _replay(ctx, prior, body_hash)
-    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version)
+    max_spp = binding_max_spp(req, ctx.settings.job_limits)
+    key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version,
+                    max_spp=max_spp)
     job_id = "j" + secrets.token_hex(10)
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
            "spec": job_spec(req, ctx.settings.job_limits).model_dump(mode="json"), "cache_key": key, "created_at": now,
-           "estimate": estimate_cost(req, scene_plan=scene["plan"]), "token_id": principal.token_id,
+           "estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp), "token_id": principal.token_id,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}

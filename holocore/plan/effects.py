@@ -28,12 +28,15 @@ def noise_factor(theta_max: float) -> float:
     return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
 
 
-def choose_spp(preset: PresetName, subhologram_radius_px: float, theta_max: float) -> int:
+def choose_spp(preset: PresetName, subhologram_radius_px: float, theta_max: float,
+               max_spp: Optional[int] = None) -> int:
     """Rays per WRP pixel for a preset (holocore.plan.presets), from the farthest image point's sub-hologram
-    radius: N = k(theta) rho^2 / the preset's noise-to-signal target, within its bounds."""
+    radius: N = k(theta) rho^2 / the preset's noise-to-signal target, within its bounds and at most ``max_spp``
+    (a service's cap on rays per pixel, which may be below the preset's own spp_max)."""
     p = PRESETS[preset]
     n = math.ceil(noise_factor(theta_max) * subhologram_radius_px ** 2 / p.noise_to_signal)
-    return int(min(p.spp_max, max(p.spp_min, n)))
+    top = p.spp_max if max_spp is None else max(1, min(p.spp_max, int(max_spp)))
+    return int(min(top, max(min(p.spp_min, top), n)))
 
 
 class SceneInventory(BaseModel):
@@ -123,6 +126,7 @@ def make_plan(
     n_colors: int,
     colors_lit: Optional[list[bool]] = None,
     spp: Optional[int] = None,
+    max_spp: Optional[int] = None,
     force_all: bool = False,
     max_delta_seen: Optional[int] = None,
     prepass_capped: int = 0,
@@ -198,7 +202,7 @@ def make_plan(
                      f"to the WRP by the ASM")
     elif wrp_planes_asked == "auto":
         words.append("one wave recording plane (auto: more planes would not lower the noise much at this depth)")
-    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max)
+    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max, max_spp)
     ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
     words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "

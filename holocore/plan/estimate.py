@@ -118,7 +118,7 @@ def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Opt
         radius = optics.wrp_margin_px + 2.0 if subhologram_radius_px is None else float(subhologram_radius_px)
         if not (math.isfinite(radius) and radius >= 0):
             raise ValueError(f"subhologram_radius_px must be finite and >= 0, got {subhologram_radius_px!r}")
-        n = choose_spp(options.preset, radius, theta)
+        n = choose_spp(options.preset, radius, theta, getattr(options, "max_spp", None))
     H, W = optics.resolution_hw
     rows_per_tile = max(1, int(getattr(options, "tile_rays", 1 << 19)) // max(1, n * W))
     return {"spp": n, "rays": H * W * n, "tiles": math.ceil(H / rows_per_tile),

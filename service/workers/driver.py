@@ -5,7 +5,9 @@ view grid under ``pictures/``; one process).
 Run as ``python -m service.workers.driver JOB_DIR [--parent-pid PID]``. ``JOB_DIR/job.json`` says what to do;
 the driver writes ``step.json`` as each step starts, each CLI appends ``progress-<step>.jsonl``, and at the end
 ``status.json`` (atomically) says how it went. Exit codes: 0 done, 3 failed for good (bad input, the scene
-refused; ``status.json`` holds the message), anything else (a crash, a signal) may be retried.
+refused; ``status.json`` holds the message, and a step that crashed on its own: SIGSEGV, SIGBUS, SIGILL, SIGFPE,
+SIGABRT, which the same input would give again), anything else (SIGKILL, the driver's own death) may be
+retried.
 
 The driver leads its process group (the scheduler starts it with ``start_new_session``); the CLIs inherit the
 group, so one ``killpg`` stops the whole job. It asks the kernel for SIGTERM when its parent dies
@@ -74,6 +76,11 @@ def _on_term(signum, frame) -> None:  # noqa: ARG001
         os._exit(128 + signum)
 
 
+# Signals a step raises on itself when its input crashes it (Mitsuba on a malformed scene): a rerun crashes the
+# same way, so such a failure is final.
+_CRASH_SIGNALS = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGILL, signal.SIGFPE, signal.SIGABRT})
+
+
 class StepFailed(Exception):
     def __init__(self, message: str, retryable: bool) -> None:
         super().__init__(message)
@@ -102,7 +109,11 @@ def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> fl
                               stdin=subprocess.DEVNULL, cwd=job_dir, preexec_fn=_child_dies_with_driver)
     if proc.returncode != 0:
         if proc.returncode < 0:
-            raise StepFailed(f"holo {step} was killed by signal {-proc.returncode}", retryable=True)
+            sig = -proc.returncode
+            if sig in _CRASH_SIGNALS:
+                raise StepFailed(f"holo {step} crashed ({signal.Signals(sig).name}); the scene or options make it "
+                                 "crash, so it is not retried", retryable=False)
+            raise StepFailed(f"holo {step} was killed by signal {sig}", retryable=True)
         last = _log_message(job_dir / f"{step}.log")
         raise StepFailed(f"holo {step} failed (exit {proc.returncode}): {last or 'no message'}", retryable=False)
     return time.monotonic() - t0
@@ -154,6 +165,8 @@ def render_args(spec: JobFile, progress_path: str) -> list[str]:
             "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", progress_path]
     if spec.spp is not None:
         args += ["--spp", str(spec.spp)]
+    elif spec.max_spp is not None:  # the service's cap on what the preset may choose
+        args += ["--max-spp", str(spec.max_spp)]
     if spec.render_time_limit_s is not None:
         args += ["--time-limit-s", repr(float(spec.render_time_limit_s))]
     return args + ["--wrp-planes", str(spec.wrp_planes)]  # jobs stored before the option: 1 (JobOptions)
