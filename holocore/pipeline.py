@@ -25,7 +25,6 @@ from holocore import __version__
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.display.profiles import DisplayProfile
 from holocore.optics.cone_equaliser import plane_equalisers
-from holocore.trace.beams import BEAM_MODES
 from holocore.optics.plane_chain import chain_planes
 from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
@@ -137,21 +136,20 @@ def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: in
     frame (no [F, H, W] temporaries)."""
     import torch
 
-    from holocore.trace.beams import BEAM_MODES, beam_frames, beam_gain
+    from holocore.trace.beams import beam_gain, beam_phase_frames
     from holocore.trace.randomfield import phase_frames
 
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
     lams = list(optics.wavelengths_m if wavelengths_m is None else wavelengths_m)
     C = len(lams)
-    beams = optics.frame_phases in BEAM_MODES
+    beams = optics.frame_phases == "directional"
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
     for c, lam in enumerate(lams):
         if beams:  # Eq. B1's lateral part, each colour's amplitude scaled to the same share in a pupil
             gain = beam_gain(lam, optics.pitch_m, optics.wavelengths_m)
-            maps = beam_frames(optics.frame_phases, F, shape_hw, lam, optics.pitch_m,
-                               wavelengths_m=optics.wavelengths_m, seed=optics.seed, first_frame=first_frame,
-                               bank_frames=optics.frames)
+            maps = beam_phase_frames(F, shape_hw, lam, optics.pitch_m, wavelengths_m=optics.wavelengths_m,
+                                     first_frame=first_frame, bank_frames=optics.frames)
         else:
             gain = 1.0
             maps = phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, first_frame=first_frame,
@@ -166,13 +164,11 @@ def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int,
                       wavelengths_m) -> Optional[BeamDepthTerms]:
     """The depth part of directional frames (Eq. B1, relative to the WRP) for frames first_frame.. of colours
     ``wavelengths_m``; None for random phases."""
-    from holocore.trace.beams import BEAM_MODES, beam_rho
-
-    if optics.frame_phases not in BEAM_MODES:
+    if optics.frame_phases != "directional":
         return None
     return BeamDepthTerms.make(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
                                wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
-                               pitch_m=optics.pitch_m, rho=beam_rho(optics.frame_phases))
+                               pitch_m=optics.pitch_m)
 
 
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
@@ -245,7 +241,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
         equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
-                                      noise_aware=options.equalise_noise and optics.frame_phases not in BEAM_MODES)
+                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional")
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
