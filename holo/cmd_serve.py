@@ -38,6 +38,11 @@ def serve(
                                                                   "when root and possible), on (mandatory), off, "
                                                                   "or UIDBASE (on; planner uid, jobs UIDBASE+1..; "
                                                                   "default 61000). Env HOLO_SANDBOX."),
+    trusted_proxies: Optional[str] = typer.Option(None, "--trusted-proxies", help="Comma-separated addresses or "
+                                                                               "networks of reverse proxies whose "
+                                                                               "X-Forwarded-For names the client "
+                                                                               "(default: none; env "
+                                                                               "HOLO_TRUSTED_PROXIES)."),
     log_level: str = typer.Option("info", "--log-level", help="debug | info | warning | error"),
 ) -> None:
     """Run the rendering service (REST API on /v1, OpenAPI at /docs)."""
@@ -55,7 +60,7 @@ def serve(
         settings = ServiceSettings.from_env(data_dir=data_dir, host=host, port=port, workers=workers, engine=engine,
                                             ray_address=ray_address, ray_gpus_per_job=ray_gpus,
                                             max_attempts=max_attempts, max_upload_mb=max_upload_mb,
-                                            sandbox=sandbox)
+                                            sandbox=sandbox, trusted_proxies=trusted_proxies)
     except ValidationError as exc:
         fail("; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()))
     from service.api.context import DataDirBusy

@@ -14,13 +14,15 @@ import hashlib
 import math
 import re
 import secrets
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Iterable, Optional
 
 from service.db import Database
 
-__all__ = ["SCOPES", "DEFAULT_OWNER", "Principal", "create_token", "verify_token", "revoke_token", "list_tokens", "allows"]
+__all__ = ["AuthFailures", "SCOPES", "DEFAULT_OWNER", "Principal", "create_token", "verify_token", "revoke_token", "list_tokens", "allows"]
 
 SCOPES = ("submit", "read", "admin", "agent")
 _IMPLIES = {"admin": set(SCOPES), "submit": {"submit", "read"}, "agent": {"agent", "read"}, "read": {"read"}}
@@ -97,3 +99,30 @@ def revoke_token(db: Database, token_id: str) -> bool:
 
 def list_tokens(db: Database) -> list[dict]:
     return db.list_tokens()
+
+
+class AuthFailures:
+    """Failed authentications per client address over the last minute (in memory; one server process)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._seen: dict[str, deque] = {}
+
+    def blocked_for(self, client: str, limit: int) -> float:
+        """Seconds until ``client`` may try again (0: not blocked)."""
+        now = time.monotonic()
+        with self._lock:
+            q = self._seen.get(client)
+            while q and now - q[0] > 60.0:
+                q.popleft()
+            if not q:
+                self._seen.pop(client, None)
+                return 0.0
+            return 60.0 - (now - q[0]) if len(q) >= limit else 0.0
+
+    def record(self, client: str) -> None:
+        with self._lock:
+            if len(self._seen) > 100_000:  # a flood of addresses: forget the oldest half
+                for key in list(self._seen)[:50_000]:
+                    del self._seen[key]
+            self._seen.setdefault(client, deque(maxlen=10_000)).append(time.monotonic())

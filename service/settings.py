@@ -6,7 +6,9 @@ Everything lives under ``data_dir``: ``service.db`` (SQLite, WAL), ``scenes/<id>
 
 from __future__ import annotations
 
+import ipaddress
 import os
+from functools import cached_property
 from pathlib import Path
 from typing import Literal, Optional
 
@@ -46,7 +48,8 @@ class UploadLimits(BaseModel):
 class ServiceSettings(BaseModel):
     """How `holo serve` runs. Environment: ``HOLO_DATA_DIR``, ``HOLO_HOST``, ``HOLO_PORT``, ``HOLO_WORKERS``,
     ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray),
-    ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle)."""
+    ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle), ``HOLO_TRUSTED_PROXIES``
+    (comma-separated), ``HOLO_BODY_TIMEOUT_S``."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -77,7 +80,13 @@ class ServiceSettings(BaseModel):
     keepalive_timeout_s: float = Field(default=5.0, gt=0, le=600, description="Idle keep-alive connections close "
                                                                              "after this.")
     auth_failures_per_minute: int = Field(default=60, ge=1, description="Failed authentications a client address "
-                                                                       "may make per minute before it gets 429.")
+                                                                       "may make per minute before its failures "
+                                                                       "get 429 (a valid token always passes).")
+    trusted_proxies: list[str] = Field(default_factory=list, description="Addresses or networks (CIDR) of reverse "
+                                       "proxies whose X-Forwarded-For names the client; from any other peer the "
+                                       "header is ignored.")
+    body_timeout_s: float = Field(default=300.0, gt=0, le=86400, description="Time a client has to send a "
+                                  "request's whole body; slower requests get 408 and the connection is closed.")
     metrics_public: bool = Field(default=False, description="Serve /metrics without a token (else: scope read).")
     # Memory admission (issue 11 item 3).
     worker_memory_mb: Optional[float] = Field(default=None, gt=0, description="Memory the workers may use together, "
@@ -88,6 +97,24 @@ class ServiceSettings(BaseModel):
     @classmethod
     def _absolute(cls, v: Path) -> Path:
         return Path(v).expanduser().resolve()
+
+    @field_validator("trusted_proxies", mode="before")
+    @classmethod
+    def _networks(cls, v):
+        items = [x.strip() for x in v.split(",")] if isinstance(v, str) else list(v or [])
+        out = []
+        for x in items:
+            if not x:
+                continue
+            try:
+                out.append(str(ipaddress.ip_network(x, strict=False)))
+            except ValueError:
+                raise ValueError(f"not an IP address or network: {x[:60]!r}") from None
+        return out
+
+    @cached_property
+    def trusted_proxy_networks(self) -> tuple:
+        return tuple(ipaddress.ip_network(x) for x in self.trusted_proxies)
 
     @property
     def db_path(self) -> Path:
@@ -125,7 +152,8 @@ class ServiceSettings(BaseModel):
                          ("sandbox", "HOLO_SANDBOX"),
                          ("header_timeout_s", "HOLO_HEADER_TIMEOUT_S"),
                          ("auth_failures_per_minute", "HOLO_AUTH_FAILURES_PER_MINUTE"),
-                         ("metrics_public", "HOLO_METRICS_PUBLIC"), ("worker_memory_mb", "HOLO_WORKER_MEMORY_MB")):
+                         ("metrics_public", "HOLO_METRICS_PUBLIC"), ("worker_memory_mb", "HOLO_WORKER_MEMORY_MB"),
+                         ("trusted_proxies", "HOLO_TRUSTED_PROXIES"), ("body_timeout_s", "HOLO_BODY_TIMEOUT_S")):
             if env.get(var):
                 data[key] = env[var]
         upload_mb = overrides.pop("max_upload_mb", None) or env.get("HOLO_MAX_UPLOAD_MB")

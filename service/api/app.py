@@ -3,6 +3,7 @@ rendering happens in worker processes (DESIGN.md §1: no Mitsuba, Dr.Jit or torc
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import time
@@ -14,8 +15,8 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from service.api import displays, jobs, scenes, web
 from service.api.context import ServiceContext
-from service.api.deps import require
-from service.api.problems import install_handlers, problem
+from service.api.deps import PRINCIPAL_KEY, authenticate, require
+from service.api.problems import ApiError, install_handlers, problem
 from service.db import Database
 from service.metrics import Metrics
 from service.models import Problem
@@ -26,9 +27,25 @@ __all__ = ["create_app"]
 
 log = logging.getLogger("holo.service")
 
+def _has_body(headers: dict) -> bool:
+    try:
+        declared = int(headers.get(b"content-length", b"0") or 0)
+    except ValueError:
+        declared = 1  # unreadable: treat it as a body (h11 refuses it anyway)
+    return declared > 0 or b"transfer-encoding" in headers
+
+
 class _Guard:
-    """Pure ASGI middleware: refuses bodies over ``max_body`` bytes (413, from Content-Length or while streaming)
-    and records request counts and latency (time to the response start) per route template."""
+    """Pure ASGI middleware in front of every route:
+
+    - a request to the API (``/v1/``) that carries a body is authenticated from its headers *before* a byte of
+      the body is read: without a valid token the client gets 401 (or 429) at once and the connection is
+      closed, so an anonymous client cannot make the server spool an upload (FastAPI reads a form before it
+      runs the route's dependencies). The principal is left in the scope for the route's scope check.
+    - bodies over ``max_body`` bytes are refused (413, from Content-Length or while streaming), and a body
+      must arrive whole within ``body_timeout_s`` (408 and the connection closed: a client trickling a byte a
+      second cannot hold a request open).
+    - request counts and latency (time to the response start) per route template are recorded."""
 
     def __init__(self, app, *, ctx: ServiceContext) -> None:
         self.app = app
@@ -46,28 +63,47 @@ class _Guard:
         except ValueError:
             declared = 0
         if declared > limit:
-            resp = problem(413, f"request body of {declared} bytes is larger than the limit of {limit} bytes")
+            resp = problem(413, f"request body of {declared} bytes is larger than the limit of {limit} bytes",
+                           headers={"Connection": "close"})
             await resp(scope, receive, send)
             self._record(scope, 413, t0)
             return
+        if _has_body(headers) and scope.get("path", "").startswith("/v1/"):
+            try:
+                scope[PRINCIPAL_KEY] = authenticate(self.ctx, scope)
+            except ApiError as exc:
+                resp = problem(exc.status, exc.detail, instance=scope.get("path"),
+                               headers={**(exc.headers or {}), "Connection": "close"})
+                await resp(scope, receive, send)
+                self._record(scope, exc.status, t0)
+                return
         seen = 0
-        over = {"limit": False, "started": False}
+        over = {"limit": False, "timeout": False, "started": False, "body_done": False}
+        deadline = asyncio.get_running_loop().time() + self.ctx.settings.body_timeout_s
 
         async def limited_receive():
             nonlocal seen
-            if over["limit"]:
+            if over["limit"] or over["timeout"]:
                 return {"type": "http.disconnect"}
-            message = await receive()
+            if over["body_done"]:  # after the body: the app waits for a disconnect (streams), no deadline
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), max(0.0, deadline - asyncio.get_running_loop().time()))
+            except asyncio.TimeoutError:
+                over["timeout"] = True
+                return {"type": "http.disconnect"}
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > limit:  # a streamed (chunked) body: the app sees a disconnect, the client a 413
                     over["limit"] = True
                     return {"type": "http.disconnect"}
+                if not message.get("more_body", False):
+                    over["body_done"] = True
             return message
 
         async def recording_send(message):
-            if over["limit"] and not over["started"]:
-                return  # whatever the app answers to the cut body, the client gets the 413 below
+            if (over["limit"] or over["timeout"]) and not over["started"]:
+                return  # whatever the app answers to the cut body, the client gets the 413 or 408 below
             if message["type"] == "http.response.start":
                 over["started"] = True
                 status["code"] = message["status"]
@@ -77,12 +113,15 @@ class _Guard:
         try:
             await self.app(scope, limited_receive, recording_send)
         except Exception:  # noqa: BLE001 - the app's reaction to the cut body
-            if not over["limit"]:
+            if not (over["limit"] or over["timeout"]):
                 raise
-        if over["limit"] and not over["started"]:
-            resp = problem(413, f"request body is larger than the limit of {limit} bytes")
+        if (over["limit"] or over["timeout"]) and not over["started"]:
+            code = 413 if over["limit"] else 408
+            detail = (f"request body is larger than the limit of {limit} bytes" if over["limit"] else
+                      f"request body did not arrive within {self.ctx.settings.body_timeout_s:g} s")
+            resp = problem(code, detail, headers={"Connection": "close"})
             await resp(scope, receive, send)
-            self._record(scope, 413, t0)
+            self._record(scope, code, t0)
 
     def _record(self, scope, code: int, t0: float) -> None:
         route = scope.get("route")

@@ -7,6 +7,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+from service.auth import AuthFailures
 from service.db import Database
 from service.metrics import Metrics
 from service.settings import ServiceSettings
@@ -26,6 +27,7 @@ class ServiceContext:
     code_version: str
     scheduler: Any = None  # service.workers.scheduler.Scheduler when workers run in this process
     planner: Any = None
+    auth_failures: AuthFailures = field(default_factory=AuthFailures)  # per app: failed authentications
     _lock_fd: Optional[int] = field(default=None, repr=False)
 
     def lock_data_dir(self) -> None:

@@ -3,9 +3,7 @@ routes declare them by (``ctx: Ctx``, ``principal: ReadScope``)."""
 
 from __future__ import annotations
 
-import threading
-import time
-from collections import deque
+import ipaddress
 from typing import Annotated, Callable, Optional
 
 from fastapi import Depends, Request
@@ -15,7 +13,7 @@ from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal, allows, verify_token
 
-__all__ = ["get_ctx", "context", "require", "Ctx", "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
+__all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "PRINCIPAL_KEY", "Ctx", "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
 
 _bearer = HTTPBearer(auto_error=False, description="A token from `holo token create`.")
 _CHALLENGE = {"WWW-Authenticate": 'Bearer realm="holo"'}
@@ -30,63 +28,72 @@ async def context(request: Request) -> ServiceContext:
     return request.app.state.ctx
 
 
-class AuthFailures:
-    """Failed authentications per client address over the last minute (in memory; one server process)."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._seen: dict[str, deque] = {}
-
-    def blocked_for(self, client: str, limit: int) -> float:
-        """Seconds until ``client`` may try again (0: not blocked)."""
-        now = time.monotonic()
-        with self._lock:
-            q = self._seen.get(client)
-            while q and now - q[0] > 60.0:
-                q.popleft()
-            if not q:
-                self._seen.pop(client, None)
-                return 0.0
-            return 60.0 - (now - q[0]) if len(q) >= limit else 0.0
-
-    def record(self, client: str) -> None:
-        with self._lock:
-            if len(self._seen) > 100_000:  # a flood of addresses: forget the oldest half
-                for key in list(self._seen)[:50_000]:
-                    del self._seen[key]
-            self._seen.setdefault(client, deque(maxlen=10_000)).append(time.monotonic())
+PRINCIPAL_KEY = "holo.principal"  # the ASGI scope entry the body guard leaves an authenticated principal in
 
 
-_FAILURES = AuthFailures()
+def client_address(scope, trusted: tuple = ()) -> str:
+    """The client's address: the peer's, or, when the peer is a trusted proxy (``trusted``: ip networks), the
+    nearest address in its X-Forwarded-For that is not a trusted proxy. A header from any other peer is the
+    client's word and is ignored (anyone could send one to pass for someone else)."""
+    peer = (scope.get("client") or ("?", 0))[0]
+    if not trusted or not _in(peer, trusted):
+        return peer
+    forwarded = [v.decode("latin-1") for k, v in scope.get("headers") or [] if k == b"x-forwarded-for"]
+    hops = [h.strip() for h in ",".join(forwarded).split(",") if h.strip()]
+    for hop in reversed(hops):  # each proxy appends the address it got the request from
+        try:
+            ipaddress.ip_address(hop)
+        except ValueError:
+            return peer  # a garbled chain: the proxy's own address is the one thing known
+        if not _in(hop, trusted):
+            return hop
+    return hops[0] if hops else peer
 
 
-def _client(request: Request) -> str:
-    return request.client.host if request.client else "?"
+def _in(addr: str, nets: tuple) -> bool:
+    try:
+        ip = ipaddress.ip_address(addr)
+    except ValueError:
+        return False
+    return any(ip in n for n in nets)
+
+
+def _bearer_token(authorization: Optional[str]) -> Optional[str]:
+    scheme, _, cred = (authorization or "").partition(" ")
+    return cred.strip() if scheme.lower() == "bearer" and cred.strip() else None
+
+
+def authenticate(ctx: ServiceContext, scope) -> Principal:
+    """The principal of the request's bearer token, or ApiError: 401 without a valid token, 429 when its
+    address has failed too often this minute. Only failures count and only failures are turned away: a valid
+    token always passes, so wrong tokens from one address (everyone behind one proxy or NAT) lock out nobody
+    who holds a real one."""
+    auth = next((v.decode("latin-1") for k, v in scope.get("headers") or [] if k == b"authorization"), None)
+    token = _bearer_token(auth)
+    principal = verify_token(ctx.db, token) if token else None
+    if principal is not None:
+        return principal
+    client = client_address(scope, ctx.settings.trusted_proxy_networks)
+    wait = ctx.auth_failures.blocked_for(client, ctx.settings.auth_failures_per_minute)
+    if wait > 0:
+        raise ApiError(429, f"too many failed authentications from this address; try again in {wait:.0f} s",
+                       headers={"Retry-After": str(max(1, int(wait + 0.999)))})
+    ctx.auth_failures.record(client)
+    if auth is None:
+        raise ApiError(401, "authentication required: send 'Authorization: Bearer <token>'", headers=_CHALLENGE)
+    if token is None:
+        raise ApiError(401, "malformed Authorization header: use 'Bearer <token>'", headers=_CHALLENGE)
+    raise ApiError(401, "invalid or revoked token (or expired)", headers=_CHALLENGE)
 
 
 def require(scope: str) -> Callable[..., Principal]:
     """A dependency that admits tokens allowing ``scope`` (401 without a valid token, 403 without the scope)."""
 
     async def dependency(request: Request, creds: Optional[HTTPAuthorizationCredentials] = Depends(_bearer)
-                         ) -> Principal:
+                         ) -> Principal:  # noqa: ARG001 - creds: the OpenAPI security scheme
         # async on purpose: one indexed SQLite read (WAL readers never wait for writers) costs less than a
         # trip through the thread pool, which matters for agents polling status.
-        ctx = get_ctx(request)
-        client = _client(request)
-        wait = _FAILURES.blocked_for(client, ctx.settings.auth_failures_per_minute)
-        if wait > 0:
-            raise ApiError(429, f"too many failed authentications from this address; try again in {wait:.0f} s",
-                           headers={"Retry-After": str(max(1, int(wait + 0.999)))})
-        if creds is None:
-            has_header = bool(request.headers.get("authorization"))
-            if has_header:
-                _FAILURES.record(client)
-            raise ApiError(401, "malformed Authorization header: use 'Bearer <token>'" if has_header
-                           else "authentication required: send 'Authorization: Bearer <token>'", headers=_CHALLENGE)
-        principal = verify_token(ctx.db, creds.credentials)
-        if principal is None:
-            _FAILURES.record(client)
-            raise ApiError(401, "invalid or revoked token (or expired)", headers=_CHALLENGE)
+        principal = request.scope.get(PRINCIPAL_KEY) or authenticate(get_ctx(request), request.scope)
         if not allows(principal.scopes, scope):
             raise ApiError(403, f"this token lacks the '{scope}' scope (it has: {', '.join(sorted(principal.scopes))})")
         return principal

@@ -481,12 +481,12 @@ def test_token_expiry_rate_limit_and_metrics(server_factory):
         time.sleep(1.2)
         r = c.get("/v1/jobs")
         assert r.status_code == 401 and "expired" in r.json()["detail"]
-    for _ in range(4):  # with the expired token's: 5 failures in this minute
+    for _ in range(3):  # with /metrics without a token and the expired token's: 5 failures in this minute
         assert httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"}).status_code == 401
     r = httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"})
     assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1 and "too many" in r.json()["detail"]
     r = httpx.get(f"{srv.url}/v1/jobs", headers={"Authorization": f"Bearer {srv.reader}"})
-    assert r.status_code == 429  # a blocked address cannot try tokens, good ones included
+    assert r.status_code == 200  # failures are turned away, a valid token never is
 
 
 def test_a_job_too_big_for_the_workers_is_refused_at_submit(server_factory, scene_bundle):

@@ -122,3 +122,134 @@ def test_the_render_cli_takes_the_clamp():
     assert RenderOptions(preset="reference", max_spp=4096).max_spp == 4096
     with pytest.raises(ValueError, match="max_spp must be in"):
         RenderOptions(max_spp=0)
+
+
+# ---- failed authentications lock out failures only, counted per real client ------------------------------------
+
+def test_wrong_tokens_from_one_address_never_lock_out_a_valid_token(tmp_path):
+    """60 wrong tokens from 127.0.0.1 made a valid token answer 429 for 60 s: behind a proxy or Docker NAT that
+    is everyone."""
+    svc = App(tmp_path / "data", auth_failures_per_minute=5)
+    good = svc.token("read")
+    with svc.client(address="172.17.0.1") as anon:
+        for _ in range(5):
+            assert anon.get("/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"}).status_code == 401
+        r = anon.get("/v1/jobs", headers={"Authorization": "Bearer hpt_x_wrong"})
+        assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1 and "too many" in r.json()["detail"]
+        assert anon.get("/v1/jobs").status_code == 429  # no token at all is a failure too
+        r = anon.get("/v1/jobs", headers={"Authorization": f"Bearer {good}"})
+        assert r.status_code == 200, r.text  # the same address, a real token: served
+        r = anon.post("/v1/jobs", json={"scene_id": "snope"}, headers={"Authorization": f"Bearer {good}"})
+        assert r.status_code == 403 and "submit" in r.json()["detail"]  # authenticated, only short of a scope
+
+
+def test_x_forwarded_for_counts_only_from_a_configured_proxy(tmp_path):
+    """The address failures are counted by: a proxy's X-Forwarded-For names the client, anyone else's header is
+    ignored (a client naming a new address per request would escape the count, or frame another address)."""
+    from service.api.deps import client_address
+
+    nets = ServiceSettings(data_dir=tmp_path, trusted_proxies="10.0.0.2, 172.16.0.0/12").trusted_proxy_networks
+
+    def scope(peer, xff=None):
+        return {"client": (peer, 1), "headers": [(b"x-forwarded-for", xff.encode())] if xff else []}
+
+    assert client_address(scope("10.0.0.2", "203.0.113.7")) == "10.0.0.2"  # no proxy configured
+    assert client_address(scope("10.0.0.2", "203.0.113.7"), nets) == "203.0.113.7"
+    assert client_address(scope("10.0.0.2", "6.6.6.6, 203.0.113.7, 172.20.0.3"), nets) == "203.0.113.7"
+    assert client_address(scope("198.51.100.9", "203.0.113.7"), nets) == "198.51.100.9"  # not a proxy
+    assert client_address(scope("10.0.0.2", "not-an-ip"), nets) == "10.0.0.2"
+    svc = App(tmp_path / "data", auth_failures_per_minute=2, trusted_proxies=["10.0.0.2"])
+    bad = {"Authorization": "Bearer hpt_x_wrong"}
+    with svc.client(address="10.0.0.2") as proxy, svc.client(address="198.51.100.9") as direct:
+        for _ in range(2):
+            assert proxy.get("/v1/jobs", headers={**bad, "X-Forwarded-For": "203.0.113.7"}).status_code == 401
+        assert proxy.get("/v1/jobs", headers={**bad, "X-Forwarded-For": "203.0.113.7"}).status_code == 429
+        assert proxy.get("/v1/jobs", headers={**bad, "X-Forwarded-For": "203.0.113.8"}).status_code == 401
+        for i in range(2):  # a direct client's own header changes nothing: still its own address
+            assert direct.get("/v1/jobs", headers={**bad, "X-Forwarded-For": f"1.2.3.{i}"}).status_code == 401
+        assert direct.get("/v1/jobs", headers={**bad, "X-Forwarded-For": "1.2.3.9"}).status_code == 429
+    with pytest.raises(ValueError, match="not an IP address"):
+        ServiceSettings(data_dir=tmp_path, trusted_proxies="proxy.example")
+
+
+# ---- no body is read before authentication; a body has a deadline --------------------------------------------
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    from tests.service.helpers import Server
+
+    srv = Server(tmp_path_factory.mktemp("live") / "data")
+    os.environ["HOLO_BODY_TIMEOUT_S"] = "2"
+    try:
+        srv.start()
+    finally:
+        del os.environ["HOLO_BODY_TIMEOUT_S"]
+    yield srv
+    srv.stop()
+
+
+def _raw(srv, head: bytes, body: bytes = b"") -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+    s.sendall(head + body)
+    return s
+
+
+def _answer(s: socket.socket, timeout: float) -> bytes:
+    s.settimeout(timeout)
+    out = b""
+    try:
+        while b"\r\n\r\n" not in out or not out.rstrip().endswith(b"}"):
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            out += chunk
+    except socket.timeout:
+        pass
+    return out
+
+
+def test_an_unauthenticated_body_is_refused_before_it_is_read(live):
+    """A 100 MB multipart with no token was spooled to disk before the 401. Now the 401 comes from the headers
+    alone, with the body unsent, and the connection is closed."""
+    for auth in (b"", b"Authorization: Bearer hpt_x_wrong\r\n"):
+        head = (b"POST /v1/scenes HTTP/1.1\r\nHost: x\r\n" + auth
+                + b"Content-Type: multipart/form-data; boundary=XyZ\r\nContent-Length: 100000000\r\n\r\n")
+        s = _raw(live, head, b'--XyZ\r\nContent-Disposition: form-data; name="bundle"; filename="b.zip"\r\n\r\n')
+        t0 = time.monotonic()
+        answer = _answer(s, 5.0)
+        s.close()
+        assert answer.startswith(b"HTTP/1.1 401"), answer[:200]
+        assert time.monotonic() - t0 < 4 and b"connection: close" in answer.lower()
+    staging = live.data_dir / "scenes" / ".staging"
+    assert not staging.exists() or list(staging.iterdir()) == []
+
+
+def test_a_body_trickled_at_one_byte_a_second_times_out(live):
+    """Bodies at 1 byte/s never timed out: a handful of clients could hold every request slot."""
+    body = b'{"scene_id": "' + b"s" * 40 + b'"}'
+    head = (b"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + live.submit.encode()
+            + b"\r\nContent-Type: application/json\r\nContent-Length: " + str(len(body)).encode() + b"\r\n\r\n")
+    s = _raw(live, head)
+    t0 = time.monotonic()
+    answer = b""
+    s.settimeout(1.0)
+    for byte in body:
+        try:
+            s.sendall(bytes([byte]))
+        except OSError:
+            break
+        try:
+            answer += s.recv(65536)
+        except socket.timeout:
+            continue
+        if answer:
+            break
+    s.close()
+    assert answer.startswith(b"HTTP/1.1 408"), answer[:300]
+    assert b"did not arrive within 2 s" in answer and time.monotonic() - t0 < 8
+    import httpx
+
+    with live.client("submit") as c:  # a whole body in time is served as before
+        r = c.post("/v1/jobs", json={"scene_id": "snope"})
+        assert r.status_code == 422 and "no scene" in r.json()["detail"]
+    assert httpx.get(f"{live.url}/livez").status_code == 200
