@@ -174,19 +174,30 @@ class Database:
         sql += " ORDER BY created_at DESC, rowid DESC LIMIT ?"
         return self.query(sql, (*params, int(limit)))
 
-    def count_jobs(self) -> dict[str, int]:
+    def count_jobs(self, owner: Optional[str] = None) -> dict[str, int]:
+        """Jobs by state (``owner``: that owner's only; None: everyone's)."""
         counts = {s: 0 for s in JOB_STATES}
-        for r in self.query("SELECT state, COUNT(*) AS n FROM jobs GROUP BY state"):
+        if owner is None:
+            rows = self.query("SELECT state, COUNT(*) AS n FROM jobs GROUP BY state")
+        else:
+            rows = self.query("SELECT state, COUNT(*) AS n FROM jobs WHERE COALESCE(owner, 'default') = ? "
+                              "GROUP BY state", (owner,))
+        for r in rows:
             counts[r["state"]] = r["n"]
         return counts
+
+    def count_scenes(self, owner: str) -> int:
+        return self.one("SELECT COUNT(*) AS n FROM scene_owners WHERE owner = ?", (owner,))["n"]
 
     def running_jobs(self) -> list[dict]:
         return self.query("SELECT * FROM jobs WHERE state = 'running'")
 
-    def succeeded_jobs_with_key(self, cache_key: str, limit: int = 5) -> list[dict]:
-        """The newest succeeded jobs with content address ``cache_key`` (newest first)."""
-        return self.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' "
-                          "ORDER BY finished_at DESC LIMIT ?", (cache_key, int(limit)))
+    def succeeded_jobs_with_key(self, cache_key: str, *, owner: str, limit: int = 5) -> list[dict]:
+        """The newest succeeded jobs of ``owner`` with content address ``cache_key`` (newest first). Only one
+        owner's: a result reused across owners would tell one that another rendered the same thing, and when."""
+        return self.query("SELECT * FROM jobs WHERE cache_key = ? AND state = 'succeeded' AND "
+                          "COALESCE(owner, 'default') = ? ORDER BY finished_at DESC LIMIT ?",
+                          (cache_key, owner, int(limit)))
 
     # ---- idempotency keys ------------------------------------------------------------------------------
     def get_idempotency(self, token_id: str, key: str) -> Optional[dict]:

@@ -2,23 +2,33 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Optional
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.core import GaugeMetricFamily
 
-__all__ = ["Metrics"]
+__all__ = ["Metrics", "owner_registry"]
 
 
 class _JobStates:
-    def __init__(self, counts: Callable[[], dict[str, int]]) -> None:
+    def __init__(self, counts: Callable[[], dict[str, int]], scenes: Optional[Callable[[], int]] = None) -> None:
         self._counts = counts
+        self._scenes = scenes
 
     def collect(self):
         g = GaugeMetricFamily("holo_jobs", "Jobs by state (from the database at scrape time).", labels=["state"])
         for state, n in self._counts().items():
             g.add_metric([state], n)
         yield g
+        if self._scenes is not None:
+            yield GaugeMetricFamily("holo_scenes", "Scenes of this owner.", value=self._scenes())
+
+
+def owner_registry(db, owner: str) -> CollectorRegistry:
+    """The metrics one owner may see: its own jobs by state and its scenes, from the database at scrape time."""
+    registry = CollectorRegistry()
+    registry.register(_JobStates(lambda: db.count_jobs(owner), lambda: db.count_scenes(owner)))
+    return registry
 
 
 class Metrics:

@@ -46,19 +46,19 @@ class Submitted:
 
 
 def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dict:
-    """The job's scene row when ``principal`` may submit ``req``; else ApiError (422, or 403 for a display of
-    another owner) saying what to change."""
+    """The job's scene row when ``principal`` may submit ``req``; else ApiError (422) saying what to change."""
     errs = job_limit_errors(req, ctx.settings.job_limits)
     if errs:
         raise ApiError(422, "; ".join(errs))
     scene = ctx.db.get_scene(req.scene_id)
     if scene is None or not (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner)):
         raise ApiError(422, f"scene_id: no scene {req.scene_id!r}; upload it with POST /v1/scenes first")
-    if req.display is not None:
-        holder = ctx.db.display_owner(req.display)
-        if holder is not None and not principal.sees(holder):
-            raise ApiError(403, f"display {req.display!r} is registered to another owner; jobs for it come from "
-                                "that owner's tokens")
+    if scene["plan_state"] == "failed":  # Mitsuba could not load it (or crashed): a job would fail the same way
+        raise ApiError(422, f"scene_id: scene {req.scene_id!r} cannot be rendered, its plan failed: "
+                            f"{scene['plan_error'] or 'no message'}; fix the scene and upload it again")
+    # A job's display is not checked against the displays' owners: whether a name is another owner's or free
+    # gets the same answer (no probing for other owners' displays), and a job reaches only its own owner's
+    # agents (GET /v1/jobs lists an owner's jobs), so naming a foreign display shows it nowhere.
     optics_errs = optics_sanity_errors(effective_optics(req))
     if optics_errs:
         raise ApiError(422, "; ".join(optics_errs))
@@ -68,9 +68,10 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
     return scene
 
 
-def reusable_job(ctx: ServiceContext, key: str) -> Optional[dict]:
-    """The newest succeeded job with the content address ``key`` whose artifacts all still match their hashes."""
-    for prev in ctx.db.succeeded_jobs_with_key(key, limit=5):
+def reusable_job(ctx: ServiceContext, key: str, owner: str) -> Optional[dict]:
+    """The newest succeeded job of ``owner`` with the content address ``key`` whose artifacts all still match
+    their hashes (another owner's identical job is never reused: its id, timing and existence are theirs)."""
+    for prev in ctx.db.succeeded_jobs_with_key(key, owner=owner, limit=5):
         d = Path(prev["artifact_dir"] or "")
         others = [(d / name, info.get("sha256")) for name, info in (prev["artifacts"] or {}).items()]
         if all(artifact_intact(p, sha) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
@@ -126,7 +127,7 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}
-    prev = reusable_job(ctx, key)
+    prev = reusable_job(ctx, key, principal.owner)
     if prev is not None:
         row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
                    stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],

@@ -18,7 +18,8 @@ from service.api.context import ServiceContext
 from service.api.deps import PRINCIPAL_KEY, authenticate, require
 from service.api.problems import ApiError, install_handlers, problem
 from service.db import Database
-from service.metrics import Metrics
+from service.auth import Principal
+from service.metrics import Metrics, owner_registry
 from service.models import Problem
 from service.settings import ServiceSettings
 from service.version import SERVICE_VERSION, code_version
@@ -187,12 +188,19 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
         ok = all(checks.values())
         return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
 
-    metrics_auth = [] if settings.metrics_public else [Depends(require("read"))]
-
-    @app.get("/metrics", tags=["health"], response_class=Response, dependencies=metrics_auth)
-    def metrics() -> Response:
-        """Prometheus metrics (a token with scope read, unless the server runs with metrics public)."""
-        return Response(generate_latest(ctx.metrics.registry), media_type=CONTENT_TYPE_LATEST)
+    if settings.metrics_public:
+        @app.get("/metrics", tags=["health"], response_class=Response)
+        def metrics() -> Response:
+            """Prometheus metrics of the whole service (served without a token: metrics public)."""
+            return Response(generate_latest(ctx.metrics.registry), media_type=CONTENT_TYPE_LATEST)
+    else:
+        @app.get("/metrics", tags=["health"], response_class=Response)
+        def metrics(principal: Principal = Depends(require("read"))) -> Response:
+            """Prometheus metrics: the whole service's for an admin token; for any other token with scope read,
+            its owner's alone (jobs by state, scenes), since the service's counters tell one tenant what the
+            others do."""
+            registry = ctx.metrics.registry if principal.is_admin else owner_registry(db, principal.owner)
+            return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
     _add_problem_schema(app)
     return app

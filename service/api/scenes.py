@@ -26,10 +26,11 @@ from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError
+from service.auth import DEFAULT_OWNER
 from service.models import ID_PATTERN, SceneOut
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
 
-__all__ = ["router", "scene_out", "iso"]
+__all__ = ["router", "scene_out", "iso", "scene_id_for"]
 
 router = APIRouter(tags=["scenes"])
 
@@ -42,6 +43,14 @@ def scene_out(row: dict) -> dict:
     return {"id": row["id"], "sha256": row["sha256"], "entry": row["entry"], "created_at": iso(row["created_at"]),
             "report": row["report"], "plan_state": row["plan_state"], "plan": row["plan"],
             "plan_error": row["plan_error"]}
+
+
+def scene_id_for(owner: str, sha256: str, entry: str) -> str:
+    """A scene's id: its content and entry, within its owner. Each owner gets a scene of their own (their own
+    created_at, plan and 201 on their first upload), so an upload never tells one owner that another uploaded
+    the same files; the default owner keeps the ids of a single-tenant service."""
+    key = f"{sha256}\0{entry}" if owner == DEFAULT_OWNER else f"{owner}\0{sha256}\0{entry}"
+    return "s" + hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
 def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[UploadFile], entry: Optional[str],
@@ -61,7 +70,7 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
                               max_mesh_faces=lim.max_mesh_faces, max_image_pixels=lim.max_image_pixels)
         report = validate_bundle(root, entry=entry, limits=limits)
         entry_rel = report.entry.relative_to(root.resolve()).as_posix()
-        scene_id = "s" + hashlib.sha256(f"{report.sha256}\0{entry_rel}".encode()).hexdigest()[:24]
+        scene_id = scene_id_for(owner, report.sha256, entry_rel)
         final = ctx.settings.scenes_dir / scene_id
         created = False
         if not (final / "bundle").is_dir():

@@ -165,9 +165,7 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
     max_spp = binding_max_spp(req, ctx.settings.job_limits)
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version,
                     max_spp=max_spp)
-    prev = reusable_job(ctx, key)
-    if prev is not None and not principal.sees(prev.get("owner")):
-        prev = None  # another owner's job: say nothing about it (a submit would still reuse its bytes)
+    prev = reusable_job(ctx, key, principal.owner)
     return {"estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp),
             "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"), "reuses": prev["id"] if prev is not None else None,
             "worker_memory_bytes": ctx.settings.worker_memory_bytes}

@@ -387,9 +387,16 @@ def test_tenancy_owners_see_only_their_own(hostile, scene_bundle):
         assert bob_agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"] == []
         assert [j["id"] for j in alice_agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"]] \
             == [job["id"]]
-        assert upload(bob, folder).status_code == 201  # bob brings the same files: now his scene too
-        r = bob.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB, "display": "alice-lab"})
-        assert r.status_code == 403 and "registered to another owner" in r.json()["detail"]
+        r = upload(bob, folder)  # bob brings the same files: a scene of his own, nothing of alice's shows
+        assert r.status_code == 201 and r.json()["id"] != sid, r.text
+        r = bob.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB})
+        assert r.status_code == 422 and "no scene" in r.json()["detail"]
+        bobs = bob.post("/v1/jobs", json={"scene_id": upload(bob, folder).json()["id"], **SMALL_JOB,
+                                          "display": "alice-lab"})
+        assert bobs.status_code == 202 and bobs.json()["reused_from"] is None  # aimed at alice's display, but
+        assert [j["id"] for j in alice_agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"]] \
+            == [job["id"]]  # only alice's jobs reach her agents
+        bob.delete(f"/v1/jobs/{bobs.json()['id']}")
         shown = [d for d in alice.get("/v1/displays").json()["displays"] if d["name"] == "alice-lab"]
         assert shown and "\x07" not in shown[0]["message"] and bob.get("/v1/displays").json()["displays"] == []
         with srv.client("admin") as admin:

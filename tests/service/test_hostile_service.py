@@ -253,3 +253,109 @@ def test_a_body_trickled_at_one_byte_a_second_times_out(live):
         r = c.post("/v1/jobs", json={"scene_id": "snope"})
         assert r.status_code == 422 and "no scene" in r.json()["detail"]
     assert httpx.get(f"{live.url}/livez").status_code == 200
+
+
+# ---- nothing of one owner reaches another: reuse, uploads, metrics, displays, the stack's meta -----------------
+
+SCENE_XML = (b'<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="30"/></sensor>'
+             b'<shape type="sphere"><bsdf type="diffuse"/></shape><emitter type="constant"/></scene>')
+
+
+def _zip(files: dict[str, bytes]) -> bytes:
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in files.items():
+            zf.writestr(name, data)
+    return buf.getvalue()
+
+
+def test_an_identical_job_of_another_owner_is_not_reused(svc):
+    """Bob's job identical to Alice's came back at once with ``reused_from`` naming Alice's job."""
+    alice, bob = svc.token("submit", owner="alice"), svc.token("submit", owner="bob")
+    for owner in ("alice", "bob"):
+        svc.db.add_scene_owner(svc.scene(owner), owner)
+    with svc.client(alice) as a, svc.client(bob) as b:
+        first = a.post("/v1/jobs", json=small("stest")).json()
+        svc.finish(first["id"])
+        est = b.post("/v1/jobs/estimate", json=small("stest")).json()
+        assert est["reuses"] is None
+        theirs = b.post("/v1/jobs", json=small("stest")).json()
+        assert theirs["state"] == "queued" and theirs["reused_from"] is None, theirs
+        assert a.post("/v1/jobs/estimate", json=small("stest")).json()["reuses"] == first["id"]
+        again = a.post("/v1/jobs", json=small("stest")).json()  # the owner's own result is reused as before
+        assert again["state"] == "succeeded" and again["reused_from"] == first["id"]
+
+
+def test_an_identical_upload_tells_nothing_of_another_owners(svc):
+    """Bob uploading Alice's files got Alice's scene: her created_at, her ready plan, 200 instead of 201."""
+    alice, bob = svc.token("submit", owner="alice"), svc.token("submit", owner="bob")
+    files = {"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML}), "application/zip")}
+    with svc.client(alice) as a, svc.client(bob) as b:
+        r = a.post("/v1/scenes", files=files)
+        assert r.status_code == 201, r.text
+        hers = r.json()
+        svc.db.update_scene(hers["id"], plan_state="ready", plan={"summary": ["planned"]})
+        time.sleep(0.01)
+        r = b.post("/v1/scenes", files=files)
+        assert r.status_code == 201, r.text
+        his = r.json()
+        assert his["id"] != hers["id"] and his["plan_state"] == "pending" and his["plan"] is None
+        assert his["created_at"] > hers["created_at"] and his["sha256"] == hers["sha256"]
+        assert b.get(f"/v1/scenes/{hers['id']}").status_code == 404
+        assert b.post("/v1/scenes", files=files).status_code == 200  # his own again: the same scene
+    with svc.client(svc.token("submit")) as d:  # the default owner keeps the single-tenant ids
+        from service.api.scenes import scene_id_for
+
+        mine = d.post("/v1/scenes", files=files).json()
+        assert mine["id"] == scene_id_for("default", hers["sha256"], "scene.xml")
+        assert mine["id"] == "s" + hashlib.sha256(f"{hers['sha256']}\0scene.xml".encode()).hexdigest()[:24]
+
+
+def test_metrics_of_a_non_admin_token_are_its_owners_alone(svc):
+    """/metrics gave any read token the service's global counts (everyone's jobs, uploads, requests)."""
+    svc.scene("alice", scene_id="salice")
+    with svc.client(svc.token("submit", owner="alice")) as a:
+        for i in range(3):
+            assert a.post("/v1/jobs", json=small("salice", optics={"resolution_hw": [64, 64], "seed": i})).status_code == 202
+    with svc.client(svc.token("read", owner="bob")) as b:
+        text = b.get("/metrics").text
+        assert 'holo_jobs{state="queued"} 0.0' in text and "holo_http_requests" not in text, text
+        assert "holo_scenes 0.0" in text
+    with svc.client(svc.token("read", owner="alice")) as a:
+        text = a.get("/metrics").text
+        assert 'holo_jobs{state="queued"} 3.0' in text and "holo_scenes 1.0" in text
+    with svc.client(svc.token("admin")) as admin:
+        text = admin.get("/metrics").text
+        assert 'holo_jobs{state="queued"} 3.0' in text and "holo_http_requests" in text
+
+
+def test_a_display_of_another_owner_and_a_free_name_get_the_same_answer(svc):
+    """/v1/jobs/estimate answered 403 for display names other owners hold and 200 for free ones: a probe."""
+    svc.scene("bob", scene_id="sbob")
+    svc.db.claim_display("alice-lab", "alice", "t")
+    with svc.client(svc.token("submit", owner="bob")) as b:
+        for path in ("/v1/jobs/estimate", "/v1/jobs"):
+            held = b.post(path, json=small("sbob", display="alice-lab"))
+            free = b.post(path, json=small("sbob", display="nobodys-lab"))
+            assert held.status_code == free.status_code, (path, held.text, free.text)
+            assert held.status_code in (200, 202) and set(held.json()) == set(free.json())
+    with svc.client(svc.token("agent", owner="alice")) as agent:  # and bob's job reaches no agent of alice's
+        assert agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"] == []
+
+
+def test_the_stack_names_its_scene_relative_to_the_bundle(tmp_path, scene_bundle):
+    """STACK.npz meta.scene held the server's absolute path of the bundle."""
+    import shutil
+
+    from holocore.display.optics import OpticsConfig
+    from holocore.pipeline import RenderOptions, render
+
+    folder = tmp_path / "secret-server-path" / "bundle"
+    shutil.copytree(scene_bundle("cbox-mirror-glass"), folder)
+    entry = next(folder.glob("*.xml"))
+    res = render(entry, OpticsConfig(resolution_hw=(16, 16), frames=1, wavelengths_nm=(520.0,)),
+                 RenderOptions(preset="fast", spp=1, wrp_planes=1))
+    assert res.meta["scene"] == entry.name and "secret-server-path" not in str(res.meta), res.meta["scene"]
