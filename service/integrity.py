@@ -1,6 +1,9 @@
-"""Stored artifacts are checked against their recorded sha256 before they are served or reused (issue 10
-item 4). A file's hash is computed once per version of the file (size, mtime and inode), so repeated downloads
-cost one ``stat``; any change to the file (truncation, a rewrite) hashes it again."""
+"""Stored artifacts are checked against their recorded sha256 before they are served or reused. A file's hash
+is computed once per version of the file, so repeated downloads cost one ``stat``; any change to the file
+(truncation, a rewrite) hashes it again. A version is (size, mtime, ctime, inode, device): mtime alone can be
+set back with utime(2) after an in-place overwrite, ctime cannot (every write and every utime sets it to now).
+Reuse of a result for a new job re-hashes the files regardless (``fresh``): it happens once per submit, and a
+stale cache entry there would hand one job's bytes to another."""
 
 from __future__ import annotations
 
@@ -11,16 +14,17 @@ from pathlib import Path
 __all__ = ["artifact_intact", "current_sha256"]
 
 _lock = threading.Lock()
-_known: dict[str, tuple[tuple[int, int, int], str]] = {}
+_known: dict[str, tuple[tuple[int, ...], str]] = {}
 
 
-def current_sha256(path: Path) -> str:
-    """Hex sha256 of the file as it is now (cached per size, mtime and inode)."""
+def current_sha256(path: Path, *, fresh: bool = False) -> str:
+    """Hex sha256 of the file as it is now (cached per size, mtime, ctime, inode and device; ``fresh``: hashed
+    again whatever the cache holds)."""
     st = path.stat()
-    key = (st.st_size, st.st_mtime_ns, st.st_ino)
+    key = (st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, st.st_dev)
     with _lock:
         hit = _known.get(str(path))
-    if hit is not None and hit[0] == key:
+    if hit is not None and hit[0] == key and not fresh:
         return hit[1]
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -32,9 +36,9 @@ def current_sha256(path: Path) -> str:
     return digest
 
 
-def artifact_intact(path: Path, sha256: str | None) -> bool:
-    """Whether ``path`` is a regular file whose content hashes to ``sha256``."""
+def artifact_intact(path: Path, sha256: str | None, *, fresh: bool = False) -> bool:
+    """Whether ``path`` is a regular file whose content hashes to ``sha256`` (``fresh``: hashed now)."""
     try:
-        return bool(sha256) and path.is_file() and current_sha256(path) == sha256
+        return bool(sha256) and path.is_file() and current_sha256(path, fresh=fresh) == sha256
     except OSError:
         return False

@@ -68,13 +68,14 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
     return scene
 
 
-def reusable_job(ctx: ServiceContext, key: str, owner: str) -> Optional[dict]:
+def reusable_job(ctx: ServiceContext, key: str, owner: str, *, fresh: bool = False) -> Optional[dict]:
     """The newest succeeded job of ``owner`` with the content address ``key`` whose artifacts all still match
-    their hashes (another owner's identical job is never reused: its id, timing and existence are theirs)."""
+    their hashes (another owner's identical job is never reused: its id, timing and existence are theirs).
+    ``fresh``: the files are hashed now, not taken from the cache (a submit that hands them to a new job)."""
     for prev in ctx.db.succeeded_jobs_with_key(key, owner=owner, limit=5):
         d = Path(prev["artifact_dir"] or "")
         others = [(d / name, info.get("sha256")) for name, info in (prev["artifacts"] or {}).items()]
-        if all(artifact_intact(p, sha) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
+        if all(artifact_intact(p, sha, fresh=fresh) for p, sha in [(d / "stack.npz", prev["stack_sha256"]), *others]):
             return prev
     return None
 
@@ -127,7 +128,7 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}
-    prev = reusable_job(ctx, key, principal.owner)
+    prev = reusable_job(ctx, key, principal.owner, fresh=True)
     if prev is not None:
         row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
                    stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],

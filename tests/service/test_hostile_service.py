@@ -359,3 +359,43 @@ def test_the_stack_names_its_scene_relative_to_the_bundle(tmp_path, scene_bundle
     res = render(entry, OpticsConfig(resolution_hw=(16, 16), frames=1, wavelengths_nm=(520.0,)),
                  RenderOptions(preset="fast", spp=1, wrp_planes=1))
     assert res.meta["scene"] == entry.name and "secret-server-path" not in str(res.meta), res.meta["scene"]
+
+
+# ---- the integrity cache cannot be fooled by an overwrite with its mtime set back ------------------------------
+
+def _overwrite_keeping_mtime(path: Path, data: bytes) -> None:
+    st = path.stat()
+    time.sleep(0.02)  # past the kernel's coarse clock tick: the overwrite gets a ctime of its own
+    with open(path, "r+b") as fh:  # in place: same inode, same size
+        fh.write(data)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    after = path.stat()
+    assert (after.st_size, after.st_mtime_ns, after.st_ino) == (st.st_size, st.st_mtime_ns, st.st_ino)
+
+
+def test_an_overwrite_with_mtime_restored_is_not_served_or_reused(svc):
+    """Hashes were cached by (size, mtime_ns, inode): an in-place overwrite with its mtime set back was served
+    under the old ETag and reused into another job."""
+    from service.integrity import artifact_intact, current_sha256
+
+    svc.scene("default")
+    good = b"A" * 4096
+    with svc.client(svc.token("submit")) as c:
+        job = c.post("/v1/jobs", json=small("stest")).json()
+        stack = svc.finish(job["id"], good)
+        r = c.get(f"/v1/jobs/{job['id']}/stack")
+        assert r.status_code == 200 and r.content == good  # hashed once, now cached
+        _overwrite_keeping_mtime(stack, b"B" * 4096)
+        r = c.get(f"/v1/jobs/{job['id']}/stack")
+        assert r.status_code == 409 and "integrity check" in r.json()["detail"], r.status_code
+        again = c.post("/v1/jobs", json=small("stest")).json()
+        assert again["reused_from"] is None and again["state"] == "queued", again
+    # reuse hashes afresh even when the cache would say nothing changed
+    other = svc.settings.data_dir / "f.bin"
+    other.write_bytes(good)
+    sha = hashlib.sha256(good).hexdigest()
+    assert current_sha256(other) == sha
+    from service import integrity
+
+    integrity._known[str(other)] = (integrity._known[str(other)][0], "0" * 64)  # a stale entry
+    assert not artifact_intact(other, sha) and artifact_intact(other, sha, fresh=True)
