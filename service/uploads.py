@@ -3,7 +3,10 @@
 Zip members with absolute paths, ``..``, drive letters, symbolic links or encryption are refused; the declared
 sizes, the member count and each member's compression ratio are checked before anything is written, and the
 bytes are then streamed with a budget (a member whose data outgrows its declared size is refused, so a
-lying header cannot get past the caps). Nothing here follows a path outside the staging folder.
+lying header cannot get past the caps). Before any of that, the central directory is sized from the
+end-of-central-directory record and its entries are counted from the raw bytes, so a zip listing hundreds of
+thousands of members is refused before Python builds an object for each. Nothing here follows a path outside
+the staging folder.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import re
 import shutil
 import stat
+import struct
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -89,8 +93,60 @@ def _target(staging: Path, rel: PurePosixPath) -> Path:
     return dest
 
 
+# Most bytes one central-directory entry may take on average: its 46-byte record, a name of at most 1024
+# bytes (safe_member_path) and room for extra fields and a comment.
+_MAX_CD_ENTRY_BYTES = 46 + 1024 + 256
+
+
+def _central_directory_entries(fh: BinaryIO, limits: UploadLimits) -> None:
+    """Refuse a zip whose central directory is too large for ``limits`` before ``zipfile`` reads it: the entry
+    count and size from the end record (zip64 too, found the way ``zipfile`` finds them), then the entries
+    counted by walking the raw records (``zipfile`` reads as many as the size covers, whatever the count says).
+    Directories are entries too, so up to twice ``max_files`` entries are allowed."""
+    max_entries = 2 * limits.max_files
+    try:
+        end = zipfile._EndRecData(fh)  # the very record (and zip64 record) ZipFile will use
+    except OSError:
+        end = None
+    if not end:
+        raise UploadError("bundle: not a zip file (no end of central directory record)")
+    count, size, location = end[zipfile._ECD_ENTRIES_TOTAL], end[zipfile._ECD_SIZE], end[zipfile._ECD_LOCATION]
+    if count > max_entries:
+        raise UploadError(f"bundle: zip lists {count} entries, more than {max_entries} (at most "
+                          f"{limits.max_files} files)", 413)
+    if size > max_entries * _MAX_CD_ENTRY_BYTES:
+        raise UploadError(f"bundle: zip central directory is {size} bytes, more than {max_entries} entries need",
+                          413)
+    start = location - size
+    if end[zipfile._ECD_SIGNATURE] == zipfile.stringEndArchive64:
+        start -= zipfile.sizeEndCentDir64 + zipfile.sizeEndCentDir64Locator
+    if start < 0:
+        raise UploadError("bundle: not a zip file (bad central directory offset)")
+    fh.seek(start)
+    data = fh.read(size)
+    pos = n = 0
+    while pos + 46 <= len(data):
+        if data[pos:pos + 4] != b"PK\x01\x02":
+            break  # zipfile will refuse it with its own message
+        name_len, extra_len, comment_len = struct.unpack_from("<HHH", data, pos + 28)
+        pos += 46 + name_len + extra_len + comment_len
+        n += 1
+        if n > max_entries:
+            raise UploadError(f"bundle: zip holds more than {max_entries} entries (at most {limits.max_files} "
+                              "files)", 413)
+    fh.seek(0)
+
+
 def unpack_zip(src: str | Path | BinaryIO, staging: Path, *, limits: UploadLimits) -> list[str]:
     """Unpack a zip into ``staging`` (an empty folder); returns the relative paths written."""
+    try:
+        if isinstance(src, (str, Path)):
+            with open(src, "rb") as fh:
+                _central_directory_entries(fh, limits)
+        else:
+            _central_directory_entries(src, limits)
+    except OSError as exc:
+        raise UploadError(f"bundle: not a zip file ({exc})") from None
     try:
         zf = zipfile.ZipFile(src)
     except (zipfile.BadZipFile, OSError, ValueError) as exc:

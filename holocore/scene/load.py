@@ -4,9 +4,10 @@ its perspective sensor.
 Mitsuba resolves a plugin ``<type>`` to ``plugins/<type>.so`` through its file resolver, which normally
 searches the scene's folder first: a bundle could bring its own shared object (issue 10). So, before any scene
 is parsed, every plugin of Mitsuba's own installation is loaded once (the plugin manager keeps them, and never
-looks a loaded name up again); the bundle check refuses any file that is not scene data by its content; and
-scenes are parsed from the checked entry text (its integrator stripped) with a resolver holding only the
-entry's folder and Mitsuba's own folder. Errors come back as :class:`SceneLoadError` in the user's terms
+looks a loaded name up again), with a resolver holding only Mitsuba's own folder (not the working directory);
+the bundle check refuses any file that is not scene data by its content, and shared-object names; and scenes
+are parsed from the checked entry text (its integrator stripped) with a resolver holding only the entry's
+folder. Errors come back as :class:`SceneLoadError` in the user's terms
 (bundle-relative paths, no server paths)."""
 
 from __future__ import annotations
@@ -33,37 +34,46 @@ class SceneLoadError(ValueError):
 
 def preload_plugins() -> list[str]:
     """Load every plugin of Mitsuba's installation (once per process) so that no plugin name is ever resolved
-    through a search path that holds a scene's folder; returns their names."""
+    through a search path that holds a scene's folder; returns their names. The plugins are looked up with a
+    resolver holding only Mitsuba's own folder: Mitsuba's default one starts with the working directory, which
+    may be a scene's folder (a ``plugins/sphere.so`` there would be loaded as the sphere plugin)."""
     with _PRELOAD_LOCK:
         if not _PRELOADED:
             mi = mitsuba()
-            folder = Path(mi.__file__).parent / "plugins"
+            own = Path(mi.__file__).parent
             pm = mi.PluginManager.instance()
-            names = sorted(p.name[:-3] for p in folder.iterdir() if p.name.endswith(".so"))
-            for name in names:
-                try:
-                    pm.plugin_type(name)
-                except Exception:  # noqa: BLE001 - a plugin this variant cannot use stays unloaded (never resolved)
-                    pass
+            names = sorted(p.name[:-3] for p in (own / "plugins").iterdir() if p.name.endswith(".so"))
+            with _resolver_holding(own):
+                for name in names:
+                    try:
+                        pm.plugin_type(name)
+                    except Exception:  # noqa: BLE001 - a plugin this variant cannot use stays unloaded (never resolved)
+                        pass
             _PRELOADED.extend(names)
         return list(_PRELOADED)
 
 
 @contextmanager
-def _resolver_for(entry_dir: Path) -> Iterator[None]:
-    """The thread's file resolver holds only the entry's folder and Mitsuba's own folder while a scene loads."""
+def _resolver_holding(*folders: Path) -> Iterator[None]:
+    """The thread's file resolver holds only ``folders`` inside the block (restored afterwards)."""
     mi = mitsuba()
     fr = mi.file_resolver()
     saved = [str(p) for p in fr]
     fr.clear()
-    fr.append(str(entry_dir))
-    fr.append(str(Path(mi.__file__).parent))
+    for folder in folders:
+        fr.append(str(folder))
     try:
         yield
     finally:
         fr.clear()
         for p in saved:
             fr.append(p)
+
+
+def _resolver_for(entry_dir: Path):
+    """While a scene loads, the file resolver holds only the entry's folder: every asset comes from the bundle
+    (the bundle check has confined each reference to it), and every plugin is loaded already."""
+    return _resolver_holding(entry_dir)
 
 
 @dataclass

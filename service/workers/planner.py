@@ -3,7 +3,9 @@ process group, with a timeout) for each scene whose plan is pending, and stores 
 
 With the sandbox on (service/workers/engine.py) the plan runs as the planner uid (``sandbox_uid_base``) on a
 copy of the bundle in ``data_dir/sandbox/plan-<scene>/`` that it owns (its HOME and TMPDIR too); the copy is
-deleted afterwards, and so is anything the planner uid left running."""
+deleted afterwards, and so is anything the planner uid left running. Either way the plan runs in an empty
+working directory of its own, never the bundle's folder: Mitsuba's default file resolver starts with the working
+directory, and plugins are looked up through it as ``plugins/<name>.so``."""
 
 from __future__ import annotations
 
@@ -13,7 +15,9 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
+from pathlib import Path
 from typing import Optional
 
 from holocore.scene.errors import scrub_message
@@ -84,30 +88,32 @@ class Planner:
 
     def _plan(self, scene: dict) -> None:
         if self.run_as is None:
-            self._run_plan(scene, self.settings.scenes_dir / scene["id"] / "bundle", None)
+            with tempfile.TemporaryDirectory(prefix="holo-plan-") as cwd:
+                self._run_plan(scene, self.settings.scenes_dir / scene["id"] / "bundle", None, Path(cwd))
             return
         work = self.settings.sandbox_dir / f"plan-{scene['id']}"
         try:
             shutil.rmtree(work, ignore_errors=True)
             work.mkdir(mode=0o700)
             shutil.copytree(self.settings.scenes_dir / scene["id"] / "bundle", work / "bundle", symlinks=True)
-            for sub in ("home", "tmp"):
+            for sub in ("home", "tmp", "cwd"):
                 (work / sub).mkdir()
             give_tree(work, self.run_as)
-            self._run_plan(scene, work / "bundle", work)
+            self._run_plan(scene, work / "bundle", work, work / "cwd")
         finally:
             kill_uids({self.run_as.uid})
             shutil.rmtree(work, ignore_errors=True)
 
-    def _run_plan(self, scene: dict, bundle, work) -> None:
-        """``holo plan`` on ``bundle``; sandboxed (as ``self.run_as``, in ``work``) when ``work`` is given."""
+    def _run_plan(self, scene: dict, bundle, work, cwd: Path) -> None:
+        """``holo plan`` on ``bundle``, run in the empty folder ``cwd``; sandboxed (as ``self.run_as``, in
+        ``work``) when ``work`` is given."""
         cmd = [sys.executable, "-m", "holo", "plan", str(bundle / scene["entry"]), "--json"]
         extra = {} if work is None else self.run_as.popen_kwargs()
         if work is not None:
             log.info("scene %s: planning as uid %d", scene["id"], self.run_as.uid)
         try:
             self._proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                          stdin=subprocess.DEVNULL, cwd=bundle if work is None else work,
+                                          stdin=subprocess.DEVNULL, cwd=cwd,
                                           env=driver_env() if work is None else sandbox_env(work),
                                           start_new_session=True, **extra)
             try:
@@ -145,3 +151,20 @@ class Planner:
         self.db.update_scene(scene_id, where_plan_state="running", plan_state="ready" if plan else "failed",
                              plan=plan, plan_error=error, plan_updated_at=time.time())
         log.info("scene %s: plan %s", scene_id, "ready" if plan else f"failed: {error}")
+        if plan is None:
+            self._fail_queued_jobs(scene_id, error)
+
+    def _fail_queued_jobs(self, scene_id: str, error: Optional[str]) -> None:
+        """Jobs queued on a scene before its plan failed never start: Mitsuba failed (or crashed) loading the
+        scene, and a job would load it again. New jobs on it are refused at submit."""
+        import time
+
+        while True:
+            queued = self.db.list_jobs(state="queued", scene_id=scene_id, limit=100)
+            failed = [j for j in queued if self.db.update_job(
+                j["id"], where_state=("queued",), state="failed", finished_at=time.time(),
+                error=f"the scene's plan failed: {error}")]
+            for j in failed:
+                log.warning("job %s: failed before it started: the plan of scene %s failed", j["id"], scene_id)
+            if len(queued) < 100:
+                return
