@@ -162,10 +162,15 @@ def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
     if ".." in parts:
         raise BundleError(f"{what}: {shown!r} leaves the scene bundle ('..' is not allowed in references)")
     target = base.joinpath(*parts)
-    resolved = target.resolve()
+    try:
+        resolved = target.resolve()
+        is_file = target.is_file()
+    except (OSError, RuntimeError) as exc:  # a name too long, a link loop: it names no file of the bundle
+        raise BundleError(f"{what}: {shown!r} is not a file of the bundle ({getattr(exc, 'strerror', None) or exc})"
+                          ) from None
     if not _inside(root, resolved):
         raise BundleError(f"{what}: {shown!r} leaves the scene bundle (a link points outside)")
-    if not target.is_file():
+    if not is_file:
         raise BundleError(f"{what}: {shown!r} is referenced but not in the bundle (references are relative to the "
                           "scene file's folder, also inside includes)")
     return resolved
@@ -351,7 +356,6 @@ class _Walker:
         self.ignored: list[str] = []
         self.warnings: list[str] = []
         self.referenced: set[Path] = set()
-        self.counted: set[Path] = set()
         self.faces = self.verts = self.pixels = self.includes = 0
         self.stack: list[Path] = []
         self.shape_index = 0  # of the serialized shape being walked
@@ -365,7 +369,6 @@ class _Walker:
         if expected is not None and kind not in expected[0]:
             raise BundleError(f"{rel}: {plugin} needs {expected[1]}, but the file is not one (by its content: "
                               f"{kind})")
-        self.counted.add(ref)
         try:
             if kind in IMAGE_KINDS:
                 self.pixels += image_pixels(ref, rel, kind, max_pixels=self.limits.max_image_pixels)

@@ -232,6 +232,10 @@ def test_deep_nesting_and_odd_encodings_are_one_line_refusals(tmp_path):
         with pytest.raises(BundleError, match=f"declares encoding '{decl}'; scene files must be UTF-8") as info:
             validate_bundle(root)
         assert "\n" not in str(info.value)
+    long_name = bundle(tmp_path, '<shape type="obj"><string name="filename" value="%s.obj"/></shape>' % ("a" * 300),
+                       name="longname")
+    with pytest.raises(BundleError, match="is not a file of the bundle \\(File name too long\\)"):
+        validate_bundle(long_name)  # was an OSError: a 500
     ok = tmp_path / "utf8"
     ok.mkdir()
     (ok / "scene.xml").write_bytes(b"<?xml version='1.0' encoding='UTF-8'?>" + SCENE.format(body="").encode())
