@@ -37,11 +37,29 @@ __all__ = ["Planner"]
 
 log = logging.getLogger("holo.service.planner")
 
+_WATCH_S = 0.25  # how often a running plan's resident memory is looked at
+
+
+def _rss_bytes(pid: int) -> int:
+    """Resident memory of process ``pid`` (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/status", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
 
 class Planner:
     def __init__(self, settings: ServiceSettings, db: Database) -> None:
         self.settings = settings
         self.db = db
+        # The backstop for what the bundle check misses: a plan holding more than half of what the workers may
+        # hold is killed (resident memory, watched; an address-space rlimit would also break CUDA, which
+        # reserves far more than it uses).
+        self.max_plan_rss_bytes = settings.worker_memory_bytes // 2
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._proc: Optional[subprocess.Popen] = None
@@ -104,10 +122,15 @@ class Planner:
             kill_uids({self.run_as.uid})
             shutil.rmtree(work, ignore_errors=True)
 
+    def _command(self, entry: Path) -> list[str]:
+        return [sys.executable, "-m", "holo", "plan", str(entry), "--json"]
+
     def _run_plan(self, scene: dict, bundle, work, cwd: Path) -> None:
         """``holo plan`` on ``bundle``, run in the empty folder ``cwd``; sandboxed (as ``self.run_as``, in
-        ``work``) when ``work`` is given."""
-        cmd = [sys.executable, "-m", "holo", "plan", str(bundle / scene["entry"]), "--json"]
+        ``work``) when ``work`` is given. Killed past ``plan_timeout_s`` or ``max_plan_rss_bytes``."""
+        import time
+
+        cmd = self._command(bundle / scene["entry"])
         extra = {} if work is None else self.run_as.popen_kwargs()
         if work is not None:
             log.info("scene %s: planning as uid %d", scene["id"], self.run_as.uid)
@@ -116,12 +139,24 @@ class Planner:
                                           stdin=subprocess.DEVNULL, cwd=cwd,
                                           env=driver_env() if work is None else sandbox_env(work),
                                           start_new_session=True, **extra)
-            try:
-                out, err = self._proc.communicate(timeout=self.settings.plan_timeout_s)
-            except subprocess.TimeoutExpired:
-                kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
-                self._store(scene["id"], None, f"holo plan timed out after {self.settings.plan_timeout_s:.0f} s")
-                return
+            deadline = time.monotonic() + self.settings.plan_timeout_s
+            while True:
+                try:
+                    out, err = self._proc.communicate(timeout=_WATCH_S)
+                    break
+                except subprocess.TimeoutExpired:
+                    pass
+                rss = _rss_bytes(self._proc.pid)
+                if rss > self.max_plan_rss_bytes:
+                    kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
+                    self._store(scene["id"], None, f"holo plan used more than {self.max_plan_rss_bytes / 1e9:.1f} "
+                                                   "GB of memory and was stopped; make the scene smaller")
+                    return
+                if time.monotonic() > deadline:
+                    kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
+                    self._store(scene["id"], None,
+                                f"holo plan timed out after {self.settings.plan_timeout_s:.0f} s")
+                    return
             rc = self._proc.returncode
         finally:
             self._proc = None

@@ -336,6 +336,9 @@ def test_the_planner_runs_in_an_empty_folder(tmp_path, monkeypatch):
         def update_scene(self, *a, **kw):
             seen["stored"] = kw
 
+        def list_jobs(self, **kw):
+            return []
+
     monkeypatch.setattr(planner_mod.subprocess, "Popen", FakePopen)
     settings = ServiceSettings(data_dir=tmp_path)
     (settings.scenes_dir / "s1" / "bundle").mkdir(parents=True)
@@ -343,6 +346,33 @@ def test_the_planner_runs_in_an_empty_folder(tmp_path, monkeypatch):
     planner_mod.Planner(settings, FakeDb())._plan({"id": "s1", "entry": "scene.xml"})
     assert seen["listing"] == [] and seen["cwd"] != settings.scenes_dir / "s1" / "bundle", seen
     assert seen["stored"]["plan_state"] == "ready"
+
+
+def test_a_plan_past_its_memory_is_stopped(tmp_path, monkeypatch):
+    """The backstop for what a check misses: a plan whose resident memory outgrows its cap is killed and the
+    scene's plan fails saying so (here a stand-in for `holo plan` that fills 600 MB)."""
+    from service.settings import ServiceSettings
+    from service.workers import planner as planner_mod
+
+    stored = {}
+
+    class FakeDb:
+        def update_scene(self, *a, **kw):
+            stored.update(kw)
+
+        def list_jobs(self, **kw):
+            return []
+
+    settings = ServiceSettings(data_dir=tmp_path, plan_timeout_s=60)
+    (settings.scenes_dir / "s1" / "bundle").mkdir(parents=True)
+    p = planner_mod.Planner(settings, FakeDb())
+    p.max_plan_rss_bytes = 150 * 1024 * 1024
+    hog = "import time; x = bytearray(600 * 1024 * 1024); time.sleep(60)"
+    monkeypatch.setattr(p, "_command", lambda entry: [sys.executable, "-c", hog])
+    t0 = time.monotonic()
+    p._plan({"id": "s1", "entry": "scene.xml"})
+    assert time.monotonic() - t0 < 20
+    assert stored["plan_state"] == "failed" and "used more than 0.2 GB of memory" in stored["plan_error"], stored
 
 
 # ---- zip central-directory floods ----------------------------------------------------------------------------------
