@@ -106,8 +106,8 @@ def _central_directory_entries(fh: BinaryIO, limits: UploadLimits) -> None:
     max_entries = 2 * limits.max_files
     try:
         end = zipfile._EndRecData(fh)  # the very record (and zip64 record) ZipFile will use
-    except OSError:
-        end = None
+    except (OSError, zipfile.BadZipFile, struct.error) as exc:
+        raise UploadError(f"bundle: not a zip file ({exc})") from None
     if not end:
         raise UploadError("bundle: not a zip file (no end of central directory record)")
     count, size, location = end[zipfile._ECD_ENTRIES_TOTAL], end[zipfile._ECD_SIZE], end[zipfile._ECD_LOCATION]

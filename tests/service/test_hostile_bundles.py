@@ -406,6 +406,21 @@ def test_zip_central_directory_flood_is_refused_before_listing(tmp_path, entries
     assert peak < len(data) + (4 << 20), peak  # the raw directory once, no object per entry
 
 
+def test_zip_end_records_zipfile_chokes_on_are_one_line_refusals(tmp_path):
+    from service.settings import UploadLimits
+    from service.uploads import UploadError, unpack_zip
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("a", b"x")
+    raw = buf.getvalue()
+    at = raw.rfind(b"PK\x05\x06")  # a zip64 locator saying the archive spans two disks (BadZipFile: a 500)
+    spanned = raw[:at] + struct.pack("<4sIQI", b"PK\x06\x07", 0, 0, 2) + raw[at:]
+    for data in (spanned, b"PK\x05\x06" + b"\0" * 5, b""):
+        with pytest.raises(UploadError, match="not a zip file"):
+            unpack_zip(io.BytesIO(data), tmp_path, limits=UploadLimits())
+
+
 # ---- the same attacks against a real server --------------------------------------------------------------------
 def zbytes(members: dict[str, bytes]) -> bytes:
     buf = io.BytesIO()
