@@ -461,14 +461,14 @@ class _Walker:
                     raise BundleError(f"{name}: unknown or disallowed {tag} plugin {kind[:40]!r}")
                 self.plugins.add(f"{tag}:{kind}")
             plugin = f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None
+            if plugin == "shape:serialized":  # read before its filename, in whatever order the two come
+                self.shape_index = _shape_index(child, self.params, where)
             value = _file_reference(tag, attrs)
             if value is not None:
                 ref = _check_reference(self.root, self.base, value, f"{name}: filename")
                 self.referenced.add(ref)
                 user = parent if tag == "string" else plugin
                 self.account(ref, user, self.shape_index if user == "shape:serialized" else 0)
-            if plugin == "shape:serialized":
-                self.shape_index = _shape_index(child, self.params, where)
             inner = self.element(child, name, parent=plugin, top=False, depth=depth + 1)
             if plugin in _NEEDS_FILENAME and inner.get("filename") != "string":
                 raise BundleError(f"{where} type={kind!r}: needs a <string name=\"filename\" value=\"...\"/> "
