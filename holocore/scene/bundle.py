@@ -4,17 +4,21 @@ parses anything (the service runs it on every upload; `holo` runs it before ever
 The check sees what Mitsuba will do (issue 10), with Mitsuba's own rules, probed against Mitsuba 3.9:
 - ``<default>`` parameters form one ordered namespace over the entry and its includes, the first definition
   wins; we refuse a name defined twice, and a value holding ``$``. ``$name`` is substituted in every attribute
-  of every element (types, names, values, file names), the longest name first; anything left with a ``$`` is
-  refused (Mitsuba would call it an undefined parameter).
+  of every element (types, names, values, file names), the longest name first, in one pass (``_Params``);
+  anything left with a ``$`` is refused (Mitsuba would call it an undefined parameter), and so is an attribute
+  Mitsuba's replace-in-turn could read otherwise.
 - Every relative reference (``filename`` attributes and strings, ``<include>``, in the entry or in an include)
   resolves against the entry's folder, never the including file's; it must name a regular file inside the
   bundle. Absolute paths, ``~``, URLs, ``..`` components and backslashes are refused, as are ``<path>``
   elements (extra search paths) and symbolic links leaving the bundle.
 - Every file in the bundle is of a kind a scene reads, judged by its content (``holocore.scene.filekinds``): no
-  shared object or executable can be in a bundle under any name.
+  shared object or executable can be in a bundle under any name, and no file may be named like a shared object.
 - The XML is read with defusedxml (no DTDs, entities or external references); element names and plugin types
-  must be on allow-lists; caps bound bytes, files, includes, mesh faces/vertices and image pixels (read from
-  headers, by content: a PNG named ``t.dat`` counts as an image).
+  must be on allow-lists; caps bound bytes, files, includes, ``<default>`` parameters, element depth, the XML
+  walked in all (each include every time), mesh faces/vertices and image pixels (read from headers as Mitsuba
+  reads them, by content: a PNG named ``t.dat`` counts as an image; every use of a file counts). Only UTF-8 XML
+  is read; every parser error is a BundleError. Plugins that read a file must name it (``_NEEDS_FILENAME``),
+  and property names hold no whitespace.
 - The scene's ``<integrator>`` is ignored: the hologram brings its own. ``entry_source`` gives the entry XML
   with its top-level integrators blanked (line and column numbers kept), and the report says what was ignored.
 Pure Python: no Mitsuba import.
