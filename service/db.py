@@ -46,7 +46,7 @@ CREATE TABLE IF NOT EXISTS scene_owners (
 """
 # Columns added after the first release (tenancy, token expiry): added in place to older databases.
 _ADDED_COLUMNS = {"tokens": {"owner": "TEXT", "expires_at": "REAL"}, "jobs": {"owner": "TEXT"},
-                  "displays": {"owner": "TEXT"}}
+                  "displays": {"owner": "TEXT", "agent_token": "TEXT"}}
 
 _JSON_COLS = {"report", "plan", "spec", "progress", "timings", "estimate", "scopes", "showing", "artifacts"}
 
@@ -145,8 +145,28 @@ class Database:
         return self.execute(sql, params) > 0
 
     def next_queued_job(self) -> Optional[dict]:
-        """The oldest queued job (not claimed)."""
-        return self.one("SELECT * FROM jobs WHERE state = 'queued' ORDER BY created_at, rowid LIMIT 1")
+        """The queued job to run next (:meth:`queued_jobs_fair`'s first)."""
+        rows = self.queued_jobs_fair(limit=1)
+        return rows[0] if rows else None
+
+    def queued_jobs_fair(self, limit: int = 20) -> list[dict]:
+        """Queued jobs in the order they should run: round robin over owners (each owner's k-th oldest job
+        after every owner's (k-1)-th, an owner's running jobs counting as its first ones), oldest first within
+        a round. One owner's hundred queued jobs then delay another owner's one by at most a job per worker,
+        not by a hundred."""
+        rows = self.query(
+            "SELECT j.*, ROW_NUMBER() OVER (PARTITION BY COALESCE(j.owner, 'default') ORDER BY j.created_at, j.rowid)"
+            " + (SELECT COUNT(*) FROM jobs r WHERE r.state = 'running' AND COALESCE(r.owner, 'default') = "
+            "COALESCE(j.owner, 'default')) AS _round FROM jobs j WHERE j.state = 'queued' "
+            "ORDER BY _round, j.created_at, j.rowid LIMIT ?", (int(limit),))
+        for r in rows:
+            r.pop("_round", None)
+        return rows
+
+    def count_owner_jobs(self, owner: str, states: tuple[str, ...]) -> int:
+        marks = ", ".join("?" for _ in states)
+        return self.one(f"SELECT COUNT(*) AS n FROM jobs WHERE COALESCE(owner, 'default') = ? AND state IN ({marks})",
+                        (owner, *states))["n"]
 
     def claim_next_job(self, job_id: Optional[str] = None) -> Optional[dict]:
         """Atomically move the oldest queued job (or ``job_id``, if still queued) to running (attempts + 1) and
@@ -275,8 +295,15 @@ class Database:
         self.execute("UPDATE displays SET owner = ? WHERE name = ? AND owner IS NULL", (owner, name))
         return self.display_owner(name)
 
-    def set_display_owner(self, name: str, owner: str) -> bool:
-        return self.execute("UPDATE displays SET owner = ? WHERE name = ?", (owner, name)) > 0
+    def set_display_owner(self, name: str, owner: str, agent_token: Optional[str] = None) -> bool:
+        """Register ``name`` to ``owner`` (``agent_token``: only that token's heartbeats, None: any of the
+        owner's agent tokens)."""
+        return self.execute("UPDATE displays SET owner = ?, agent_token = ? WHERE name = ?",
+                            (owner, agent_token, name)) > 0
+
+    def display_row(self, name: str) -> Optional[dict]:
+        return self.one("SELECT name, COALESCE(owner, 'default') AS owner, agent_token FROM displays WHERE name = ?",
+                        (name,))
 
     def heartbeat(self, name: str, *, agent_version: str, showing: Optional[dict], state: str, message: str,
                   token_id: str) -> None:

@@ -13,13 +13,13 @@ from typing import Annotated, Any, Literal, Optional, Union
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.memory_estimate import MemoryEstimate, estimate_memory
+from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
 from holocore.plan.presets import PRESETS
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
            "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "job_memory", "memory_admission_error", "cache_key", "effective_optics",
-           "estimate_cost", "spp_cap", "preset_spp_cap", "binding_max_spp"]
+           "estimate_cost", "spp_cap", "preset_spp_cap", "binding_max_spp", "plane_border_px"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -186,6 +186,9 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
     if req.render_time_limit_s is not None and req.render_time_limit_s > limits.max_render_time_s:
         errs.append(f"render_time_limit_s: must be in (0, {limits.max_render_time_s:g}] s, "
                     f"got {req.render_time_limit_s:g}")
+    if o.max_wrp_distance_mm > limits.max_wrp_distance_mm:
+        errs.append(f"optics.max_wrp_distance_mm: at most {limits.max_wrp_distance_mm:g} mm, got "
+                    f"{o.max_wrp_distance_mm:g}")
     if req.iterations is not None and req.iterations > limits.max_iterations:
         errs.append(f"iterations: must be in 0..{limits.max_iterations}, got {req.iterations}")
     # The most rays the job may trace: a preset chooses its spp from the scene depth at render time, up to its
@@ -232,8 +235,8 @@ def _spp(req: JobRequest) -> int:
     return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
 
 
-def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None,
-                  max_spp: Optional[int] = None) -> dict[str, Any]:
+def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                  plane_border: Optional[int] = 0) -> dict[str, Any]:
     """Predicted seconds of a job, shown at submit time.
 
     The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
@@ -247,7 +250,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None,
     h, w = o.resolution_hw
     c = len(o.wavelengths_nm)
     f = o.frames
-    memory = job_memory(req).as_dict()
+    memory = {**job_memory(req, plane_border=plane_border).as_dict(), "plane_border_px": plane_border}
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
@@ -279,22 +282,68 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None,
                 "model": "cpu-linear-v1", "memory": memory}
 
 
-def job_memory(req: JobRequest) -> MemoryEstimate:
-    """Predicted peak bytes of the job's render, encode and preview (holocore.plan.memory_estimate)."""
+def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
+    """How far behind the WRP the scene's farthest image point lies with these optics (m), from the scene's
+    plan (made at its own optics): hologram depth is z_inf + f^2 / zc, so depths scale with (f / f_plan)^2,
+    and the WRP lies one margin in front of the nearest point. None when the plan does not say."""
+    try:
+        ana = scene_plan["analysis"]
+        near, far = ana["z_near_holo_m"], ana["z_far_holo_m"]
+        f_plan = float(scene_plan["focal_length_m"])
+        z_inf_plan = float(scene_plan["optics"]["z_inf_mm"]) * 1e-3
+        cam_fov = (scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg")
+        f = o.focal_length_m(cam_fov)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if near is None or far is None:  # nothing visible: one plane will do
+        return 0.0
+    scale = (f / f_plan) ** 2
+    theta_min = min(o.theta_max(lam) for lam in o.wavelengths_m)
+    margin = o.wrp_margin_px * o.pitch_m / math.tan(theta_min)
+    depth = scale * (float(near) - float(far)) + margin
+    return depth if math.isfinite(depth) and depth >= 0 else None
+
+
+def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: str = "ready",
+                    limits: Optional[JobLimits] = None) -> Optional[int]:
+    """The widest border (px) a deeper recording plane of the job can have: 0 with one plane; from the scene's
+    depth at the job's optics when its plan is ready, else from the bound on plane distance
+    (optics.max_wrp_distance_mm, at most the service's) when the plan failed; None while the plan is pending
+    (the scheduler asks again before the job runs)."""
+    if req.method == "direct" or req.wrp_planes == 1:
+        return 0
     o = effective_optics(req)
-    return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
+    bound_m = o.max_wrp_distance_mm * 1e-3
+    if limits is not None:
+        bound_m = min(bound_m, limits.max_wrp_distance_mm * 1e-3)
+    if plan_state in ("pending", "running"):
+        return None
+    depth = _scene_depth_m(o, scene_plan) if plan_state == "ready" else None
+    theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
+    return deepest_border_px(bound_m if depth is None else min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
 
 
-def memory_admission_error(req: JobRequest, worker_memory_bytes: int) -> Optional[str]:
+def job_memory(req: JobRequest, *, plane_border: Optional[int] = 0) -> MemoryEstimate:
+    """Predicted peak bytes of the job's render, encode and preview (holocore.plan.memory_estimate), with its
+    deeper recording planes' widest border (:func:`plane_border_px`; None, not known yet, counts as 0)."""
+    o = effective_optics(req)
+    return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames,
+                           plane_border_px=plane_border or 0)
+
+
+def memory_admission_error(req: JobRequest, worker_memory_bytes: int, *,
+                           plane_border: Optional[int] = 0) -> Optional[str]:
     """Why the workers cannot hold the job (None when they can)."""
-    m = job_memory(req)
+    m = job_memory(req, plane_border=plane_border)
     if m.peak_bytes <= worker_memory_bytes:
         return None
     o = effective_optics(req)
+    planes = (f"; its deeper recording planes are {plane_border} px wider on each side than the SLM (their depth "
+              "grows with f^2): wrp_planes 1, a shorter f or a shallower scene needs less" if plane_border else "")
     return (f"the job needs about {m.peak_bytes / 1e9:.1f} GB at its peak ({m.peak_stage}; "
             f"{o.height}x{o.width} px x {len(o.wavelengths_nm)} colors x {o.frames} frames), but the workers have "
             f"{worker_memory_bytes / 1e9:.1f} GB: lower optics.resolution_hw, frames or the number of wavelengths "
-            "(memory grows with their product)")
+            f"(memory grows with their product){planes}")
 
 
 def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str,

@@ -30,6 +30,9 @@ class JobLimits(BaseModel):
     max_iterations: int = Field(default=5000, ge=0, description="Most encoder iterations.")
     max_render_time_s: float = Field(default=4 * 3600.0, gt=0, description="Longest render time limit, s.")
     max_ray_budget: float = Field(default=4e10, gt=0, description="Most rays in a job: H*W*C*spp.")
+    max_wrp_distance_mm: float = Field(default=1000.0, gt=0, description="Largest optics.max_wrp_distance_mm: "
+                                       "how far in front of z_inf a job's WRP, and so behind it its deeper "
+                                       "recording planes, may lie (their grids widen with that depth).")
 
 
 class UploadLimits(BaseModel):
@@ -49,7 +52,8 @@ class ServiceSettings(BaseModel):
     """How `holo serve` runs. Environment: ``HOLO_DATA_DIR``, ``HOLO_HOST``, ``HOLO_PORT``, ``HOLO_WORKERS``,
     ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray),
     ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle), ``HOLO_TRUSTED_PROXIES``
-    (comma-separated), ``HOLO_BODY_TIMEOUT_S``."""
+    (comma-separated), ``HOLO_BODY_TIMEOUT_S``, ``HOLO_MAX_QUEUED_JOBS_PER_OWNER``, ``HOLO_MAX_SCENES_PER_OWNER``,
+    ``HOLO_MAX_UPLOADS_PER_OWNER``, ``HOLO_OPEN_DISPLAY_OWNERS`` (comma-separated)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -88,6 +92,15 @@ class ServiceSettings(BaseModel):
     body_timeout_s: float = Field(default=300.0, gt=0, le=86400, description="Time a client has to send a "
                                   "request's whole body; slower requests get 408 and the connection is closed.")
     metrics_public: bool = Field(default=False, description="Serve /metrics without a token (else: scope read).")
+    # Fairness between owners: what one owner may hold at once (the scheduler also takes owners in turn).
+    max_queued_jobs_per_owner: int = Field(default=100, ge=1, description="Queued and running jobs one owner may "
+                                                                         "have; more get 429.")
+    max_scenes_per_owner: int = Field(default=1000, ge=1, description="Scenes one owner may store; more get 403.")
+    max_uploads_per_owner: int = Field(default=2, ge=1, description="Uploads of one owner in progress at once; "
+                                                                   "more get 429 before their body is read.")
+    open_display_owners: list[str] = Field(default_factory=lambda: ["default"], description="Owners whose agents "
+                                           "register a display name with their first heartbeat; any other "
+                                           "owner's displays are registered by an admin (PUT /v1/displays/NAME).")
     # Memory admission (issue 11 item 3).
     worker_memory_mb: Optional[float] = Field(default=None, gt=0, description="Memory the workers may use together, "
                                                                              "MB (default: the machine's, less "
@@ -111,6 +124,11 @@ class ServiceSettings(BaseModel):
             except ValueError:
                 raise ValueError(f"not an IP address or network: {x[:60]!r}") from None
         return out
+
+    @field_validator("open_display_owners", mode="before")
+    @classmethod
+    def _owners(cls, v):
+        return [x.strip() for x in v.split(",") if x.strip()] if isinstance(v, str) else v
 
     @cached_property
     def trusted_proxy_networks(self) -> tuple:
@@ -153,7 +171,11 @@ class ServiceSettings(BaseModel):
                          ("header_timeout_s", "HOLO_HEADER_TIMEOUT_S"),
                          ("auth_failures_per_minute", "HOLO_AUTH_FAILURES_PER_MINUTE"),
                          ("metrics_public", "HOLO_METRICS_PUBLIC"), ("worker_memory_mb", "HOLO_WORKER_MEMORY_MB"),
-                         ("trusted_proxies", "HOLO_TRUSTED_PROXIES"), ("body_timeout_s", "HOLO_BODY_TIMEOUT_S")):
+                         ("trusted_proxies", "HOLO_TRUSTED_PROXIES"), ("body_timeout_s", "HOLO_BODY_TIMEOUT_S"),
+                         ("max_queued_jobs_per_owner", "HOLO_MAX_QUEUED_JOBS_PER_OWNER"),
+                         ("max_scenes_per_owner", "HOLO_MAX_SCENES_PER_OWNER"),
+                         ("max_uploads_per_owner", "HOLO_MAX_UPLOADS_PER_OWNER"),
+                         ("open_display_owners", "HOLO_OPEN_DISPLAY_OWNERS")):
             if env.get(var):
                 data[key] = env[var]
         upload_mb = overrides.pop("max_upload_mb", None) or env.get("HOLO_MAX_UPLOAD_MB")

@@ -28,11 +28,12 @@ from service.models import (
     job_limit_errors,
     memory_admission_error,
     optics_sanity_errors,
+    plane_border_px,
     spp_cap,
 )
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "reusable_job", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
+__all__ = ["admit_job", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
 
@@ -62,10 +63,18 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
     optics_errs = optics_sanity_errors(effective_optics(req))
     if optics_errs:
         raise ApiError(422, "; ".join(optics_errs))
-    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes)
+    too_big = memory_admission_error(req, ctx.settings.worker_memory_bytes,
+                                     plane_border=scene_plane_border(ctx, req, scene))
     if too_big:
         raise ApiError(422, too_big)
     return scene
+
+
+def scene_plane_border(ctx: ServiceContext, req: JobRequest, scene: dict) -> Optional[int]:
+    """The widest border of the job's deeper recording planes on this scene (None while its plan is pending:
+    the scheduler checks the memory again before the job runs)."""
+    return plane_border_px(req, scene_plan=scene["plan"], plan_state=scene["plan_state"],
+                           limits=ctx.settings.job_limits)
 
 
 def reusable_job(ctx: ServiceContext, key: str, owner: str, *, fresh: bool = False) -> Optional[dict]:
@@ -112,6 +121,10 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     if idempotency_key is not None and not IDEMPOTENCY_KEY.match(idempotency_key):
         raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
     scene = admit_job(ctx, req, principal)
+    cap = ctx.settings.max_queued_jobs_per_owner
+    if ctx.db.count_owner_jobs(principal.owner, ("queued", "running")) >= cap:
+        raise ApiError(429, f"this owner has {cap} jobs queued or running, the most it may; submit more when "
+                            "some have finished", headers={"Retry-After": "30"})
     body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         prior = ctx.db.get_idempotency(principal.token_id, idempotency_key)
@@ -124,7 +137,9 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     now = time.time()
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
            "spec": job_spec(req, ctx.settings.job_limits).model_dump(mode="json"), "cache_key": key, "created_at": now,
-           "estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp), "token_id": principal.token_id,
+           "estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
+                                     plane_border=scene_plane_border(ctx, req, scene)),
+           "token_id": principal.token_id,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}

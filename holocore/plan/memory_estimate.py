@@ -6,14 +6,24 @@ scene (a 2-core x86_64 CPU, torch 2.13 CPU, Mitsuba 3.9 llvm_ad_rgb; 2026-12-02)
 measured sizes and extrapolates with the last segment's slope; below the smallest size it keeps the smallest
 measurement (the processes' fixed cost: Python, torch, Mitsuba). Re-measure with ``bench/bench_memory.py``
 when the hot code changes (its results: ``bench/results/memory.md``).
+
+Several recording planes (holocore.plan.wrp_planes) add to the render: each deeper plane k lives on a grid wider
+than the SLM's by its border b_k = (z_0 - z_k) tan(theta_max) / p on each side, and chaining it to the plane in
+front (holocore.optics.plane_chain) holds at least one frame of one colour of that grid padded to twice each
+side for the ASM, several times over (the field, its spectrum, the transfer function, their product). That part
+does not shrink with the SLM: b grows with the plane's depth, which grows with f^2, so a 32x48 SLM with a deep
+plane can need gigabytes. :func:`plane_chain_bytes` is that term for the widest plane, an upper estimate from
+the sizes (not measured); :func:`deepest_border_px` bounds the widest border from the depth of the scene.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS"]
+__all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
+           "deepest_border_px", "ASM_COPIES"]
 
 Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
@@ -62,11 +72,42 @@ def _interpolate(points: tuple[tuple[float, float], ...], n: float) -> float:
     return b1 + (b1 - b0) / (n1 - n0) * (n - n1)
 
 
-def estimate_memory(*, height_px: int, width_px: int, colors: int, frames: int) -> MemoryEstimate:
+# Complex64 copies of a deeper plane's padded grid the chaining holds at once: field, spectrum, transfer function,
+# product (holocore.optics.propagation.asm pads to twice each side).
+ASM_COPIES = 4.0
+
+
+def plane_chain_bytes(height_px: int, width_px: int, border_px: int) -> int:
+    """Bytes the chaining of a deeper plane with ``border_px`` adds to the render's peak: one frame of one colour
+    of its (H + 2b) x (W + 2b) grid, padded to twice each side, complex64, ``ASM_COPIES`` times (0 for b = 0)."""
+    if border_px <= 0:
+        return 0
+    grid = (height_px + 2 * border_px) * (width_px + 2 * border_px)
+    return int(ASM_COPIES * 4 * grid * 8)
+
+
+def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> int:
+    """The widest border a deeper plane can have when no plane lies more than ``depth_m`` behind the WRP:
+    ``depth_m`` tan(theta_max) / p, as :meth:`holocore.plan.wrp_planes.WrpPlanes.border_px`."""
+    from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
+
+    if not (math.isfinite(depth_m) and depth_m > 0):
+        return 0
+    t = math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD))
+    return int(math.ceil(depth_m * t / pitch_m - 1e-9))
+
+
+def estimate_memory(*, height_px: int, width_px: int, colors: int, frames: int,
+                    plane_border_px: int = 0) -> MemoryEstimate:
     """Peak bytes of render, encode and view for an SLM of ``height_px`` x ``width_px`` pixels, ``colors``
-    wavelengths and ``frames`` frames."""
+    wavelengths and ``frames`` frames; ``plane_border_px``: the widest border of a deeper recording plane (0:
+    one plane), whose chaining the render holds on top (:func:`plane_chain_bytes`)."""
     for name, v in (("height_px", height_px), ("width_px", width_px), ("colors", colors), ("frames", frames)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
             raise ValueError(f"{name} must be a positive integer, got {v!r}")
+    if not isinstance(plane_border_px, int) or plane_border_px < 0:
+        raise ValueError(f"plane_border_px must be an integer >= 0, got {plane_border_px!r}")
     n = float(height_px) * width_px * colors * frames
-    return MemoryEstimate(**{f"{s}_bytes": int(_interpolate(MEASURED_PEAKS[s], n)) for s in STAGES})
+    peaks = {s: int(_interpolate(MEASURED_PEAKS[s], n)) for s in STAGES}
+    peaks["render"] += plane_chain_bytes(height_px, width_px, plane_border_px)
+    return MemoryEstimate(**{f"{s}_bytes": b for s, b in peaks.items()})

@@ -69,15 +69,42 @@ class _Guard:
             await resp(scope, receive, send)
             self._record(scope, 413, t0)
             return
+        upload_of = None
         if _has_body(headers) and scope.get("path", "").startswith("/v1/"):
             try:
-                scope[PRINCIPAL_KEY] = authenticate(self.ctx, scope)
+                principal = scope[PRINCIPAL_KEY] = authenticate(self.ctx, scope)
+                if scope.get("method") == "POST" and scope.get("path") == "/v1/scenes":
+                    upload_of = self._start_upload(principal.owner)
             except ApiError as exc:
                 resp = problem(exc.status, exc.detail, instance=scope.get("path"),
                                headers={**(exc.headers or {}), "Connection": "close"})
                 await resp(scope, receive, send)
                 self._record(scope, exc.status, t0)
                 return
+        try:
+            await self._guarded(scope, receive, send, limit=limit, t0=t0, status=status)
+        finally:
+            if upload_of is not None:
+                self._end_upload(upload_of)
+
+    def _start_upload(self, owner: str) -> str:
+        """Count an owner's upload in; 429 when it has ``max_uploads_per_owner`` in progress already (one owner's
+        parallel uploads would otherwise hold every worker thread and the disk)."""
+        busy = self.ctx.uploads_in_flight
+        cap = self.ctx.settings.max_uploads_per_owner
+        if busy.get(owner, 0) >= cap:
+            raise ApiError(429, f"this owner has {cap} uploads in progress, the most it may at once; send this "
+                                "one when they are done", headers={"Retry-After": "5"})
+        busy[owner] = busy.get(owner, 0) + 1
+        return owner
+
+    def _end_upload(self, owner: str) -> None:
+        busy = self.ctx.uploads_in_flight
+        busy[owner] -= 1
+        if busy[owner] <= 0:
+            del busy[owner]
+
+    async def _guarded(self, scope, receive, send, *, limit: int, t0: float, status: dict) -> None:
         seen = 0
         over = {"limit": False, "timeout": False, "started": False, "body_done": False}
         deadline = asyncio.get_running_loop().time() + self.ctx.settings.body_timeout_s

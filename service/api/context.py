@@ -28,6 +28,7 @@ class ServiceContext:
     scheduler: Any = None  # service.workers.scheduler.Scheduler when workers run in this process
     planner: Any = None
     auth_failures: AuthFailures = field(default_factory=AuthFailures)  # per app: failed authentications
+    uploads_in_flight: dict = field(default_factory=dict)  # owner -> uploads being received or unpacked now
     _lock_fd: Optional[int] = field(default=None, repr=False)
 
     def lock_data_dir(self) -> None:

@@ -1,13 +1,16 @@
 """Display agents: heartbeats in, the list of displays (with their last heartbeat) out.
 
-A display belongs to the owner of the agent token that first sends its heartbeat (or to the owner an admin
-assigns with ``PUT /v1/displays/{name}``); afterwards only that owner's tokens heartbeat for it, see it, or
-aim jobs at it, and an agent receives only that owner's jobs."""
+A display is registered to an owner by an admin (``PUT /v1/displays/{name}``, optionally to one agent token);
+only the owners named in ``open_display_owners`` (the default owner: a single-tenant service) register a name
+with their agent's first heartbeat. Afterwards only that owner's agents (that token, when one is named)
+heartbeat for it, and only that owner's tokens see it; an agent receives only its owner's jobs. A name that is
+another owner's and a name nobody registered get the same 403, so heartbeats cannot probe for displays."""
 
 from __future__ import annotations
 
 import re
 import time
+from typing import Optional
 
 from fastapi import APIRouter
 from fastapi import Path as PathParam
@@ -28,6 +31,9 @@ _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
 class DisplayOwner(BaseModel):
     model_config = ConfigDict(extra="forbid")
     owner: str = Field(pattern=NAME_PATTERN, description="The owner whose tokens may use this display.")
+    agent_token_id: Optional[str] = Field(default=None, pattern=r"^[0-9a-f]{12}$", description="Only this "
+                                          "agent token (its id, from `holo token list`) sends the display's "
+                                          "heartbeats; default: any agent token of the owner.")
 
 
 @router.post("/v1/displays/{name}/heartbeat", status_code=204, response_class=Response, responses=PROBLEM_RESPONSES)
@@ -35,9 +41,14 @@ def heartbeat(body: Heartbeat, ctx: Ctx, principal: AgentScope,
               name: str = PathParam(pattern=NAME_PATTERN)) -> Response:
     """A display agent says it is alive and what it shows (scope agent or admin; the display's owner only)."""
     db = ctx.db
-    holder = db.claim_display(name, principal.owner, principal.token_id)
-    if not principal.sees(holder):
-        raise ApiError(403, f"display {name!r} is registered to another owner; only its agents send its heartbeats")
+    row = db.display_row(name)
+    if row is None and (principal.is_admin or principal.owner in ctx.settings.open_display_owners):
+        db.claim_display(name, principal.owner, principal.token_id)
+        row = db.display_row(name)
+    if row is None or not principal.sees(row["owner"]) or (
+            row["agent_token"] is not None and not principal.is_admin and row["agent_token"] != principal.token_id):
+        raise ApiError(403, f"display {name!r} is not registered to this agent; an admin registers displays "
+                            f"(PUT /v1/displays/{name})")
     db.heartbeat(name, agent_version=_CONTROL.sub("", body.agent_version),
                  showing=body.showing.model_dump() if body.showing is not None else None,
                  state=_CONTROL.sub("", body.state), message=_CONTROL.sub("", body.message),
@@ -48,10 +59,10 @@ def heartbeat(body: Heartbeat, ctx: Ctx, principal: AgentScope,
 @router.put("/v1/displays/{name}", status_code=204, response_class=Response, responses=PROBLEM_RESPONSES)
 def assign_display(body: DisplayOwner, ctx: Ctx, principal: AdminScope,
                    name: str = PathParam(pattern=NAME_PATTERN)) -> Response:
-    """Register a display to an owner, or move it to another (admin)."""
+    """Register a display to an owner (and optionally one of its agent tokens), or move it (admin)."""
     db = ctx.db
     db.claim_display(name, body.owner, principal.token_id)
-    db.set_display_owner(name, body.owner)
+    db.set_display_owner(name, body.owner, body.agent_token_id)
     return Response(status_code=204)
 
 

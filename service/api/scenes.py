@@ -71,6 +71,9 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
         report = validate_bundle(root, entry=entry, limits=limits)
         entry_rel = report.entry.relative_to(root.resolve()).as_posix()
         scene_id = scene_id_for(owner, report.sha256, entry_rel)
+        cap = ctx.settings.max_scenes_per_owner
+        if not ctx.db.scene_owned_by(scene_id, owner) and ctx.db.count_scenes(owner) >= cap:
+            raise UploadError(f"this owner stores {cap} scenes, the most it may (max_scenes_per_owner)", 403)
         final = ctx.settings.scenes_dir / scene_id
         created = False
         if not (final / "bundle").is_dir():

@@ -44,7 +44,7 @@ from service.models import (
     effective_optics,
     estimate_cost,
 )
-from service.submission import admit_job, reusable_job
+from service.submission import admit_job, reusable_job, scene_plane_border
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
 
@@ -166,7 +166,8 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version,
                     max_spp=max_spp)
     prev = reusable_job(ctx, key, principal.owner)
-    return {"estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp),
+    return {"estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
+                                      plane_border=scene_plane_border(ctx, req, scene)),
             "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"), "reuses": prev["id"] if prev is not None else None,
             "worker_memory_bytes": ctx.settings.worker_memory_bytes}
 

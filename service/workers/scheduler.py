@@ -170,10 +170,16 @@ class Scheduler:
         while len(self.running) < self.settings.workers and not self._stop.is_set():
             if self.sandbox_base is not None and self._free_slot() is None:
                 break  # every slot is still being taken back from a stopped run
-            nxt = self.db.next_queued_job()
+            nxt, need = None, 0
+            for cand in self.db.queued_jobs_fair():  # round robin over owners
+                need = self._memory_need(cand)
+                if need is not None:
+                    nxt = cand
+                    break
             if nxt is None:
-                break
-            need = _peak_bytes(nxt)
+                break  # nothing queued, or only jobs whose scene is still being planned
+            if need < 0:
+                continue  # refused: it cannot fit the workers' memory
             held = sum(self._memory.get(j, 0) for j in self.running)
             if self.running and held + need > self.settings.worker_memory_bytes:
                 break  # runs start in order, and only while their estimates fit together
@@ -186,6 +192,38 @@ class Scheduler:
             del self._memory[job_id]
         if self.metrics is not None:
             self.metrics.workers_busy.set(len(self.running))
+
+    def _memory_need(self, row: dict) -> Optional[int]:
+        """A queued job's predicted peak bytes; None to leave it queued for now (its scene's plan, which says
+        how deep its recording planes go, is still pending); -1 when, with the plan known, it cannot fit the
+        workers' memory (the job is failed with the reason, as a submit would have been refused)."""
+        mem = (row.get("estimate") or {}).get("memory") or {}
+        if "plane_border_px" not in mem or mem["plane_border_px"] is not None:
+            return _peak_bytes(row)  # known at submit (or a job from before the planes were counted)
+        from service.models import JobRequest, job_memory, memory_admission_error, plane_border_px
+
+        scene = self.db.get_scene(row["scene_id"])
+        if scene is not None and scene["plan_state"] in ("pending", "running"):
+            return None
+        try:
+            spec = JobSpec.model_validate(row["spec"])
+            req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, preset=spec.preset, method=spec.method,
+                             wrp_planes=spec.wrp_planes)
+            border = plane_border_px(req, scene_plan=(scene or {}).get("plan"),
+                                     plan_state=(scene or {}).get("plan_state", "failed"),
+                                     limits=self.settings.job_limits)
+        except ValueError as exc:  # a spec this version cannot read: the run will say what is wrong
+            log.warning("job %s: memory not re-estimated (%s)", row["id"], exc)
+            return _peak_bytes(row)
+        too_big = memory_admission_error(req, self.settings.worker_memory_bytes, plane_border=border)
+        if too_big:
+            self._fail(row["id"], row["attempts"], f"refused before it ran: {too_big}")
+            return -1
+        m = job_memory(req, plane_border=border)
+        estimate = dict(row.get("estimate") or {})
+        estimate["memory"] = {**m.as_dict(), "plane_border_px": border}
+        self.db.update_job(row["id"], where_state=("queued",), estimate=estimate)
+        return m.peak_bytes
 
     # ---- sandbox slots ---------------------------------------------------------------------------------
     def _free_slot(self) -> Optional[int]:

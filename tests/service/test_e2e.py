@@ -191,9 +191,11 @@ def test_health_metrics_and_openapi(server, rendered):
     ready = httpx.get(f"{server.url}/readyz").json()
     assert ready["status"] == "ready" and all(ready["checks"].values())
     assert httpx.get(f"{server.url}/metrics").status_code == 401  # metrics need a token (scope read)
-    m = httpx.get(f"{server.url}/metrics", headers={"Authorization": f"Bearer {server.reader}"}).text
+    m = httpx.get(f"{server.url}/metrics", headers={"Authorization": f"Bearer {server.admin}"}).text
     assert 'holo_jobs{state="succeeded"}' in m and "holo_http_request_duration_seconds_bucket" in m
     assert 'route="/v1/jobs/{job_id}/stack"' in m
+    mine = httpx.get(f"{server.url}/metrics", headers={"Authorization": f"Bearer {server.reader}"}).text
+    assert 'holo_jobs{state="succeeded"}' in mine and "holo_http_request" not in mine  # its owner's alone
     paths = httpx.get(f"{server.url}/openapi.json").json()["paths"]
     for p in ("/v1/scenes", "/v1/scenes/{scene_id}", "/v1/jobs", "/v1/jobs/{job_id}", "/v1/jobs/{job_id}/events",
               "/v1/jobs/{job_id}/stack", "/v1/jobs/{job_id}/frames.zip", "/v1/jobs/{job_id}/preview.png"):

@@ -372,9 +372,13 @@ def test_tenancy_owners_see_only_their_own(hostile, scene_bundle):
     with srv.client(tok["alice-submit"]) as alice, srv.client(tok["bob-submit"]) as bob, \
             srv.client(tok["alice-agent"]) as alice_agent, srv.client(tok["bob-agent"]) as bob_agent:
         hb = {"agent_version": "1", "state": "idle", "message": "<script>x</script>\x07"}
+        r = alice_agent.post("/v1/displays/alice-lab/heartbeat", json=hb)
+        assert r.status_code == 403 and "an admin registers displays" in r.json()["detail"]  # not hers yet
+        with srv.client("admin") as admin:
+            assert admin.put("/v1/displays/alice-lab", json={"owner": "alice"}).status_code == 204
         assert alice_agent.post("/v1/displays/alice-lab/heartbeat", json=hb).status_code == 204
         r = bob_agent.post("/v1/displays/alice-lab/heartbeat", json=hb)
-        assert r.status_code == 403 and "another owner" in r.json()["detail"]
+        assert r.status_code == 403 and "not registered to this agent" in r.json()["detail"]
         sid = upload(alice, folder).json()["id"]
         assert bob.get(f"/v1/scenes/{sid}").status_code == 404
         r = bob.post("/v1/jobs", json={"scene_id": sid, **SMALL_JOB})

@@ -399,3 +399,138 @@ def test_an_overwrite_with_mtime_restored_is_not_served_or_reused(svc):
 
     integrity._known[str(other)] = (integrity._known[str(other)][0], "0" * 64)  # a stale entry
     assert not artifact_intact(other, sha) and artifact_intact(other, sha, fresh=True)
+
+
+# ---- memory admission counts the deeper recording planes' grids ------------------------------------------------
+
+def _plan(z_near_zc: float = 0.3, z_far_zc: float = 3.0, f: float = 0.05, z_inf: float = 0.08) -> dict:
+    """A scene plan as `holo plan --json` stores it (the parts memory admission reads), made at f, z_inf."""
+    return {"summary": [], "focal_length_m": f, "optics": {"z_inf_mm": z_inf * 1e3},
+            "field_of_view": {"camera_fov_x_deg": 30.0},
+            "analysis": {"z_near_holo_m": z_inf + f * f / z_near_zc, "z_far_holo_m": z_inf + f * f / z_far_zc}}
+
+
+DEEP = {"optics": {"resolution_hw": [32, 48], "wavelengths_nm": [520], "focal_length_mm": 300.0, "frames": 1},
+        "preset": "fast", "spp": 4, "encoder": "dpac", "wrp_planes": 2}
+
+
+def test_deeper_planes_grids_count_at_admission(tmp_path):
+    """wrp_planes 2 at f = 300 mm on a 32x48 SLM measured 2.18 GB against 0.63 GB estimated and was admitted:
+    the deeper plane's grid is wider by (z_0 - z_k) tan(theta) / p on each side, and that depth grows with f^2."""
+    from holocore.plan.memory_estimate import estimate_memory, plane_chain_bytes
+    from holocore.plan.wrp_planes import WrpPlanes
+
+    svc = App(tmp_path / "data", worker_memory_mb=1000)
+    sid = svc.scene("default", plan=_plan())
+    with svc.client(svc.token("submit")) as c:
+        r = c.post("/v1/jobs", json={"scene_id": sid, **DEEP})
+        assert r.status_code == 422, r.text
+        detail = r.json()["detail"]
+        assert "workers have 1.0 GB" in detail and "deeper recording planes" in detail and "px wider" in detail
+        one = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "wrp_planes": 1})
+        assert one.status_code == 202, one.text  # the same job on one plane fits
+        assert one.json()["estimate"]["memory"]["plane_border_px"] == 0
+        near = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "optics": {**DEEP["optics"], "focal_length_mm": 50}})
+        assert near.status_code == 202, near.text  # f = 50 mm: 36 times shallower, a narrow border
+        border = near.json()["estimate"]["memory"]["plane_border_px"]
+        assert 0 < border < 50
+        r = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "optics": {**DEEP["optics"], "max_wrp_distance_mm": 1e9}})
+        assert r.status_code == 422 and "optics.max_wrp_distance_mm: at most 1000 mm" in r.json()["detail"]
+    # the border the estimate counts is the one the renderer gives the deepest possible plane
+    depth = 36 * (0.05 ** 2) * (1 / 0.3 - 1 / 3.0)
+    planes = WrpPlanes((0.5, 0.5 - depth), 1e-6)
+    import math
+
+    theta = math.asin(520e-9 / (2 * 8e-6))
+    b = planes.border_px(1, pitch_m=8e-6, theta_max=theta)
+    m = estimate_memory(height_px=32, width_px=48, colors=1, frames=1, plane_border_px=b)
+    assert m.render_bytes - estimate_memory(height_px=32, width_px=48, colors=1, frames=1).render_bytes \
+        == plane_chain_bytes(32, 48, b) > 0.5e9
+
+
+def test_a_job_submitted_before_its_scene_is_planned_is_checked_before_it_runs(tmp_path):
+    """A pending plan says nothing of the scene's depth: the job is queued, and the scheduler counts its planes'
+    grids once the plan is ready (waiting until then), refusing it if the workers cannot hold it."""
+    from service.workers.scheduler import Scheduler
+
+    svc = App(tmp_path / "data", worker_memory_mb=1000)
+    sid = svc.scene("default", plan=_plan())
+    svc.db.update_scene(sid, plan_state="pending", plan=None)
+    with svc.client(svc.token("submit")) as c:
+        r = c.post("/v1/jobs", json={"scene_id": sid, **DEEP})
+        assert r.status_code == 202, r.text
+        job = r.json()
+    assert job["estimate"]["memory"]["plane_border_px"] is None
+    sched = Scheduler(svc.settings, svc.db, engine=None)
+    row = svc.db.get_job(job["id"])
+    assert sched._memory_need(row) is None  # waits for the plan
+    svc.db.update_scene(sid, plan_state="ready", plan=_plan())
+    assert sched._memory_need(row) == -1
+    failed = svc.db.get_job(job["id"])
+    assert failed["state"] == "failed" and "refused before it ran" in failed["error"] and "px wider" in failed["error"]
+
+
+# ---- owners share the service fairly ----------------------------------------------------------------------------
+
+def test_owners_are_scheduled_in_turn_not_first_come(svc):
+    """One FIFO queue: an owner who queued 50 jobs first made everyone else wait for all 50."""
+    for owner in ("alice", "bob", "carol"):
+        svc.scene(owner, scene_id=f"s{owner}")
+    with svc.client(svc.token("submit", owner="alice")) as a:
+        alices = [a.post("/v1/jobs", json=small("salice", optics={"resolution_hw": [64, 64], "seed": i})).json()["id"]
+                  for i in range(5)]
+    with svc.client(svc.token("submit", owner="bob")) as b:
+        bobs = [b.post("/v1/jobs", json=small("sbob", optics={"resolution_hw": [64, 64], "seed": i})).json()["id"]
+                for i in range(2)]
+    with svc.client(svc.token("submit", owner="carol")) as c:
+        carol = c.post("/v1/jobs", json=small("scarol")).json()["id"]
+    order = [j["id"] for j in svc.db.queued_jobs_fair(limit=10)]
+    assert order == [alices[0], bobs[0], carol, alices[1], bobs[1], *alices[2:]], order
+    assert svc.db.claim_next_job(alices[0])["id"] == alices[0]  # alice has one running: the others go first
+    assert [j["id"] for j in svc.db.queued_jobs_fair(limit=3)] == [bobs[0], carol, alices[1]]
+    assert svc.db.next_queued_job()["id"] == bobs[0]
+
+
+def test_per_owner_caps_on_queued_jobs_scenes_and_uploads(tmp_path):
+    """Nothing stopped one owner from queueing, storing or uploading without end."""
+    svc = App(tmp_path / "data", max_queued_jobs_per_owner=2, max_scenes_per_owner=1, max_uploads_per_owner=1)
+    svc.scene("alice", scene_id="salice")
+    alice, bob = svc.token("submit", owner="alice"), svc.token("submit", owner="bob")
+    with svc.client(alice) as a:
+        for i in range(2):
+            assert a.post("/v1/jobs", json=small("salice", optics={"resolution_hw": [64, 64], "seed": i})
+                          ).status_code == 202
+        r = a.post("/v1/jobs", json=small("salice", optics={"resolution_hw": [64, 64], "seed": 9}))
+        assert r.status_code == 429 and "2 jobs queued or running" in r.json()["detail"], r.text
+        files = {"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML}), "application/zip")}
+        r = a.post("/v1/scenes", files=files)
+        assert r.status_code == 403 and "stores 1 scenes" in r.json()["detail"], r.text
+        svc.ctx.uploads_in_flight["alice"] = 1  # one of hers is being received
+        r = a.post("/v1/scenes", files=files)
+        assert r.status_code == 429 and "uploads in progress" in r.json()["detail"], r.text
+        del svc.ctx.uploads_in_flight["alice"]
+    with svc.client(bob) as b:  # another owner is not held back by her
+        assert b.post("/v1/scenes", files=files).status_code == 201
+        assert svc.ctx.uploads_in_flight == {}
+
+
+def test_display_names_go_only_to_agents_they_are_registered_to(tmp_path):
+    """Display names went to the first agent that heartbeat them: any owner could take a name another lab had
+    not switched on yet."""
+    svc = App(tmp_path / "data")
+    hb = {"agent_version": "1", "state": "idle", "message": ""}
+    bob_agent, bob_other = svc.token("agent", owner="bob"), svc.token("agent", owner="bob")
+    with svc.client(svc.token("agent", owner="alice")) as alice, svc.client(bob_agent) as bob, \
+            svc.client(bob_other) as bob2, svc.client(svc.token("admin")) as admin:
+        squat = alice.post("/v1/displays/bob-lab/heartbeat", json=hb)
+        assert squat.status_code == 403 and "an admin registers displays" in squat.json()["detail"]
+        assert bob.get("/v1/displays").json()["displays"] == []  # not registered to alice either
+        bob_id = next(t["id"] for t in svc.db.list_tokens() if t["owner"] == "bob")
+        assert admin.put("/v1/displays/bob-lab", json={"owner": "bob", "agent_token_id": bob_id}).status_code == 204
+        assert bob.post("/v1/displays/bob-lab/heartbeat", json=hb).status_code == 204
+        r = bob2.post("/v1/displays/bob-lab/heartbeat", json=hb)  # bob's, but not the token it was registered to
+        assert r.status_code == 403 and r.json()["detail"] == squat.json()["detail"]
+        foreign = alice.post("/v1/displays/bob-lab/heartbeat", json=hb)
+        assert foreign.status_code == 403 and foreign.json()["detail"] == squat.json()["detail"]  # no probe
+    with svc.client(svc.token("agent")) as single_tenant:  # the default owner still registers by heartbeat
+        assert single_tenant.post("/v1/displays/lab-1/heartbeat", json=hb).status_code == 204
