@@ -183,11 +183,10 @@ def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
 def _parse(path: Path, limits: BundleLimits, name: str):
     """The root element of an XML file, parsed with defusedxml; nesting deeper than ``limits.max_xml_depth``
     is refused while parsing (no deep tree is ever built). Every failure is a BundleError on one line."""
-    import io
-    from xml.etree.ElementTree import ParseError
+    from xml.etree.ElementTree import ParseError, TreeBuilder
 
     from defusedxml import DefusedXmlException
-    from defusedxml.ElementTree import iterparse
+    from defusedxml.ElementTree import XMLParser
 
     if path.stat().st_size > limits.max_xml_bytes:
         raise BundleError(f"{name}: XML larger than {limits.max_xml_bytes} bytes")
@@ -198,19 +197,25 @@ def _parse(path: Path, limits: BundleLimits, name: str):
         # parsers see different attribute values
         raise BundleError(f"{name}: XML declares encoding {m.group(2)[:40].decode('ascii', 'replace')!r}; scene "
                           "files must be UTF-8")
-    depth = 0
-    root = None
+
+    class DepthCapped(TreeBuilder):
+        depth = 0
+
+        def start(self, tag, attrs):
+            self.depth += 1
+            if self.depth > limits.max_xml_depth:
+                raise BundleError(f"{name}: XML elements nested deeper than {limits.max_xml_depth}")
+            return super().start(tag, attrs)
+
+        def end(self, tag):
+            self.depth -= 1
+            return super().end(tag)
+
     try:
-        for event, el in iterparse(io.BytesIO(raw), events=("start", "end"), forbid_dtd=True,
-                                   forbid_entities=True, forbid_external=True):
-            if event == "start":
-                depth += 1
-                if root is None:
-                    root = el
-                if depth > limits.max_xml_depth:
-                    raise BundleError(f"{name}: XML elements nested deeper than {limits.max_xml_depth}")
-            else:
-                depth -= 1
+        # fed in one piece: expat rescans a token split over chunks, quadratic in a huge attribute
+        parser = XMLParser(target=DepthCapped(), forbid_dtd=True, forbid_entities=True, forbid_external=True)
+        parser.feed(raw)
+        root = parser.close()
     except BundleError:
         raise
     except DefusedXmlException as exc:
@@ -267,22 +272,29 @@ class _Params:
         pieces = value.split("$")
         out = [pieces[0]]
         size = len(pieces[0])
-        for i, seg in enumerate(pieces[1:], start=1):
-            if i + 1 < len(pieces) and seg in self._stems:
+        last = len(pieces) - 1
+        memo: dict[str, tuple[str, bool]] = {}  # segment -> (its replacement, could it join the next one)
+        for i in range(1, last + 1):
+            seg = pieces[i]
+            done = memo.get(seg)
+            if done is None:
+                done = memo[seg] = (self._replace(seg, value, where), seg in self._stems)
+            if done[1] and i < last:
                 raise BundleError(f"{where}: {value[:80]!r}: '${seg[:40]}' followed by another $parameter could "
                                   "join it into a longer parameter name; separate them")
-            for n in range(min(len(seg), self._LONGEST), 0, -1):
-                if seg[:n] in self.values:
-                    out.append(self.values[seg[:n]])
-                    out.append(seg[n:])
-                    size += len(out[-2]) + len(out[-1])
-                    break
-            else:
-                raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
+            out.append(done[0])
+            size += len(done[0])
             if size > budget:
                 raise BundleError(f"{where}: $parameters expand the scene's XML past "
                                   f"{self.limits.max_xml_total_bytes} bytes")
         return "".join(out)
+
+    def _replace(self, seg: str, value: str, where: str) -> str:
+        """The text after one ``$``: the longest parameter name it starts with, replaced."""
+        for n in range(min(len(seg), self._LONGEST), 0, -1):
+            if seg[:n] in self.values:
+                return self.values[seg[:n]] + seg[n:]
+        raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
 
 
 def _file_reference(tag: str, attrs: dict[str, str]) -> Optional[str]:
