@@ -7,7 +7,27 @@ import os
 
 from service.settings import ServiceSettings
 
-__all__ = ["serve"]
+__all__ = ["serve", "close_data_dir"]
+
+log = logging.getLogger("holo.service")
+
+
+def close_data_dir(settings: ServiceSettings) -> None:
+    """Without the sandbox: the data dir, its database files and its top folders owner-only (0700 / 0600), also
+    when an earlier start or `holo token create` made them under a laxer umask."""
+    d = settings.data_dir
+    for p, mode in ((d, 0o700), (settings.scenes_dir, 0o700), (settings.jobs_dir, 0o700)):
+        try:
+            if p.is_dir() and p.stat().st_uid == os.geteuid():
+                os.chmod(p, mode)
+        except OSError:
+            pass
+    for p in d.glob("service.db*"):
+        try:
+            if p.is_file() and p.stat().st_uid == os.geteuid():
+                os.chmod(p, 0o600)
+        except OSError:
+            pass
 
 
 def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
@@ -21,9 +41,16 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
     from service.http_timeouts import header_timeout_protocol
     from service.workers.engine import resolve_sandbox
 
+    # What the server creates is its own (the database, scenes, artifacts); folders sandbox users enter are
+    # opened explicitly. Without the sandbox nobody else needs to read any of it either.
+    os.umask(0o077)
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    if resolve_sandbox(settings) is not None:  # raises SandboxUnavailable when --sandbox on cannot be honoured
-        os.umask(0o077)  # what the server creates is its own; folders sandbox users enter are opened explicitly
+    if resolve_sandbox(settings) is None:  # raises SandboxUnavailable when --sandbox on cannot be honoured
+        close_data_dir(settings)
+        if os.geteuid() == 0:
+            log.warning("running as root without privilege separation (--sandbox off): uploaded scenes are "
+                        "parsed and rendered by root processes; use --sandbox on unless something else confines "
+                        "this service")
     engine = None
     if settings.engine == "ray":  # connected before serving, so an unreachable cluster is a one-line error
         from service.workers.ray_engine import RayEngine

@@ -190,7 +190,10 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
                 ctx.scheduler.stop(requeue=True)
             ctx.unlock_data_dir()
 
-    app = FastAPI(title="HoloPathTracer service", version=SERVICE_VERSION, lifespan=lifespan,
+    # No CDN pages: FastAPI's /docs and /redoc load their scripts from a CDN (no SRI), which would run a third
+    # party's code next to the tokens the pages ask for. /docs is an API index written here, from the schema.
+    app = FastAPI(title="HoloPathTracer service", version=SERVICE_VERSION, lifespan=lifespan, docs_url=None,
+                  redoc_url=None,
                   description="Upload Mitsuba scene bundles, render them into phase-only hologram stacks, and "
                               "serve the stacks to display agents. Errors are application/problem+json.")
     app.state.ctx = ctx
@@ -209,11 +212,15 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
 
     @app.get("/readyz", tags=["health"], responses={503: {"description": "Not ready"}})
     def readyz():
-        """Database reachable, data dir writable, scheduler alive."""
+        """Database reachable, data dir writable, scheduler alive; and whether jobs run sandboxed (``sandbox``:
+        on or off, and whether the server runs as root)."""
         checks = {"database": db.ping(), "data_dir_writable": os.access(settings.data_dir, os.W_OK),
                   "scheduler": (ctx.scheduler.alive() if ctx.scheduler is not None else not start_workers)}
         ok = all(checks.values())
-        return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks}, status_code=200 if ok else 503)
+        # the sandbox as resolved at start (auto: not resolved, no workers in this process)
+        sandbox = {"state": str(settings.sandbox), "root": os.geteuid() == 0}
+        return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks, "sandbox": sandbox},
+                            status_code=200 if ok else 503)
 
     if settings.metrics_public:
         @app.get("/metrics", tags=["health"], response_class=Response)
@@ -229,8 +236,36 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
             registry = ctx.metrics.registry if principal.is_admin else owner_registry(db, principal.owner)
             return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> Response:
+        """The API's routes and what they do, from the OpenAPI schema (/openapi.json): one self-contained page,
+        no script, nothing from another origin."""
+        return Response(api_index_html(app.openapi()), media_type="text/html; charset=utf-8")
+
     _add_problem_schema(app)
     return app
+
+
+def api_index_html(schema: dict) -> str:
+    """The routes of an OpenAPI schema as a plain HTML page (every string escaped)."""
+    from html import escape
+
+    rows = []
+    for path, ops in sorted((schema.get("paths") or {}).items()):
+        for method, op in ops.items():
+            if not isinstance(op, dict):
+                continue
+            summary = op.get("summary") or ""
+            desc = (op.get("description") or "").strip()
+            rows.append(f"<tr><td><code>{escape(method.upper())}</code></td><td><code>{escape(path)}</code></td>"
+                        f"<td><b>{escape(summary)}</b><br>{escape(desc)}</td></tr>")
+    info = schema.get("info") or {}
+    return ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>"
+            f"{escape(str(info.get('title', 'API')))}</title></head><body><h1>{escape(str(info.get('title', '')))} "
+            f"{escape(str(info.get('version', '')))}</h1><p>The machine-readable schema: <a href=\"/openapi.json\">"
+            "/openapi.json</a>. Every route but the health checks needs <code>Authorization: Bearer TOKEN</code>."
+            "</p><table><thead><tr><th>Method</th><th>Path</th><th>What it does</th></tr></thead><tbody>"
+            + "".join(rows) + "</tbody></table></body></html>")
 
 def _make_engine(settings: ServiceSettings):
     if settings.engine == "ray":

@@ -13,8 +13,8 @@
 ``SecurityHeaders`` (pure ASGI) puts on every response ``X-Content-Type-Options: nosniff``,
 ``Referrer-Policy: no-referrer``, ``X-Frame-Options: DENY`` and a Content-Security-Policy: the page's
 (``default-src 'self'``, scripts only from files of this origin, images also from ``blob:``, no framing) on
-``/`` and ``/web/``, ``default-src 'none'`` on API answers, and only ``frame-ancestors 'none'`` on the
-OpenAPI try-it pages (``/docs``, ``/redoc``), whose inline script FastAPI writes.
+``/`` and ``/web/``, and ``default-src 'none'`` on API answers and on the API index at ``/docs`` (a page of
+plain HTML written from the schema: FastAPI's try-it pages, which load their script from a CDN, are off).
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ PAGE_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 's
             "connect-src 'self'; font-src 'self'; object-src 'none'; base-uri 'none'; form-action 'none'; "
             "frame-ancestors 'none'")
 API_CSP = "default-src 'none'; frame-ancestors 'none'; sandbox"
-DOCS_CSP = "frame-ancestors 'none'"
-_DOCS = ("/docs", "/redoc")
+DOCS_CSP = "default-src 'none'; frame-ancestors 'none'"  # the API index: no script, no style, no fetch
+_DOCS = ("/docs",)
 _MEDIA = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
           ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
 _STATIC = re.compile(r"^[a-z0-9][a-z0-9_-]{0,63}\.(js|css|svg|png)$")

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 import shutil
 import signal
 import stat
@@ -84,16 +83,21 @@ class RunAs:
         return {"user": self.uid, "group": self.gid, "extra_groups": [], "umask": 0o077}
 
 
-_SECRET_ENV = re.compile(r"TOKEN|SECRET|PASSW|CREDENTIAL|API_?KEY|PRIVATE|AUTH", re.IGNORECASE)
+# What a sandboxed process may inherit: an allow-list (a deny-list of secret-looking names misses the ones it
+# did not foresee, e.g. a cloud SDK's or a proxy URL with a password in it).
+_SANDBOX_ENV = frozenset({
+    "PATH", "LANG", "LANGUAGE", "TZ", "PYTHONPATH", "PYTHONUNBUFFERED", "PYTHONSAFEPATH", "PYTHONHASHSEED",
+    "LD_LIBRARY_PATH", "DRJIT_LIBLLVM_PATH", "CUDA_VISIBLE_DEVICES", "CUDA_DEVICE_ORDER", "OMP_NUM_THREADS",
+    "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS",
+    "HOLO_DEVICE", "HOLO_MEMORY_BUDGET_MB", "HOLO_MI_VARIANT", "HOLO_NO_CUDA"})
+_SANDBOX_ENV_PREFIXES = ("LC_", "NVIDIA_")
 
 
 def sandbox_env(home: Path) -> dict[str, str]:
-    """A sandboxed process's environment: the driver's, HOME and TMPDIR (so Dr.Jit's and Mitsuba's caches)
-    inside its own folder ``home``, without variables that look like secrets."""
-    env = {k: v for k, v in driver_env().items() if not _SECRET_ENV.search(k)}
+    """A sandboxed process's environment: the allow-listed variables of the driver's, and HOME and TMPDIR (so
+    Dr.Jit's and Mitsuba's caches) inside its own folder ``home``."""
+    env = {k: v for k, v in driver_env().items() if k in _SANDBOX_ENV or k.startswith(_SANDBOX_ENV_PREFIXES)}
     env.update(HOME=str(home / "home"), TMPDIR=str(home / "tmp"), XDG_CACHE_HOME=str(home / "home" / ".cache"))
-    for var in ("USER", "LOGNAME"):
-        env.pop(var, None)
     return env
 
 

@@ -534,3 +534,57 @@ def test_display_names_go_only_to_agents_they_are_registered_to(tmp_path):
         assert foreign.status_code == 403 and foreign.json()["detail"] == squat.json()["detail"]  # no probe
     with svc.client(svc.token("agent")) as single_tenant:  # the default owner still registers by heartbeat
         assert single_tenant.post("/v1/displays/lab-1/heartbeat", json=hb).status_code == 204
+
+
+# ---- deployment defaults: no CDN, private files, a loud unsandboxed root, a closed environment ---------------
+
+def test_docs_load_nothing_from_another_origin(svc):
+    """/docs loaded swagger-ui from a CDN without SRI: a third party's script on a page that asks for tokens."""
+    with svc.client() as c:
+        docs = c.get("/docs")
+        assert docs.status_code == 200 and docs.headers["content-type"].startswith("text/html")
+        assert "<script" not in docs.text and "http" not in docs.text.replace('href="/openapi.json"', "")
+        assert "/v1/jobs/{job_id}/stack" in docs.text and docs.headers["content-security-policy"].startswith(
+            "default-src 'none'")
+        assert c.get("/redoc").status_code == 404
+        assert c.get("/openapi.json").status_code == 200
+
+
+def test_unsandboxed_server_keeps_its_files_private_and_says_so(server_factory):
+    """--sandbox off as root logged nothing, /readyz never showed the sandbox state, and service.db and the
+    artifacts were 0644 in 0755 folders."""
+    import stat
+
+    import httpx
+
+    srv = server_factory("plain", extra=("--sandbox", "off"))
+    os.chmod(srv.data_dir / "service.db", 0o644)  # as a laxer umask left it
+    srv.start()
+    ready = httpx.get(f"{srv.url}/readyz").json()
+    assert ready["sandbox"] == {"state": "off", "root": os.geteuid() == 0}, ready
+    with srv.client("submit") as c:
+        r = c.post("/v1/scenes", files={"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML}), "application/zip")})
+        assert r.status_code == 201, r.text
+    for p in [srv.data_dir / "service.db", *(srv.data_dir / "scenes").rglob("*")]:
+        mode = stat.S_IMODE(p.stat().st_mode)
+        assert mode & 0o077 == 0, (p, oct(mode))
+    assert stat.S_IMODE(srv.data_dir.stat().st_mode) & 0o077 == 0
+    if os.geteuid() == 0:
+        assert "running as root without privilege separation" in srv.log()
+
+
+def test_sandboxed_processes_get_an_allow_listed_environment(tmp_path, monkeypatch):
+    """The sandbox's environment was the server's less a deny-list of secret-looking names: a proxy URL with a
+    password, a cloud session or the data dir's location passed through."""
+    from service.workers.engine import sandbox_env
+
+    monkeypatch.setenv("HTTPS_PROXY", "http://user:hunter2@proxy:3128")
+    monkeypatch.setenv("AWS_SESSION_TOKEN", "x")
+    monkeypatch.setenv("HOLO_DATA_DIR", "/srv/holo")
+    monkeypatch.setenv("HOLO_DEVICE", "cpu")
+    monkeypatch.setenv("LC_ALL", "C.UTF-8")
+    env = sandbox_env(tmp_path)
+    assert not {"HTTPS_PROXY", "AWS_SESSION_TOKEN", "HOLO_DATA_DIR", "USER", "LOGNAME"} & set(env), sorted(env)
+    assert env["HOLO_DEVICE"] == "cpu" and env["LC_ALL"] == "C.UTF-8" and "PATH" in env
+    assert env["HOME"] == str(tmp_path / "home") and env["TMPDIR"] == str(tmp_path / "tmp")
+    assert env["PYTHONSAFEPATH"] == "1"
