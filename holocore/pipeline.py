@@ -241,7 +241,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
         equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
-                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional")
+                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional",
+                                      rim_ripple=optics.frame_phases != "directional")
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})

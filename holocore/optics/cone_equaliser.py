@@ -307,16 +307,18 @@ class PlaneEqualiser:
 
 
 def plane_equalisers(distances_by_plane_m: Sequence[Sequence[float]], wavelengths_m: Sequence[float],
-                     pitch_m: float, *, noise_aware: bool = True) -> list[PlaneEqualiser]:
+                     pitch_m: float, *, noise_aware: bool = True, rim_ripple: bool = True) -> list[PlaneEqualiser]:
     """One :class:`PlaneEqualiser` per recording plane from the distances (m) of the image points it records
     (:meth:`holocore.plan.wrp_planes.WrpPlanes.distances_by_plane_m`), for the lit ``wavelengths_m``;
-    ``noise_aware``: Eq. C4 (the default) rather than C3."""
+    ``noise_aware``: Eq. C4 (the default) rather than C3. ``rim_ripple=False``: the rays already carry their
+    points' ideal spectrum (directional frames, :mod:`holocore.trace.beams` Eq. B2), so every plane divides only
+    the cell's B (Weyl's spectrum times B for every point)."""
     out = []
     tan_w = max(_cone(lam, pitch_m)[0] for lam in wavelengths_m)
     for dists in distances_by_plane_m:
         d = np.asarray(dists, dtype=np.float64).reshape(-1)
         d = d[np.isfinite(d) & (d > 0)]
-        spectra = tuple(mean_sheet_spectrum(d, lam, pitch_m) for lam in wavelengths_m)
+        spectra = tuple(mean_sheet_spectrum(d, lam, pitch_m) if rim_ripple else None for lam in wavelengths_m)
         zones = float(d.min() * tan_w ** 2 / min(wavelengths_m)) if d.size else None
         # The filter's reach: about the diameter of the widest sub-hologram it was computed from.
         border = int(math.ceil(2.0 * float(np.max(d, initial=0.0)) * tan_w / pitch_m)) + 8

@@ -19,6 +19,22 @@ recording cone, symmetric left to right. All colours use the same directions, so
 every colour; each colour's amplitude is scaled by :func:`beam_gain` so that a pupil receives the same share of
 every colour's light as from random phases (which spread a colour over its own cone, wider for longer waves).
 
+A beam samples each image point's angular spectrum at one frequency, where random phases average it over the
+pupil. The rays of a point at distance d from its recording plane fill the cone up to its rim, and that hard cut
+rings in angle (Eq. C1 of :mod:`holocore.optics.cone_equaliser`): on the axis the spectrum varies as
+|1 - exp(i pi N_F)|, N_F = d tan^2(theta_c) / lambda, zero at every even N_F (blue at the default 4-pixel WRP
+margin), and no gain after the fact can restore a zero. So the rays of directional frames are weighted by a
+raised-cosine rim taper from RIM_TAPER of the cone's tan(angle) to its rim (:func:`rim_taper`), which keeps the
+spectrum of every point away from zero, and each ray's frame m is then divided by the point's spectrum at the
+frame's beam relative to Weyl's (:func:`beam_spectrum_ratio`, Eq. B2 below, tabulated per colour and ring of
+directions over N_F), so that every beam carries its point's ideal amplitude at any depth, in every colour:
+
+    K_rel(d, f) = 2 pi int_0^R w(rho / R) exp(i k r) / r  J0(2 pi f rho) rho d rho  /  (i lambda exp(i k w_f d) / w_f),
+    r = sqrt(rho^2 + d^2), R = d tan(theta_c), w_f = sqrt(1 - (lambda f)^2).                            (B2)
+
+The recording plane's equaliser then divides only the cell's sinc^2 (Eq. C2's cell mean, the same for every
+distance).
+
 (B1) is applied in two parts. The lateral part k u_m . Q_xy is a bank of phase maps on the cell lattice
 (:func:`beam_phase_frames`; u_m rounded to the lattice's DFT grid, so the map is periodic like a random bank); the
 depth part is k (Q_z - z_ref) (the same in every frame: added to the ray's own phase in the tracer) times the
@@ -30,16 +46,26 @@ Units: metres, radians; directions as sines of the angle to the axis (hologram s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Iterator, Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Iterator, Optional, Sequence
 
 import numpy as np
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
 
-__all__ = ["RHO", "beam_layout", "beam_disc_sine", "beam_gain", "beam_phase_frames", "BeamDepthTerms"]
+__all__ = ["RHO", "RIM_TAPER", "beam_layout", "beam_disc_sine", "beam_gain", "beam_phase_frames", "rim_taper",
+           "beam_spectrum_ratio", "BeamDepthTerms"]
 
 RHO = 0.9  # the directions fill this fraction of the smallest colour's cone (radius), clear of its rim
+RIM_TAPER = 0.6  # the rim taper starts at this fraction of the cone's tan(angle): |K_rel| >= 0.4 at every beam
+MAX_BEAM_GAIN = 4.0  # the largest per-ray factor 1 / K_rel (points nearer than a Fresnel zone to their plane)
+_NF_STEP = 1.0 / 16.0  # the table of (B2) over N_F: its ripple has period 2 in N_F
+_NF_MAX = 48.0  # beyond: the taper spans > 18 zones and K_rel is the taper's value at the beam (its last entry)
+_RADIAL = 4096  # samples of the radial integral
+_NF_LATTICE = 8.0  # up to this many zones (B2) is the DFT of the cell-averaged lattice samples (Eq. C2's form)
+_LATTICE_STEP = 2  # ... computed on every second entry of the table there, interpolated between
+_SUB = 4  # sub-samples per cell side of the cell's mean
 
 
 def beam_layout(frames: int) -> np.ndarray:
@@ -84,6 +110,89 @@ def beam_gain(wavelength_m: float, pitch_m: float, wavelengths_m: Sequence[float
     return min(_cone_sine(float(lam), pitch_m) for lam in wavelengths_m) / _cone_sine(wavelength_m, pitch_m)
 
 
+def rim_taper(x, start: float = RIM_TAPER):
+    """The rays' weight at x = tan(angle) / tan(theta_c): 1 up to ``start``, a raised cosine to 0 at the rim."""
+    t = np.clip((np.asarray(x, dtype=np.float64) - start) / (1.0 - start), 0.0, 1.0)
+    return 0.5 + 0.5 * np.cos(np.pi * t)
+
+
+def _lattice_ratio(d: float, lam: float, pitch_m: float, tan_c: float, rings: Sequence[np.ndarray],
+                   start: float) -> np.ndarray:
+    """(B2) as the recording lattice sees it: the DFT at each direction of ``dirs`` ([n, 2] sines) of the tapered
+    cut wave averaged over a cell and sampled at the pixel centres (Eq. C2's form, which holds its aliases), over
+    Weyl's spectrum times the cell's sinc(f_x p) sinc(f_y p) that the plane's equaliser divides; the mean over
+    the directions of each ring: complex128 [rings]."""
+    k, R = 2.0 * math.pi / lam, d * tan_c
+    n = int(math.ceil(R / pitch_m + 0.5))
+    lag = np.arange(-n, n + 1) * pitch_m
+    sub = ((np.arange(_SUB) + 0.5) / _SUB - 0.5) * pitch_m
+    dy = lag[:, None, None, None] - sub[None, None, :, None]
+    dx = lag[None, :, None, None] - sub[None, None, None, :]
+    rho = np.sqrt(dy * dy + dx * dx)
+    r = np.sqrt(rho * rho + d * d)
+    kern = np.where(rho <= R, rim_taper(rho / R, start) * np.exp(1j * k * r) / r, 0.0).mean(axis=(2, 3))
+    kern *= pitch_m * pitch_m
+    out = []
+    for dirs in rings:
+        vals = []
+        for ux, uy in dirs:
+            fx, fy = ux / lam, uy / lam
+            val = np.exp(-2j * math.pi * fy * lag) @ kern @ np.exp(-2j * math.pi * fx * lag)
+            wz = math.sqrt(max(1e-12, 1.0 - ux * ux - uy * uy))
+            vals.append(val / (1j * lam * np.exp(1j * k * wz * d) / wz * np.sinc(fx * pitch_m) * np.sinc(fy * pitch_m)))
+        out.append(np.mean(vals))
+    return np.asarray(out)
+
+
+@lru_cache(maxsize=64)
+def _ratio_table(wavelength_m: float, pitch_m: float, rings: tuple, start: float) -> np.ndarray:
+    """K_rel of (B2) for each ring of directions (``rings``: per ring a tuple of (u_x, u_y) sines) on N_F = 0,
+    _NF_STEP, .. _NF_MAX: complex128 [rings, n]; the lattice's DFT up to _NF_LATTICE zones, the radial integral
+    beyond (where the two agree to 1 %)."""
+    from scipy.special import j0
+
+    lam = float(wavelength_m)
+    th = min(theta_max_rad(lam, pitch_m), MAX_CONE_HALF_ANGLE_RAD)
+    tan_c, k = math.tan(th), 2.0 * math.pi / lam
+    dirs = [np.asarray(r, dtype=np.float64).reshape(-1, 2) for r in rings]
+    sines = [float(np.mean(np.hypot(d[:, 0], d[:, 1]))) for d in dirs]
+    nf = np.arange(0.0, _NF_MAX + 0.5 * _NF_STEP, _NF_STEP)
+    out = np.zeros((len(dirs), nf.size), dtype=np.complex128)
+    t = (np.arange(_RADIAL) + 0.5) / _RADIAL  # midpoints in rho / R
+    w = rim_taper(t, start)  # rho / R = tan / tan_c
+    last = int(round(_NF_LATTICE / _NF_STEP))
+    for i in range(_LATTICE_STEP, last + 1, _LATTICE_STEP):
+        out[:, i] = _lattice_ratio(nf[i] * lam / (tan_c * tan_c), lam, float(pitch_m), tan_c, dirs, start)
+        h = i - _LATTICE_STEP
+        for j in range(1, _LATTICE_STEP):  # the entries between, linear in N_F
+            out[:, h + j] = out[:, h] + (out[:, i] - out[:, h]) * (j / _LATTICE_STEP)
+    uniq, which = np.unique(np.round(sines, 12), return_inverse=True)  # the radial integral depends on |u| only
+    for i in range(last + 1, nf.size):
+        d = nf[i] * lam / (tan_c * tan_c)
+        R = d * tan_c
+        rho = t * R
+        r = np.sqrt(rho * rho + d * d)
+        base = w * np.exp(1j * k * r) / r * rho
+        for q, sine in enumerate(uniq):
+            wz = math.sqrt(max(1e-12, 1.0 - sine * sine))
+            val = 2.0 * math.pi * np.sum(base * j0(2.0 * math.pi * (sine / lam) * rho)) * (R / _RADIAL)
+            out[which == q, i] = val / (1j * lam * np.exp(1j * k * wz * d) / wz)
+    return out
+
+
+def beam_spectrum_ratio(distance_m, wavelength_m: float, pitch_m: float, sine: float,
+                        start: float = RIM_TAPER) -> np.ndarray:
+    """K_rel of (B2): a tapered point's spectrum at direction ``sine`` over Weyl's, at ``distance_m`` (m, array) from
+    its plane; complex128, linear in N_F between the table's entries, its last entry beyond."""
+    lam = float(wavelength_m)
+    th = min(theta_max_rad(lam, pitch_m), MAX_CONE_HALF_ANGLE_RAD)
+    table = _ratio_table(lam, float(pitch_m), (((round(float(sine), 12), 0.0),),), float(start))[0]
+    pos = np.clip(np.asarray(distance_m, dtype=np.float64) * math.tan(th) ** 2 / lam / _NF_STEP, 0.0, table.size - 1)
+    i0 = np.minimum(np.floor(pos).astype(np.int64), table.size - 2)
+    f = pos - i0
+    return (1.0 - f) * table[i0] + f * table[i0 + 1]
+
+
 def _directions(frames: int, wavelengths_m: Sequence[float], pitch_m: float) -> np.ndarray:
     return beam_layout(frames) * beam_disc_sine(wavelengths_m, pitch_m)
 
@@ -113,29 +222,40 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
 class BeamDepthTerms:
     """The depth part of (B1) that differs between frames, exp(-i k_c (1 - w_m) dz), dz = Q_z - z_ref (m; the
     tracer's z_ref is the WRP), for the frames of one pass. ``ks``: wavenumbers (rad/m) of the colours traced;
-    ``one_minus_w``: 1 - w of each ring of directions; ``frame_ring``: the ring of each frame of the pass;
-    ``ring_runs``: (ring, first frame, end frame) of each run of consecutive frames of one ring."""
+    ``one_minus_w``: 1 - w of each ring of directions; ``frame_ring``: the ring of each frame of the pass; ``gains``:
+    per colour and frame of the pass the rays' factor 1 / K_rel of (B2) on N_F = 0, _NF_STEP, .. (complex128
+    [C, F, n]; None: no taper, no factor), ``nf_per_m``: N_F per metre of distance of each colour."""
 
     ks: tuple[float, ...]
     one_minus_w: tuple[float, ...]
     frame_ring: tuple[int, ...]
-    ring_runs: tuple[tuple[int, int, int], ...]
+    gains: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
+    nf_per_m: tuple[float, ...] = ()
+    taper: Optional[float] = None  # the rim taper the tracer applies to the rays (:func:`rim_taper`)
 
     @classmethod
     def make(cls, *, frames: int, first_frame: int, bank_frames: int, wavelengths_m: Sequence[float],
-             pitch_m: float, all_wavelengths_m: Sequence[float] | None = None) -> "BeamDepthTerms":
+             pitch_m: float, all_wavelengths_m: Sequence[float] | None = None,
+             taper: Optional[float] = RIM_TAPER) -> "BeamDepthTerms":
         u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)[first_frame:first_frame + frames]
         s2 = np.round((u * u).sum(axis=1), 15)
         rings, ring_of = np.unique(s2, return_inverse=True)
         omw = [float(v / (1.0 + math.sqrt(1.0 - v))) for v in rings]  # 1 - sqrt(1 - s^2) without cancellation
-        runs: list[tuple[int, int, int]] = []
-        for f, r in enumerate(int(v) for v in ring_of):
-            if runs and runs[-1][0] == r and runs[-1][2] == f:
-                runs[-1] = (r, runs[-1][1], f + 1)
-            else:
-                runs.append((r, f, f + 1))
+        gains, nf_per_m = None, ()
+        if taper is not None:  # (B2) per colour and frame, inverted with its gain capped at MAX_BEAM_GAIN
+            # one entry per frame of the bank (the lattice makes (B2) depend on a beam's azimuth by +-5 %), so the
+            # table is the same for every pass; the pass takes its frames' rows
+            all_u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)
+            dirs = tuple(((round(float(x), 12), round(float(y), 12)),) for x, y in all_u)
+            kr = np.stack([_ratio_table(float(lam), float(pitch_m), dirs, float(taper))[first_frame:first_frame + frames]
+                           for lam in wavelengths_m])
+            mag = np.maximum(np.abs(kr), 1.0 / MAX_BEAM_GAIN)
+            gains = np.conj(kr) / (mag * mag)
+            nf_per_m = tuple(math.tan(min(theta_max_rad(float(lam), pitch_m), MAX_CONE_HALF_ANGLE_RAD)) ** 2
+                             / float(lam) for lam in wavelengths_m)
         return cls(ks=tuple(2.0 * math.pi / float(lam) for lam in wavelengths_m), one_minus_w=tuple(omw),
-                   frame_ring=tuple(int(r) for r in ring_of), ring_runs=tuple(runs))
+                   frame_ring=tuple(int(r) for r in ring_of), gains=gains,
+                   nf_per_m=nf_per_m, taper=taper)
 
     def ring_phasors(self, dz):
         """complex64 torch [R, C, rings] of the rays' dz (torch float [R], m): one factor per ring of directions."""
@@ -149,6 +269,26 @@ class BeamDepthTerms:
             out.append(torch.polar(torch.ones_like(ph), ph))
         return torch.stack(out, dim=1)
 
+    def _gain(self, c: int, drec):
+        """1 / K_rel (B2) of colour c at the rays' distances ``drec`` (m): complex64 torch [R, F]."""
+        import torch
+
+        table = torch.from_numpy(self.gains[c].T.astype(np.complex64)).to(drec.device)  # [n, F]
+        pos = (drec.to(torch.float64) * (self.nf_per_m[c] / _NF_STEP)).clamp(0.0, table.shape[0] - 1.0)
+        i0 = pos.floor().long().clamp(max=table.shape[0] - 2)
+        f = (pos - i0).to(torch.float32)[:, None]
+        return table[i0] * (1.0 - f) + table[i0 + 1] * f
+
+    def frame_factors(self, base, dz, drec=None):
+        """base [R, C] times every frame's depth factor of the rays (dz [R], m) and, with ``drec`` (their distances to
+        their recording planes, m), their 1 / K_rel of (B2): complex [R, C, F]. Called per chunk of rays."""
+        import torch
+
+        ring = self.ring_phasors(dz)[:, :, list(self.frame_ring)]  # [R, C, F]
+        if drec is not None and self.gains is not None:
+            ring = ring * torch.stack([self._gain(c, drec) for c in range(len(self.ks))], dim=1)
+        return base[:, :, None] * ring
+
     def plane_factors(self, dz_m: float):
         """The whole depth part of (B1), exp(i k_c w_m dz), of one depth dz (m) for every colour and frame: complex64
         torch [C, F] (a layer at one depth: the tracer's k dz and the ring factor in one)."""
@@ -157,17 +297,3 @@ class BeamDepthTerms:
         ring = self.ring_phasors(torch.tensor([float(dz_m)], dtype=torch.float64))[0]  # [C, rings]
         common = torch.tensor([complex(np.exp(1j * k * float(dz_m))) for k in self.ks], dtype=torch.complex64)
         return ring[:, list(self.frame_ring)] * common[:, None]
-
-    def scaled_base(self, base, dz):
-        """base [R, C] times each ring's depth factor of the rays (dz [R], m): complex [R, C, rings]."""
-        return base[:, :, None] * self.ring_phasors(dz)
-
-    def apply(self, rows, scaled):
-        """rows [R, C, F] (the bank's rows of each ray) times :meth:`scaled_base` [R, C, rings]: complex [R, C, F],
-        one complex product per element (each run of one ring's frames takes its factor at once)."""
-        import torch
-
-        out = rows.new_empty(rows.shape)
-        for r, a, b in self.ring_runs:
-            torch.mul(rows[:, :, a:b], scaled[:, :, r:r + 1], out=out[:, :, a:b])
-        return out

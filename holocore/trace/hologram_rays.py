@@ -98,7 +98,8 @@ _CHUNK_RAYS = 1 << 12  # rays per gather: the [rays, C, F] block stays in cache
 
 
 def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tensor, n: int,
-                       depth: Optional[BeamDepthTerms] = None, dz: Optional[torch.Tensor] = None) -> torch.Tensor:
+                       depth: Optional[BeamDepthTerms] = None, dz: Optional[torch.Tensor] = None,
+                       drec: Optional[torch.Tensor] = None) -> torch.Tensor:
     """sum over each pixel's n rays of base * exp(i phi_m(Q)), for all colors and frames m at once; complex64
     [P, C, F]. ``depth``: directional frames' per-frame depth factor of each ray (its ``dz``), Eq. B1.
 
@@ -110,14 +111,15 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     out = torch.empty((P, C, F), dtype=torch.complex64, device=cells.device)
     step = max(1, _CHUNK_RAYS // n)
     b = base.view(P, n, C, 1)
-    scaled = None if depth is None else depth.scaled_base(base, dz)  # [P*n, C, rings]
     for p0 in range(0, P, step):
         p1 = min(P, p0 + step)
         if depth is None:
             rows = cells.index_select(0, idx[p0 * n:p1 * n]).view(p1 - p0, n, C, F)
             torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
         else:
-            rows = depth.apply(cells.index_select(0, idx[p0 * n:p1 * n]), scaled[p0 * n:p1 * n])
+            a, b_ = p0 * n, p1 * n
+            rows = cells.index_select(0, idx[a:b_]) * depth.frame_factors(
+                base[a:b_], dz[a:b_], None if drec is None else drec[a:b_])
             torch.sum(rows.view(p1 - p0, n, C, F), dim=1, out=out[p0:p1])
     return out
 
@@ -212,11 +214,14 @@ def trace_field(
         raise ValueError(f"bank_phasors are on {cells.device}, the trace runs on {dev}")
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
     bands = _PlaneBands(geo, C, frames if cells is not None else 1, dev) if multi else None
+    # Directional frames on a recording plane in front of the scene: soft-rimmed rays, each beam divided by its
+    # point's spectrum there (beams.py, Eq. B2); the direct method records on the SLM, far from every point.
+    taper = depth_terms.taper if depth_terms is not None and not geo.direct else None
     for ti, (r0, r1) in enumerate(tiles):
         t0 = time.perf_counter()
         tile = trace_tile(scene, geo, r0, r1, settings, integrator, radiance_cache, cells is not None,
                            seed=int((seed * 1_000_003 + ti) % (2**31)), stats=stats, device=dev,
-                           want_dz=depth_terms is not None)
+                           want_dz=depth_terms is not None, taper=taper)
         _park_drjit_workers()
         t1 = time.perf_counter()
         block = None
@@ -228,7 +233,8 @@ def trace_field(
             block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
         else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
             base = torch.stack([tile[c] for c in range(C)], dim=1)
-            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp, depth_terms, tile.get("dz"))  # [P, C, F]
+            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp, depth_terms, tile.get("dz"),
+                                     tile.get("drec") if taper is not None else None)  # [P, C, F]
             block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
         if block is not None and on_tile is not None:
             on_tile(r0, r1, block)
@@ -255,14 +261,14 @@ class _PlaneBands:
     def deposit(self, tile: dict, cells, depth: Optional[BeamDepthTerms] = None) -> None:
         base = torch.stack([tile[c] for c in range(self.C)], dim=1)  # [R, C] per ray
         pos = tile["pos"]
-        scaled = None if depth is None else depth.scaled_base(base, tile["dz"])  # [R, C, rings]
         for a in range(0, base.shape[0], _CHUNK_RAYS):
             b = min(base.shape[0], a + _CHUNK_RAYS)
             if cells is None:
                 add = base[a:b, :, None]
             else:
                 add = cells.index_select(0, tile["idx"][a:b])
-                add = add * base[a:b, :, None] if depth is None else depth.apply(add, scaled[a:b])
+                add = add * (base[a:b, :, None] if depth is None else depth.frame_factors(
+                    base[a:b], tile["dz"][a:b], tile["drec"][a:b] if "drec" in tile else None))
             self.table.index_add_(0, pos[a:b], add)
 
     def flush(self, upto: Optional[int]):

@@ -112,6 +112,7 @@ def _opaque(mi, g: TileGeometry) -> SimpleNamespace:
     o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
     o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
     o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))
+    o.tan_lim = tuple(f64(math.sqrt(max(0.0, 1.0 - c * c)) / c) for c in g.cos_lim)
     return o
 
 
@@ -164,12 +165,16 @@ def _to_torch(x, dev: torch.device) -> torch.Tensor:
 
 
 def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
-                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False) -> dict:
+                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False,
+                taper: Optional[float] = None) -> dict:
     """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
     ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
     major) and, with ``want_cells``, the bank cell of every ray's image point ("idx"). ``want_dz`` (directional
     frames, :mod:`holocore.trace.beams`): each ray's phase also holds k (Q_z - z_wrp), the depth part of Eq. B1
-    common to all frames, and "dz" returns Q_z - z_wrp (m, float32) for the part that differs between frames."""
+    common to all frames, and "dz" returns Q_z - z_wrp (m, float32) for the part that differs between frames, "drec"
+    the distance (m) from the ray's image point to the plane that records it. ``taper`` (directional frames): each
+    ray's amplitude is also weighted by the rim taper (:func:`holocore.trace.beams.rim_taper`) at its tan(angle)
+    over its colour's cone, which starts at this fraction of the cone: a soft-edged sub-hologram."""
     mi = mitsuba()
     import drjit as dr
 
@@ -269,7 +274,12 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     parts = []
     for c in range(len(g.ks)):
         inside = cos_t >= o.cos_lim[c] - 1e-15
-        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * weight, 0.0))
+        w_c = weight
+        if taper is not None:  # a soft rim: raised cosine in tan(angle) / tan(theta_c) from ``taper`` to 1
+            x = dr.safe_sqrt(1.0 - cos_t * cos_t) / cos_t / o.tan_lim[c]
+            t = dr.clip((x - taper) / (1.0 - taper), 0.0, 1.0)
+            w_c = weight * (0.5 + 0.5 * dr.cos(math.pi * t))
+        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * w_c, 0.0))
         kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r_ph
         if want_dz:  # Eq. B1's k (Q_z - z_ref) with the depth the phase uses (on the grid: the two agree there)
             kr = kr + o.ks[c] * (q_ph.z - o.z_wrp)
@@ -285,7 +295,8 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     status = (mi.UInt32(ok) | (mi.UInt32(wp.valid & ~ok) << 1) | (mi.UInt32(wp.escaped) << 2)
               | (mi.UInt32(wp.capped) << 3) | (mi.UInt32(wp.sampled) << 4) | (wp.n_delta << 8))
     dz = mi.Float(q_ph.z - o.z_wrp) if want_dz else None
-    dr.eval(parts, idx, status, pos, dz)  # the one kernel: rays, wave paths, contributions
+    drec = mi.Float(s.z - q_ph.z) if want_dz else None  # s: where the ray is recorded (its plane's z)
+    dr.eval(parts, idx, status, pos, dz, drec)  # the one kernel: rays, wave paths, contributions
     if not want_cells and pos is None:  # sum each pixel's N rays (the rays are pixel-major)
         parts = [dr.block_sum(x, N) for x in parts]
         dr.eval(parts)
@@ -299,6 +310,7 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         out["pos"] = _to_torch(pos, device).to(torch.int64)
     if dz is not None:
         out["dz"] = _to_torch(dz, device)
+        out["drec"] = _to_torch(drec, device)
     # The ray counts, reduced where the rays are (one small read back per tile).
     st = _to_torch(status, device).to(torch.int64)
     ok_t = (st & 1).bool()
