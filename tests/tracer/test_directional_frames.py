@@ -144,3 +144,31 @@ def test_a_tilted_plate_is_as_bright_from_the_left_as_from_the_right():
     left, centre, right = tilted[-0.5].sum(), tilted[0.0].sum(), tilted[0.5].sum()
     assert left / right == pytest.approx(1.0, abs=0.06), (left, right)
     assert min(left, right) > 0.7 * centre, (left, centre, right)
+
+
+def test_every_beam_carries_its_share_at_every_wrp_margin():
+    """A glowing plate at the WRP margin (4-8 pixel footprints: N_F = 2-4 for blue, where a hard-rimmed point's
+    on-axis spectrum |1 - exp(i pi N_F)| vanishes at 4 and 8): the plane-wave amplitude each frame carries, read
+    off the WRP field by projecting it on the frame's beam, is the same for the on-axis frame and the rings, in
+    every colour (was 0.005 for blue at margins 4 and 8 before the rim taper and Eq. B2)."""
+    from holocore.display.profiles import PAPER
+    from holocore.pipeline import RenderOptions, render_loaded
+    from holocore.scene.paper import paper_fov_x_deg
+    from tests.tracer.scenes import camera, emitting_plane, scene
+
+    loaded = scene(sensor=camera(fov=paper_fov_x_deg()), plate=emitting_plane(-0.5, size=0.2))
+    H, W = 64, 96
+    for margin in (4.0, 5.0, 6.0, 8.0):
+        opt = PAPER.optics(resolution_hw=(H, W), frames=24, z_inf_mm=4.0, frame_phases="directional")
+        opt = opt.model_copy(update={"wrp_margin_px": margin})
+        w = render_loaded(loaded, opt, RenderOptions(preset="balanced", spp=64, wrp_planes=1), display=PAPER).wrp_field
+        share = np.zeros((3, 3))  # colour x (on-axis frame, first ring, second ring): power over the mean frame
+        for c, lam in enumerate(opt.wavelengths_m):
+            power = np.array([abs((w[m, c] * np.exp(-1j * phi))[16:-16, 24:-24].mean()) ** 2 for m, phi in
+                              enumerate(beam_phase_frames(24, (H, W), lam, opt.pitch_m, wavelengths_m=LAMS))])
+            share[c] = [power[0], power[1:8].mean(), power[8:].mean()]
+            share[c] /= power.mean()
+        assert np.all(np.isfinite(share))
+        assert share.min() > 0.8 and share.max() < 1.2, (margin, share.round(3))
+        on_axis = share[:, 0]
+        assert on_axis.max() / on_axis.min() < 1.2, (margin, on_axis)
