@@ -30,6 +30,15 @@ def evaluate(
                                                                         "recording cone at every view)."),
     gt_spp: int = typer.Option(256, "--gt-spp", help="Samples per pixel of the ground-truth renders."),
     images: bool = typer.Option(True, "--images/--no-images", help="Write one side-by-side PNG per cell."),
+    viewer: bool = typer.Option(False, "--viewer", help="The viewer-faithful score instead (docs/evaluation.md): "
+                                                        "every pupil of --pupils-mm x an --eye-grid of eye "
+                                                        "positions x the focus planes, one brightness scale per "
+                                                        "colour for all of them; writes viewer.json."),
+    pupils_mm: str = typer.Option("1.6,2,3,4,6", "--pupils-mm", help="With --viewer: pupil diameters (mm)."),
+    eye_grid: int = typer.Option(5, "--eye-grid", help="With --viewer: an N x N grid of eye positions, jittered."),
+    eye_span_mm: Optional[float] = typer.Option(None, "--eye-span-mm", help="With --viewer: the grid spans +-this "
+                                                                            "(default: half the bluest eyebox)."),
+    seed: int = typer.Option(0, "--seed", help="With --viewer: the eye grid's jitter."),
     memory_budget_mb: Optional[int] = typer.Option(
         None, "--memory-budget-mb", help="Peak memory to stay within (MiB): the hologram is read and viewed in "
                                          "chunks of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
@@ -45,6 +54,20 @@ def evaluate(
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
     if not 1 <= gt_spp <= 65536:
         fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
+    pupils_m = []
+    if viewer:
+        try:
+            pupils_m = [float(v) * 1e-3 for v in pupils_mm.split(",") if v.strip()]
+        except ValueError:
+            fail(f"--pupils-mm must be a comma-separated list of diameters in mm, got {pupils_mm!r}")
+        if not pupils_m or not all(math.isfinite(v) and 0 < v <= 0.05 for v in pupils_m):
+            fail(f"--pupils-mm must list diameters in (0, 50] mm, got {pupils_mm!r}")
+        if not 1 <= eye_grid <= 9:
+            fail(f"--eye-grid must be in 1..9, got {eye_grid}")
+        if eye_span_mm is not None and not (math.isfinite(eye_span_mm) and 0 <= eye_span_mm <= 50):
+            fail(f"--eye-span-mm must be in [0, 50] mm, got {eye_span_mm}")
+        if seed < 0:
+            fail(f"--seed must be >= 0, got {seed}")
     if not source.is_file():
         fail(f"input not found: {source}")
     if not scene.exists():
@@ -68,6 +91,28 @@ def evaluate(
             typer.echo(f"  note: {source.name} was rendered from a different version of this scene "
                        "(content hash differs)", err=True)
         truth = GroundTruth(loaded, meta, shape_hw=field.shape[-2:], spp=gt_spp)
+        if viewer:
+            from holocore.evaluate.viewer import viewer_score
+
+            vs = viewer_score(field, meta, truth, pupils_m=pupils_m, eye_grid=eye_grid, seed=seed,
+                              eye_span_m=None if eye_span_mm is None else eye_span_mm * 1e-3,
+                              focus_planes=focus_planes, memory_budget_bytes=budget)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    if viewer:
+        import json
+
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "viewer.json").write_text(json.dumps({"label": source.name, **vs.to_dict()}, indent=1, default=float))
+        typer.echo(f"{'pupil mm':>8} {'PSNR dB':>8} {'SSIM':>6} {'bright max/min':>14} {'cast':>6} {'edge err':>8} "
+                   f"{'parallax px':>11}")
+        for p in vs.pupils:
+            typer.echo(f"{p.pupil_mm:8.2f} {p.mean_psnr_db:8.2f} {p.mean_ssim:6.3f} {p.brightness_max_over_min:14.3f} "
+                       f"{p.colour_cast:6.3f} {p.edge_error:8.3f} {p.parallax_error_px:11.2f}")
+        typer.echo(f"mean over {len(vs.cells)} cells: PSNR {vs.mean_psnr_db:.2f} dB, one scale per colour "
+                   f"(per-cell scales spread {vs.scale_spread:.2f}x) -> {out / 'viewer.json'}")
+        return
+    try:
         ev = run_eval(field, meta, truth, focus_planes=focus_planes, views=views, view_deg=view_deg,
                       pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images,
                       memory_budget_bytes=budget)

@@ -94,3 +94,18 @@ def test_one_scale_sees_brightness_that_steps_with_the_eye():
     assert beams.pupils[0].brightness_max_over_min > 1.15, beams.pupils[0]
     assert beams.scale_spread > spread.scale_spread
     assert all(math.isfinite(c.psnr_db) for c in spread.cells + beams.cells)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--pupils-mm", "2,x"], "--pupils-mm must be a comma-separated list"),
+    (["--pupils-mm", "0"], "--pupils-mm must list diameters"),
+    (["--eye-grid", "12"], "--eye-grid must be in 1..9"),
+])
+def test_holo_evaluate_viewer_options_fail_in_one_line(tmp_path, args, words):
+    from typer.testing import CliRunner
+
+    from holo.app import app
+
+    res = CliRunner().invoke(app, ["evaluate", str(tmp_path / "none.npz"), "--scene", str(tmp_path), "--out",
+                                   str(tmp_path / "o"), "--viewer", *args])
+    assert res.exit_code != 0 and words in res.output and "Traceback" not in res.output, res.output
