@@ -22,7 +22,8 @@ from typing import Iterable, Optional
 
 from service.db import Database
 
-__all__ = ["AuthFailures", "SCOPES", "DEFAULT_OWNER", "Principal", "create_token", "verify_token", "revoke_token", "list_tokens", "allows"]
+__all__ = ["AuthFailures", "SCOPES", "DEFAULT_OWNER", "Principal", "create_token", "verify_token", "revoke_token",
+           "list_tokens", "allows"]
 
 SCOPES = ("submit", "read", "admin", "agent")
 _IMPLIES = {"admin": set(SCOPES), "submit": {"submit", "read"}, "agent": {"agent", "read"}, "read": {"read"}}

@@ -13,7 +13,8 @@ from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal, allows, verify_token
 
-__all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "PRINCIPAL_KEY", "Ctx", "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
+__all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "PRINCIPAL_KEY", "Ctx", "ReadScope",
+           "SubmitScope", "AgentScope", "AdminScope"]
 
 _bearer = HTTPBearer(auto_error=False, description="A token from `holo token create`.")
 _CHALLENGE = {"WWW-Authenticate": 'Bearer realm="holo"'}

@@ -168,7 +168,8 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
     prev = reusable_job(ctx, key, principal.owner)
     return {"estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
                                       plane_border=scene_plane_border(ctx, req, scene)),
-            "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"), "reuses": prev["id"] if prev is not None else None,
+            "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"),
+            "reuses": prev["id"] if prev is not None else None,
             "worker_memory_bytes": ctx.settings.worker_memory_bytes}
 
 
