@@ -151,16 +151,19 @@ class Database:
 
     def queued_jobs_fair(self, limit: int = 20) -> list[dict]:
         """Queued jobs in the order they should run: round robin over owners (each owner's k-th oldest job
-        after every owner's (k-1)-th, an owner's running jobs counting as its first ones), oldest first within
-        a round. One owner's hundred queued jobs then delay another owner's one by at most a job per worker,
-        not by a hundred."""
+        after every owner's (k-1)-th, an owner's running jobs counting as its first ones); within a round the
+        owner whose last job started longest ago (never: first) goes first. One owner's hundred queued jobs then
+        delay another owner's one by at most a job per worker, not by a hundred."""
+        same = "COALESCE(r.owner, 'default') = COALESCE(j.owner, 'default')"
         rows = self.query(
             "SELECT j.*, ROW_NUMBER() OVER (PARTITION BY COALESCE(j.owner, 'default') ORDER BY j.created_at, j.rowid)"
-            " + (SELECT COUNT(*) FROM jobs r WHERE r.state = 'running' AND COALESCE(r.owner, 'default') = "
-            "COALESCE(j.owner, 'default')) AS _round FROM jobs j WHERE j.state = 'queued' "
-            "ORDER BY _round, j.created_at, j.rowid LIMIT ?", (int(limit),))
+            f" + (SELECT COUNT(*) FROM jobs r WHERE r.state = 'running' AND {same}) AS _round, "
+            f"(SELECT MAX(r.started_at) FROM jobs r WHERE r.state != 'queued' AND {same}) AS _served "
+            "FROM jobs j WHERE j.state = 'queued' ORDER BY _round, COALESCE(_served, 0), j.created_at, j.rowid "
+            "LIMIT ?", (int(limit),))
         for r in rows:
             r.pop("_round", None)
+            r.pop("_served", None)
         return rows
 
     def count_owner_jobs(self, owner: str, states: tuple[str, ...]) -> int:
@@ -318,6 +321,12 @@ class Database:
         return self.query("SELECT * FROM displays WHERE COALESCE(owner, 'default') = ? ORDER BY name", (owner,))
 
     def claim_next_plan(self) -> Optional[dict]:
-        return self.one("UPDATE scenes SET plan_state = 'running', plan_updated_at = ? WHERE id = (SELECT id FROM "
-                        "scenes WHERE plan_state = 'pending' ORDER BY created_at LIMIT 1) AND plan_state = 'pending' "
-                        "RETURNING *", (time.time(),))
+        """Claim the next pending scene plan: the oldest of the owner whose plans were served longest ago (never
+        first), so owners take turns and one owner's hundred uploads do not hold every other owner's plans back."""
+        owner = "(SELECT MIN(o.owner) FROM scene_owners o WHERE o.scene_id = {s}.id)"
+        served = (f"(SELECT MAX(t.plan_updated_at) FROM scenes t WHERE t.plan_state != 'pending' AND "
+                  f"{owner.format(s='t')} = {owner.format(s='s')})")
+        return self.one(
+            f"UPDATE scenes SET plan_state = 'running', plan_updated_at = ? WHERE id = (SELECT s.id FROM scenes s "
+            f"WHERE s.plan_state = 'pending' ORDER BY COALESCE({served}, 0), s.created_at, s.rowid LIMIT 1) "
+            "AND plan_state = 'pending' RETURNING *", (time.time(),))

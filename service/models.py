@@ -307,9 +307,9 @@ def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[floa
 def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: str = "ready",
                     limits: Optional[JobLimits] = None) -> Optional[int]:
     """The widest border (px) a deeper recording plane of the job can have: 0 with one plane; from the scene's
-    depth at the job's optics when its plan is ready, else from the bound on plane distance
-    (optics.max_wrp_distance_mm, at most the service's) when the plan failed; None while the plan is pending
-    (the scheduler asks again before the job runs)."""
+    depth at the job's optics when its plan is ready, bounded by the plane distance limit
+    (optics.max_wrp_distance_mm, at most the service's), that bound alone when the plan failed; None while the
+    plan is pending (the scheduler asks again before the job runs) or when it does not say the depth."""
     if req.method == "direct" or req.wrp_planes == 1:
         return 0
     o = effective_optics(req)
@@ -318,9 +318,13 @@ def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: 
         bound_m = min(bound_m, limits.max_wrp_distance_mm * 1e-3)
     if plan_state in ("pending", "running"):
         return None
-    depth = _scene_depth_m(o, scene_plan) if plan_state == "ready" else None
     theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
-    return deepest_border_px(bound_m if depth is None else min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
+    if plan_state != "ready":  # the plan failed: nothing is known of the scene but the bound
+        return deepest_border_px(bound_m, pitch_m=o.pitch_m, theta_max=theta)
+    depth = _scene_depth_m(o, scene_plan)
+    if depth is None:  # a plan without the analysis (from before it was stored): not known
+        return None
+    return deepest_border_px(min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
 
 
 def job_memory(req: JobRequest, *, plane_border: Optional[int] = 0) -> MemoryEstimate:

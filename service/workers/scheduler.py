@@ -198,8 +198,8 @@ class Scheduler:
         how deep its recording planes go, is still pending); -1 when, with the plan known, it cannot fit the
         workers' memory (the job is failed with the reason, as a submit would have been refused)."""
         mem = (row.get("estimate") or {}).get("memory") or {}
-        if "plane_border_px" not in mem or mem["plane_border_px"] is not None:
-            return _peak_bytes(row)  # known at submit (or a job from before the planes were counted)
+        if "plane_border_px" not in mem or mem["plane_border_px"] is not None or mem.get("planes_checked"):
+            return _peak_bytes(row)  # known at submit or checked already (or from before planes were counted)
         from service.models import JobRequest, job_memory, memory_admission_error, plane_border_px
 
         scene = self.db.get_scene(row["scene_id"])
@@ -221,7 +221,7 @@ class Scheduler:
             return -1
         m = job_memory(req, plane_border=border)
         estimate = dict(row.get("estimate") or {})
-        estimate["memory"] = {**m.as_dict(), "plane_border_px": border}
+        estimate["memory"] = {**m.as_dict(), "plane_border_px": border, "planes_checked": True}
         self.db.update_job(row["id"], where_state=("queued",), estimate=estimate)
         return m.peak_bytes
 

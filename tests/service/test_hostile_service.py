@@ -504,8 +504,15 @@ def test_owners_are_scheduled_in_turn_not_first_come(svc):
     order = [j["id"] for j in svc.db.queued_jobs_fair(limit=10)]
     assert order == [alices[0], bobs[0], carol, alices[1], bobs[1], *alices[2:]], order
     assert svc.db.claim_next_job(alices[0])["id"] == alices[0]  # alice has one running: the others go first
-    assert [j["id"] for j in svc.db.queued_jobs_fair(limit=3)] == [bobs[0], carol, alices[1]]
+    assert [j["id"] for j in svc.db.queued_jobs_fair(limit=3)] == [bobs[0], carol, bobs[1]]
     assert svc.db.next_queued_job()["id"] == bobs[0]
+    svc.db.update_job(alices[0], state="succeeded")  # one worker: alice's finished, the others still go first
+    assert [j["id"] for j in svc.db.queued_jobs_fair(limit=3)] == [bobs[0], carol, alices[1]]
+    for expect in (bobs[0], carol, alices[1], bobs[1], alices[2]):  # one worker, each run to the end in turn
+        got = svc.db.claim_next_job(svc.db.next_queued_job()["id"])
+        assert got["id"] == expect, (got["id"], expect)
+        time.sleep(0.002)  # started_at apart
+        svc.db.update_job(got["id"], state="succeeded")
 
 
 def test_per_owner_caps_on_queued_jobs_scenes_and_uploads(tmp_path):
@@ -605,3 +612,14 @@ def test_sandboxed_processes_get_an_allow_listed_environment(tmp_path, monkeypat
     assert env["HOLO_DEVICE"] == "cpu" and env["LC_ALL"] == "C.UTF-8" and "PATH" in env
     assert env["HOME"] == str(tmp_path / "home") and env["TMPDIR"] == str(tmp_path / "tmp")
     assert env["PYTHONSAFEPATH"] == "1"
+
+
+def test_scene_plans_are_claimed_in_turn_by_owner(svc):
+    """One planner, one FIFO: an owner's hundred uploads held every other owner's plans back."""
+    for i in range(4):
+        svc.scene("alice", scene_id=f"salice{i}")
+    svc.scene("bob", scene_id="sbob")
+    for sid in [f"salice{i}" for i in range(4)] + ["sbob"]:
+        svc.db.update_scene(sid, plan_state="pending", plan=None)
+    claimed = [svc.db.claim_next_plan()["id"] for _ in range(3)]
+    assert claimed == ["salice0", "sbob", "salice1"], claimed
