@@ -217,8 +217,10 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
         checks = {"database": db.ping(), "data_dir_writable": os.access(settings.data_dir, os.W_OK),
                   "scheduler": (ctx.scheduler.alive() if ctx.scheduler is not None else not start_workers)}
         ok = all(checks.values())
-        # the sandbox as resolved at start (auto: not resolved, no workers in this process)
-        sandbox = {"state": str(settings.sandbox), "root": os.geteuid() == 0}
+        # the sandbox as resolved at start (auto: not resolved, no workers in this process); jobs: whether jobs
+        # themselves run as sandbox users (not on an engine that runs them elsewhere, e.g. Ray)
+        sandbox = {"state": str(settings.sandbox), "root": os.geteuid() == 0,
+                   "jobs": None if ctx.scheduler is None else ctx.scheduler.sandbox_base is not None}
         return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks, "sandbox": sandbox},
                             status_code=200 if ok else 503)
 
