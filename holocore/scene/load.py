@@ -71,9 +71,11 @@ def _resolver_holding(*folders: Path) -> Iterator[None]:
 
 
 def _resolver_for(entry_dir: Path):
-    """While a scene loads, the file resolver holds only the entry's folder: every asset comes from the bundle
-    (the bundle check has confined each reference to it), and every plugin is loaded already."""
-    return _resolver_holding(entry_dir)
+    """While a scene loads, the file resolver holds the entry's folder and then Mitsuba's own: every asset comes
+    from the bundle (the bundle check has confined each reference to it), Mitsuba's built-in data (the measured
+    IOR tables a named conductor reads, data/ior/*.spd; the sRGB coefficients) from its installation, and every
+    plugin is loaded already, so no plugin name is resolved through either."""
+    return _resolver_holding(entry_dir, Path(mitsuba().__file__).parent)
 
 
 @dataclass
