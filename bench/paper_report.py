@@ -133,11 +133,11 @@ class Runner:
         self.work = Path(args.work)
         self.work.mkdir(parents=True, exist_ok=True)
 
-    def optics(self, frames: int):
+    def optics(self, frames: int, frame_phases: Optional[str] = None):
         from holocore.display.profiles import PAPER
 
         return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm,
-                            frame_phases=self.args.frame_phases)
+                            frame_phases=frame_phases or self.args.frame_phases)
 
     def load(self, scene: str):
         from holocore.scene.load import load_scene
@@ -157,6 +157,9 @@ class Runner:
         for key in methods:
             method, preset = key.split("/")
             r = render_loaded(loaded, small, RenderOptions(preset=preset, method=method, spp=4))
+        if self.args.alt_frame_phases and self.args.alt_frame_phases != self.args.frame_phases:
+            render_loaded(loaded, small.model_copy(update={"frame_phases": self.args.alt_frame_phases}),
+                          RenderOptions(preset="balanced", spp=4))
         encode_sgd(r.wrp_field, z_wrp_m=r.meta["z_wrp_m"], wavelengths_m=r.meta["wavelengths_m"],
                    pitch_m=r.meta["pitch_m"], iterations=2, stop_db=0.0)
         render_layers(loaded, small, planes=2, spp=4)
@@ -165,13 +168,13 @@ class Runner:
         render_light_field(loaded, small, hogel_px=min(3, self.args.lf_hogel_px), spp=1)
 
     def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp",
-               time_limit_s: Optional[float] = None):
+               time_limit_s: Optional[float] = None, frame_phases: Optional[str] = None):
         from holocore.display.profiles import PAPER
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
         planes = self.args.wrp_planes if method == "wrp" else 1
-        r = render_loaded(loaded, self.optics(frames), RenderOptions(preset=preset, method=method, spp=spp,
+        r = render_loaded(loaded, self.optics(frames, frame_phases), RenderOptions(preset=preset, method=method, spp=spp,
                                                                      wrp_planes=planes, time_limit_s=time_limit_s),
                           display=PAPER)
         return r, time.perf_counter() - t0
@@ -297,8 +300,10 @@ class Runner:
         del lf
         # ours and fast: a render with a time limit (the budget less the encoder's time measured on the layers'
         # field, the same size): passes of rays until it is spent (holocore.plan.time_budget), at most max_spp
-        for name, preset in (("ours", "balanced"), ("fast", "fast")):
-            res, t_r = self.render(loaded, F, preset, a.max_spp, time_limit_s=max(1.0, B - t_enc))
+        alt = [(f"ours ({a.alt_frame_phases})", "balanced", a.alt_frame_phases)] \
+            if a.alt_frame_phases and a.alt_frame_phases != a.frame_phases else []
+        for name, preset, phases in [("ours", "balanced", None), ("fast", "fast", None), *alt]:
+            res, t_r = self.render(loaded, F, preset, a.max_spp, time_limit_s=max(1.0, B - t_enc), frame_phases=phases)
             sampling = res.meta["sampling"]
             spp = sampling["spp"]
             e, t_e = self.encode(res)
@@ -384,6 +389,20 @@ class Runner:
             if vn == "centre" or fn == "image":
                 images[f"ground truth|{fn}|{vn}"] = g.astype(np.float32)
         out["cells"] = rows
+        if a.viewer_grid > 0:  # the viewer-faithful score (docs/evaluation.md): pupils x a jittered eye grid
+            from holocore.evaluate.viewer import viewer_score
+
+            out["viewer"] = {"eye_grid": a.viewer_grid, "focus": [fn for fn, _z in focus], "methods": {}}
+            for label, fld in fields.items():
+                if label.endswith("(complex)"):
+                    continue
+                vs = viewer_score(fld, meta, truth, eye_grid=a.viewer_grid, seed=0, focus_z_m=[z for _fn, z in focus])
+                d = vs.to_dict()
+                d.pop("cells")
+                d["mean_2_6_db"] = vs.mean_over([2.0, 3.0, 4.0, 6.0])
+                out["viewer"]["methods"][label] = d
+                self.log(f"[{scene}] viewer score {label}: {d['mean_2_6_db']:.2f} dB over 2-6 mm pupils, "
+                         f"brightness steps {max(p['brightness_max_over_min'] for p in d['pupils']):.2f}")
         out["gt_seconds"] = truth.seconds
         np.savez_compressed(self.work / f"images_{scene}.npz", **{k.replace("|", "__"): v for k, v in images.items()})
         return out
@@ -718,6 +737,24 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
                                   and c["view"] == v["name"]), None)
                         vals.append(f"{c['psnr_db']:.2f} / {c['ssim']:.2f}" if c else "-")
                 L.append(f"| {name} | " + " | ".join(vals) + " |")
+            vw = eq.get("viewer")
+            if vw:
+                pup = [p["pupil_mm"] for p in next(iter(vw["methods"].values()))["pupils"]]
+                L += ["", f"**The viewer-faithful score** (holocore.evaluate.viewer, docs/evaluation.md): pupils "
+                      f"{', '.join(f'{p:g}' for p in pup)} mm x a {vw['eye_grid']}x{vw['eye_grid']} jittered eye grid "
+                      f"x the focus planes above, one brightness scale per method and colour for all of them; PSNR dB "
+                      "per pupil, the mean over 2-6 mm, the brightness over the eye grid (largest / smallest, the worst "
+                      "pupil), the colour cast (worst pupil), the colour tint of single views (worst pupil: mean over its "
+                      "views / its worst view) and the spread of the per-cell scales a per-cell fit hides.", "",
+                      "| method | " + " | ".join(f"{p:g} mm" for p in pup) + " | mean 2-6 mm | brightness steps | "
+                      "colour cast | colour tint (mean / worst view) | per-cell scale spread |",
+                      "|---|" + "---|" * (len(pup) + 5)]
+                for name, v in vw["methods"].items():
+                    L.append(f"| {name} | " + " | ".join(f"{p['mean_psnr_db']:.2f}" for p in v["pupils"]) +
+                             f" | **{v['mean_2_6_db']:.2f}** | {max(p['brightness_max_over_min'] for p in v['pupils']):.2f}"
+                             f" | {max(p['colour_cast'] for p in v['pupils']):.2f}"
+                             f" | {max(p['colour_tint'] for p in v['pupils']):.2f} / "
+                             f"{max(p['colour_tint_worst'] for p in v['pupils']):.2f} | {v['scale_spread']:.2f} |")
             fsm = eq["methods"]["focal-stack"]
             per_c = fsm.get("iterations_per_colour")
             L += ["", (f"Focal stack: {'/'.join(map(str, per_c))} Adam iterations (red/green/blue) until the budget's "
@@ -805,6 +842,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--conv-spp", default="8,32,128", help="spp of the convergence map.")
     ap.add_argument("--ref-spp", type=int, default=512, help="spp of the converged reference (24 frames).")
     ap.add_argument("--view-deg", type=float, default=0.5)
+    ap.add_argument("--viewer-grid", type=int, default=3,
+                    help="Eye grid (n x n, jittered) of the viewer-faithful score over pupils 1.6-6 mm; 0: off.")
+    ap.add_argument("--alt-frame-phases", choices=("", "directional", "coded", "independent"), default="coded",
+                    help="Also render ours with these frame phases (labelled 'ours (<mode>)'); '': not.")
     ap.add_argument("--frame-phases", choices=("directional", "coded", "independent"), default="directional",
                     help="Phases of the frames of ours, fast and the layers (OpticsConfig.frame_phases).")
     ap.add_argument("--wrp-planes", type=lambda v: v if v == "auto" else int(v), default="auto",

@@ -18,7 +18,8 @@ This score therefore
   the same pupil, white at the 99th percentile of all ground-truth cells of that colour;
 * reports what the one scale hides or blends: the spread of the per-cell best scales, the brightness over the
   eye grid per pupil (largest / smallest, and its coefficient of variation), the colour cast per pupil (how the
-  per-colour best scales of one pupil differ from the global ones), the defocus-blur fidelity (the edge
+  per-colour best scales of one pupil differ from the global ones), the colour tint of single views (how a cell's
+  own per-colour scales differ from each other: a colour that changes with the eye's position), the defocus-blur fidelity (the edge
   profile: relative error of the luminance gradient against the ground truth's, and the ratio of their
   energies, > 1 for copies, halos or speckle, < 1 for too much blur) and the motion parallax (the image shift
   between the two outer eye positions of a grid row, by phase correlation, against the ground truth's).
@@ -148,7 +149,10 @@ class PupilSummary:
     mean_ssim: float
     brightness_max_over_min: float  # over the eye grid (each eye: mean over the focus planes)
     brightness_cv: float  # standard deviation / mean over the eye grid
+    brightness_max_dev: float  # largest |brightness / mean - 1| over the eye grid
     colour_cast: float  # max / min over colours of (this pupil's best scale / the global scale)
+    colour_tint: float  # mean over the eye grid and focus of max / min over colours of the cell's best scales
+    colour_tint_worst: float  # the largest of those: the worst-tinted view
     edge_error: float
     sharpness: float
     parallax_error_px: float  # mean |shift(recon) - shift(truth)| between the outer eyes of each grid row
@@ -336,8 +340,13 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
             mean_ssim=float(np.mean([c.ssim for c in mine])),
             brightness_max_over_min=float(b.max() / b.min()) if b.size and b.min() > 0 else math.nan,
             brightness_cv=float(b.std() / b.mean()) if b.size and b.mean() > 0 else math.nan,
+            brightness_max_dev=float(np.abs(b / b.mean() - 1.0).max()) if b.size and b.mean() > 0 else math.nan,
             colour_cast=float(max(p_scale) / min(p_scale)) if all(math.isfinite(v) and v > 0 for v in p_scale)
             else math.nan,
+            colour_tint=_finite_mean([max(c.best_scales) / min(c.best_scales) for c in mine
+                                      if min(c.best_scales) > 0]),
+            colour_tint_worst=max([max(c.best_scales) / min(c.best_scales) for c in mine if min(c.best_scales) > 0],
+                                  default=math.nan),
             edge_error=_finite_mean([c.edge_error for c in mine]),
             sharpness=_finite_mean([c.sharpness for c in mine]),
             parallax_error_px=float(np.mean([abs(sr - sg) for sr, sg in pr])) if pr else math.nan,
