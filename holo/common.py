@@ -118,10 +118,10 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
     ("fit_camera_fov", bool, typer.Option(False, "--fit-camera-fov", help="Derive f from the scene camera's "
                                           "field of view filling the SLM width, instead of the display's f.")),
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
-    ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="directional (default: each frame a plane "
-                                                 "wave towards one eye position: no speckle), coded (the frames' "
-                                                 "random phases cancel each other's speckle) or independent (paper "
-                                                 "Eq. 4).")),
+    ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="coded (default: the frames' random "
+                                                 "phases cancel each other's speckle), independent (paper Eq. 4) or "
+                                                 "directional (each frame a plane wave towards one eye position: "
+                                                 "no speckle).")),
     ("optics_json", Optional[Path], typer.Option(None, "--optics-json", help="OpticsConfig fields as a JSON "
                                                  "file (over the profile, under the options above).")),
 )

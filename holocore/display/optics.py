@@ -85,13 +85,12 @@ class OpticsConfig(BaseModel):
     frames: int = Field(default=8, ge=1, le=MAX_FRAMES, description=f"Time-multiplexed frames (1..{MAX_FRAMES}).")
     seed: int = Field(default=0, ge=0, lt=2**63, description="Seed of every random choice (rays, phase bank).")
     frame_phases: Literal["coded", "independent", "directional"] = Field(
-        default="directional",
-        description="Phases of the frames' image points: 'directional' (the default: frame m a plane wave towards "
-                    "one of F eye positions spread over each colour's cone: no speckle, the defocus blur sampled by "
-                    "the frames a pupil holds; holocore.trace.beams; best for a real eye, docs/evaluation.md), "
-                    "'coded' (one random field plus a per-cell code ramp, so that the cross terms of nearby image "
-                    "cells cancel in the frame average; holocore.trace.randomfield) or 'independent' (one random "
-                    "field per frame, the paper's Eq. 4).",
+        default="coded",
+        description="Phases of the frames' image points: 'coded' (one random field plus a per-cell code ramp, so "
+                    "that the cross terms of nearby image cells cancel in the frame average: less speckle; "
+                    "holocore.trace.randomfield), 'independent' (one random field per frame, the paper's Eq. 4) or "
+                    "'directional' (frame m a plane wave towards one of F eye positions spread over the cone: no "
+                    "speckle, the defocus blur sampled by the frames a pupil holds; holocore.trace.beams).",
     )
     wrp_margin_px: float = Field(
         default=4.0, ge=0.0, le=1000.0, allow_inf_nan=False,

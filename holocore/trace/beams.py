@@ -14,13 +14,10 @@ source of F directions spread over the cone, as a microscope's Koehler illuminat
 whose direction it holds: no speckle in focus or out of it, the defocus blur sampled by those directions, parallax
 and view-dependent radiance as with random phases (each ray still carries its own direction's radiance).
 
-The directions (:func:`beam_layout`) lie on rings of equal area in a disc of RHO times each colour's own recording
-cone, symmetric left to right: a colour's beams spread it over its cone as random phases do, so a pupil of any
-size and position receives the same share of every colour as from random phases (a disc shared by all colours
-inside the smallest cone, with amplitudes scaled by :func:`beam_gain`, held the colour balance only for pupils
-inside that disc: a 6 mm pupil saw red at half its share, and blur of every colour was capped at blue's cone).
-The lattice frequency of a beam, u_m / lambda = RHO L_m sin(theta_c) / lambda = RHO L_m / 2p below lambda = 2p,
-is then the same in every colour.
+The directions (:func:`beam_layout`) lie on rings of equal area in a disc of RHO times the smallest colour's
+recording cone, symmetric left to right. All colours use the same directions, so a pupil holds the same frames in
+every colour; each colour's amplitude is scaled by :func:`beam_gain` so that a pupil receives the same share of
+every colour's light as from random phases (which spread a colour over its own cone, wider for longer waves).
 
 A beam samples each image point's angular spectrum at one frequency, where random phases average it over the
 pupil. The rays of a point at distance d from its recording plane fill the cone up to its rim, and that hard cut
@@ -58,7 +55,7 @@ import numpy as np
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
 
 __all__ = ["RHO", "RIM_TAPER", "beam_layout", "beam_disc_sine", "beam_gain", "beam_phase_frames", "rim_taper",
-           "beam_spectrum_ratio", "BeamDepthTerms"]
+           "beam_spectrum_ratio", "BeamDepthTerms", "BeamRays"]
 
 RHO = 0.9  # the directions fill this fraction of the smallest colour's cone (radius), clear of its rim
 RIM_TAPER = 0.6  # the rim taper starts at this fraction of the cone's tan(angle): |K_rel| >= 0.4 at every beam
@@ -102,23 +99,14 @@ def _cone_sine(wavelength_m: float, pitch_m: float) -> float:
     return math.sin(min(theta_max_rad(wavelength_m, pitch_m), MAX_CONE_HALF_ANGLE_RAD))
 
 
-OWN_CONE = True  # each colour's directions fill its own cone (False: all colours share the smallest one's disc)
-
-
-def beam_disc_sine(wavelength_m: float, pitch_m: float, wavelengths_m: Sequence[float]) -> float:
-    """Radius (sine of the angle) of the disc colour ``wavelength_m``'s directions fill: RHO times its own cone
-    (with OWN_CONE off: the smallest of ``wavelengths_m``)."""
-    if OWN_CONE:
-        return RHO * _cone_sine(float(wavelength_m), pitch_m)
+def beam_disc_sine(wavelengths_m: Sequence[float], pitch_m: float) -> float:
+    """Radius (sine of the angle) of the disc the directions fill: RHO times the smallest colour's cone."""
     return RHO * min(_cone_sine(float(lam), pitch_m) for lam in wavelengths_m)
 
 
 def beam_gain(wavelength_m: float, pitch_m: float, wavelengths_m: Sequence[float]) -> float:
-    """Amplitude factor of a colour's frames. Directions in a colour's own cone spread it as random phases do (1);
-    with a shared disc, sin(theta_min) / sin(theta_c), or a colour's share in a pupil would grow with its cone's
-    solid angle (lambda^2 below 2p)."""
-    if OWN_CONE:
-        return 1.0
+    """Amplitude factor of a colour's frames: sin(theta_min) / sin(theta_c). A pupil takes the same frames in every
+    colour, so without it a colour's share would grow with its cone's solid angle (lambda^2 below 2p)."""
     return min(_cone_sine(float(lam), pitch_m) for lam in wavelengths_m) / _cone_sine(wavelength_m, pitch_m)
 
 
@@ -205,8 +193,8 @@ def beam_spectrum_ratio(distance_m, wavelength_m: float, pitch_m: float, sine: f
     return (1.0 - f) * table[i0] + f * table[i0 + 1]
 
 
-def _directions(frames: int, wavelength_m: float, pitch_m: float, wavelengths_m: Sequence[float]) -> np.ndarray:
-    return beam_layout(frames) * beam_disc_sine(wavelength_m, pitch_m, wavelengths_m)
+def _directions(frames: int, wavelengths_m: Sequence[float], pitch_m: float) -> np.ndarray:
+    return beam_layout(frames) * beam_disc_sine(wavelengths_m, pitch_m)
 
 
 def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: float, pitch_m: float, *,
@@ -219,7 +207,7 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
     if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
         raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} directions")
     H, W = (int(s) for s in shape_hw)
-    u = _directions(F, wavelength_m, pitch_m, wavelengths_m)
+    u = _directions(F, wavelengths_m, pitch_m)
     j = np.arange(W) - (W - 1) / 2.0  # x = j p
     i = (H - 1) / 2.0 - np.arange(H)  # y = i p (rows run down, y up)
     for m in range(int(first_frame), int(first_frame) + int(frames)):
@@ -234,12 +222,12 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
 class BeamDepthTerms:
     """The depth part of (B1) that differs between frames, exp(-i k_c (1 - w_m) dz), dz = Q_z - z_ref (m; the
     tracer's z_ref is the WRP), for the frames of one pass. ``ks``: wavenumbers (rad/m) of the colours traced;
-    ``one_minus_w``: per colour 1 - w of each ring of directions; ``frame_ring``: the ring of each frame of the pass;
-    ``gains``: per colour and frame of the pass the rays' factor 1 / K_rel of (B2) on N_F = 0, _NF_STEP, ..
-    (complex128 [C, F, n]; None: no taper, no factor), ``nf_per_m``: N_F per metre of distance of each colour."""
+    ``one_minus_w``: 1 - w of each ring of directions; ``frame_ring``: the ring of each frame of the pass; ``gains``:
+    per colour and frame of the pass the rays' factor 1 / K_rel of (B2) on N_F = 0, _NF_STEP, .. (complex128
+    [C, F, n]; None: no taper, no factor), ``nf_per_m``: N_F per metre of distance of each colour."""
 
     ks: tuple[float, ...]
-    one_minus_w: tuple[tuple[float, ...], ...]
+    one_minus_w: tuple[float, ...]
     frame_ring: tuple[int, ...]
     gains: Optional[np.ndarray] = field(default=None, compare=False, repr=False)
     nf_per_m: tuple[float, ...] = ()
@@ -250,23 +238,18 @@ class BeamDepthTerms:
     def make(cls, *, frames: int, first_frame: int, bank_frames: int, wavelengths_m: Sequence[float],
              pitch_m: float, all_wavelengths_m: Sequence[float] | None = None,
              taper: Optional[float] = RIM_TAPER) -> "BeamDepthTerms":
-        lines = list(all_wavelengths_m or wavelengths_m)
-        unit = beam_layout(bank_frames)[first_frame:first_frame + frames]
-        rings, ring_of = np.unique(np.round((unit * unit).sum(axis=1), 15), return_inverse=True)
-        omw = []  # per colour and ring: 1 - sqrt(1 - s^2) without cancellation
-        for lam in wavelengths_m:
-            s2 = rings * beam_disc_sine(float(lam), pitch_m, lines) ** 2
-            omw.append(tuple(float(v / (1.0 + math.sqrt(1.0 - v))) for v in s2))
+        u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)[first_frame:first_frame + frames]
+        s2 = np.round((u * u).sum(axis=1), 15)
+        rings, ring_of = np.unique(s2, return_inverse=True)
+        omw = [float(v / (1.0 + math.sqrt(1.0 - v))) for v in rings]  # 1 - sqrt(1 - s^2) without cancellation
         gains, nf_per_m = None, ()
         if taper is not None:  # (B2) per colour and frame, inverted with its gain capped at MAX_BEAM_GAIN
             # one entry per frame of the bank (the lattice makes (B2) depend on a beam's azimuth by +-5 %), so the
             # table is the same for every pass; the pass takes its frames' rows
-            kr = []
-            for lam in wavelengths_m:
-                all_u = _directions(bank_frames, float(lam), pitch_m, lines)
-                dirs = tuple(((round(float(x), 12), round(float(y), 12)),) for x, y in all_u)
-                kr.append(_ratio_table(float(lam), float(pitch_m), dirs, float(taper))[first_frame:first_frame + frames])
-            kr = np.stack(kr)
+            all_u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)
+            dirs = tuple(((round(float(x), 12), round(float(y), 12)),) for x, y in all_u)
+            kr = np.stack([_ratio_table(float(lam), float(pitch_m), dirs, float(taper))[first_frame:first_frame + frames]
+                           for lam in wavelengths_m])
             mag = np.maximum(np.abs(kr), 1.0 / MAX_BEAM_GAIN)
             gains = np.conj(kr) / (mag * mag)
             nf_per_m = tuple(math.tan(min(theta_max_rad(float(lam), pitch_m), MAX_CONE_HALF_ANGLE_RAD)) ** 2
@@ -280,35 +263,54 @@ class BeamDepthTerms:
         import torch
 
         d = dz.to(torch.float64)[:, None]
+        omw = torch.tensor(self.one_minus_w, dtype=torch.float64, device=dz.device)[None, :]
         out = []
-        for k, omw_c in zip(self.ks, self.one_minus_w):
-            omw = torch.tensor(omw_c, dtype=torch.float64, device=dz.device)[None, :]
+        for k in self.ks:
             ph = torch.remainder(-k * omw * d, 2.0 * math.pi).to(torch.float32)  # [R, rings]
             out.append(torch.polar(torch.ones_like(ph), ph))
         return torch.stack(out, dim=1)
 
-    def _gain(self, c: int, drec):
-        """1 / K_rel (B2) of colour c at the rays' distances ``drec`` (m): complex64 torch [R, F]."""
+    def _table(self, c: int, device):
+        """The gains of colour c as complex64 torch [n, F] on ``device`` (made once)."""
         import torch
 
-        table = self._tables.get((c, str(drec.device)))
-        if table is None:  # once per colour, not per chunk of rays
-            table = self._tables[(c, str(drec.device))] = torch.from_numpy(
-                np.ascontiguousarray(self.gains[c].T).astype(np.complex64)).to(drec.device)  # [n, F]
-        pos = (drec.to(torch.float64) * (self.nf_per_m[c] / _NF_STEP)).clamp(0.0, table.shape[0] - 1.0)
-        i0 = pos.floor().long().clamp(max=table.shape[0] - 2)
-        f = (pos - i0).to(torch.float32)[:, None]
-        return table[i0] * (1.0 - f) + table[i0 + 1] * f
+        key = (c, str(device))
+        if key not in self._tables:
+            self._tables[key] = torch.from_numpy(np.ascontiguousarray(self.gains[c].T).astype(np.complex64)).to(device)
+        return self._tables[key]
 
-    def frame_factors(self, base, dz, drec=None):
-        """base [R, C] times every frame's depth factor of the rays (dz [R], m) and, with ``drec`` (their distances to
-        their recording planes, m), their 1 / K_rel of (B2): complex [R, C, F]. Called per chunk of rays."""
+    def rays(self, base, dz, drec=None) -> "BeamRays":
+        """The per-ray terms of one tile's rays: base [R, C] (complex) times each ring's depth factor of their dz
+        ([R], m), and with ``drec`` (their distances to their recording planes, m) the row of (B2)'s table each ray
+        takes (the nearest N_F entry: at most 1/32 of a zone off, against a ripple period of 2 zones)."""
         import torch
 
-        ring = self.ring_phasors(dz)[:, :, list(self.frame_ring)]  # [R, C, F]
+        scaled = base[:, :, None] * self.ring_phasors(dz)  # [R, C, rings]
+        rows = None
         if drec is not None and self.gains is not None:
-            ring = ring * torch.stack([self._gain(c, drec) for c in range(len(self.ks))], dim=1)
-        return base[:, :, None] * ring
+            d = drec.to(torch.float64)
+            n = self.gains.shape[-1]
+            rows = [torch.round(d * (self.nf_per_m[c] / _NF_STEP)).clamp(0, n - 1).long() for c in range(len(self.ks))]
+        return BeamRays(self, scaled, rows)
+
+
+class BeamRays:
+    """One tile's rays' terms of :class:`BeamDepthTerms` (see :meth:`BeamDepthTerms.rays`); :meth:`factors` gives a
+    chunk of them for every frame."""
+
+    def __init__(self, terms: BeamDepthTerms, scaled, rows) -> None:
+        self.terms, self.scaled, self.rows = terms, scaled, rows
+        self.frame_ring = list(terms.frame_ring)
+
+    def factors(self, a: int, b: int):
+        """Rays a..b: base times every frame's depth factor and 1 / K_rel, complex64 [b - a, C, F]."""
+        import torch
+
+        out = self.scaled[a:b][:, :, self.frame_ring]  # [r, C, F]
+        if self.rows is not None:
+            dev = out.device
+            out = out * torch.stack([self.terms._table(c, dev)[r[a:b]] for c, r in enumerate(self.rows)], dim=1)
+        return out
 
     def plane_factors(self, dz_m: float):
         """The whole depth part of (B1), exp(i k_c w_m dz), of one depth dz (m) for every colour and frame: complex64

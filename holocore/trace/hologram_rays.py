@@ -111,6 +111,7 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
     out = torch.empty((P, C, F), dtype=torch.complex64, device=cells.device)
     step = max(1, _CHUNK_RAYS // n)
     b = base.view(P, n, C, 1)
+    terms = None if depth is None else depth.rays(base, dz, drec)
     for p0 in range(0, P, step):
         p1 = min(P, p0 + step)
         if depth is None:
@@ -118,8 +119,7 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
             torch.sum(rows * b[p0:p1], dim=1, out=out[p0:p1])
         else:
             a, b_ = p0 * n, p1 * n
-            rows = cells.index_select(0, idx[a:b_]) * depth.frame_factors(
-                base[a:b_], dz[a:b_], None if drec is None else drec[a:b_])
+            rows = cells.index_select(0, idx[a:b_]) * terms.factors(a, b_)
             torch.sum(rows.view(p1 - p0, n, C, F), dim=1, out=out[p0:p1])
     return out
 
@@ -261,14 +261,14 @@ class _PlaneBands:
     def deposit(self, tile: dict, cells, depth: Optional[BeamDepthTerms] = None) -> None:
         base = torch.stack([tile[c] for c in range(self.C)], dim=1)  # [R, C] per ray
         pos = tile["pos"]
+        terms = None if depth is None else depth.rays(base, tile["dz"], tile.get("drec"))
         for a in range(0, base.shape[0], _CHUNK_RAYS):
             b = min(base.shape[0], a + _CHUNK_RAYS)
             if cells is None:
                 add = base[a:b, :, None]
             else:
                 add = cells.index_select(0, tile["idx"][a:b])
-                add = add * (base[a:b, :, None] if depth is None else depth.frame_factors(
-                    base[a:b], tile["dz"][a:b], tile["drec"][a:b] if "drec" in tile else None))
+                add = add * (base[a:b, :, None] if terms is None else terms.factors(a, b))
             self.table.index_add_(0, pos[a:b], add)
 
     def flush(self, upto: Optional[int]):

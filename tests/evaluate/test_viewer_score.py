@@ -68,7 +68,7 @@ def _cone_field(kind: str, F: int = 24, shape=(48, 64)) -> np.ndarray:
     p = META["pitch_m"]
     fy = np.fft.fftfreq(H, d=p)[:, None]
     fx = np.fft.fftfreq(W, d=p)[None, :]
-    u = beam_layout(F) * beam_disc_sine(455.4e-9, p, META["wavelengths_m"])  # one disc, inside blue's cone
+    u = beam_layout(F) * beam_disc_sine(META["wavelengths_m"], p)
     for c, lam in enumerate(META["wavelengths_m"]):
         cone = (fx ** 2 + fy ** 2) <= (min(1 / lam, 1 / (2 * p))) ** 2
         for m in range(F):

@@ -38,8 +38,8 @@ def test_directions_are_symmetric_left_to_right_and_spread_over_the_disc(frames)
 
 def test_each_frame_of_the_bank_is_one_plane_wave_towards_its_direction():
     H, W = 36, 60
+    u = beam_layout(24) * beam_disc_sine(LAMS, PITCH)
     for lam in LAMS:
-        u = beam_layout(24) * beam_disc_sine(lam, PITCH, LAMS)  # each colour's own cone
         for m, phi in enumerate(beam_phase_frames(24, (H, W), lam, PITCH, wavelengths_m=LAMS)):
             spec = np.abs(np.fft.fft2(np.exp(1j * phi.astype(np.float64)))) ** 2
             assert spec.max() / spec.sum() > 0.999  # one DFT bin: a plane wave, periodic on the lattice
@@ -48,10 +48,9 @@ def test_each_frame_of_the_bank_is_one_plane_wave_towards_its_direction():
             fy = -np.fft.fftfreq(H, d=PITCH)[ky]  # rows run down while y runs up
             assert abs(fx - u[m, 0] / lam) <= 0.5 / (W * PITCH) + 1e-6
             assert abs(fy - u[m, 1] / lam) <= 0.5 / (H * PITCH) + 1e-6
-    # each colour fills its own cone, as random phases do: no gain, and below lambda = 2p the same lattice frequency
-    for lam in LAMS:
-        assert beam_gain(lam, PITCH, LAMS) == 1.0
-        assert beam_disc_sine(lam, PITCH, LAMS) / lam == pytest.approx(0.9 / (2 * PITCH), rel=1e-9)
+    # a colour's share in a pupil: amplitude sin(theta_min) / sin(theta_c), blue (the smallest cone) 1
+    assert beam_gain(455.4e-9, PITCH, LAMS) == pytest.approx(1.0)
+    assert beam_gain(640e-9, PITCH, LAMS) == pytest.approx(455.4 / 640.0, rel=1e-9)
 
 
 def test_eq_b1_puts_points_at_any_depth_in_phase_towards_the_frame_direction():
@@ -62,7 +61,7 @@ def test_eq_b1_puts_points_at_any_depth_in_phase_towards_the_frame_direction():
     k = 2 * math.pi / lam
     terms = BeamDepthTerms.make(frames=F, first_frame=0, bank_frames=F, wavelengths_m=[lam],
                                 all_wavelengths_m=LAMS, pitch_m=PITCH)
-    u = beam_layout(F) * beam_disc_sine(lam, PITCH, LAMS)
+    u = beam_layout(F) * beam_disc_sine(LAMS, PITCH)
     q = np.column_stack([rng.uniform(-1e-3, 1e-3, 50), rng.uniform(-1e-3, 1e-3, 50), rng.uniform(4e-3, 9e-3, 50)])
     dz = q[:, 2] - z_ref
     ring = terms.ring_phasors(torch.from_numpy(dz))[:, 0, :].numpy()  # [points, rings]
@@ -79,11 +78,9 @@ def test_eq_b1_puts_points_at_any_depth_in_phase_towards_the_frame_direction():
 
 def _plate_views(frame_phases: str, tilt_deg: float, *, spp: int = 256, frames: int = 24):
     """Centre-view image and per-view mean colour of a glowing white plate (0.5 m, fills the view), focused on it:
-    paper display, 135x240, z_inf 4 mm, the paper report's pupil; and per pupil of 2 and 4 mm the mean colour over a
-    3 x 3 jittered eye grid (holocore.evaluate.viewer.eye_grid_m)."""
+    paper display, 135x240, z_inf 4 mm, the paper report's pupil."""
     from holocore.display.profiles import PAPER
     from holocore.evaluate.scoring import default_pupil_m, eye_view, lit_margin_px
-    from holocore.evaluate.viewer import eye_grid_m
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.paper import paper_fov_x_deg
     from tests.tracer.scenes import camera, emitting_plane, scene
@@ -105,14 +102,6 @@ def _plate_views(frame_phases: str, tilt_deg: float, *, spp: int = 256, frames: 
         colours[deg] = inner.reshape(3, -1).mean(axis=1)
         if deg == 0.0:
             centre = inner
-    grid = {}
-    for d_m in (2e-3, 4e-3):
-        views = []
-        for _i, e in eye_grid_m(meta, n=3, seed=0):
-            img = eye_view(res.slm_field, meta, focus_z_m=z, pupil_diameter_m=d_m, view_offset_m=e)
-            views.append(img[:, 30:-30, 30:-30].reshape(3, -1).mean(axis=1))
-        grid[d_m] = np.mean(views, axis=0)
-    colours["grid"] = grid
     return centre, colours
 
 
@@ -135,20 +124,14 @@ def test_a_glowing_plate_has_far_less_speckle_with_directional_frames(facing):
 
 
 def test_a_white_plate_stays_white_in_every_view(facing):
-    """Each colour's beams fill its own cone as random phases do, so over the eye positions a pupil of any size
-    takes the same share of every colour: the mean colour over an eye grid is the coded frames' within 6 % at 2 and
-    4 mm pupils (with one disc inside blue's cone for all colours a 4 mm pupil saw red at 0.6-0.7 of its share).
-    A single view holds few beams of the widest colour (about 5 of red's 24 in a 1.6 mm pupil), so its colour
-    depends on where the eye is: within 25 % of the coded views', and left and right views agree."""
-    dirs, coded = facing["directional"][1], facing["coded"][1]
-    for d_m, c in dirs["grid"].items():
-        ref = coded["grid"][d_m]
+    """beam_gain gives every colour the share a pupil takes of random phases: the directional views' colour is
+    the coded ones' within 12 % (unscaled, red / blue would be 2x; measured: 1-8 %, the most for blue in the centre
+    view, whose few beams sample the ripple of the plate's sub-holograms at N_F = 2 where random phases average it
+    over the pupil), and left and right views agree."""
+    for deg, c in facing["directional"][1].items():
+        ref = facing["coded"][1][deg]
         for a, b in ((0, 1), (2, 1)):
-            assert c[a] / c[b] == pytest.approx(ref[a] / ref[b], rel=0.06), (d_m, c, ref)
-    for deg in (-0.5, 0.0, 0.5):
-        c, ref = dirs[deg], coded[deg]
-        for a, b in ((0, 1), (2, 1)):
-            assert c[a] / c[b] == pytest.approx(ref[a] / ref[b], rel=0.25), (deg, c, ref)
+            assert c[a] / c[b] == pytest.approx(ref[a] / ref[b], rel=0.12), (deg, c, ref)
     d = facing["directional"][1]
     assert d[-0.5].sum() == pytest.approx(d[0.5].sum(), rel=0.05)
 
