@@ -270,6 +270,15 @@ class BeamDepthTerms:
             out.append(torch.polar(torch.ones_like(ph), ph))
         return torch.stack(out, dim=1)
 
+    def plane_factors(self, dz_m: float):
+        """The whole depth part of (B1), exp(i k_c w_m dz), of one depth dz (m) for every colour and frame: complex64
+        torch [C, F] (a layer at one depth: the tracer's k dz and the ring factor in one)."""
+        import torch
+
+        ring = self.ring_phasors(torch.tensor([float(dz_m)], dtype=torch.float64))[0]  # [C, rings]
+        common = torch.tensor([complex(np.exp(1j * k * float(dz_m))) for k in self.ks], dtype=torch.complex64)
+        return ring[:, list(self.frame_ring)] * common[:, None]
+
     def _table(self, c: int, device):
         """The gains of colour c as complex64 torch [n, F] on ``device`` (made once)."""
         import torch
@@ -311,12 +320,3 @@ class BeamRays:
             dev = out.device
             out = out * torch.stack([self.terms._table(c, dev)[r[a:b]] for c, r in enumerate(self.rows)], dim=1)
         return out
-
-    def plane_factors(self, dz_m: float):
-        """The whole depth part of (B1), exp(i k_c w_m dz), of one depth dz (m) for every colour and frame: complex64
-        torch [C, F] (a layer at one depth: the tracer's k dz and the ring factor in one)."""
-        import torch
-
-        ring = self.ring_phasors(torch.tensor([float(dz_m)], dtype=torch.float64))[0]  # [C, rings]
-        common = torch.tensor([complex(np.exp(1j * k * float(dz_m))) for k in self.ks], dtype=torch.complex64)
-        return ring[:, list(self.frame_ring)] * common[:, None]

@@ -172,3 +172,32 @@ def test_every_beam_carries_its_share_at_every_wrp_margin():
         assert share.min() > 0.8 and share.max() < 1.2, (margin, share.round(3))
         on_axis = share[:, 0]
         assert on_axis.max() / on_axis.min() < 1.2, (margin, on_axis)
+
+
+@pytest.mark.parametrize("depth_m", [0.3, 2.0])
+def test_directional_layers_put_a_plate_at_any_depth_in_phase_with_the_frame_beam_at_the_wrp(depth_m):
+    """The layer baseline's directional frames: a plate at one depth, propagated to the WRP, must arrive there as
+    frame m's plane wave (the bank's phase), whatever its depth: Eq. B1's depth part per plane cancels the
+    propagation's exp(i k w_m dz), so every layer's wave leaves in phase towards u_m. Without it the tilted frames
+    would be 1.9 rad off at 0.5 mm; what is left (0.06 rad) is the bank's directions rounded to this small
+    lattice's DFT grid (k (w_lattice - w) dz; 20x less on the display's 1080x1920)."""
+    from holocore.baselines.layers import layer_fields
+
+    H, W = 48, 64
+    f, zi = 0.05, 0.08
+    z_holo = zi + f * f / depth_m
+    zw = z_holo + 0.5e-3
+    rgb = np.ones((3, H, W))
+    zc = np.full((H, W), depth_m)
+    frames = 7
+    _, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=f, z_inf_m=zi, z_wrp_m=zw, pitch_m=PITCH,
+                                      wavelengths_m=LAMS, frames=frames, planes=1, directional=True)
+    assert np.isfinite(wrp).all() and counts.tolist() == [H * W] and abs(zs[0] - z_holo) < 1e-12
+    core = (slice(H // 2 - 6, H // 2 + 6), slice(W // 2 - 8, W // 2 + 8))  # far from the plate's edge waves
+    for c, lam in enumerate(LAMS):
+        bank = np.stack(list(beam_phase_frames(frames, (H, W), lam, PITCH, wavelengths_m=LAMS)))
+        want = np.exp(1j * bank)[(slice(None),) + core]
+        got = wrp[:, c][(slice(None),) + core]
+        amp = np.abs(got).mean()
+        rel = np.abs(got / amp - want).mean(axis=(1, 2))  # per frame: 0 when in phase with the beam
+        assert rel.max() < 0.15, (lam, rel)
