@@ -84,10 +84,13 @@ def layers(
 def focal_stack(
     scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
     out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz (slm_field = sqrt(P_c) exp(i phase))."),
-    planes: int = typer.Option(5, "--planes", help="Focal-stack planes (1..64)."),
-    spacing_mm: float = typer.Option(1.25, "--spacing-mm", help="Plane spacing in hologram depth, mm (the "
-                                     "paper's 1.25), centred on the image volume; 0: spread the planes "
-                                     "uniformly from the far to the near end of the image volume."),
+    planes: Optional[int] = typer.Option(None, "--planes", help="Focal-stack planes (1..64; default: as many "
+                                         "as the image volume holds, up to 5, no two closer than the pupil's "
+                                         "depth of focus)."),
+    spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Plane spacing in hologram depth, mm "
+                                               "(the paper used 1.25), centred on the image volume; default or "
+                                               "0: the planes spread uniformly from the far to the near end of "
+                                               "the image volume."),
     pupil_mm: Optional[float] = typer.Option(None, "--pupil-mm", help="Eye pupil of the targets and the model, "
                                              "mm (default: the one `holo evaluate` uses by default)."),
     iterations: int = typer.Option(200, "--iterations", help="Adam steps (0..100000)."),
@@ -104,9 +107,9 @@ def focal_stack(
     """Focal stack: phase-only SGD of the frames on the frame-averaged amplitude at planes across the image
     volume, against Mitsuba thin-lens targets through the eye's pupil (time-multiplexed neural holography)."""
     profile, optics_cfg = optics.resolve()
-    if not 1 <= planes <= 64:
+    if planes is not None and not 1 <= planes <= 64:
         fail(f"--planes must be in 1..64, got {planes}")
-    if not (spacing_mm >= 0 and spacing_mm < 1000):
+    if spacing_mm is not None and not (spacing_mm >= 0 and spacing_mm < 1000):
         fail(f"--spacing-mm must be in [0, 1000) mm, got {spacing_mm}")
     if pupil_mm is not None and not (0 < pupil_mm <= 1000):
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
@@ -123,7 +126,7 @@ def focal_stack(
     t0 = time.perf_counter()
     try:
         result = render_focal_stack(load_scene(scene), optics_cfg, planes=planes,
-                                    spacing_m=spacing_mm * 1e-3 if spacing_mm > 0 else None,
+                                    spacing_m=spacing_mm * 1e-3 if spacing_mm else None,
                                     pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3,
                                     iterations=iterations, lr=lr, gt_spp=gt_spp, device=device, display=profile,
                                     time_limit_s=time_limit_s)

@@ -1,8 +1,11 @@
 """The focal-stack baseline the paper compares with (Sec. 5.2, "FS"; Choi et al. 2022, time-multiplexed neural
 holography): phase-only SGD of F frames on the amplitude of a focal stack.
 
-1. Targets: K focus planes z_k across the image volume (the paper's 5 at 1.25 mm spacing by default, centred
-   on the scene's image volume and never beyond optical infinity), one Mitsuba thin-lens render per plane of
+1. Targets: K focus planes z_k across the image volume, by default chosen from the renderer's image volume
+   (:func:`default_stack_planes`: up to the paper's 5, uniform from its far to its near end, no two closer than
+   the pupil's depth of focus, 2 lambda f^2 / D^2, which is the paper's 1.25 mm for red through a 1.6 mm pupil
+   at f = 50 mm; a fixed spacing when asked, centred on the volume and never beyond optical infinity), one
+   Mitsuba thin-lens render per plane of
    what the eye sees focused there through its pupil D (:class:`holocore.evaluate.groundtruth.GroundTruth`: the
    ground truth `holo evaluate` scores against, diffraction-limited by the pupil). Per laser line the channel
    that holds it; all targets share one white level (their ``white_percentile``; emitters above it clip).
@@ -38,6 +41,7 @@ from holocore.baselines.adam_budget import MAX_ITERATIONS, AdamOptions, StepBudg
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "stack_plane_depths",
+           "depth_of_focus_m", "default_stack_planes",
            "optimise_focal_stack", "FocalStackFit", "render_focal_stack", "stack_of"]
 
 DEFAULT_PLANES = 5
@@ -76,6 +80,30 @@ def stack_plane_depths(*, z_inf_m: float, z_far_m: Optional[float], z_near_m: Op
                              f"({zi * 1e3:.4f} mm) and the WRP ({float(z_limit_m) * 1e3:.4f} mm): use fewer planes "
                              "or a smaller spacing")
     return zs.astype(np.float64)
+
+
+def depth_of_focus_m(*, wavelength_m: float, focal_length_m: float, pupil_diameter_m: float) -> float:
+    """Hologram-depth step (m) over which the eye's defocus grows by a quarter wave at its pupil's rim:
+    2 lambda f^2 / D^2 (Rayleigh; the pupil accepts direction sines within NA = D / 2f, and a step dz defocuses
+    the rim by dz NA^2 / 2). Focal-stack planes closer than this give the eye the same image."""
+    lam = validate.positive("wavelength_m", wavelength_m, unit="")
+    f = validate.positive("focal_length_m", focal_length_m, unit="")
+    D = validate.positive("pupil_diameter_m", pupil_diameter_m, unit="")
+    return 2.0 * lam * f * f / (D * D)
+
+
+def default_stack_planes(*, z_far_m: Optional[float], z_near_m: Optional[float], min_spacing_m: float,
+                         most: int = DEFAULT_PLANES) -> int:
+    """How many focal-stack planes the image volume [z_far, z_near] (hologram depths, m) holds when spread
+    uniformly from its far to its near end no closer than ``min_spacing_m`` (the pupil's
+    :func:`depth_of_focus_m`): 1 + floor(depth / min_spacing), at most ``most`` (the paper's 5); one plane for
+    a volume shallower than one step or unknown (a black scene)."""
+    most = validate.integer("most", most, 1, MAX_PLANES)
+    step = validate.positive("min_spacing_m", min_spacing_m, unit="")
+    if z_far_m is None or z_near_m is None:
+        return 1
+    depth = abs(float(z_near_m) - float(z_far_m))
+    return int(min(most, 1 + math.floor(depth / step * (1 + 1e-9))))
 
 
 class FocalStackFit:
@@ -203,8 +231,8 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
                          seconds=time.perf_counter() - budget.t0, iterations=steps)
 
 
-def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAULT_PLANES,
-                       spacing_m: Optional[float] = DEFAULT_SPACING_M, plane_z_m: Optional[Sequence[float]] = None,
+def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[int] = None,
+                       spacing_m: Optional[float] = None, plane_z_m: Optional[Sequence[float]] = None,
                        pupil_diameter_m: Optional[float] = None, iterations: int = 200, lr: float = 0.05,
                        gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
                        progress: Optional[Any] = None, display: Optional[Any] = None,
@@ -212,7 +240,11 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
 
     Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
-    with ``planes`` and ``spacing_m``. ``pupil_diameter_m``: the eye's pupil of the targets and of the model
+    with ``planes`` and ``spacing_m``. Defaults from that volume: ``planes`` None is
+    :func:`default_stack_planes` (up to 5, no two closer than the pupil's depth of focus for the longest
+    wavelength), ``spacing_m`` None spreads them uniformly from the volume's far to its near end, so every plane
+    lies inside it; a ``spacing_m`` given keeps that spacing, centred on the volume (ValueError where the stack
+    does not fit between optical infinity and the WRP). ``pupil_diameter_m``: the eye's pupil of the targets and of the model
     (default: the one `holo evaluate` uses by default, :func:`holocore.evaluate.scoring.default_pupil_m` at +-0.5 deg).
     ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
     their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
@@ -244,21 +276,25 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: int = DEFAU
     ana = pl.analysis
     f = pl.focal_length_m
     timings["analysis_s"] = time.perf_counter() - t0
+    base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
+                 "wavelengths_m": list(optics.wavelengths_m)}
+    D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
+    D = validate.positive("pupil_diameter_m", D, unit="")
     if plane_z_m is not None:
         zs = np.asarray([float(z) for z in plane_z_m], dtype=np.float64)
         if zs.size < 1 or zs.size > MAX_PLANES or not np.all(np.isfinite(zs)) or np.any(zs < optics.z_inf_m):
             raise ValueError(f"plane_z_m must hold 1..{MAX_PLANES} finite depths at or beyond z_inf "
                              f"({optics.z_inf_m * 1e3:g} mm), got {list(plane_z_m)!r}")
     else:
+        if planes is None:
+            # the longest wavelength has the deepest focus: planes that red cannot tell apart are not worth a target
+            step = depth_of_focus_m(wavelength_m=max(optics.wavelengths_m), focal_length_m=f, pupil_diameter_m=D)
+            planes = default_stack_planes(z_far_m=ana.z_far_holo_m, z_near_m=ana.z_near_holo_m, min_spacing_m=step)
         zs = stack_plane_depths(z_inf_m=optics.z_inf_m, z_far_m=ana.z_far_holo_m, z_near_m=ana.z_near_holo_m,
                                 planes=planes, spacing_m=spacing_m, z_limit_m=ana.z_wrp_m)
     if zs.max() >= ana.z_wrp_m:
         raise ValueError(f"a focal-stack plane at {zs.max() * 1e3:.4f} mm lies at or beyond the WRP "
                          f"({ana.z_wrp_m * 1e3:.4f} mm)")
-    base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
-                 "wavelengths_m": list(optics.wavelengths_m)}
-    D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
-    D = validate.positive("pupil_diameter_m", D, unit="")
     H, W = optics.resolution_hw
     t1 = time.perf_counter()
     truth = GroundTruth(loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
