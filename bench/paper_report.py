@@ -844,9 +844,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--view-deg", type=float, default=0.5)
     ap.add_argument("--viewer-grid", type=int, default=3,
                     help="Eye grid (n x n, jittered) of the viewer-faithful score over pupils 1.6-6 mm; 0: off.")
-    ap.add_argument("--alt-frame-phases", choices=("", "directional", "coded", "independent"), default="coded",
+    ap.add_argument("--alt-frame-phases", choices=("", "directional", "coded", "independent"), default="directional",
                     help="Also render ours with these frame phases (labelled 'ours (<mode>)'); '': not.")
-    ap.add_argument("--frame-phases", choices=("directional", "coded", "independent"), default="directional",
+    ap.add_argument("--frame-phases", choices=("directional", "coded", "independent"), default="coded",
                     help="Phases of the frames of ours, fast and the layers (OpticsConfig.frame_phases).")
     ap.add_argument("--wrp-planes", type=lambda v: v if v == "auto" else int(v), default="auto",
                     help="Recording planes of ours and fast: 1..8 or auto (default).")

@@ -49,6 +49,7 @@ class OpticsOptions:
     fit_camera_fov: bool = False
     seed: Optional[int] = None
     frame_phases: Optional[str] = None
+    eyebox: Optional[str] = None
     optics_json: Optional[Path] = None
 
     def resolve(self, **command_defaults: Any) -> tuple["DisplayProfile", "OpticsConfig"]:
@@ -67,7 +68,7 @@ class OpticsOptions:
                  "pitch_um": self.pitch_um, "wavelengths_nm": _parse_wavelengths(self.wavelengths_nm),
                  "z_inf_mm": self.z_inf_mm, "focal_length_mm": self.focal_length_mm, "frames": self.frames,
                  "fit_camera_fov": True if self.fit_camera_fov else None, "seed": self.seed,
-                 "frame_phases": self.frame_phases}
+                 "frame_phases": self.frame_phases, "eyebox": self.eyebox}
         defaults = {k: v for k, v in command_defaults.items() if given.get(k) is None}
         if "resolution_hw" in defaults and isinstance(defaults["resolution_hw"], str):
             defaults["resolution_hw"] = parse_hw(defaults["resolution_hw"])
@@ -122,6 +123,9 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
                                                  "phases cancel each other's speckle), independent (paper Eq. 4) or "
                                                  "directional (each frame a plane wave towards one eye position: "
                                                  "no speckle).")),
+    ("eyebox", Optional[str], typer.Option(None, "--eyebox", help="common (default: every colour cut to the "
+                                           "smallest colour's cone, so the colour an eye sees does not change "
+                                           "with its pupil) or per_colour (each colour its own cone).")),
     ("optics_json", Optional[Path], typer.Option(None, "--optics-json", help="OpticsConfig fields as a JSON "
                                                  "file (over the profile, under the options above).")),
 )

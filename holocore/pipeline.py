@@ -314,6 +314,7 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
 
     t4 = time.perf_counter()
     dz = z_wrp if direct else -z_wrp
+    cut = optics.eyebox_sine()  # a common eyebox: both fields of every colour within one disc of directions
     chunks = list(range(0, F, fp))
     for ci, f0 in enumerate(chunks):
         f1 = min(F, f0 + fp)
@@ -322,6 +323,9 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
             if c not in lit_idx:
                 continue  # the field of an unlit color is zero on both planes
             u = torch.from_numpy(sink.read_traced(f0, f1, c)).to(dev)
+            if cut is not None:
+                u = asm(u, 0.0, lam, optics.pitch_m, cone_sine=cut)
+                sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
             block[:, c] = asm(u, dz, lam, optics.pitch_m).cpu().numpy()
             del u
         sink.write_other(f0, block)
@@ -383,6 +387,7 @@ def _after_trace_seconds(optics: OpticsConfig, lit_idx, z_wrp: float, planes, eq
     t_asm = time.perf_counter() - t
     theta = max(optics.theta_max(x) for x in optics.wavelengths_m)
     units = 1.0 + (1.0 if equalised else 0.0)  # the final propagation; the WRP's equaliser
+    units += 1.0 if optics.eyebox_sine() is not None else 0.0  # the common eyebox's cut
     for k in range(1, planes.count):
         b = planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta)
         units += (H + 2 * b) * (W + 2 * b) / (H * W) * (2.0 if equalised else 1.0)

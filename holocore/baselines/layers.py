@@ -89,7 +89,8 @@ def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
 def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_inf_m: float, z_wrp_m: float,
                  pitch_m: float, wavelengths_m: Sequence[float], frames: int, planes: int = 8,
                  seed: int = 0, z_range_m: Optional[tuple[float, float]] = None, coded: bool = True,
-                 directional: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 directional: bool = False,
+                 eyebox_sine: Optional[float] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(SLM field, WRP field) complex64 [F, C, H, W], plane depths (m) and pixels per plane, from RGB-D.
 
     ``rgb`` [3, H, W] linear radiance, ``zc`` [H, W] eye-camera depth (m; <= 0 or non-finite: nothing hit,
@@ -97,7 +98,8 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``coded``: the
     frames' random phases are coded (:func:`holocore.trace.randomfield.phase_bank`), as the renderer's by default.
     ``directional``: the renderer's directional frames instead (:mod:`holocore.trace.beams`, Eq. B1: the bank's
-    lateral part, and per plane its depth part, one phase per frame).
+    lateral part, and per plane its depth part, one phase per frame). ``eyebox_sine``: every colour's WRP field
+    cut to the directions of sine <= this (:meth:`holocore.display.optics.OpticsConfig.eyebox_sine`; None: not).
     """
     import torch
 
@@ -154,6 +156,8 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
             if depth_terms is not None:  # Eq. B1's depth part: exp(i k w_m (z - z_wrp)) for each frame m
                 plane = plane * depth_terms.plane_factors(float(z) - zw)[0][:, None, None]
             wrp[:, c] += asm(plane, zw - float(z), float(lam), p)
+        if eyebox_sine is not None:  # a common eyebox: every colour within one disc of directions
+            wrp[:, c] = asm(wrp[:, c].contiguous(), 0.0, float(lam), p, cone_sine=eyebox_sine)
         slm[:, c] = asm(wrp[:, c].contiguous(), -zw, float(lam), p)
     return slm.numpy(), wrp.numpy(), zs, counts
 
@@ -194,6 +198,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
                                         seed=optics.seed, coded=optics.frame_phases == "coded",
                                         directional=optics.frame_phases == "directional",
+                                        eyebox_sine=optics.eyebox_sine(),
                                         z_range_m=None if ana.z_far_holo_m is None else (ana.z_far_holo_m,
                                                                                           ana.z_near_holo_m))
     timings["propagate_s"] = time.perf_counter() - t2

@@ -14,7 +14,8 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "channel_of"]
+__all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "cone_sine",
+           "common_cone_sine", "channel_of"]
 
 MAX_SIDE_PX = 16384
 """Largest SLM or WRP side accepted, in pixels (a 16k×16k complex64 field is 2 GiB)."""
@@ -33,6 +34,17 @@ def theta_max_rad(wavelength_m: float, pitch_m: float) -> float:
     Sec. 4.3). The one place this formula lives."""
     s = float(wavelength_m) / (2.0 * float(pitch_m))
     return math.pi / 2 if s >= 1.0 else math.asin(s)
+
+
+def cone_sine(wavelength_m: float, pitch_m: float) -> float:
+    """Direction sine of the recording cone's rim as the tracer uses it: sin(min(theta_max, 89 deg))."""
+    return math.sin(min(theta_max_rad(wavelength_m, pitch_m), MAX_CONE_HALF_ANGLE_RAD))
+
+
+def common_cone_sine(wavelengths_m, pitch_m: float) -> float:
+    """The cone every colour shares (its direction sine): the smallest colour's, the display's common eyebox
+    (half-width f times this sine at the eye)."""
+    return min(cone_sine(float(lam), float(pitch_m)) for lam in wavelengths_m)
 
 
 def channel_of(wavelength_m: float) -> int:
@@ -91,6 +103,14 @@ class OpticsConfig(BaseModel):
                     "holocore.trace.randomfield), 'independent' (one random field per frame, the paper's Eq. 4) or "
                     "'directional' (frame m a plane wave towards one of F eye positions spread over the cone: no "
                     "speckle, the defocus blur sampled by the frames a pupil holds; holocore.trace.beams).",
+    )
+    eyebox: Literal["common", "per_colour"] = Field(
+        default="common",
+        description="Directions each colour's field may leave in: 'common' (every colour cut to the smallest "
+                    "colour's cone, so the colour balance an eye sees does not change with its pupil or position; "
+                    "red and green lose their wider rims) or 'per_colour' (each colour its own cone "
+                    "arcsin(lambda / 2p): a wider eyebox for red, whose image turns redder through pupils larger "
+                    "than blue's eyebox). docs/physics.md, 'One eyebox for every colour'.",
     )
     wrp_margin_px: float = Field(
         default=4.0, ge=0.0, le=1000.0, allow_inf_nan=False,
@@ -177,6 +197,11 @@ class OpticsConfig(BaseModel):
     def field_of_view_x_deg(self, scene_fov_x_deg: float | None = None) -> float:
         """Horizontal field of view the hologram shows, 2 atan(W p / 2f), in degrees (DESIGN §3)."""
         return math.degrees(2.0 * math.atan(self.width * self.pitch_m / (2.0 * self.focal_length_m(scene_fov_x_deg))))
+
+    def eyebox_sine(self) -> float | None:
+        """The direction sine every colour's field is cut to (:func:`common_cone_sine`), None with a per-colour
+        eyebox (each colour's own cone, nothing cut)."""
+        return common_cone_sine(self.wavelengths_m, self.pitch_m) if self.eyebox == "common" else None
 
     def theta_max(self, wavelength_m: float) -> float:
         """Half-angle of the recordable cone (rad): :func:`theta_max_rad` at this pitch (DESIGN §4)."""

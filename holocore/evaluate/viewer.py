@@ -9,10 +9,12 @@ This score therefore
 * views the hologram through every pupil of ``pupils_m`` (default 1.6, 2, 3, 4, 6 mm) from every eye position
   of a jittered n x n grid (:func:`eye_grid_m`; the jitter, from ``seed``, keeps the positions off any lattice
   a method's frames may be laid out on), at every focus plane;
-* divides each colour's view by the share of that colour's recording cone the pupil holds
-  (:func:`aperture_share`): the light an ideal display sends through the pupil, so that a pupil partly outside
-  the eyebox (a property of the display's pitch, not of the hologram) or a larger pupil (more light) does not
-  count as an error, while brightness that steps with the eye does;
+* divides every colour's view by one share, that of the display's common eyebox (the cone every colour can fill,
+  the smallest colour's) the pupil holds (:func:`aperture_share`): the light an ideal display sends through the
+  pupil, so that a pupil partly outside the eyebox (a property of the display's pitch, not of the hologram) or a
+  larger pupil (more light) does not count as an error, while brightness that steps with the eye does, and so
+  does a colour balance that changes with the pupil (red's own cone is wider than blue's: a hologram that fills
+  it turns redder through pupils larger than blue's eyebox, which an eye sees as a red cast);
 * fits **one** brightness scale per colour for the whole grid (least squares, over the ground truth's
   unsaturated pixels) and scores every cell with it: PSNR / SSIM against the thin-lens ground truth through
   the same pupil, white at the 99th percentile of all ground-truth cells of that colour;
@@ -35,7 +37,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, theta_max_rad
+from holocore.display.optics import common_cone_sine, cone_sine
 from holocore.formats.meta import MetaLike, parse_view_meta
 
 __all__ = ["DEFAULT_PUPILS_M", "eye_grid_m", "aperture_share", "ViewerCell", "PupilSummary", "ViewerScore",
@@ -44,10 +46,6 @@ __all__ = ["DEFAULT_PUPILS_M", "eye_grid_m", "aperture_share", "ViewerCell", "Pu
 DEFAULT_PUPILS_M = (1.6e-3, 2e-3, 3e-3, 4e-3, 6e-3)
 MAX_EYE_GRID = 9
 _JITTER = 0.3  # of the grid spacing, each axis
-
-
-def _cone_sine(wavelength_m: float, pitch_m: float) -> float:
-    return math.sin(min(theta_max_rad(wavelength_m, pitch_m), MAX_CONE_HALF_ANGLE_RAD))
 
 
 def eye_grid_m(meta: MetaLike, *, n: int = 5, span_m: Optional[float] = None,
@@ -59,7 +57,7 @@ def eye_grid_m(meta: MetaLike, *, n: int = 5, span_m: Optional[float] = None,
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_EYE_GRID:
         raise ValueError(f"the eye grid must be an integer in 1..{MAX_EYE_GRID} (an n x n grid), got {n!r}")
     f, p = meta.focal_length_m, float(meta.pitch_m)
-    span = 0.5 * f * min(_cone_sine(float(lam), p) for lam in meta.wavelengths_m) if span_m is None else float(span_m)
+    span = 0.5 * f * common_cone_sine(meta.wavelengths_m, p) if span_m is None else float(span_m)
     if not (math.isfinite(span) and 0.0 <= span <= f):
         raise ValueError(f"the eye grid's span must be in [0, f] m, got {span_m!r}")
     if n == 1:
@@ -88,13 +86,14 @@ def _disc_overlap(r1: float, r2: float, d: float) -> float:
     return a1 + a2 - tri
 
 
-def aperture_share(meta: MetaLike, *, pupil_diameter_m: float, eye_offset_m: tuple[float, float],
-                   wavelength_m: float) -> float:
-    """The share of a colour's recording cone (in direction sines) that the pupil of an eye at ``eye_offset_m``
-    holds: what an ideal display with a flat angular spectrum sends through it, relative to all it sends."""
+def aperture_share(meta: MetaLike, *, pupil_diameter_m: float, eye_offset_m: tuple[float, float]) -> float:
+    """The share of the display's common eyebox (the cone of direction sines every colour can fill,
+    :func:`holocore.display.optics.common_cone_sine`) that the pupil of an eye at ``eye_offset_m`` (m) holds: what
+    an ideal display with a flat angular spectrum in that cone sends through it, relative to all it sends. One
+    share for every colour, so that a colour balance that changes with the pupil counts as the error it is."""
     meta = parse_view_meta(meta)
     f = meta.focal_length_m
-    s_c = _cone_sine(float(wavelength_m), float(meta.pitch_m))
+    s_c = common_cone_sine(meta.wavelengths_m, float(meta.pitch_m))
     na = float(pupil_diameter_m) / (2.0 * f)
     d = math.hypot(float(eye_offset_m[0]), float(eye_offset_m[1])) / f
     return _disc_overlap(na, s_c, d) / (math.pi * s_c * s_c)
@@ -222,7 +221,7 @@ def _lit_margin(meta, *, focus_z_m: float, pupil_m: float, eye_m: tuple[float, f
     """holocore.evaluate.scoring.lit_margin_px with the accepted directions capped at the widest colour's cone: a
     hologram sends nothing beyond it, so a pupil larger than the eyebox gathers from no farther."""
     f, p = meta.focal_length_m, float(meta.pitch_m)
-    s_max = max(_cone_sine(float(lam), p) for lam in meta.wavelengths_m)
+    s_max = max(cone_sine(float(lam), p) for lam in meta.wavelengths_m)
     e = max(abs(float(eye_m[0])), abs(float(eye_m[1])))
     reach = min(float(pupil_m) / (2.0 * f) + e / f, s_max)
     return int(math.ceil(max(0.0, float(focus_z_m)) * reach / p - 1e-9))
@@ -256,8 +255,7 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
     n_done = 0
     for pi_, D in enumerate(pupils):
         for ei, (_idx, e) in enumerate(eyes):
-            share = np.array([aperture_share(meta, pupil_diameter_m=D, eye_offset_m=e, wavelength_m=lam)
-                              for lam in lams])
+            share = np.full(C, aperture_share(meta, pupil_diameter_m=D, eye_offset_m=e))
             for zi, z in enumerate(zs):
                 rec = eye_view(field_slm, meta, focus_z_m=z, pupil_diameter_m=D, view_offset_m=e,
                                memory_budget_bytes=memory_budget_bytes, device=device)

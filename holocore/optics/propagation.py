@@ -8,7 +8,9 @@ Shimobaba (Opt. Express 17(22), 2009, Eq. 13) is applied per axis on the exact D
 
     |f_x| <= 1 / (lambda sqrt((2 df_x z)^2 + 1)),   df_x = 1 / (padded_W p_x)   (same for y with rows)
 
-which keeps the sampled transfer function free of aliasing. H is built in float64 with its phase wrapped to
+which keeps the sampled transfer function free of aliasing. With ``cone_sine`` s the passband is also cut to the
+directions of sine <= s, f_x^2 + f_y^2 <= (s / lambda)^2: the common eyebox of a colour display (docs/physics.md,
+"One eyebox for every colour"), applied at z = 0 too. H is built in float64 with its phase wrapped to
 [-pi, pi) before the cast (DESIGN §2: 2 pi z / lambda is ~1.4e7 rad at 1 m), cached in a bounded LRU, and
 applied in the input's dtype. Frequencies stay in unshifted FFT order (no fftshift copies).
 """
@@ -77,7 +79,7 @@ def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int,
 
 # ---- transfer function -----------------------------------------------------------------------------------
 def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
-              device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+              device: torch.device, dtype: torch.dtype, cone_sine: float | None = None) -> torch.Tensor:
     """H(f_x, f_y; z) in float64 on the unshifted DFT grid, phase wrapped, then cast to ``dtype``."""
     ph, pw = shape
     f64 = torch.float64
@@ -96,6 +98,8 @@ def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float
         lim_x = 1.0 / (lam * math.sqrt((2.0 * dfx * z) ** 2 + 1.0))
         lim_y = 1.0 / (lam * math.sqrt((2.0 * dfy * z) ** 2 + 1.0))
         keep &= (fx.abs() <= lim_x)[None, :] & (fy.abs() <= lim_y)[:, None]
+    if cone_sine is not None:  # the directions of sine <= cone_sine only (the common eyebox)
+        keep &= (fx2 + fy2) * (lam * lam) <= cone_sine * cone_sine * (1.0 + 1e-12)
     real_dtype = torch.float64 if dtype == torch.complex128 else torch.float32
     phase_c = phase.to(real_dtype)
     tf = torch.polar(keep.to(real_dtype), phase_c)
@@ -103,18 +107,20 @@ def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float
 
 
 def _cached_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
-               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False) -> torch.Tensor:
+               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False,
+               cone_sine: float | None = None) -> torch.Tensor:
     """The cached H; with ``conj_scaled`` the cached conj(H) / (Hp Wp) that :func:`ifft2`'s identity needs."""
-    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled)
+    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled, cone_sine)
     with _tf_lock:
         tf = _tf_cache.get(key)
         if tf is not None:
             _tf_cache.move_to_end(key)
             return tf
     if conj_scaled:
-        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype).conj_physical().div_(shape[0] * shape[1])
+        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype,
+                        cone_sine=cone_sine).conj_physical().div_(shape[0] * shape[1])
     else:
-        tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype)
+        tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype, cone_sine)
     nbytes = tf.numel() * tf.element_size()
     if nbytes <= _TF_CACHE_MAX_BYTES:
         with _tf_lock:
@@ -194,8 +200,11 @@ def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
 
 
 def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: PitchLike, *,
-        pad_factor: float = 2, band_limit: bool = True) -> torch.Tensor:
+        pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None) -> torch.Tensor:
     """Propagate a complex field ``[..., H, W]`` by ``distance_m`` (m; < 0 back-propagates, 0 is a copy).
+
+    ``cone_sine`` (0 < s <= 1, None: no cut): keep only the plane waves whose direction sine is <= s (at any
+    distance, 0 included: then a low-pass filter of the field).
 
     ``wavelength_m`` in m, ``pitch_m`` a float or ``(pitch_y, pitch_x)`` in m. Zero-pads to
     :func:`padded_shape` (``pad_factor`` >= 1), applies the band-limited transfer function (DESIGN §5) and
@@ -207,10 +216,15 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
     py, px = validate.pitch_pair(pitch_m)
     h, w = field.shape[-2], field.shape[-1]
     hp, wp = padded_shape((h, w), pad_factor)
-    if z == 0.0:
+    if cone_sine is not None:
+        cone_sine = validate.real("cone_sine", cone_sine)
+        if not 0.0 < cone_sine <= 1.0:
+            raise ValueError(f"cone_sine must be a direction sine in (0, 1], got {cone_sine}")
+    if z == 0.0 and cone_sine is None:
         return field.clone()
     # The inverse transform is a forward one: IFFT(S H) = conj(FFT(conj(S) conj(H) / N)) (see :func:`ifft2`).
-    tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True)
+    tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True,
+                     cone_sine=cone_sine)
     needs_graph = torch.is_grad_enabled() and field.requires_grad
     if needs_graph or field.device.type != "cpu":
         spec = torch.fft.fft2(field, s=(hp, wp))  # pads with zeros at the end of each axis

@@ -29,16 +29,18 @@ def test_eye_grid_is_jittered_seeded_and_spans_the_eyebox():
         eye_grid_m(META, n=0)
 
 
-def test_aperture_share_is_the_overlap_of_pupil_and_cone():
-    s_b = 455.4e-9 / 16e-6
+def test_aperture_share_is_the_overlap_of_pupil_and_the_common_eyebox():
+    s_b = 455.4e-9 / 16e-6  # blue's cone: the one every colour shares
     na = 1.6e-3 / 0.1
-    assert aperture_share(META, pupil_diameter_m=1.6e-3, eye_offset_m=(0, 0), wavelength_m=455.4e-9) == \
-        pytest.approx((na / s_b) ** 2)
-    assert aperture_share(META, pupil_diameter_m=20e-3, eye_offset_m=(1e-3, 0), wavelength_m=640e-9) == pytest.approx(1.0)
-    assert aperture_share(META, pupil_diameter_m=1e-3, eye_offset_m=(5e-3, 0), wavelength_m=455.4e-9) == 0.0
+    assert aperture_share(META, pupil_diameter_m=1.6e-3, eye_offset_m=(0, 0)) == pytest.approx((na / s_b) ** 2)
+    assert aperture_share(META, pupil_diameter_m=20e-3, eye_offset_m=(1e-3, 0)) == pytest.approx(1.0)
+    assert aperture_share(META, pupil_diameter_m=1e-3, eye_offset_m=(5e-3, 0)) == 0.0
     # a pupil centred on the rim holds just under half of it
-    half = aperture_share(META, pupil_diameter_m=0.4e-3, eye_offset_m=(0.05 * s_b, 0), wavelength_m=455.4e-9)
+    half = aperture_share(META, pupil_diameter_m=0.4e-3, eye_offset_m=(0.05 * s_b, 0))
     assert half == pytest.approx(0.5 * (0.004 / s_b) ** 2, rel=0.1)
+    # a 4 mm pupil holds all of blue's eyebox (2.85 mm at f = 50 mm) and so all of the common one, although it
+    # holds only part of red's own cone: one share for every colour
+    assert aperture_share(META, pupil_diameter_m=4e-3, eye_offset_m=(0, 0)) == pytest.approx(1.0)
 
 
 def test_image_shift_finds_a_subpixel_shift():
@@ -59,9 +61,9 @@ class _Flat:
 
 
 def _cone_field(kind: str, F: int = 24, shape=(48, 64)) -> np.ndarray:
-    """[F, 3, H, W] on the SLM of a flat scene: 'spread' lights each colour's whole cone with random phases in
-    every frame (an ideal display's flat angular spectrum); 'beams' gives frame m one plane wave per colour towards
-    eye position m of beam_layout (no spread)."""
+    """[F, 3, H, W] on the SLM of a flat scene: 'spread' lights the display's common eyebox (blue's cone) with
+    random phases in every colour and frame (an ideal display's flat angular spectrum), 'own' each colour's own
+    cone; 'beams' gives frame m one plane wave per colour towards eye position m of beam_layout (no spread)."""
     H, W = shape
     rng = np.random.default_rng(1)
     out = np.zeros((F, 3, H, W), dtype=np.complex64)
@@ -70,10 +72,11 @@ def _cone_field(kind: str, F: int = 24, shape=(48, 64)) -> np.ndarray:
     fx = np.fft.fftfreq(W, d=p)[None, :]
     u = beam_layout(F) * beam_disc_sine(META["wavelengths_m"], p)
     for c, lam in enumerate(META["wavelengths_m"]):
-        cone = (fx ** 2 + fy ** 2) <= (min(1 / lam, 1 / (2 * p))) ** 2
+        s = min(1.0, lam / (2 * p)) if kind == "own" else min(min(1.0, v / (2 * p)) for v in META["wavelengths_m"])
+        cone = (fx ** 2 + fy ** 2) * lam * lam <= s * s * (1 + 1e-9)
         for m in range(F):
             spec = np.zeros((H, W), dtype=np.complex128)
-            if kind == "spread":
+            if kind in ("spread", "own"):
                 spec[cone] = np.exp(2j * np.pi * rng.random(int(cone.sum()))) / math.sqrt(cone.sum())
             else:
                 j = int(round(u[m, 0] / lam * W * p)) % W
@@ -93,7 +96,18 @@ def test_one_scale_sees_brightness_that_steps_with_the_eye():
     # 24 beams: a 2 mm pupil holds a different number of them at each eye position
     assert beams.pupils[0].brightness_max_over_min > 1.15, beams.pupils[0]
     assert beams.scale_spread > spread.scale_spread
-    assert all(math.isfinite(c.psnr_db) for c in spread.cells + beams.cells)
+    assert not any(math.isnan(c.psnr_db) for c in spread.cells + beams.cells)  # inf: a lone beam is exactly flat
+
+
+def test_one_share_for_every_colour_sees_a_red_cast_through_large_pupils():
+    """Each colour in its own cone: through a 6 mm pupil (wider than every eyebox) the eye gathers all of each
+    colour's light, (s_c / s_blue)^2 more of red than the common eyebox's share says: a red cast that the colour
+    balance at 2 mm does not have."""
+    kw = dict(pupils_m=(2e-3, 6e-3), eye_grid=1, seed=0, focus_z_m=[4e-3])
+    common = viewer_score(_cone_field("spread"), META, _Flat(), **kw)
+    own = viewer_score(_cone_field("own"), META, _Flat(), **kw)
+    assert all(p.colour_cast < 1.06 for p in common.pupils), common.pupils
+    assert own.pupils[1].colour_cast > 1.3, own.pupils[1]
 
 
 @pytest.mark.parametrize("args, words", [
