@@ -23,6 +23,51 @@ __all__ = ["igehy_transfer"]
 _EPS_COS = 1e-7  # |cos| below this at a delta vertex: the differential transfer is singular, drop the ray
 
 
+def _normal_differentials(si: mi.SurfaceInteraction3f, N: mi.Vector3d, dPh: list) -> list:
+    """dN for each surface differential dP' (float64): the shape operator applied to dP'.
+
+    Where the (u, v) chart is regular: dN = dn/du du + dn/dv dv, (du, dv) from dP' in the tangent basis
+    (dp_du, dp_dv) by the normal equations. Where its metric is singular, at a pole of the parametrisation
+    (Mitsuba's sphere on its local z axis: dp_du = 0 there, dp_dv still a unit tangent times pi r), those
+    equations have no solution, and dropping dN made a ball lens a flat slab for the ray on its axis (5.58 m
+    instead of 0.345 m). There the shape operator comes from the tangent that survives, t: its normal curvature
+    k = (dn_t . t) / |t|^2 and twist tau along the orthogonal tangent N x t; it is symmetric, and the second
+    principal curvature is the limit at such a pole, equal to k (a pole of a surface of revolution is an
+    umbilic point; on a sphere every point is). Both tangents gone (no differential geometry): dN = 0.
+    """
+    mi = mitsuba()
+    import drjit as dr
+
+    V3d = mi.Vector3d
+    dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
+    dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
+    a, b, c = dr.dot(dpdu, dpdu), dr.dot(dpdu, dpdv), dr.dot(dpdv, dpdv)
+    det = a * c - b * b
+    # relative to the metric's size, so a chart whose one tangent shrinks to nothing (float32 rounding next to
+    # a pole) counts as singular too; there the limit below is accurate to (|dp_du| / |dp_dv|)^2 ~ 1e-10
+    regular = (det > 1e-10 * (a + c) * (a + c)) & (det > 1e-30)
+    inv_det = dr.select(regular, 1.0 / dr.select(regular, det, 1.0), 0.0)
+    use_u = a >= c  # the longer tangent survives
+    t = dr.select(use_u, dpdu, dpdv)
+    dn_t = dr.select(use_u, dndu, dndv)
+    len2 = dr.select(use_u, a, c)
+    have = ~regular & (len2 > 1e-30)
+    inv_len = dr.select(have, dr.rsqrt(dr.select(have, len2, 1.0)), 0.0)
+    e1 = t * inv_len
+    e1 = dr.normalize(e1 - dr.dot(e1, N) * N)  # tangent to the shading normal's plane
+    e2 = dr.cross(N, e1)
+    k = dr.dot(dn_t, e1) * inv_len
+    tau = dr.dot(dn_t, e2) * inv_len
+    dN = []
+    for i in range(4):
+        r1, r2 = dr.dot(dPh[i], dpdu), dr.dot(dPh[i], dpdv)
+        chart = dndu * ((c * r1 - b * r2) * inv_det) + dndv * ((a * r2 - b * r1) * inv_det)
+        x1, x2 = dr.dot(dPh[i], e1), dr.dot(dPh[i], e2)
+        pole = e1 * (k * x1 + tau * x2) + e2 * (tau * x1 + k * x2)
+        dN.append(dr.select(regular, chart, dr.select(have, pole, V3d(0.0))))
+    return dN
+
+
 def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
                     dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32) -> tuple:
     """At a chain vertex, in float64: the apparent distance d (m) read from the differentials (used where the
@@ -54,17 +99,7 @@ def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.B
     safe_cos = dr.select(dr.abs(cosD) < _EPS_COS, 1.0, cosD)
     # dP on the surface: dt = -(dPt . N) / (D . N) (Igehy Eq. 12), dP' = dPt + dt D.
     dPh = [dPt[i] - (dr.dot(dPt[i], N) / safe_cos) * D for i in range(4)]
-    # dN = dn/du du + dn/dv dv, (du, dv) from dP' in the tangent basis (dp_du, dp_dv): normal equations.
-    dpdu, dpdv = V3d(si.dp_du), V3d(si.dp_dv)
-    dndu, dndv = V3d(si.dn_du), V3d(si.dn_dv)
-    a, b, c = dr.dot(dpdu, dpdu), dr.dot(dpdu, dpdv), dr.dot(dpdv, dpdv)
-    det = a * c - b * b
-    det_ok = det > 1e-30
-    inv_det = dr.select(det_ok, 1.0 / dr.select(det_ok, det, 1.0), 0.0)
-    dN = []
-    for i in range(4):
-        r1, r2 = dr.dot(dPh[i], dpdu), dr.dot(dPh[i], dpdv)
-        dN.append(dndu * ((c * r1 - b * r2) * inv_det) + dndv * ((a * r2 - b * r1) * inv_det))
+    dN = _normal_differentials(si, N, dPh)
     D_new = dr.normalize(V3d(si.to_world(bs.wo)))
     is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
     # Reflection: D' = D - 2 (D.N) N.  Refraction (N facing the ray): D' = eta D + mu N, mu = eta c1 - c2.
