@@ -641,12 +641,10 @@ def _how_ours_fills(eq: dict) -> str:
             "twice at most: `probe.runs_spp_s` in the JSON)")
 
 
-_PHASE_WORDS = {
-    "directional": "directional frames: frame m lights every image point with a plane wave towards one of 24 eye "
-                   "positions, holocore.trace.beams",
-    "coded": "coded random frame phases, holocore.trace.randomfield",
-    "independent": "independent random frame phases (the paper's Eq. 4), holocore.trace.randomfield",
-}
+def _phase_words(name: str) -> str:
+    from holocore.trace.frame_phases import get_frame_phases
+
+    return f"{name} frame phases: {get_frame_phases(name).summary}"
 
 
 def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
@@ -664,7 +662,7 @@ def write_readme(out: Path, args, argv: list[str], env: dict) -> None:
                      "iterations")
         L += ["## Setup", "",
               f"Paper display (holocore.display.profiles.PAPER): pitch 8 µm, f = 50 mm, 640.0 / 516.5 / 455.4 nm, 24 frames "
-              f"({_PHASE_WORDS[first.get('frame_phases', 'coded')]}; the layers use the same frames, the light "
+              f"({_phase_words(first.get('frame_phases', 'coded'))}; the layers use the same frames, the light "
               "field coded ones), "
               f"Fourier filter (the encoder supervises the recording cone). Reduced here to a **{H}x{W}** part of the "
               f"SLM (the paper's 1080x1920): the paper scenes' cues sit in the middle of the view, and at {H}x{W} the "
@@ -815,6 +813,8 @@ def environment(argv: list[str]) -> dict:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    from holocore.trace.frame_phases import frame_phase_modes
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--stages", default="equal,conv,runtime,report",
                     help="Comma-separated: equal, conv, runtime, report (default all).")
@@ -844,9 +844,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--view-deg", type=float, default=0.5)
     ap.add_argument("--viewer-grid", type=int, default=3,
                     help="Eye grid (n x n, jittered) of the viewer-faithful score over pupils 1.6-6 mm; 0: off.")
-    ap.add_argument("--alt-frame-phases", choices=("", "directional", "coded", "independent"), default="directional",
+    ap.add_argument("--alt-frame-phases", choices=("", *frame_phase_modes()), default="directional",
                     help="Also render ours with these frame phases (labelled 'ours (<mode>)'); '': not.")
-    ap.add_argument("--frame-phases", choices=("directional", "coded", "independent"), default="coded",
+    ap.add_argument("--frame-phases", choices=frame_phase_modes(), default="coded",
                     help="Phases of the frames of ours, fast and the layers (OpticsConfig.frame_phases).")
     ap.add_argument("--wrp-planes", type=lambda v: v if v == "auto" else int(v), default="auto",
                     help="Recording planes of ours and fast: 1..8 or auto (default).")

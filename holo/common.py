@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional
 
 import typer
 
+from holocore.trace.frame_phases import frame_phase_modes, get_frame_phases
+
 if TYPE_CHECKING:
     from holocore.display.optics import OpticsConfig
     from holocore.display.profiles import DisplayProfile
@@ -119,10 +121,10 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
     ("fit_camera_fov", bool, typer.Option(False, "--fit-camera-fov", help="Derive f from the scene camera's "
                                           "field of view filling the SLM width, instead of the display's f.")),
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
-    ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="coded (default: the frames' random "
-                                                 "phases cancel each other's speckle), independent (paper Eq. 4) or "
-                                                 "directional (each frame a plane wave towards one eye position: "
-                                                 "no speckle).")),
+    ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="How the frames phase the image "
+                                                 "points (default coded): " + "; ".join(
+                                                     f"{n}: {get_frame_phases(n).summary}" for n in frame_phase_modes())
+                                                 + ".")),
     ("eyebox", Optional[str], typer.Option(None, "--eyebox", help="common (default: every colour cut to the "
                                            "smallest colour's cone, so the colour an eye sees does not change "
                                            "with its pupil) or per_colour (each colour its own cone).")),

@@ -30,7 +30,6 @@ from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
 from holocore.sinks import FileSink, MemorySink
-from holocore.trace.beams import BeamDepthTerms
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene"]
 
@@ -122,53 +121,36 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      planes=planes)
 
 
-def coded_frames(optics: OpticsConfig) -> Optional[int]:
-    """The ``coded_frames`` argument of :func:`holocore.trace.randomfield.phase_bank` for these optics: the frame count
-    when the frames' phases are coded (the default), None when they are independent."""
-    return optics.frames if optics.frame_phases == "coded" else None
-
-
 def frame_banks(optics: OpticsConfig, shape_hw, device="cpu", *, first_frame: int = 0, frames: Optional[int] = None,
-           wavelengths_m=None):
+                wavelengths_m=None):
     """exp(i phi_m) per color as [F, H, W] views of one cell-major tensor ([H, W, C, F] in memory): the tracer
     gathers every frame of every color of a cell at once (hologram_rays.combined_cells). Frames first_frame..
     first_frame+frames-1 (default: all of optics.frames), colors ``wavelengths_m`` (default: all), built frame by
-    frame (no [F, H, W] temporaries)."""
+    frame (no [F, H, W] temporaries) by the optics' frame-phase mode (holocore.trace.frame_phases)."""
     import torch
 
-    from holocore.trace.beams import beam_gain, beam_phase_frames
-    from holocore.trace.randomfield import phase_frames
-
+    mode = optics.frame_phase_mode()
     H, W = shape_hw
     F = optics.frames - first_frame if frames is None else frames
     lams = list(optics.wavelengths_m if wavelengths_m is None else wavelengths_m)
     C = len(lams)
-    beams = optics.frame_phases == "directional"
     cells = torch.empty((H, W, C, F), dtype=torch.complex64, device=device)
     for c, lam in enumerate(lams):
-        if beams:  # Eq. B1's lateral part, each colour's amplitude scaled to the same share in a pupil
-            gain = beam_gain(lam, optics.pitch_m, optics.wavelengths_m)
-            maps = beam_phase_frames(F, shape_hw, lam, optics.pitch_m, wavelengths_m=optics.wavelengths_m,
-                                     first_frame=first_frame, bank_frames=optics.frames)
-        else:
-            gain = 1.0
-            maps = phase_frames(F, shape_hw, lam, optics.pitch_m, seed=optics.seed, first_frame=first_frame,
-                                coded_frames=coded_frames(optics))
+        gain = mode.gain(lam, pitch_m=optics.pitch_m, wavelengths_m=optics.wavelengths_m)
+        maps = mode.lateral_phases(F, shape_hw, lam, pitch_m=optics.pitch_m, wavelengths_m=optics.wavelengths_m,
+                                   seed=optics.seed, first_frame=first_frame, bank_frames=optics.frames)
         for m, phi in enumerate(maps):
             ph = torch.from_numpy(phi).to(device)
             cells[:, :, c, m] = torch.polar(torch.full_like(ph, gain), ph).to(torch.complex64)
     return [cells[:, :, c, :].permute(2, 0, 1) for c in range(C)]
 
 
-def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int,
-                      wavelengths_m) -> Optional[BeamDepthTerms]:
-    """The depth part of directional frames (Eq. B1, relative to the WRP) for frames first_frame.. of colours
-    ``wavelengths_m``; None for random phases."""
-    if optics.frame_phases != "directional":
-        return None
-    return BeamDepthTerms.make(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
-                               wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
-                               pitch_m=optics.pitch_m)
+def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int, wavelengths_m):
+    """The per-ray depth part of the optics' frame phases (directional frames' Eq. B1, relative to the WRP) for
+    frames first_frame.. of colours ``wavelengths_m``; None for phases that do not depend on depth."""
+    return optics.frame_phase_mode().depth_terms(frames=frames, first_frame=first_frame, bank_frames=optics.frames,
+                                                 wavelengths_m=wavelengths_m, all_wavelengths_m=optics.wavelengths_m,
+                                                 pitch_m=optics.pitch_m)
 
 
 # What the planner counts (bytes): the process without fields (Python, torch, Mitsuba and its kernels, the
@@ -241,8 +223,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     equalisers = None
     if options.cone_equaliser and not direct and wl_lit:
         equalisers = plane_equalisers(planes.distances_by_plane_m(ana.image_depths_holo_m), wl_lit, optics.pitch_m,
-                                      noise_aware=options.equalise_noise and optics.frame_phases != "directional",
-                                      rim_ripple=optics.frame_phases != "directional")
+                                      noise_aware=options.equalise_noise and optics.frame_phase_mode().noise_aware,
+                                      rim_ripple=optics.frame_phase_mode().rim_ripple)
     sink = sink_factory((F, C, H, W), "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
 
     integrator = mi.load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})

@@ -88,25 +88,22 @@ def plane_depths(z_holo: np.ndarray, planes: int) -> np.ndarray:
 
 def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_inf_m: float, z_wrp_m: float,
                  pitch_m: float, wavelengths_m: Sequence[float], frames: int, planes: int = 8,
-                 seed: int = 0, z_range_m: Optional[tuple[float, float]] = None, coded: bool = True,
-                 directional: bool = False,
+                 seed: int = 0, z_range_m: Optional[tuple[float, float]] = None, frame_phases: str = "coded",
                  eyebox_sine: Optional[float] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(SLM field, WRP field) complex64 [F, C, H, W], plane depths (m) and pixels per plane, from RGB-D.
 
     ``rgb`` [3, H, W] linear radiance, ``zc`` [H, W] eye-camera depth (m; <= 0 or non-finite: nothing hit,
     put on the farthest plane). ``z_range_m`` (far, near): hologram depths outside it (pixels that mix a
-    surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``coded``: the
-    frames' random phases are coded (:func:`holocore.trace.randomfield.phase_bank`), as the renderer's by default.
-    ``directional``: the renderer's directional frames instead (:mod:`holocore.trace.beams`, Eq. B1: the bank's
-    lateral part, and per plane its depth part, one phase per frame). ``eyebox_sine``: every colour's WRP field
+    surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``frame_phases``:
+    the renderer's frame-phase mode (:mod:`holocore.trace.frame_phases`): its bank and amplitude, and per plane
+    its depth part where it has one (directional frames' Eq. B1), one phase per frame. ``eyebox_sine``: every colour's WRP field
     cut to the directions of sine <= this (:meth:`holocore.display.optics.OpticsConfig.eyebox_sine`; None: not).
     """
     import torch
 
     from holocore.display.optics import channel_of
     from holocore.optics.propagation import asm
-    from holocore.trace.beams import BeamDepthTerms, beam_gain, beam_phase_frames
-    from holocore.trace.randomfield import phase_bank
+    from holocore.trace.frame_phases import get_frame_phases
 
     img = np.asarray(rgb, dtype=np.float64)
     depth = np.asarray(zc, dtype=np.float64)
@@ -115,6 +112,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     if not np.all(np.isfinite(img)) or img.min() < 0:
         raise ValueError("rgb must be finite radiance >= 0")
     frames = validate.integer("frames", frames, 1, 4096)
+    mode = get_frame_phases(frame_phases)
     f, zi, zw, p = (float(v) for v in (focal_length_m, z_inf_m, z_wrp_m, pitch_m))
     H, W = depth.shape
     hit = np.isfinite(depth) & (depth > 0)
@@ -138,15 +136,11 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     cone = [min(1.0, float(lam) / (2.0 * p)) for lam in wavelengths_m]  # s_c, the sine of theta_max
     for c, lam in enumerate(wavelengths_m):
         amp = torch.from_numpy((np.sqrt(img[channel_of(float(lam))]) * cone[c] / max(cone)).astype(np.float32))
-        depth_terms = None
-        if directional:
-            amp = amp * beam_gain(float(lam), p, wavelengths_m)
-            ph = torch.from_numpy(np.stack(list(beam_phase_frames(frames, (H, W), float(lam), p,
-                                                                  wavelengths_m=wavelengths_m))))
-            depth_terms = BeamDepthTerms.make(frames=frames, first_frame=0, bank_frames=frames, wavelengths_m=[lam],
-                                              all_wavelengths_m=wavelengths_m, pitch_m=p)
-        else:
-            ph = phase_bank(frames, (H, W), float(lam), p, seed=int(seed), coded_frames=frames if coded else None)
+        amp = amp * mode.gain(float(lam), pitch_m=p, wavelengths_m=wavelengths_m)
+        ph = torch.from_numpy(np.stack(list(mode.lateral_phases(frames, (H, W), float(lam), pitch_m=p,
+                                                                wavelengths_m=wavelengths_m, seed=int(seed)))))
+        depth_terms = mode.depth_terms(frames=frames, first_frame=0, bank_frames=frames, wavelengths_m=[lam],
+                                       all_wavelengths_m=wavelengths_m, pitch_m=p)
         base = torch.polar(amp.expand(frames, H, W).contiguous(), ph)  # [F, H, W]
         for i, z in enumerate(zs):
             if counts[i] == 0:
@@ -196,8 +190,7 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     slm, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=pl.focal_length_m, z_inf_m=optics.z_inf_m,
                                         z_wrp_m=ana.z_wrp_m, pitch_m=optics.pitch_m,
                                         wavelengths_m=optics.wavelengths_m, frames=optics.frames, planes=planes,
-                                        seed=optics.seed, coded=optics.frame_phases == "coded",
-                                        directional=optics.frame_phases == "directional",
+                                        seed=optics.seed, frame_phases=optics.frame_phases,
                                         eyebox_sine=optics.eyebox_sine(),
                                         z_range_m=None if ana.z_far_holo_m is None else (ana.z_far_holo_m,
                                                                                           ana.z_near_holo_m))

@@ -310,10 +310,10 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
         fit_meta.update(iterations_done=list(res.iterations), loss_first=res.loss[0], loss_final=res.loss[-1],
                         illumination=[float(v) for v in power])
         timings["fit_s"] = res.seconds
-    else:  # directional frames are per image point; a stereogram's phases are per plane wave, so it keeps coded ones
+    else:  # a stereogram's phases are per plane wave, not per image point: the mode says coded or independent
         for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
                                                   wavelengths_m=lams, frames=F, seed=optics.seed,
-                                                  coded=optics.frame_phases != "independent")):
+                                                  coded=optics.frame_phase_mode().stereogram_coded)):
             for a in range(0, F, step):
                 chunk = rs[a:a + step].contiguous()
                 wrp[a:a + step, c] = asm(chunk, zw - z_rs_m, lams[c], optics.pitch_m).numpy()

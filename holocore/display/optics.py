@@ -14,6 +14,8 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from holocore.trace.frame_phases import frame_phase_modes, get_frame_phases  # a leaf module: the modes' registry
+
 __all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "cone_sine",
            "common_cone_sine", "channel_of"]
 
@@ -96,13 +98,10 @@ class OpticsConfig(BaseModel):
     )
     frames: int = Field(default=8, ge=1, le=MAX_FRAMES, description=f"Time-multiplexed frames (1..{MAX_FRAMES}).")
     seed: int = Field(default=0, ge=0, lt=2**63, description="Seed of every random choice (rays, phase bank).")
-    frame_phases: Literal["coded", "independent", "directional"] = Field(
+    frame_phases: str = Field(
         default="coded",
-        description="Phases of the frames' image points: 'coded' (one random field plus a per-cell code ramp, so "
-                    "that the cross terms of nearby image cells cancel in the frame average: less speckle; "
-                    "holocore.trace.randomfield), 'independent' (one random field per frame, the paper's Eq. 4) or "
-                    "'directional' (frame m a plane wave towards one of F eye positions spread over the cone: no "
-                    "speckle, the defocus blur sampled by the frames a pupil holds; holocore.trace.beams).",
+        description="Phases of the frames' image points, a registered mode (holocore.trace.frame_phases): "
+                    + "; ".join(f"'{n}' ({get_frame_phases(n).summary})" for n in frame_phase_modes()) + ".",
     )
     eyebox: Literal["common", "per_colour"] = Field(
         default="common",
@@ -120,6 +119,16 @@ class OpticsConfig(BaseModel):
         default=1000.0, gt=0.0, allow_inf_nan=False,
         description="Largest z_wrp - z_inf accepted (mm); scenes needing more are refused.",
     )
+
+    @field_validator("frame_phases")
+    @classmethod
+    def _known_frame_phases(cls, v: str) -> str:
+        get_frame_phases(v)  # one line naming the registered modes otherwise
+        return v
+
+    def frame_phase_mode(self):
+        """The :class:`holocore.trace.frame_phases.FramePhases` object of ``frame_phases``."""
+        return get_frame_phases(self.frame_phases)
 
     @field_validator("wavelengths_nm")
     @classmethod

@@ -191,7 +191,7 @@ def test_directional_layers_put_a_plate_at_any_depth_in_phase_with_the_frame_bea
     zc = np.full((H, W), depth_m)
     frames = 7
     _, wrp, zs, counts = layer_fields(rgb, zc, focal_length_m=f, z_inf_m=zi, z_wrp_m=zw, pitch_m=PITCH,
-                                      wavelengths_m=LAMS, frames=frames, planes=1, directional=True)
+                                      wavelengths_m=LAMS, frames=frames, planes=1, frame_phases="directional")
     assert np.isfinite(wrp).all() and counts.tolist() == [H * W] and abs(zs[0] - z_holo) < 1e-12
     core = (slice(H // 2 - 6, H // 2 + 6), slice(W // 2 - 8, W // 2 + 8))  # far from the plate's edge waves
     for c, lam in enumerate(LAMS):
