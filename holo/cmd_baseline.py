@@ -86,7 +86,7 @@ def focal_stack(
     out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz (slm_field = sqrt(P_c) exp(i phase))."),
     planes: Optional[int] = typer.Option(None, "--planes", help="Focal-stack planes (1..64; default: as many "
                                          "as the image volume holds, up to 5, no two closer than the pupil's "
-                                         "depth of focus)."),
+                                         "depth of focus; 5 with --spacing-mm)."),
     spacing_mm: Optional[float] = typer.Option(None, "--spacing-mm", help="Plane spacing in hologram depth, mm "
                                                "(the paper used 1.25), centred on the image volume; default or "
                                                "0: the planes spread uniformly from the far to the near end of "

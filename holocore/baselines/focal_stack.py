@@ -243,8 +243,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     with ``planes`` and ``spacing_m``. Defaults from that volume: ``planes`` None is
     :func:`default_stack_planes` (up to 5, no two closer than the pupil's depth of focus for the longest
     wavelength), ``spacing_m`` None spreads them uniformly from the volume's far to its near end, so every plane
-    lies inside it; a ``spacing_m`` given keeps that spacing, centred on the volume (ValueError where the stack
-    does not fit between optical infinity and the WRP). ``pupil_diameter_m``: the eye's pupil of the targets and of the model
+    lies inside it; a ``spacing_m`` given keeps that spacing, centred on the volume, with 5 planes unless
+    ``planes`` says otherwise (ValueError where the stack does not fit between optical infinity and the WRP). ``pupil_diameter_m``: the eye's pupil of the targets and of the model
     (default: the one `holo evaluate` uses by default, :func:`holocore.evaluate.scoring.default_pupil_m` at +-0.5 deg).
     ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
     their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
@@ -286,7 +286,9 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
             raise ValueError(f"plane_z_m must hold 1..{MAX_PLANES} finite depths at or beyond z_inf "
                              f"({optics.z_inf_m * 1e3:g} mm), got {list(plane_z_m)!r}")
     else:
-        if planes is None:
+        if planes is None and spacing_m is not None:
+            planes = DEFAULT_PLANES  # a fixed spacing asked for: the paper's stack of 5
+        elif planes is None:
             # the longest wavelength has the deepest focus: planes that red cannot tell apart are not worth a target
             step = depth_of_focus_m(wavelength_m=max(optics.wavelengths_m), focal_length_m=f, pupil_diameter_m=D)
             planes = default_stack_planes(z_far_m=ana.z_far_holo_m, z_near_m=ana.z_near_holo_m, min_spacing_m=step)
