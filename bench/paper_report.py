@@ -237,7 +237,7 @@ class Runner:
 
         t0 = time.perf_counter()
         r = render_focal_stack(loaded, self.optics(frames), iterations=iterations, gt_spp=self.args.fs_gt_spp,
-                               spacing_m=spacing_m, display=PAPER, time_limit_s=time_limit_s)
+                               planes=5, spacing_m=spacing_m, display=PAPER, time_limit_s=time_limit_s)
         return r, time.perf_counter() - t0
 
     def fs_probe(self, meta: dict, pupil: float) -> tuple[float, float]:
