@@ -78,9 +78,10 @@ def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monk
 
     import holocore.optics.propagation as prop
     import holocore.pipeline as pipeline
+    import holocore.render_passes as passes
 
     banks, alive_at_asm = [], []
-    make_banks, asm = pipeline.frame_banks, prop.asm
+    make_banks, asm = passes.frame_banks, prop.asm
 
     def tracked_banks(*a, **k):
         out = make_banks(*a, **k)
@@ -92,7 +93,7 @@ def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monk
         alive_at_asm.append(sum(r() is not None for r in banks))
         return asm(*a, **k)
 
-    monkeypatch.setattr(pipeline, "frame_banks", tracked_banks)
+    monkeypatch.setattr(passes, "frame_banks", tracked_banks)
     monkeypatch.setattr(prop, "asm", spy_asm)
     optics = OpticsConfig(resolution_hw=(24, 32), frames=2, seed=3)
     pipeline.render_to_file(demo, tmp_path / "RESULT.npz", optics,
