@@ -10,38 +10,29 @@ the result does not depend on the chunking), and the propagation runs per chunk 
 
 A render reads one :class:`holocore.render_setup.RenderSetup` (:func:`holocore.render_setup.prepare_render`), runs
 its passes (:mod:`holocore.render_passes`: trace, then propagate) and describes itself in the result's meta
-(:func:`result_meta`).
+(:func:`holocore.render_meta.result_meta`).
 """
 
 from __future__ import annotations
 
 import json
-import platform
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Callable, Optional
 
 import numpy as np
 
-from holocore import __version__
 from holocore.display.optics import OpticsConfig
 from holocore.display.profiles import DisplayProfile
+from holocore.render_meta import RenderResult, display_meta_fields, result_meta, software_versions
 from holocore.render_passes import frame_banks, propagate_other, sampled_plan, sampling_meta, trace_passes
 from holocore.render_setup import RenderOptions, RenderSetup, plan_scene, prepare_render
 from holocore.sinks import FileSink, MemorySink
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene",
-           "frame_banks", "result_meta"]
+           "frame_banks", "display_meta_fields", "software_versions"]
 
 ProgressFn = Callable[[str, int, int], None]
-
-
-@dataclass
-class RenderResult:
-    slm_field: np.ndarray  # complex64 [F, C, H, W]
-    wrp_field: np.ndarray  # complex64 [F, C, H, W]
-    meta: dict
 
 
 def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOptions, *, progress, display,
@@ -57,48 +48,31 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     stats = trace_passes(setup, sink, timings=timings, progress=progress)
     propagate_other(setup, sink, timings=timings, progress=progress)
     timings["total_s"] = time.perf_counter() - t0
-    return sink, result_meta(setup, stats=stats, timings=timings, display=display)
+    return sink, _result_meta(setup, stats=stats, timings=timings, display=display)
 
 
-def result_meta(setup: RenderSetup, *, stats, timings: dict, display: Optional[DisplayProfile]) -> dict:
-    """The RESULT meta of a render (holocore.formats.meta checks it): what was rendered, how, and what it cost."""
-    from holocore.runtime.mitsuba_env import variant
-
-    pl, optics, options = setup.scene, setup.optics, setup.options
-    plan, ana, planes, eqs = pl.plan, pl.analysis, pl.planes, setup.equalisers
-    F, C, H, W = setup.shape_fchw
-    return {
-        "focal_length_m": pl.focal_length_m,
-        "z_inf_m": optics.z_inf_m,
-        "z_wrp_m": ana.z_wrp_m,
-        "wrp_planes_m": list(planes.z_m),
+def _result_meta(setup: RenderSetup, *, stats, timings: dict, display: Optional[DisplayProfile]) -> dict:
+    """The RESULT meta of a render (:func:`holocore.render_meta.result_meta` and the renderer's own fields)."""
+    pl, optics, options, eqs = setup.scene, setup.optics, setup.options, setup.equalisers
+    n_lit = len(setup.lit_idx)
+    own = {
+        "wrp_planes_m": list(pl.planes.z_m),
         "cone_equaliser": None if eqs is None else [
-            {"fresnel_zones": eq.fresnel_zones, "filtered": [eq.active(c) for c in range(len(setup.lit_idx))],
+            {"fresnel_zones": eq.fresnel_zones, "filtered": [eq.active(c) for c in range(n_lit)],
              "noise_to_signal": [round(eq.noise[c].noise_to_signal, 4) if c in eq.noise else None
-                                 for c in range(len(setup.lit_idx))]}
+                                 for c in range(n_lit)]}
             for eq in eqs],
-        "pitch_m": optics.pitch_m,
-        "wavelengths_m": list(optics.wavelengths_m),
-        "shape_fchw": [F, C, H, W],
-        "method": options.method,
-        "preset": options.preset,
-        "scene": setup.loaded.entry.name,  # bundle-relative (the loader's root is the XML's folder): no server path
-        "scene_sha256": getattr(setup.loaded.bundle, "sha256", None),
-        "optics": json.loads(optics.model_dump_json()),
-        "plan": json.loads(sampled_plan(plan, setup.schedule).model_dump_json()),
-        "analysis": json.loads(ana.model_dump_json()),
         "inventory": json.loads(pl.inventory.model_dump_json()),
-        "field_of_view": pl.field_of_view,
-        **display_meta_fields(display, optics),
-        "stats": stats.as_dict(),
-        "timings": timings,
-        "sampling": sampling_meta(options, plan.spp, setup.schedule),
+        "sampling": sampling_meta(options, pl.plan.spp, setup.schedule),
         "memory": {"budget_bytes": setup.budget_bytes, "estimated_peak_bytes": setup.peak_bytes,
                    "trace_passes": len(setup.passes), "frames_per_trace_pass": setup.frames_per_pass,
                    "frames_per_propagation_chunk": setup.frames_per_chunk, "streamed": not setup.in_memory},
         "device": str(setup.device),
-        "versions": software_versions(variant()),
     }
+    return result_meta(method=options.method, preset=options.preset, loaded=setup.loaded, optics=optics,
+                       scene_plan=pl, shape_fchw=setup.shape_fchw, timings=timings, display=display,
+                       plan=json.loads(sampled_plan(pl.plan, setup.schedule).model_dump_json()),
+                       stats=stats.as_dict(), extra=own)
 
 
 def render_loaded(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
@@ -143,22 +117,3 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
         checked = parse_result_meta(meta, what=f"result {Path(out_path).name}")  # MetaError naming the field
         writer.add("meta", np.array(json.dumps(checked.to_dict())))
     return meta
-
-
-def display_meta_fields(display: Optional[DisplayProfile], optics: OpticsConfig) -> dict:
-    """``display_profile`` (None: optics given directly, no profile) and ``display`` for a result's meta."""
-    if display is None:
-        return {"display_profile": None, "display": None}
-    from holocore.display.profiles import display_meta
-
-    return display_meta(display, optics)
-
-
-def software_versions(mi_variant: str) -> dict:
-    import drjit
-    import mitsuba
-    import torch
-
-    return {"holocore": __version__, "mitsuba": mitsuba.__version__, "drjit": drjit.__version__,
-            "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version(),
-            "variant": mi_variant}

@@ -29,7 +29,6 @@ focus planes as for a render.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from typing import Any, Callable, Optional, Sequence
@@ -77,7 +76,7 @@ def stack_plane_depths(*, z_inf_m: float, z_far_m: Optional[float], z_near_m: Op
             zs = zs + (zi - zs[0])
         if z_limit_m is not None and zs[-1] >= float(z_limit_m):
             raise ValueError(f"{planes} planes {s * 1e3:g} mm apart do not fit between optical infinity "
-                             f"({zi * 1e3:.4f} mm) and the WRP ({float(z_limit_m) * 1e3:.4f} mm): use fewer planes "
+               f"({zi * 1e3:.4f} mm) and the WRP ({float(z_limit_m) * 1e3:.4f} mm): use fewer planes "
                              "or a smaller spacing")
     return zs.astype(np.float64)
 
@@ -257,14 +256,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     from holocore.evaluate.groundtruth import GroundTruth
     from holocore.evaluate.scoring import default_pupil_m
     from holocore.optics.propagation import asm
-    from holocore.pipeline import (
-        RenderOptions,
-        RenderResult,
-        display_meta_fields,
-        plan_scene,
-        software_versions,
-    )
-    from holocore.runtime.mitsuba_env import variant
+    from holocore.render_meta import RenderResult, result_meta
+    from holocore.render_setup import RenderOptions, plan_scene
 
     gt_spp = validate.integer("gt_spp", gt_spp, 1, 1 << 16)
     wp = float(white_percentile)
@@ -284,7 +277,7 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
         zs = np.asarray([float(z) for z in plane_z_m], dtype=np.float64)
         if zs.size < 1 or zs.size > MAX_PLANES or not np.all(np.isfinite(zs)) or np.any(zs < optics.z_inf_m):
             raise ValueError(f"plane_z_m must hold 1..{MAX_PLANES} finite depths at or beyond z_inf "
-                             f"({optics.z_inf_m * 1e3:g} mm), got {list(plane_z_m)!r}")
+               f"({optics.z_inf_m * 1e3:g} mm), got {list(plane_z_m)!r}")
     else:
         if planes is None and spacing_m is not None:
             planes = DEFAULT_PLANES  # a fixed spacing asked for: the paper's stack of 5
@@ -326,28 +319,20 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     F, C = slm.shape[:2]
     hist = fit.loss
     step = max(1, len(hist) // 200)
-    meta: dict[str, Any] = {
-        **base_meta, "z_wrp_m": ana.z_wrp_m, "shape_fchw": [F, C, H, W],
-        "method": "focal-stack", "preset": None, "scene": str(loaded.entry),
-        "scene_sha256": getattr(loaded.bundle, "sha256", None),
-        "optics": json.loads(optics.model_dump_json()),
-        "analysis": json.loads(ana.model_dump_json()),
-        "focal_stack": {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
-                        "spacing_m": None if plane_z_m is not None else spacing_m,
-                        "pupil_diameter_m": D, "iterations": iterations, "iterations_done": fit.iterations,
-                        "time_limit_s": time_limit_s, "lr": lr, "gt_spp": gt_spp,
-                        "white_percentile": wp, "target_white": white, "scale": [float(v) for v in fit.scale],
-                        "illumination": [float(v) for v in power], "loss_first": hist[0], "loss_final": hist[-1],
-                        "loss_every": step, "loss": hist[::step], "phase_only": True},
-        "plan": {"summary": [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
-                             f"Mitsuba thin-lens targets through a {D * 1e3:.3g} mm pupil at {gt_spp} spp, "
-                             f"{F} phase-only frame(s) per colour optimised together "
-                             f"({'/'.join(str(n) for n in fit.iterations)} Adam steps) on "
-                             f"the frame-averaged amplitude, colours balanced by laser power",
-                             pl.field_of_view["summary"]]},
-        "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
-        "stats": {}, "timings": timings, "versions": software_versions(variant()),
-    }
+    summary = [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
+               f"Mitsuba thin-lens targets through a {D * 1e3:.3g} mm pupil at {gt_spp} spp, "
+               f"{F} phase-only frame(s) per colour optimised together "
+               f"({'/'.join(str(n) for n in fit.iterations)} Adam steps) on "
+               f"the frame-averaged amplitude, colours balanced by laser power"]
+    meta = result_meta(method="focal-stack", preset=None, loaded=loaded, optics=optics, scene_plan=pl,
+                       shape_fchw=(F, C, H, W), timings=timings, display=display, summary=summary,
+                       extra={"focal_stack": {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
+                           "spacing_m": None if plane_z_m is not None else spacing_m,
+                           "pupil_diameter_m": D, "iterations": iterations, "iterations_done": fit.iterations,
+                           "time_limit_s": time_limit_s, "lr": lr, "gt_spp": gt_spp,
+                           "white_percentile": wp, "target_white": white, "scale": [float(v) for v in fit.scale],
+                           "illumination": [float(v) for v in power], "loss_first": hist[0], "loss_final": hist[-1],
+                           "loss_every": step, "loss": hist[::step], "phase_only": True}})
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
 
 

@@ -20,7 +20,6 @@ planes); ``meta["method"] == "layers"``.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from typing import Any, Optional, Sequence
@@ -158,20 +157,14 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
 
 def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: int = 64,
                   progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
-    """The layer baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT.npz format).
+    """The layer baseline for a loaded scene -> :class:`holocore.render_meta.RenderResult` (RESULT.npz format).
 
     ``planes`` (1..256) uniform in hologram depth, ``spp`` (1..65536) Mitsuba samples per RGB-D pixel; frames,
     colors, pitch, seed and the WRP come from ``optics`` and the renderer's own scene analysis; ``display`` (a
     :class:`holocore.display.profiles.DisplayProfile`) is recorded in the meta as the renderer does.
     """
-    from holocore.pipeline import (
-        RenderOptions,
-        RenderResult,
-        display_meta_fields,
-        plan_scene,
-        software_versions,
-    )
-    from holocore.runtime.mitsuba_env import variant
+    from holocore.render_meta import RenderResult, result_meta
+    from holocore.render_setup import RenderOptions, plan_scene
 
     planes = validate.integer("planes", planes, 1, MAX_PLANES)
     spp = validate.integer("spp", spp, 1, MAX_SPP)
@@ -198,20 +191,10 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     timings["total_s"] = time.perf_counter() - t0
     if progress:
         progress("propagate", 1, 1)
-    F, C, H, W = slm.shape
-    meta: dict[str, Any] = {
-        "focal_length_m": pl.focal_length_m, "z_inf_m": optics.z_inf_m, "z_wrp_m": ana.z_wrp_m,
-        "pitch_m": optics.pitch_m, "wavelengths_m": list(optics.wavelengths_m), "shape_fchw": [F, C, H, W],
-        "method": "layers", "preset": None, "scene": str(loaded.entry),
-        "scene_sha256": getattr(loaded.bundle, "sha256", None),
-        "optics": json.loads(optics.model_dump_json()),
-        "analysis": json.loads(ana.model_dump_json()),
-        "layers": {"planes": planes, "spp": spp, "plane_z_m": [float(z) for z in zs],
-                   "pixels_per_plane": [int(n) for n in counts]},
-        "plan": {"summary": [f"layer baseline: {planes} planes uniform in dioptres, RGB-D at {spp} spp, random "
-                             f"phase per frame, ASM plane -> WRP -> SLM, no occlusion handling",
-                             pl.field_of_view["summary"]]},
-        "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
-        "stats": {}, "timings": timings, "versions": software_versions(variant()),
-    }
+    summary = [f"layer baseline: {planes} planes uniform in dioptres, RGB-D at {spp} spp, {optics.frame_phases} "
+               f"frame phases, ASM plane -> WRP -> SLM, no occlusion handling"]
+    meta = result_meta(method="layers", preset=None, loaded=loaded, optics=optics, scene_plan=pl,
+                       shape_fchw=slm.shape, timings=timings, display=display, summary=summary,
+                       extra={"layers": {"planes": planes, "spp": spp, "plane_z_m": [float(z) for z in zs],
+                                         "pixels_per_plane": [int(n) for n in counts]}})
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)

@@ -28,7 +28,6 @@ paper shows); a point on the RS plane is resolved to one hogel (B p).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from typing import Any, Optional, Sequence
@@ -240,7 +239,7 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
                        z_rs_m: Optional[float] = None, fit: str = "stereogram", iterations: int = 200,
                        lr: float = 0.05, time_limit_s: Optional[float] = None, device: str = "cpu",
                        progress: Optional[Any] = None, display: Optional[Any] = None) -> Any:
-    """The light-field baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult`.
+    """The light-field baseline for a loaded scene -> :class:`holocore.render_meta.RenderResult`.
 
     ``hogel_px`` (1..256) pixels per hogel side, ``spp`` (1..16384) jittered rays per light-field sample,
     ``z_rs_m`` the RS plane's hologram depth (m; default :func:`rs_plane_depth`); frames, colours, pitch, seed
@@ -251,8 +250,8 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     sqrt(P_c) exp(i phi), P_c the colour's laser power).
     """
     from holocore.optics.propagation import asm
-    from holocore.pipeline import RenderOptions, RenderResult, display_meta_fields, plan_scene, software_versions
-    from holocore.runtime.mitsuba_env import variant
+    from holocore.render_meta import RenderResult, result_meta
+    from holocore.render_setup import RenderOptions, plan_scene
 
     hogel_px = validate.integer("hogel_px", hogel_px, 1, MAX_HOGEL_PX)
     spp = validate.integer("spp", spp, 1, MAX_SPP)
@@ -273,7 +272,7 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
         z_rs_m = validate.positive("z_rs_m", z_rs_m)
         if not optics.z_inf_m < z_rs_m < zw:
             raise ValueError(f"z_rs_m = {z_rs_m * 1e3:.4f} mm must lie between optical infinity "
-                             f"({optics.z_inf_m * 1e3:.4f} mm) and the WRP ({zw * 1e3:.4f} mm)")
+               f"({optics.z_inf_m * 1e3:.4f} mm) and the WRP ({zw * 1e3:.4f} mm)")
     timings["analysis_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     lams = list(optics.wavelengths_m)
@@ -325,24 +324,15 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     if progress:
         progress("propagate", 1, 1)
     F, C = slm.shape[:2]
-    meta: dict[str, Any] = {
-        "focal_length_m": pl.focal_length_m, "z_inf_m": optics.z_inf_m, "z_wrp_m": zw,
-        "pitch_m": optics.pitch_m, "wavelengths_m": lams, "shape_fchw": [F, C, H, W],
-        "method": "light-field", "preset": None, "scene": str(loaded.entry),
-        "scene_sha256": getattr(loaded.bundle, "sha256", None),
-        "optics": json.loads(optics.model_dump_json()),
-        "analysis": json.loads(ana.model_dump_json()),
-        "light_field": {"hogel_px": hogel_px, "spp": spp, "z_rs_m": float(z_rs_m),
-                        "hogels_hw": [-(-H // hogel_px), -(-W // hogel_px)],
-                        "hogel_size_um": hogel_px * optics.pitch_m * 1e6, **fit_meta},
-        "plan": {"summary": [f"light-field baseline: {hogel_px}x{hogel_px}-px hogels on a ray-sampling plane at "
-                             f"{z_rs_m * 1e3:.4f} mm, {spp} rays per sample, "
-                             + ("stereogram with random phase per frame, ASM RS plane -> WRP / SLM"
-                                if fit == "stereogram" else "phase-only frames fitted by SGD to the light field"),
-                             pl.field_of_view["summary"]]},
-        "field_of_view": pl.field_of_view, **display_meta_fields(display, optics),
-        "stats": {}, "timings": timings, "versions": software_versions(variant()),
-    }
+    summary = [f"light-field baseline: {hogel_px}x{hogel_px}-px hogels on a ray-sampling plane at "
+               f"{z_rs_m * 1e3:.4f} mm, {spp} rays per sample, "
+               + ("stereogram with random phase per frame, ASM RS plane -> WRP / SLM"
+                  if fit == "stereogram" else "phase-only frames fitted by SGD to the light field")]
+    meta = result_meta(method="light-field", preset=None, loaded=loaded, optics=optics, scene_plan=pl,
+                       shape_fchw=(F, C, H, W), timings=timings, display=display, summary=summary,
+                       extra={"light_field": {"hogel_px": hogel_px, "spp": spp, "z_rs_m": float(z_rs_m),
+                           "hogels_hw": [-(-H // hogel_px), -(-W // hogel_px)],
+                           "hogel_size_um": hogel_px * optics.pitch_m * 1e6, **fit_meta}})
     if not math.isfinite(float(np.abs(slm).max(initial=0.0))):
         raise ValueError("the light field holds non-finite radiance")
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
