@@ -1,4 +1,4 @@
-"""ScenePlan: everything known of a scene before it is traced (holocore.pipeline.plan_scene returns it): the
+"""ScenePlan: everything known of a scene before it is traced (holocore.render_setup.plan_scene returns it): the
 hologram's map, the scene's inventory, the pre-pass analysis, the effect plan, the focal length and view, and
 the recording planes. :meth:`ScenePlan.to_dict` is the JSON `holo plan --json` prints (and the service stores)."""
 
