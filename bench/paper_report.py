@@ -339,7 +339,7 @@ class Runner:
                for fn, z in focus for vn, e in views}
         gt_per_render = (time.perf_counter() - t_gt0) / len(gts)
         # The stack's Adam steps stop at the budget's wall time (its Mitsuba targets count in it); the probe's
-        # estimate is kept for the record: on this machine it missed by up to 40 % either way (ninth session).
+        # estimate is kept for the record: on this machine it missed by up to 40 % either way.
         per_it, final = self.fs_probe(meta, pupil)
         fixed_fs = 5 * gt_per_render * a.fs_gt_spp / a.gt_spp + final + 1.0
         it_probe = fit_count(B, fixed_fs, per_it, lo=1, hi=100_000)
