@@ -393,8 +393,9 @@ class Runner:
             from holocore.evaluate.viewer import viewer_score
 
             out["viewer"] = {"eye_grid": a.viewer_grid, "focus": [fn for fn, _z in focus], "methods": {}}
+            wanted = [m.strip() for m in a.viewer_methods.split(",") if m.strip()]
             for label, fld in fields.items():
-                if label.endswith("(complex)"):
+                if label.endswith("(complex)") or (wanted and label.split(" (")[0] not in wanted):
                     continue
                 vs = viewer_score(fld, meta, truth, eye_grid=a.viewer_grid, seed=0, focus_z_m=[z for _fn, z in focus])
                 d = vs.to_dict()
@@ -844,6 +845,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--view-deg", type=float, default=0.5)
     ap.add_argument("--viewer-grid", type=int, default=3,
                     help="Eye grid (n x n, jittered) of the viewer-faithful score over pupils 1.6-6 mm; 0: off.")
+    ap.add_argument("--viewer-methods", default="ours,layers,focal-stack",
+                    help="Methods the viewer-faithful score sees (comma list of labels without their '(...)' part: "
+                         "'ours' includes 'ours (<alt mode>)'; '': every method). Each costs pupils x grid x focus "
+                         "eye views (180 by default, minutes at 135x240).")
     ap.add_argument("--alt-frame-phases", choices=("", *frame_phase_modes()), default="directional",
                     help="Also render ours with these frame phases (labelled 'ours (<mode>)'); '': not.")
     ap.add_argument("--frame-phases", choices=frame_phase_modes(), default="coded",
