@@ -1,6 +1,21 @@
 #!/usr/bin/env bash
-# Sets everything up (scripts/setup.sh) and runs the whole test suite. Extra arguments go to pytest.
+# Runs the test suite. Two tiers:
+#   bash scripts/test.sh           the full suite (CI, and before pushing): sets everything up first
+#                                  (scripts/setup.sh), then every test
+#   bash scripts/test.sh --quick   the everyday run after a change: a representative subset, every package,
+#                                  under 4 minutes on 2 cores; the tests marked slow (tests/conftest.py,
+#                                  FULL_TIER_ONLY) are left to the full run. Sets up only a missing environment.
+# Other arguments go to pytest (e.g. a test file, -x, -k NAME).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+quick=0
+args=()
+for a in "$@"; do
+  if [ "$a" = "--quick" ]; then quick=1; else args+=("$a"); fi
+done
+if [ "$quick" = 1 ]; then
+  if ! .venv/bin/python -c "import holocore, mitsuba, torch" >/dev/null 2>&1; then bash scripts/setup.sh; fi
+  exec .venv/bin/python -m pytest -q -m "not slow" ${args[@]+"${args[@]}"}
+fi
 bash scripts/setup.sh
-exec .venv/bin/python -m pytest -q "$@"
+exec .venv/bin/python -m pytest -q ${args[@]+"${args[@]}"}
