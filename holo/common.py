@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any, Callable, NoReturn, Optional
 
 import typer
 
-from holocore.trace.frame_phases import frame_phase_modes, get_frame_phases
 
 if TYPE_CHECKING:
     from holocore.display.optics import OpticsConfig
@@ -122,9 +121,9 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
                                           "field of view filling the SLM width, instead of the display's f.")),
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
     ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="How the frames phase the image "
-                                                 "points (default coded): " + "; ".join(
-                                                     f"{n}: {get_frame_phases(n).summary}" for n in frame_phase_modes())
-                                                 + ".")),
+                                                 "points: coded (default), independent, directional, or a mode "
+                                                 "registered with holocore.trace.frame_phases (docs/physics.md); "
+                                                 "an unknown name is refused with the list.")),
     ("eyebox", Optional[str], typer.Option(None, "--eyebox", help="common (default: every colour cut to the "
                                            "smallest colour's cone, so the colour an eye sees does not change "
                                            "with its pupil) or per_colour (each colour its own cone).")),

@@ -19,9 +19,10 @@ so every implementation imports what it needs inside its methods.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Iterator, Optional, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
 
-import numpy as np
+if TYPE_CHECKING:  # numpy only in annotations: the API process and the agent import this module for its names
+    import numpy as np
 
 __all__ = ["FramePhases", "register_frame_phases", "frame_phase_modes", "get_frame_phases", "CodedPhases",
            "IndependentPhases", "DirectionalPhases"]

@@ -281,8 +281,8 @@ def test_jobs_run_together_only_while_their_memory_estimates_fit(tmp_path):
     assert launched[-1] == "j3"  # alone, 900 MB
 
 def test_render_stages_are_the_ones_holo_render_reports():
-    """The scheduler splits the render step by the stages `holo render` emits (issue 12: it once expected
-    "bank" and "cache", which nothing emits)."""
+    """The scheduler splits the render step by the stages `holo render` emits (it once expected "bank" and
+    "cache", which nothing emits)."""
     import re
     from typing import get_args
 
@@ -290,7 +290,8 @@ def test_render_stages_are_the_ones_holo_render_reports():
     from service.workers.runfiles import RENDER_STAGE_END
 
     assert tuple(RENDER_STAGE_END) == get_args(RenderStage)
-    src = "".join((REPO / "holocore" / f).read_text() for f in ("pipeline.py", "trace/hologram_rays.py"))
+    emitters = ("pipeline.py", "render_setup.py", "render_passes.py", "trace/hologram_rays.py")
+    src = "".join((REPO / "holocore" / f).read_text() for f in emitters)
     emitted = set(re.findall(r'progress\("([a-z-]+)"', src))
     assert emitted == set(get_args(RenderStage)), emitted
 
