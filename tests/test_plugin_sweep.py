@@ -96,11 +96,17 @@ for s in sorted(ALLOWED_PLUGINS["sampler"]):
     BODIES[("sampler", s)] = f'FILM:{SMALL_FILM}<sampler type="{s}"/>'
 for i in sorted(ALLOWED_PLUGINS["integrator"]):
     BODIES[("integrator", i)] = f'<integrator type="{i}"/>' + sphere()
-for m in ("homogeneous", "heterogeneous"):
-    BODIES[("medium", m)] = (f'<medium type="{m}" id="fog"><rgb name="sigma_t" value="0.1"/></medium>'
+# An absorbing homogeneous medium (albedo 0) is simulated (Beer-Lambert); the phase functions' media keep
+# Mitsuba's default albedo (0.75), which scatters, and a heterogeneous one is refused.
+for m, albedo in (("homogeneous", '<float name="albedo" value="0"/>'), ("heterogeneous", "")):
+    BODIES[("medium", m)] = (f'<medium type="{m}" id="fog"><rgb name="sigma_t" value="0.1"/>{albedo}</medium>'
                              '<shape type="sphere"><ref name="interior" id="fog"/><bsdf type="null"/></shape>')
+PHASE_PARAMS = {"blendphase": '<float name="weight" value="0.5"/><phase type="isotropic"/><phase type="hg"/>',
+                "tabphase": '<string name="values" value="0.5, 1.0, 1.5"/>',
+                "sggx": '<volume type="constvolume" name="S"><float name="value" value="1"/></volume>'}
 for p in ("isotropic", "hg", "rayleigh", "blendphase", "tabphase", "sggx"):
-    BODIES[("phase", p)] = (f'<medium type="homogeneous" id="fog"><phase type="{p}"/></medium>'
+    BODIES[("phase", p)] = (f'<medium type="homogeneous" id="fog"><phase type="{p}">{PHASE_PARAMS.get(p, "")}'
+                            '</phase></medium>'
                             '<shape type="sphere"><ref name="interior" id="fog"/><bsdf type="null"/></shape>')
 for v in ("constvolume", "gridvolume"):
     BODIES[("volume", v)] = ('<medium type="heterogeneous" id="fog"><volume type="' + v + '" name="sigma_t">'
@@ -123,10 +129,10 @@ REFUSED = {
     ("sensor", "orthographic"): "perspective sensor", ("sensor", "radiancemeter"): "perspective sensor",
     ("sensor", "irradiancemeter"): "perspective sensor", ("sensor", "batch"): "perspective sensor",
     ("film", "specfilm"): "specfilm", **{("spectrum", t): "spectral Mitsuba variant" for t in ("blackbody", "regular", "irregular")},
-    **{("medium", m): "participating media" for m in ("homogeneous", "heterogeneous")},
-    **{("phase", p): "participating media" for p in ("isotropic", "hg", "rayleigh", "blendphase", "tabphase",
-                                                   "sggx")},
-    **{("volume", v): "participating media" for v in ("constvolume", "gridvolume")},
+    ("medium", "heterogeneous"): "only when homogeneous",
+    **{("phase", p): "scatters (albedo > 0)" for p in ("isotropic", "hg", "rayleigh", "blendphase", "tabphase")},
+    ("phase", "sggx"): "cannot be evaluated",  # its S is a 6-channel volume; a constvolume has one
+    **{("volume", v): "only when homogeneous" for v in ("constvolume", "gridvolume")},
 }
 # Plugins whose input data the project cannot make (measured BSDFs are RGL tensor measurements): only the bundle
 # check is exercised, with a tensor file.

@@ -27,6 +27,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore import validate
+from holocore.plan.effects import reference_integrator
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers"]
@@ -58,7 +59,7 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
         "sampler": {"type": "independent", "sample_count": spp},
     })
     integ = mi.load_dict({"type": "aov", "aovs": "dd.y:depth",
-                          "integrator": {"type": "path", "max_depth": int(max_depth)}})
+                          "integrator": reference_integrator(scene, max_depth=int(max_depth))})
     img = np.array(mi.render(scene, sensor=sensor, integrator=integ, spp=spp, seed=int(seed)), dtype=np.float64)
     if img.ndim != 3 or img.shape[-1] != 5:
         raise RuntimeError(f"expected R, G, B, A and depth from Mitsuba's aov integrator, got shape {img.shape}")

@@ -35,6 +35,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore import validate
+from holocore.plan.effects import has_media, reference_integrator
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
@@ -145,7 +146,8 @@ def trace_light_field(scene: Any, hmap: Any, shape_hw: tuple[int, int], *, hogel
     spp = validate.integer("spp", spp, 1, MAX_SPP)
     Hh, Wh, B = _hogel_grid(shape_hw, hogel_px)
     if integrator is None:
-        integrator = scene.integrator() or mi.load_dict({"type": "path", "max_depth": DEFAULT_MAX_DEPTH})
+        integrator = (mi.load_dict(reference_integrator(scene, max_depth=DEFAULT_MAX_DEPTH)) if has_media(scene)
+                      else scene.integrator() or mi.load_dict({"type": "path", "max_depth": DEFAULT_MAX_DEPTH}))
     out = np.zeros((len(wavelengths_m), 3, Hh * B, Wh * B), dtype=np.float64)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1F7D]))
     sampler = mi.load_dict({"type": "independent"})

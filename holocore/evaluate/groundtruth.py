@@ -33,6 +33,7 @@ import numpy as np
 
 from holocore import validate
 from holocore.formats.meta import MetaLike, parse_view_meta
+from holocore.plan.effects import has_media, reference_integrator
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths",
@@ -119,8 +120,9 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
                              pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, spp=spp)
     if not 0 <= int(seed) < 2**31:
         raise ValueError(f"seed must be in 0..2^31-1, got {seed!r}")
-    if integrator is None and scene.integrator() is None:  # a scene without one: Mitsuba's path tracer
-        integrator = mi.load_dict({"type": "path", "max_depth": DEFAULT_MAX_DEPTH})
+    if integrator is None and (scene.integrator() is None or has_media(scene)):
+        # a scene without one: Mitsuba's path tracer; with media, volpath (path ignores them)
+        integrator = mi.load_dict(reference_integrator(scene, max_depth=DEFAULT_MAX_DEPTH))
     img = mi.render(scene, sensor=sensor, integrator=integrator, spp=int(spp), seed=int(seed))
     rgb = np.array(img, dtype=np.float32)[..., :3]  # [H, W, 3]
     rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0)

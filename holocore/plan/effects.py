@@ -18,7 +18,8 @@ from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 from holocore.plan.presets import PRESETS, PresetName
 from holocore.runtime.mitsuba_env import mitsuba
 
-__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor"]
+__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor", "has_media",
+           "reference_integrator"]
 
 MAX_DELTA_CAP = 16
 
@@ -51,6 +52,8 @@ class SceneInventory(BaseModel):
     emitters: list[str] = Field(default_factory=list)
     environment: bool = False
     bsdf_types: dict[str, int] = Field(default_factory=dict)
+    # Homogeneous absorbing media: where (shape interior / exterior, or the sensor) -> sigma_t per colour (1/m)
+    absorbing_media: dict[str, list[float]] = Field(default_factory=dict)
 
 
 class EffectPlan(BaseModel):
@@ -88,6 +91,28 @@ def has_mixed_delta(scene) -> bool:
     return any(sh.bsdf() is not None and is_mixed_delta(sh.bsdf().flags()) for sh in scene.shapes())
 
 
+def has_media(scene) -> bool:
+    """Whether the scene holds a medium anywhere: a shape's interior or exterior, or the first sensor."""
+    sensors = scene.sensors()
+    if sensors and sensors[0].get_medium() is not None:
+        return True
+    return any(sh.interior_medium() is not None or sh.exterior_medium() is not None for sh in scene.shapes())
+
+
+def reference_integrator(scene, *, max_depth: int) -> dict:
+    """Mitsuba's integrator for reference renders of ``scene`` (ground truth, baselines), as a ``load_dict``
+    dict: ``path``, or ``volpath`` where the scene holds media, which ``path`` ignores. Raises ValueError for
+    a medium with sigma_t = 0 in some colour and > 0 in another, where Mitsuba's ``volpath`` returns NaN in
+    every pixel (the hologram's own tracer is exact there)."""
+    if not has_media(scene):
+        return {"type": "path", "max_depth": int(max_depth)}
+    for where, sigma in _absorbing_media(scene).items():
+        if min(sigma) == 0 < max(sigma):
+            raise ValueError(f"the medium in {where} has sigma_t = 0 in a colour, where Mitsuba's volpath (the "
+                             "reference render) returns NaN: give that colour a small sigma_t (1e-6 /m)")
+    return {"type": "volpath", "max_depth": int(max_depth)}
+
+
 def inventory(scene) -> SceneInventory:
     mi = mitsuba()
     F = mi.BSDFFlags
@@ -114,8 +139,32 @@ def inventory(scene) -> SceneInventory:
         if has(F.Glossy):
             inv.glossy.append(name)
     inv.environment = scene.environment() is not None
+    inv.absorbing_media = _absorbing_media(scene)
     inv.bsdf_types = dict(types)
     return inv
+
+
+def _sigma_t_per_m(medium) -> list[float]:
+    """A homogeneous medium's extinction per colour (1/m; ``scale`` included), as the tracer reads it."""
+    mi = mitsuba()
+    import drjit as dr
+
+    _s, _n, sigma_t = medium.get_scattering_coefficients(dr.zeros(mi.MediumInteraction3f, 1), True)
+    return [float(sigma_t[c][0]) for c in range(3)]
+
+
+def _absorbing_media(scene) -> dict[str, list[float]]:
+    """Every medium the scene's shapes and sensor hold (the scene check has made them homogeneous and
+    absorbing), by where it sits."""
+    out: dict[str, list[float]] = {}
+    for sensor in scene.sensors()[:1]:
+        if sensor.get_medium() is not None:
+            out["sensor"] = _sigma_t_per_m(sensor.get_medium())
+    for i, sh in enumerate(scene.shapes()):
+        for side, medium in (("interior", sh.interior_medium()), ("exterior", sh.exterior_medium())):
+            if medium is not None:
+                out[f"{_name(sh, i)} ({side})"] = _sigma_t_per_m(medium)
+    return out
 
 
 def make_plan(
@@ -163,6 +212,13 @@ def make_plan(
         words.append(f"refraction: {', '.join(inv.dielectrics[:4])}, up to {cap} delta interfaces per path")
     if inv.mixed_delta:
         words.append(f"coated surfaces with a delta layer: {', '.join(inv.mixed_delta[:4])}")
+    for where, sig in inv.absorbing_media.items():
+        words.append(f"absorbing medium in {where}: sigma_t = ({', '.join(f'{x:.3g}' for x in sig)}) /m per "
+                     "colour, every path segment inside it attenuated by exp(-sigma_t d / 2) in amplitude "
+                     "(Beer-Lambert)")
+    # Mitsuba's integrators cannot continue a path that sits inside a medium where the kernel found P: the
+    # extra radiance samples are the kernel's own one sample then.
+    amp_spp = 1 if inv.absorbing_media else p.amp_spp
     if not coherent:
         words.append("no mirror or glass: coherent delta loop off, the first hit is the image point")
     elif force_all and n_delta_shapes == 0:
@@ -206,10 +262,10 @@ def make_plan(
     ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
     words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
-                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {p.amp_spp} radiance sample(s) per "
-                 f"image point")
+                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {amp_spp} radiance sample(s) per "
+                 f"image point" + (" (absorbing media: the tracer's own)" if amp_spp < p.amp_spp else ""))
     return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
                       use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
-                      spp=n, amp_spp=p.amp_spp, noise_to_signal=ratio, forced=force_all,
+                      spp=n, amp_spp=amp_spp, noise_to_signal=ratio, forced=force_all,
                       wrp_planes_m=[float(z) for z in planes],
                       summary=words)

@@ -124,9 +124,10 @@ def unsupported_reason(plugins: list[str]) -> str | None:
     """Why a scene using ``plugins`` ("tag:type", as the bundle report lists them) cannot become a hologram, in
     one line that says what to change; None when it can. Checked before Mitsuba parses the scene."""
     kinds = {p.split(":", 1)[0] for p in plugins}
-    if "medium" in kinds:
-        return ("participating media (<medium>, with its phase function and volumes) are not simulated by wave "
-                "path tracing: remove the medium from the scene (the hologram would silently ignore it)")
+    hetero = sorted(p.split(":")[1] for p in plugins if p.startswith("medium:") and p != "medium:homogeneous")
+    if hetero:
+        return (f"<medium type={hetero[0]!r}>: wave path tracing simulates participating media only when "
+                "homogeneous and absorbing (albedo 0): use a homogeneous medium or remove it")
     ellipsoids = sorted(p for p in plugins if p in ("shape:ellipsoids", "shape:ellipsoidsmesh"))
     if ellipsoids:
         return (f"Gaussian ellipsoid primitives (<shape type={ellipsoids[0].split(':')[1]!r}>) need Mitsuba's "
@@ -141,6 +142,45 @@ def unsupported_reason(plugins: list[str]) -> str | None:
         return (f"<spectrum type={tables[0]!r}> needs a spectral Mitsuba variant, and holograms render in RGB at the "
                 "display's laser lines: give that emitter or material an <rgb> value (spectral files given as "
                 "<spectrum filename=...> are converted and work)")
+    return None
+
+
+def _scatters(medium) -> bool:
+    """Whether a homogeneous medium scatters anywhere: sigma_s = albedo sigma_t > 0 in some colour. Raises
+    RuntimeError when Mitsuba cannot evaluate its coefficients (a phase function given the wrong volume)."""
+    mi = mitsuba()
+    import drjit as dr
+
+    mei = dr.zeros(mi.MediumInteraction3f, 1)
+    sigma_s, _sigma_n, _sigma_t = medium.get_scattering_coefficients(mei, True)
+    return any(float(dr.max(sigma_s[c])[0]) > 0 for c in range(3))
+
+
+def media_reason(scene) -> str | None:
+    """Why the scene's media cannot become a hologram, in one line naming the medium and the shape (or
+    sensor) holding it; None when every medium is homogeneous and absorbing (albedo 0), which the tracer
+    simulates as Beer-Lambert attenuation. A scattering medium would need volumetric light transport
+    (in-scattered radiance along each segment), which the wave path's image point model does not hold."""
+    holders = [(f"sensor {sensor.id() or '#' + str(i)!r}", sensor.get_medium())
+               for i, sensor in enumerate(scene.sensors())]
+    for i, sh in enumerate(scene.shapes()):
+        name = sh.id() or f"{sh.class_name().lower()}#{i}"
+        holders += [(f"shape {name!r} (interior)", sh.interior_medium()),
+                    (f"shape {name!r} (exterior)", sh.exterior_medium())]
+    for where, medium in holders:
+        if medium is None:
+            continue
+        what = f"medium {medium.id()!r} of {where}" if medium.id() else f"the medium of {where}"
+        if not medium.is_homogeneous():
+            return (f"{what} is not homogeneous: wave path tracing simulates participating media only when "
+                    "homogeneous and absorbing; use a homogeneous medium")
+        try:
+            scatters = _scatters(medium)
+        except RuntimeError as e:
+            return f"{what} cannot be evaluated by Mitsuba ({str(e).strip().splitlines()[0]}): fix or remove it"
+        if scatters:
+            return (f"{what} scatters (albedo > 0): wave path tracing simulates participating media only "
+                    "when absorbing (Beer-Lambert); set its albedo to 0 or remove the medium")
     return None
 
 
@@ -183,12 +223,18 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
     sensors = scene.sensors()
     if not sensors:
         raise ValueError(f"{entry} has no sensor: the hologram needs the scene's camera")
+    why = media_reason(scene)
+    if why is not None:
+        raise SceneLoadError(f"{entry.name}: {why}")
     return LoadedScene(scene=scene, entry=entry, sensor=sensors[0], fov_x_deg=_sensor_fov_x_deg(sensors[0]),
                        bundle=report)
 
 
 def from_mitsuba_scene(scene, *, name: str = "scene") -> LoadedScene:
     """Wrap a scene made with mi.load_dict (tests, demos)."""
+    why = media_reason(scene)
+    if why is not None:
+        raise SceneLoadError(f"{name}: {why}")
     sensor = scene.sensors()[0]
     return LoadedScene(scene=scene, entry=Path(f"{name}.xml"), sensor=sensor, fov_x_deg=_sensor_fov_x_deg(sensor),
                        bundle=None)

@@ -19,7 +19,8 @@ reference implementation's ``integrator.sample`` from the previous vertex does.
 
 One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in this order:
 
-1. :func:`_intersect`: the vertex the current segment reaches;
+1. :func:`_intersect`: the vertex the current segment reaches, and :func:`_absorb`: Beer-Lambert
+   attenuation of the segment by the homogeneous absorbing medium it travels in (docs/physics.md);
 2. :func:`_emission`: the emission found there by the previous BSDF sample, MIS-weighted (paper Eq. 1, L_e),
    or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
 3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
@@ -36,7 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
-from holocore.plan.effects import has_mixed_delta
+from holocore.plan.effects import has_media, has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.differentials import igehy_transfer
 
@@ -86,6 +87,7 @@ class _PathState:
     dD: object  # 4 x mi.Vector3d: direction differentials (same order)
     frame: object  # 2 x mi.Vector3d: the lateral frame (e1, e2) of v, carried through the delta vertices
     n_cur: object  # mi.Float64: index of refraction of the current medium relative to the start
+    medium: object  # mi.MediumPtr: the medium the current segment travels in (null: vacuum; None: no media)
     nd: object  # mi.UInt32: delta bounces so far
     # The outcome.
     d: object  # mi.Float64: apparent distance of P along v (m, world), set at P
@@ -109,6 +111,7 @@ class _Settings(NamedTuple):
     max_depth: mi.UInt32  # path depth counted from P (1: emission at P only)
     rr_depth: mi.UInt32  # Russian roulette from this depth on
     any_mixed: bool  # the scene has a BSDF with delta and smooth lobes
+    media: bool  # the scene holds absorbing media (a shape's interior or exterior, or the sensor's)
     cache: RadianceCache | None  # the fast variant's ambient cache
     keep_thr: bool  # record the chain's throughput at P
     keep_ray: bool  # record the segment that reached P
@@ -168,11 +171,11 @@ def trace_wave_paths(
     F64, V3d = mi.Float64, mi.Vector3d
     R = dr.width(o64)
     extra = amp_spp > 1 and integrator is not None
-    any_mixed = has_mixed_delta(scene)
+    any_mixed, media = has_mixed_delta(scene), has_media(scene)
     # Kernel parameters, not constants: one compiled kernel for every depth setting.
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
     s = _Settings(ctx=mi.BSDFContext(), max_delta=op_delta, max_depth=op_depth, rr_depth=op_rr,
-                  any_mixed=any_mixed, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
+                  any_mixed=any_mixed, media=media, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
                   keep_surface=surface)
 
     # The chain starts with A = I, B = 0 (DESIGN §4): two lateral shifts of O along e1, e2 (dP = e_i, dD = 0)
@@ -188,9 +191,11 @@ def trace_wave_paths(
         delta_prev=dr.full(mi.Bool, True, R),
         chain=dr.full(mi.Bool, True, R), D=V3d(v64), dP=[V3d(e1), V3d(e2), V3d(zero3), V3d(zero3)],
         dD=[V3d(zero3), V3d(zero3), V3d(e1), V3d(e2)], frame=[V3d(e1), V3d(e2)], n_cur=dr.full(F64, 1.0, R),
-        nd=dr.zeros(mi.UInt32, R),
+        medium=_sensor_medium(scene, R) if media else None, nd=dr.zeros(mi.UInt32, R),
         d=dr.zeros(F64, R), done=dr.full(mi.Bool, False, R), bad=dr.full(mi.Bool, False, R),
         capped=dr.full(mi.Bool, False, R), escaped=dr.full(mi.Bool, False, R), cached=dr.full(mi.Bool, False, R))
+    if media:
+        p.si_prev.p = mi.Point3f(o64)  # the first segment's start, for its length in a medium (MIS ignores it)
     if s.keep_thr:
         p.thr = dr.full(mi.Color3f, 1.0, R)
     if s.keep_ray:
@@ -201,6 +206,8 @@ def trace_wave_paths(
 
     def body(p: _PathState, sampler: mi.Sampler) -> tuple[_PathState, mi.Sampler]:
         v = _intersect(scene, p)  # 1. the vertex this segment reaches
+        if s.media:
+            _absorb(p, v)  # 1'. Beer-Lambert along the segment, before anything it carries is counted
         p.escaped |= p.active & v.chain0 & ~v.si.is_valid()  # a coherent path that leaves the scene
         Le = _emission(scene, p, v)  # 2. Eq. 1's L_e reached by the previous BSDF sample, MIS-weighted
         cached = mi.Bool(False)
@@ -245,6 +252,51 @@ def _intersect(scene: mi.Scene, p: _PathState) -> _Vertex:
     bsdf = si.bsdf(p.ray)
     return _Vertex(ray=p.ray, pi=pi, si=si, hit=hit, bsdf=bsdf, flags=bsdf.flags(), chain0=p.chain,
                    in_chain=hit & p.chain, is_emitter=si.shape.is_emitter())
+
+
+def _sensor_medium(scene: mi.Scene, width: int) -> mi.MediumPtr:
+    """The medium the ``width`` rays start in: the scene's first sensor's (Mitsuba's ``<sensor>`` holding a
+    ``<medium>``); null pointers (vacuum) when it has none."""
+    mi = mitsuba()
+    import drjit as dr
+
+    sensors = scene.sensors()
+    medium = sensors[0].get_medium() if sensors else None
+    none = dr.zeros(mi.MediumPtr, width)
+    return none if medium is None else dr.select(dr.full(mi.Bool, True, width), mi.MediumPtr(medium), none)
+
+
+def _sigma_t(medium, p: _PathState, v: _Vertex, active) -> mi.Color3f:
+    """A homogeneous medium's extinction sigma_t per colour (1/m; Mitsuba's ``scale`` included): one constant
+    per colour, so it is read at the segment's origin; 0 where ``active`` is off or the pointer is null."""
+    mi = mitsuba()
+    import drjit as dr
+
+    mei = dr.zeros(mi.MediumInteraction3f)
+    mei.p, mei.wi, mei.t, mei.wavelengths = p.ray.o, -p.ray.d, 0.0, v.si.wavelengths
+    _sigma_s, _sigma_n, sigma_t = medium.get_scattering_coefficients(mei, active)
+    return dr.select(active, sigma_t, 0.0)
+
+
+def _transmittance(sigma_t: mi.Color3f, t: mi.Float) -> mi.Color3f:
+    """Beer-Lambert, exp(-sigma_t t) per colour over t (m), in intensity (the amplitude takes its square
+    root, exp(-sigma_t t / 2)); exactly 1 where sigma_t = 0, also over an infinite t (no 0 * inf)."""
+    import drjit as dr
+
+    return dr.select(sigma_t > 0, dr.exp(-sigma_t * t), 1.0)
+
+
+def _absorb(p: _PathState, v: _Vertex) -> None:
+    """Step 1': the segment just traced crossed its medium (Mitsuba's media: the sensor's, or the side of the
+    last boundary the ray left into): the throughput takes its transmittance. Only homogeneous absorbing media
+    reach the tracer (the scene check refuses scattering ones). The length is measured from the previous
+    vertex, not from the spawned ray's origin, which Mitsuba offsets by ~1e-4 m; a segment that leaves the
+    scene inside a medium is fully absorbed."""
+    import drjit as dr
+
+    inside = p.active & (p.medium != None)  # noqa: E711 (Dr.Jit compares pointers lane by lane)
+    t = dr.select(v.si.is_valid(), dr.norm(v.si.p - p.si_prev.p), dr.inf)
+    p.beta = p.beta * _transmittance(_sigma_t(p.medium, p, v, inside), t)
 
 
 def _emission(scene: mi.Scene, p: _PathState, v: _Vertex) -> mi.Color3f:
@@ -293,6 +345,9 @@ def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sample
     go_on = v.in_chain & mi.has_flag(bs.sampled_type, Delta) & (bs.pdf > 0) & ~v.is_emitter
     at_p = v.in_chain & ~go_on
     mis_em = dr.select(ds.delta, 1.0, _mis(ds.pdf, pdf))
+    if s.media:  # the shadow segment's own medium: the side of a medium boundary it leaves into, else the ray's
+        shadow = dr.select(v.si.is_medium_transition(), v.si.target_medium(ds.d), p.medium)
+        em_w = em_w * _transmittance(_sigma_t(shadow, p, v, em_on & (shadow != None)), ds.dist)  # noqa: E711
     Lr = dr.select(em_on & ~go_on, p.beta * mis_em * val * em_w, 0.0)
     return _Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
 
@@ -365,7 +420,11 @@ def _incoherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, Le: mi.Color3f, g
     p.L = p.L + dr.select(counts, Le, 0.0) + lobes.Lr
 
     step = go_on | more
-    p.ray = dr.select(step, v.si.spawn_ray(v.si.to_world(bs.wo)), p.ray)
+    wo = v.si.to_world(bs.wo)
+    p.ray = dr.select(step, v.si.spawn_ray(wo), p.ray)
+    # Mitsuba's media: a boundary that carries media switches the ray's medium to the side it leaves into.
+    if s.media:
+        p.medium = dr.select(step & v.si.is_medium_transition(), v.si.target_medium(wo), p.medium)
     p.beta = dr.select(step, p.beta * w, p.beta)
     p.eta = dr.select(step, p.eta * bs.eta, p.eta)
     p.si_prev = dr.select(step, mi.Interaction3f(v.si), p.si_prev)
