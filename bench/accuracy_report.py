@@ -191,7 +191,8 @@ class SceneRun:
 
     def __init__(self, spec: SceneSpec, shape_hw: tuple[int, int], repeats: int, log) -> None:
         from holocore.display.optics import OpticsConfig
-        from holocore.plan.estimate import calibrate, load_calibration
+        from holocore.calibration import calibrate
+        from holocore.plan.estimate import load_calibration
         from holocore.scene.load import load_scene
 
         self.spec, self.repeats, self.log = spec, repeats, log

@@ -47,7 +47,7 @@ def calibrate(
             fail(f"--optics-json {optics_json}: expected a JSON object of OpticsConfig fields")
     if not 1 <= repeats <= 10:
         fail(f"--repeats must be in 1..10, got {repeats}")
-    from holocore.plan.estimate import calibrate as run
+    from holocore.calibration import calibrate as run
     from holocore.plan.estimate import save_calibration
 
     t0 = time.perf_counter()

@@ -101,11 +101,8 @@ def render(
             load_calibration,
             user_calibration_path,
         )
-        from holocore.plan.estimate_probe import (
-            estimate_with_probe,
-            probe_scene,
-            process_age_s,
-        )
+        from holocore.calibration import probe_scene
+        from holocore.plan.estimate_probe import estimate_with_probe, process_age_s
         from holocore.scene.load import load_scene
 
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray

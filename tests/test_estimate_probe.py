@@ -6,12 +6,8 @@ import pytest
 
 from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions
-from holocore.plan.estimate_probe import (
-    Probe,
-    estimate_with_probe,
-    probe_scene,
-    process_age_s,
-)
+from holocore.calibration import probe_scene
+from holocore.plan.estimate_probe import Probe, estimate_with_probe, process_age_s
 
 
 def test_prediction_adds_start_up_compile_and_the_scenes_own_ray_cost():

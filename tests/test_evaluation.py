@@ -347,7 +347,7 @@ def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
         load_calibration(broken)
     with pytest.raises(ValueError, match="encode_iterations"):
         estimate_seconds(o, RenderOptions(), encode_iterations=-1, calibration=cal)
-    from holocore.plan.estimate import calibrate
+    from holocore.calibration import calibrate
 
     with pytest.raises(ValueError, match="z_inf_mm"):  # refused before anything is rendered
         calibrate(optics={"z_inf_mm": -4.0})

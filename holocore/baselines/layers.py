@@ -27,8 +27,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore import validate
-from holocore.plan.effects import reference_integrator
 from holocore.display.optics import OpticsConfig
+from holocore.scene.features import reference_integrator
 
 __all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers"]
 

@@ -35,8 +35,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore import validate
-from holocore.plan.effects import has_media, reference_integrator
 from holocore.display.optics import OpticsConfig
+from holocore.scene.features import has_media, reference_integrator
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
            "hogel_amplitudes", "stereogram_fields", "stereogram_colours",

@@ -33,7 +33,7 @@ import numpy as np
 
 from holocore import validate
 from holocore.formats.meta import MetaLike, parse_view_meta
-from holocore.plan.effects import has_media, reference_integrator
+from holocore.scene.features import has_media, reference_integrator
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths",

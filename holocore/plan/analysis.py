@@ -12,7 +12,7 @@ from pydantic import BaseModel
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
-from holocore.trace.mapping import HologramMap
+from holocore.trace.mapping import HologramMap, camera_grid
 from holocore.trace.reference_chain import aligned, trace_chain
 
 __all__ = ["SceneAnalysis", "analyze", "SceneDoesNotFit"]
@@ -41,20 +41,6 @@ class SceneAnalysis(BaseModel):
     # Hologram depths of the image points, luminance-weighted quantiles (front to back): where the light is,
     # for placing several recording planes (holocore.plan.wrp_planes).
     image_depths_holo_m: list[float] = []
-
-
-def camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
-                 rng: np.random.Generator) -> np.ndarray:
-    """Eye-camera unit directions covering the hologram's field of view (x = f tan(angle)), jittered."""
-    H, W = shape_hw
-    f = hmap.focal_length_m
-    tx = 1.15 * W * pitch_m / (2 * f)
-    ty = 1.15 * H * pitch_m / (2 * f)
-    nx = n_side
-    ny = max(4, int(round(n_side * ty / tx))) if tx > 0 else n_side
-    gx, gy = np.meshgrid((np.arange(nx) + rng.random(nx)) / nx, (np.arange(ny) + rng.random(ny)) / ny)
-    d = np.stack([(2 * gx.ravel() - 1) * tx, (2 * gy.ravel() - 1) * ty, np.ones(gx.size)], axis=1)
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def _emitted_rgb(scene, seed: int, n: int = 256) -> np.ndarray:

@@ -22,7 +22,8 @@ When ``options.spp`` is None the preset's rays per pixel depend on the scene's d
 point's sub-hologram radius); the estimate then assumes a shallow scene (radius = WRP margin + 2 px) unless
 ``subhologram_radius_px`` is given.
 
-The cost model itself needs no numpy (the service's API process estimates a job with it); calibration does.
+The cost model itself needs no numpy (the service's API process estimates a job with it). Measuring the rates
+(``holocore.calibration``) runs the renderer, so it lives above the pipeline.
 """
 
 from __future__ import annotations
@@ -31,16 +32,14 @@ import json
 import math
 import numbers
 import os
-import platform
 import statistics
-import time
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
-           "user_calibration_path", "DEFAULT_CALIBRATION", "calibrate", "save_calibration", "features"]
+           "user_calibration_path", "DEFAULT_CALIBRATION", "CALIBRATION_VERSION", "save_calibration", "features"]
 
 DEFAULT_CALIBRATION = Path(__file__).resolve().parent / "data" / "calibration_default.json"
 CALIBRATION_VERSION = 1
@@ -220,151 +219,3 @@ def estimate_layers_seconds(optics: OpticsConfig, *, planes: int = 8, spp: int =
     fft = r.get("layer_fft", r["fft"])
     return float(r["analysis"] + r["layers_overhead"] + r["rgbd"] * H * W * spp + r["bank"] * bank
                  + fft * (int(planes) + 1) * F * C * P * math.log2(P))
-
-
-# ---- calibration ------------------------------------------------------------------------------------------
-_RUNS = (  # (H, W, preset, method, spp, frames)
-    (48, 64, "balanced", "wrp", 16, 1), (48, 64, "balanced", "wrp", 64, 8), (96, 128, "balanced", "wrp", 16, 4),
-    (96, 128, "balanced", "wrp", 48, 16), (48, 64, "fast", "wrp", 32, 4), (96, 128, "fast", "wrp", 16, 8),
-    (96, 128, "fast", "wrp", 48, 1), (48, 64, "reference", "wrp", 16, 4), (96, 128, "reference", "wrp", 16, 8),
-    (48, 64, "balanced", "direct", 64, 4), (96, 128, "balanced", "direct", 32, 16),
-    (96, 128, "fast", "direct", 32, 8), (48, 64, "balanced", "wrp", 32, 24),
-)
-
-
-def _fit(rows: list[list[float]], y: list[float]):
-    import numpy as np
-    from scipy.optimize import nnls
-
-    A = np.asarray(rows, dtype=np.float64)
-    b = np.asarray(y, dtype=np.float64)
-    scale = np.where(A.max(axis=0) > 0, A.max(axis=0), 1.0)
-    coef, _ = nnls(A / scale, b)
-    return coef / scale
-
-
-def _best_of(repeats: int, fn: Callable[[], Any], seconds: Callable[[Any], float]) -> Any:
-    """The run with the smallest time of ``repeats`` (timing noise on a shared machine only adds)."""
-    best = None
-    for _ in range(max(1, repeats)):
-        out = fn()
-        if best is None or seconds(out) < seconds(best):
-            best = out
-    return best
-
-
-def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeats: int = 2,
-              optics: Optional[dict] = None, progress: Optional[Callable[[str, int, int], None]] = None) -> dict:
-    """Time small renders, encodings and layer baselines on ``scene`` (default: the demo scene) and fit the
-    rates of the cost model; each run is repeated ``repeats`` times and the fastest kept. Returns a
-    calibration dict (save it with :func:`save_calibration`).
-
-    ``optics``: OpticsConfig fields every calibration run uses (z_inf_mm, focal_length_mm, pitch_um, ...; the
-    runs set resolution, frames and seed). The cost of a ray depends on where it goes (a direct ray from an SLM
-    80 mm away mostly leaves the field of view; from 4 mm it hits the scene), so calibrate with the optics the
-    estimates are for."""
-    if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= 10:
-        raise ValueError(f"repeats must be an integer in 1..10, got {repeats!r}")
-    base = dict(optics or {})
-    for k in ("resolution_hw", "frames", "seed"):
-        base.pop(k, None)
-    OpticsConfig(**base)  # refuse bad optics before anything runs
-    import tempfile
-
-    import numpy as np
-    import torch
-
-    from holocore.baselines.layers import render_layers
-    from holocore.encode.encoder import encode_sgd
-    from holocore.pipeline import RenderOptions, render_loaded
-    from holocore.scene.load import load_scene
-
-    with tempfile.TemporaryDirectory() as tmp:
-        if scene is None:
-            from holocore.scene.demo import write_demo_scene
-
-            scene = write_demo_scene(Path(tmp) / "demo", fov_deg=10.0)
-            label = "demo scene (holocore.scene.demo, 10 deg)"
-        else:
-            label = str(scene)
-        loaded = load_scene(scene)
-        primitives = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
-        runs = _RUNS[::2] if quick else _RUNS
-        total = len(runs) + 4
-        # Warm-up: compile every kernel once (the first render of a process pays for it).
-        for preset, method in {(r[2], r[3]) for r in runs}:
-            render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
-                          RenderOptions(preset=preset, method=method, spp=4))
-        render_layers(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2), planes=2, spp=4)
-        samples = []
-        for i, (H, W, preset, method, spp, F) in enumerate(runs):
-            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F, seed=i)
-            options = RenderOptions(preset=preset, method=method, spp=spp)
-            res = _best_of(repeats, lambda o=optics, op=options: render_loaded(loaded, o, op),
-                           lambda r: r.meta["timings"]["total_s"])
-            x = features(optics, options)
-            samples.append({"H": H, "W": W, "preset": preset, "method": method, "spp": spp, "frames": F,
-                            "features": {k: v for k, v in x.items() if k != "key"}, "key": x["key"],
-                            "timings": res.meta["timings"], "trace_s": res.meta["stats"]["seconds_trace"],
-                            "accumulate_s": res.meta["stats"]["seconds_accumulate"]})
-            if progress:
-                progress("calibrate", i + 1, total)
-        enc_samples = []
-        for j, (H, W, F, it) in enumerate(((48, 64, 4, 20), (96, 128, 8, 20))):
-            g = torch.Generator().manual_seed(j)
-            tgt = torch.polar(torch.rand((F, 3, H, W), generator=g), 6.3 * torch.rand((F, 3, H, W), generator=g))
-
-            def enc() -> float:
-                t0 = time.perf_counter()
-                encode_sgd(tgt, z_wrp_m=1e-3, wavelengths_m=[640e-9, 516.5e-9, 455.4e-9], pitch_m=8e-6,
-                           iterations=it, tol=0.0)
-                return time.perf_counter() - t0
-
-            P = 4 * H * W
-            enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * F * 3 * P * math.log2(P)})
-            if progress:
-                progress("calibrate", len(runs) + j + 1, total)
-        lay_samples = []  # RGB-D renders of 0.05 to 0.2 s: well above the timing noise
-        for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 128, 4), (96, 128, 8, 128, 8))):
-            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
-            res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
-                           lambda r: r.meta["timings"]["total_s"])
-            P = 4 * H * W
-            lay_samples.append({"t": res.meta["timings"], "pix_spp": H * W * spp,
-                                "fft": (planes + 1) * F * 3 * P * math.log2(P)})
-            if progress:
-                progress("calibrate", len(runs) + 3 + j, total)  # after the two encodings
-
-    rates: dict[str, Any] = {}
-    rates["analysis"] = float(np.median([s["timings"]["analysis_s"] for s in samples]))
-    banked = [s for s in samples if s["features"]["bank"] > 0]
-    rates["bank"] = float(_fit([[s["features"]["bank"]] for s in banked], [s["timings"]["bank_s"] for s in banked])[0])
-    cached = [s["timings"]["cache_s"] for s in samples if "cache_s" in s["timings"]]
-    rates["cache"] = float(np.median(cached)) if cached else 0.0
-    keys = sorted({s["key"] for s in samples})
-    rows = [[s["features"]["tiles"]] + [s["features"]["rays"] if s["key"] == k else 0.0 for k in keys]
-            for s in samples]
-    coef = _fit(rows, [s["trace_s"] for s in samples])
-    rates["tile"] = float(coef[0])
-    rates["ray"] = {k: float(c) for k, c in zip(keys, coef[1:])}
-    coef = _fit([[s["features"]["acc"], s["features"]["acc_frame"]] for s in samples],
-                [s["accumulate_s"] for s in samples])
-    rates["acc"], rates["acc_frame"] = float(coef[0]), float(coef[1])
-    rates["fft"] = float(_fit([[s["features"]["fft"]] for s in samples],
-                              [s["timings"]["propagate_s"] for s in samples])[0])
-    staged = ("analysis_s", "bank_s", "cache_s", "propagate_s")
-    rates["overhead"] = float(max(0.0, np.median([
-        s["timings"]["total_s"] - sum(s["timings"].get(k, 0.0) for k in staged) - s["trace_s"] - s["accumulate_s"]
-        for s in samples])))
-    rates["enc"] = float(_fit([[e["x"]] for e in enc_samples], [e["seconds"] for e in enc_samples])[0])
-    rates["rgbd"] = float(_fit([[s["pix_spp"]] for s in lay_samples], [s["t"]["rgbd_s"] for s in lay_samples])[0])
-    rates["layer_fft"] = float(_fit([[s["fft"]] for s in lay_samples], [s["t"]["propagate_s"] for s in lay_samples])[0])
-    rates["layers_overhead"] = float(max(0.0, np.median([
-        s["t"]["total_s"] - s["t"]["analysis_s"] - s["t"]["rgbd_s"] - s["t"]["propagate_s"] for s in lay_samples])))
-    import torch as _torch
-
-    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
-            "primitives": primitives,
-            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                        "cpus": os.cpu_count(), "torch_threads": _torch.get_num_threads()},
-            "repeats": repeats, "rates": rates, "samples": samples}

@@ -21,6 +21,7 @@ from typing import Any, Iterator
 
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.scene.errors import scrub_message
+from holocore.scene.features import shape_name
 
 __all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins", "unsupported_reason"]
 
@@ -123,7 +124,6 @@ _PERSPECTIVE = {"perspective", "thinlens"}
 def unsupported_reason(plugins: list[str]) -> str | None:
     """Why a scene using ``plugins`` ("tag:type", as the bundle report lists them) cannot become a hologram, in
     one line that says what to change; None when it can. Checked before Mitsuba parses the scene."""
-    kinds = {p.split(":", 1)[0] for p in plugins}
     hetero = sorted(p.split(":")[1] for p in plugins if p.startswith("medium:") and p != "medium:homogeneous")
     if hetero:
         return (f"<medium type={hetero[0]!r}>: wave path tracing simulates participating media only when "
@@ -164,7 +164,7 @@ def media_reason(scene) -> str | None:
     holders = [(f"sensor {sensor.id() or '#' + str(i)!r}", sensor.get_medium())
                for i, sensor in enumerate(scene.sensors())]
     for i, sh in enumerate(scene.shapes()):
-        name = sh.id() or f"{sh.class_name().lower()}#{i}"
+        name = shape_name(sh, i)
         holders += [(f"shape {name!r} (interior)", sh.interior_medium()),
                     (f"shape {name!r} (exterior)", sh.exterior_medium())]
     for where, medium in holders:

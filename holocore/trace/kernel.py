@@ -37,7 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
-from holocore.plan.effects import has_media, has_mixed_delta
+from holocore.scene.features import has_media, has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.differentials import igehy_transfer
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HologramMap", "camera_to_holo_xyz", "holo_to_camera_xyz"]
+__all__ = ["HologramMap", "camera_to_holo_xyz", "holo_to_camera_xyz", "camera_grid"]
 
 _FLIP_X = np.diag([-1.0, 1.0, 1.0])
 
@@ -124,3 +124,17 @@ class HologramMap:
         c1 = self.holo_to_camera(x + t[..., None] * u)
         v = c1 - c0
         return c0, v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def camera_grid(hmap: HologramMap, shape_hw: tuple[int, int], pitch_m: float, n_side: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Eye-camera unit directions covering the hologram's field of view (x = f tan(angle)), jittered."""
+    H, W = shape_hw
+    f = hmap.focal_length_m
+    tx = 1.15 * W * pitch_m / (2 * f)
+    ty = 1.15 * H * pitch_m / (2 * f)
+    nx = n_side
+    ny = max(4, int(round(n_side * ty / tx))) if tx > 0 else n_side
+    gx, gy = np.meshgrid((np.arange(nx) + rng.random(nx)) / nx, (np.arange(ny) + rng.random(ny)) / ny)
+    d = np.stack([(2 * gx.ravel() - 1) * tx, (2 * gy.ravel() - 1) * ty, np.ones(gx.size)], axis=1)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)

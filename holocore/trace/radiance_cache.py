@@ -82,7 +82,7 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
     mi = mitsuba()
     import drjit as dr
 
-    from holocore.plan.analysis import camera_grid
+    from holocore.trace.mapping import camera_grid
     from holocore.trace.kernel import trace_wave_paths
 
     rng = np.random.default_rng([seed, 4242])

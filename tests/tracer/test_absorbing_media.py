@@ -155,7 +155,7 @@ def test_ground_truth_and_reference_renders_see_the_medium():
     # The evaluation's ground truth (and the baselines) render with Mitsuba's volpath where a scene holds
     # media: its centre, seen through the slab, has the slab's colour; path would show it clear.
     from holocore.evaluate.groundtruth import render_ground_truth
-    from holocore.plan.effects import reference_integrator
+    from holocore.scene.features import reference_integrator
 
     centre = []
     for sigma in (None, SIGMA):
