@@ -1,6 +1,9 @@
 """`holo baseline layers`, `holo baseline focal-stack` and `holo baseline light-field`: the layer-based (RGB-D),
 the focal-stack and the light-field (stereogram) baseline holograms, in the renderer's RESULT.npz format, so that
-`holo view` and `holo evaluate` (and, for the layers and the light field, `holo encode`) treat them like a render."""
+`holo view` and `holo evaluate` (and, for the layers and the light field, `holo encode`) treat them like a render.
+`holo baseline run NAME` runs any baseline of the registry (`holocore.baselines.registry`) with its options as
+NAME=VALUE, `holo baseline list` lists them. The options are checked by each baseline's options model, the one
+place their limits live."""
 
 from __future__ import annotations
 
@@ -20,27 +23,70 @@ def register(app: typer.Typer) -> None:
     app.add_typer(baseline_app, name="baseline")
 
 
-def _check_adam(iterations: int, lr: float, time_limit_s: Optional[float], device: str) -> None:
-    """One-line errors for the options of an Adam fit (the focal stack's, the light field's)."""
-    if not 0 <= iterations <= 100_000:
-        fail(f"--iterations must be in 0..100000, got {iterations}")
-    if time_limit_s is not None and not (time_limit_s > 0 and time_limit_s < 1e7):
-        fail(f"--time-limit-s must be in (0, 1e7) s, got {time_limit_s}")
-    if not (lr > 0 and lr < 100):
-        fail(f"--lr must be in (0, 100), got {lr}")
-    if device not in ("cpu", "cuda", "auto"):
-        fail(f"--device must be cpu, cuda or auto, got {device!r}")
+def _run(name: str, scene: Path, out: Path, optics: OpticsOptions, values: dict,
+         stack: Optional[Path] = None) -> None:
+    """Check ``values`` with the baseline's options (a refusal names its flag), render, write RESULT.npz (and
+    STACK.npz where asked) and say what was made in one line."""
+    from holocore.baselines.registry import BaselineOptionsError, get_baseline
+
+    profile, optics_cfg = optics.resolve()
+    try:
+        baseline = get_baseline(name)
+        options = baseline.options(**values)
+    except BaselineOptionsError as exc:
+        fail(f"--{exc.field.replace('_', '-')}: {exc.reason}")
+    except ValueError as exc:
+        fail(str(exc))
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+    from holocore.io import save_result, save_stack
+    from holocore.scene.load import load_scene
+
+    t0 = time.perf_counter()
+    try:
+        result = baseline.render(load_scene(scene), optics_cfg, options, display=profile)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
+    if stack is not None:
+        from holocore.baselines.focal_stack import stack_of
+
+        phase, smeta = stack_of(result)
+        save_stack(stack, phase=phase, meta=smeta)
+    typer.echo(f"{name} baseline {Path(scene).name} for display {profile.name}: {baseline.describe(result.meta)}, "
+               f"in {time.perf_counter() - t0:.1f} s -> {out}" + (f" and {stack}" if stack is not None else ""),
+               err=True)
 
 
-def _torch_device(device: str) -> str:
-    """cpu, cuda or auto (cuda where there is one) -> the torch device to use; cuda without one is an error."""
-    import torch
+@baseline_app.command("list")
+def list_baselines() -> None:
+    """Every baseline there is, with its options (name, default) and what it does."""
+    from holocore.baselines.registry import baseline_names, get_baseline
 
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        fail("--device cuda: no CUDA device here")
-    return device
+    for name in baseline_names():
+        b = get_baseline(name)
+        opts = ", ".join(f"{k}={f.default!r}" for k, f in b.Options.model_fields.items())
+        typer.echo(f"{name}: {b.summary}\n    options: {opts}")
+
+
+@baseline_app.command("run")
+@with_optics_options
+def run(
+    name: str = typer.Argument(..., help="The baseline's name (holo baseline list)."),
+    scene: Path = typer.Argument(..., help="Scene folder (a bundle) or its Mitsuba XML file."),
+    out: Path = typer.Option(..., "--out", help="Where to write RESULT.npz."),
+    option: list[str] = typer.Option([], "--option", "-o", help="An option of the baseline as NAME=VALUE "
+                                     "(repeat it; holo baseline list names them)."),
+    optics: OpticsOptions = OpticsOptions(),
+) -> None:
+    """Any registered baseline by name, its options as NAME=VALUE."""
+    values = {}
+    for item in option:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            fail(f"--option wants NAME=VALUE, got {item!r}")
+        values[key.strip().replace("-", "_")] = value.strip()
+    _run(name, scene, out, optics, values)
 
 
 @baseline_app.command("layers")
@@ -53,30 +99,7 @@ def layers(
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """RGB-D layers: sqrt(image) per depth bin with random phase per frame, ASM to the WRP and the SLM."""
-    profile, optics_cfg = optics.resolve()
-    if not 1 <= planes <= 256:
-        fail(f"--planes must be in 1..256, got {planes}")
-    if not 1 <= spp <= 65536:
-        fail(f"--spp must be in 1..65536, got {spp}")
-    if not scene.exists():
-        fail(f"scene not found: {scene}")
-    from holocore.baselines.layers import render_layers
-    from holocore.io import save_result
-    from holocore.scene.load import load_scene
-
-    t0 = time.perf_counter()
-    try:
-        result = render_layers(load_scene(scene), optics_cfg, planes=planes, spp=spp, display=profile)
-    except (ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
-    m = result.meta
-    F, C, H, W = m["shape_fchw"]
-    used = sum(1 for n in m["layers"]["pixels_per_plane"] if n)
-    typer.echo(f"layer baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x {H}x{W}, {planes} planes "
-               f"({used} hold pixels) from {m['layers']['plane_z_m'][0] * 1e3:.4f} to "
-               f"{m['layers']['plane_z_m'][-1] * 1e3:.4f} mm, z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, "
-               f"in {time.perf_counter() - t0:.1f} s -> {out}", err=True)
+    _run("layers", scene, out, optics, dict(planes=planes, spp=spp))
 
 
 @baseline_app.command("focal-stack")
@@ -106,46 +129,9 @@ def focal_stack(
 ) -> None:
     """Focal stack: phase-only SGD of the frames on the frame-averaged amplitude at planes across the image
     volume, against Mitsuba thin-lens targets through the eye's pupil (time-multiplexed neural holography)."""
-    profile, optics_cfg = optics.resolve()
-    if planes is not None and not 1 <= planes <= 64:
-        fail(f"--planes must be in 1..64, got {planes}")
-    if spacing_mm is not None and not (spacing_mm >= 0 and spacing_mm < 1000):
-        fail(f"--spacing-mm must be in [0, 1000) mm, got {spacing_mm}")
-    if pupil_mm is not None and not (0 < pupil_mm <= 1000):
-        fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
-    _check_adam(iterations, lr, time_limit_s, device)
-    if not 1 <= gt_spp <= 65536:
-        fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
-    if not scene.exists():
-        fail(f"scene not found: {scene}")
-    from holocore.baselines.focal_stack import render_focal_stack, stack_of
-    from holocore.io import save_result, save_stack
-    from holocore.scene.load import load_scene
-
-    device = _torch_device(device)
-    t0 = time.perf_counter()
-    try:
-        result = render_focal_stack(load_scene(scene), optics_cfg, planes=planes,
-                                    spacing_m=spacing_mm * 1e-3 if spacing_mm else None,
-                                    pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3,
-                                    iterations=iterations, lr=lr, gt_spp=gt_spp, device=device, display=profile,
-                                    time_limit_s=time_limit_s)
-    except (ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
-    if stack is not None:
-        phase, smeta = stack_of(result)
-        save_stack(stack, phase=phase, meta=smeta)
-    m = result.meta
-    fs = m["focal_stack"]
-    F, C, H, W = m["shape_fchw"]
-    zs = fs["plane_z_m"]
-    typer.echo(f"focal-stack baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x "
-               f"{H}x{W}, {len(zs)} planes from {zs[0] * 1e3:.4f} to {zs[-1] * 1e3:.4f} mm, pupil "
-               f"{fs['pupil_diameter_m'] * 1e3:.3g} mm, loss {fs['loss_first']:.4g} -> {fs['loss_final']:.4g} in "
-               f"{'/'.join(str(n) for n in fs['iterations_done'])} steps (per colour), in "
-               f"{time.perf_counter() - t0:.1f} s -> {out}"
-               + (f" and {stack}" if stack is not None else ""), err=True)
+    _run("focal-stack", scene, out, optics, dict(planes=planes, spacing_mm=spacing_mm, pupil_mm=pupil_mm,
+                                                 iterations=iterations, time_limit_s=time_limit_s, lr=lr,
+                                                 gt_spp=gt_spp, device=device), stack=stack)
 
 
 @baseline_app.command("light-field")
@@ -170,37 +156,6 @@ def light_field(
     """Light field: a holographic stereogram on a ray-sampling plane (one plane wave per hogel and direction,
     random phase per frame, radiance from Mitsuba), ASM to the WRP and the SLM; or phase-only frames fitted to
     that light field (--fit sgd)."""
-    profile, optics_cfg = optics.resolve()
-    if fit not in ("stereogram", "sgd"):
-        fail(f"--fit must be stereogram or sgd, got {fit!r}")
-    _check_adam(iterations, lr, time_limit_s, device)
-    if not 1 <= hogel_px <= 256:
-        fail(f"--hogel-px must be in 1..256, got {hogel_px}")
-    if not 1 <= spp <= 16384:
-        fail(f"--spp must be in 1..16384, got {spp}")
-    if rs_mm is not None and not (0 < rs_mm < 1e6):
-        fail(f"--rs-mm must be a depth in mm > 0, got {rs_mm}")
-    if not scene.exists():
-        fail(f"scene not found: {scene}")
-    from holocore.baselines.light_field import render_light_field
-    from holocore.io import save_result
-    from holocore.scene.load import load_scene
-
-    device = _torch_device(device)
-    t0 = time.perf_counter()
-    try:
-        result = render_light_field(load_scene(scene), optics_cfg, hogel_px=hogel_px, spp=spp,
-                                    z_rs_m=None if rs_mm is None else rs_mm * 1e-3, fit=fit, iterations=iterations,
-                                    lr=lr, time_limit_s=time_limit_s, device=device, display=profile)
-    except (ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    save_result(out, slm_field=result.slm_field, wrp_field=result.wrp_field, meta=result.meta)
-    m = result.meta
-    lf = m["light_field"]
-    F, C, H, W = m["shape_fchw"]
-    typer.echo(f"light-field baseline {Path(scene).name} for display {profile.name}: {F} frame(s) x {C} color(s) x "
-               f"{H}x{W}, {lf['hogels_hw'][0]}x{lf['hogels_hw'][1]} hogels of {hogel_px} px at "
-               f"{lf['z_rs_m'] * 1e3:.4f} mm, {spp} rays per sample, "
-               + (f"{'/'.join(map(str, lf['iterations_done']))} Adam steps, " if fit == "sgd" else "")
-               + f"z_wrp = {m['z_wrp_m'] * 1e3:.3f} mm, in "
-               f"{time.perf_counter() - t0:.1f} s -> {out}", err=True)
+    _run("light-field", scene, out, optics, dict(hogel_px=hogel_px, spp=spp, rs_mm=rs_mm, fit=fit,
+                                                 iterations=iterations, lr=lr, time_limit_s=time_limit_s,
+                                                 device=device))

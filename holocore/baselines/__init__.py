@@ -1,2 +1,2 @@
-"""The methods we compare with, in the RESULT format: RGB-D layers (`layers`) and the focal stack
-(`focal_stack`)."""
+"""The methods we compare with, in the RESULT format, behind one interface (`registry`: `get_baseline`,
+`baseline_names`): RGB-D layers (`layers`), the focal stack (`focal_stack`), the light field (`light_field`)."""

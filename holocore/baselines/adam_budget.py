@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Optional
+from typing import Literal, Optional
+
+from pydantic import Field
 
 from holocore import validate
+from holocore.baselines.registry import BaselineOptions
 
-__all__ = ["MAX_ITERATIONS", "AdamOptions", "StepBudget"]
+__all__ = ["MAX_ITERATIONS", "AdamOptions", "AdamFitOptions", "StepBudget", "torch_device"]
 
 MAX_ITERATIONS = 100_000
 
@@ -61,3 +64,23 @@ class StepBudget:
             return False
         now = time.perf_counter()
         return now + (now - self.t_colour) / it > self.deadline
+
+
+class AdamFitOptions(BaselineOptions):
+    """The options every Adam phase fit of a baseline takes (the focal stack's, the light field's SGD)."""
+
+    iterations: int = Field(200, ge=0, le=MAX_ITERATIONS, description="Adam steps, the most")
+    lr: float = Field(0.05, gt=0, lt=100, description="Adam learning rate on the phases (rad)")
+    time_limit_s: Optional[float] = Field(None, gt=0, lt=1e7, description="wall time of the whole baseline (s)")
+    device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device: cpu, cuda or auto")
+
+
+def torch_device(device: str) -> str:
+    """cpu, cuda or auto (cuda where there is one) -> the torch device; ValueError for cuda without one."""
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device cuda: no CUDA device here")
+    return device

@@ -35,13 +35,17 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from pydantic import Field
+
 from holocore import validate
-from holocore.baselines.adam_budget import MAX_ITERATIONS, AdamOptions, StepBudget
+from holocore.baselines.adam_budget import MAX_ITERATIONS, AdamFitOptions, AdamOptions, StepBudget, torch_device
+from holocore.baselines.registry import Baseline, register_baseline
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "stack_plane_depths",
            "depth_of_focus_m", "default_stack_planes",
-           "optimise_focal_stack", "FocalStackFit", "render_focal_stack", "stack_of"]
+           "optimise_focal_stack", "FocalStackFit", "render_focal_stack", "stack_of", "FocalStackOptions",
+           "FocalStackBaseline"]
 
 DEFAULT_PLANES = 5
 DEFAULT_SPACING_M = 1.25e-3  # the paper's 5 planes at 1.25 mm spacing within 80-85 mm
@@ -350,3 +354,34 @@ def stack_of(result: Any) -> tuple[np.ndarray, dict]:
     meta["encoder"] = {"method": "focal-stack", "illumination": [list(map(float, fs["illumination"]))] * F,
                        "iterations": fs["iterations"]}
     return phase, meta
+
+
+class FocalStackOptions(AdamFitOptions):
+    planes: Optional[int] = Field(None, ge=1, le=64, description="focal-stack planes (default from the image volume)")
+    spacing_mm: Optional[float] = Field(None, ge=0, lt=1000, description="plane spacing in hologram depth (mm); "
+                                        "0 or None: spread over the image volume")
+    pupil_mm: Optional[float] = Field(None, gt=0, le=1000, description="eye pupil of the targets and the model (mm)")
+    gt_spp: int = Field(64, ge=1, le=65536, description="Mitsuba samples per pixel of each target")
+
+
+@register_baseline
+class FocalStackBaseline(Baseline):
+    name = "focal-stack"
+    summary = ("focal stack: phase-only Adam fit of the frames to Mitsuba thin-lens targets at planes across the "
+               "image volume, through the eye's pupil")
+    Options = FocalStackOptions
+
+    def describe(self, meta):
+        fs = meta["focal_stack"]
+        zs = fs["plane_z_m"]
+        return (f"{super().describe(meta)}, {len(zs)} planes from {zs[0] * 1e3:.4f} to {zs[-1] * 1e3:.4f} mm, pupil "
+                f"{fs['pupil_diameter_m'] * 1e3:.3g} mm, loss {fs['loss_first']:.4g} -> {fs['loss_final']:.4g} in "
+                f"{'/'.join(str(n) for n in fs['iterations_done'])} steps (per colour)")
+
+    def render(self, loaded, optics, options, *, display=None, progress=None):
+        return render_focal_stack(
+            loaded, optics, planes=options.planes, spacing_m=options.spacing_mm * 1e-3 if options.spacing_mm else None,
+            pupil_diameter_m=None if options.pupil_mm is None else options.pupil_mm * 1e-3,
+            iterations=options.iterations, lr=options.lr, gt_spp=options.gt_spp,
+            device=torch_device(options.device), progress=progress, display=display,
+            time_limit_s=options.time_limit_s)

@@ -26,11 +26,14 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from pydantic import Field
+
 from holocore import validate
+from holocore.baselines.registry import Baseline, BaselineOptions, register_baseline
 from holocore.display.optics import OpticsConfig
 from holocore.scene.features import reference_integrator
 
-__all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers"]
+__all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers", "LayersOptions", "LayersBaseline"]
 
 MAX_PLANES = 256
 MAX_SPP = 1 << 16
@@ -199,3 +202,25 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
                        extra={"layers": {"planes": planes, "spp": spp, "plane_z_m": [float(z) for z in zs],
                                          "pixels_per_plane": [int(n) for n in counts]}})
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
+
+
+class LayersOptions(BaselineOptions):
+    planes: int = Field(8, ge=1, le=256, description="depth layers, uniform in dioptres")
+    spp: int = Field(64, ge=1, le=65536, description="Mitsuba samples per pixel of the RGB-D image")
+
+
+@register_baseline
+class LayersBaseline(Baseline):
+    name = "layers"
+    summary = "RGB-D layers: sqrt(image) per depth bin with random phase per frame, ASM to the WRP and the SLM"
+    Options = LayersOptions
+
+    def describe(self, meta):
+        planes = meta["layers"]["plane_z_m"]
+        used = sum(1 for n in meta["layers"]["pixels_per_plane"] if n)
+        return (f"{super().describe(meta)}, {len(planes)} planes ({used} hold pixels) from "
+                f"{planes[0] * 1e3:.4f} to {planes[-1] * 1e3:.4f} mm")
+
+    def render(self, loaded, optics, options, *, display=None, progress=None):
+        return render_layers(loaded, optics, planes=options.planes, spp=options.spp, progress=progress,
+                             display=display)

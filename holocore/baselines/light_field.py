@@ -30,17 +30,21 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Optional, Sequence
+from typing import Any, Literal, Optional, Sequence
 
 import numpy as np
 
+from pydantic import Field
+
 from holocore import validate
+from holocore.baselines.adam_budget import AdamFitOptions, torch_device
+from holocore.baselines.registry import Baseline, register_baseline
 from holocore.display.optics import OpticsConfig
 from holocore.scene.features import has_media, reference_integrator
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
            "hogel_amplitudes", "stereogram_fields", "stereogram_colours",
-           "render_light_field"]
+           "render_light_field", "LightFieldOptions", "LightFieldBaseline"]
 
 MAX_HOGEL_PX = 256
 MAX_SPP = 1 << 14
@@ -338,3 +342,31 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     if not math.isfinite(float(np.abs(slm).max(initial=0.0))):
         raise ValueError("the light field holds non-finite radiance")
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
+
+
+class LightFieldOptions(AdamFitOptions):
+    hogel_px: int = Field(DEFAULT_HOGEL_PX, ge=1, le=256, description="hogel side in SLM pixels")
+    spp: int = Field(16, ge=1, le=16384, description="jittered Mitsuba rays per light-field sample")
+    rs_mm: Optional[float] = Field(None, gt=0, lt=1e6, description="hologram depth of the ray-sampling plane (mm)")
+    fit: Literal["stereogram", "sgd"] = Field("stereogram", description="stereogram: a complex field for the "
+                                              "encoder; sgd: phase-only frames fitted to the light field")
+
+
+@register_baseline
+class LightFieldBaseline(Baseline):
+    name = "light-field"
+    summary = ("light field: a holographic stereogram on a ray-sampling plane (or phase-only frames fitted to it), "
+               "ASM to the WRP and the SLM")
+    Options = LightFieldOptions
+
+    def describe(self, meta):
+        lf = meta["light_field"]
+        steps = f", {'/'.join(map(str, lf['iterations_done']))} Adam steps" if lf.get("iterations_done") else ""
+        return (f"{super().describe(meta)}, {lf['hogels_hw'][0]}x{lf['hogels_hw'][1]} hogels of {lf['hogel_px']} px "
+                f"at {lf['z_rs_m'] * 1e3:.4f} mm, {lf['spp']} rays per sample{steps}")
+
+    def render(self, loaded, optics, options, *, display=None, progress=None):
+        return render_light_field(loaded, optics, hogel_px=options.hogel_px, spp=options.spp,
+                                  z_rs_m=None if options.rs_mm is None else options.rs_mm * 1e-3, fit=options.fit,
+                                  iterations=options.iterations, lr=options.lr, time_limit_s=options.time_limit_s,
+                                  device=torch_device(options.device), progress=progress, display=display)
