@@ -88,12 +88,14 @@ def _load_builtins() -> None:
 def baseline_names() -> tuple[str, ...]:
     """Every registered baseline's name, built-in ones first."""
     _load_builtins()
-    return tuple(_REGISTRY)
+    builtin = [n for n, cls in _REGISTRY.items() if cls.__module__ in BUILTIN_MODULES]
+    builtin.sort(key=lambda n: BUILTIN_MODULES.index(_REGISTRY[n].__module__))
+    return tuple(builtin + [n for n in _REGISTRY if n not in builtin])
 
 
 def get_baseline(name: str) -> Baseline:
     """The baseline called ``name``; ValueError (with the names there are) for any other."""
     _load_builtins()
     if name not in _REGISTRY:
-        raise ValueError(f"unknown baseline {name!r}: one of {', '.join(_REGISTRY)}")
+        raise ValueError(f"unknown baseline {name!r}: one of {', '.join(baseline_names())}")
     return _REGISTRY[name]()
