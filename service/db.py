@@ -184,6 +184,19 @@ class Database:
             "worker_pid = NULL, error = NULL WHERE id = (SELECT id FROM jobs WHERE state = 'queued' "
             "ORDER BY created_at, rowid LIMIT 1) AND state = 'queued' RETURNING *", (now, now))
 
+    def delete_job(self, job_id: str, *, where_state: tuple[str, ...]) -> bool:
+        """Remove a job's row and its idempotency records, only while its state is one of ``where_state``."""
+        marks = ", ".join("?" for _ in where_state)
+        with self.tx() as conn:
+            n = conn.execute(f"DELETE FROM jobs WHERE id = ? AND state IN ({marks})", (job_id, *where_state)).rowcount
+            if n:
+                conn.execute("DELETE FROM idempotency WHERE job_id = ?", (job_id,))
+        return bool(n)
+
+    def jobs_with_artifact_dir(self, artifact_dir: str) -> int:
+        """How many jobs hold their files in ``artifact_dir`` (reused results share their first job's)."""
+        return self.one("SELECT COUNT(*) AS n FROM jobs WHERE artifact_dir = ?", (artifact_dir,))["n"]
+
     def list_jobs(self, *, state: Optional[str] = None, display: Optional[str] = None,
                   scene_id: Optional[str] = None, owner: Optional[str] = None, limit: int = 50) -> list[dict]:
         """Jobs newest first; ``owner`` limits them to one owner's (None: everyone's)."""
