@@ -8,6 +8,7 @@ import logging
 import os
 import time
 from contextlib import asynccontextmanager
+from typing import Optional
 
 from fastapi import Depends, FastAPI
 from fastapi.responses import JSONResponse, Response
@@ -15,7 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from service.api import displays, jobs, scenes, web
 from service.api.context import ServiceContext
-from service.api.deps import PRINCIPAL_KEY, authenticate, require
+from service.api.deps import PRINCIPAL_KEY, authenticate, require, scope_error
 from service.api.problems import ApiError, install_handlers, problem
 from service.db import Database
 from service.auth import Principal
@@ -27,6 +28,13 @@ from service.version import SERVICE_VERSION, code_version
 __all__ = ["create_app"]
 
 log = logging.getLogger("holo.service")
+
+# The largest body of any request but a scene upload: a job, an estimate, a heartbeat or a display
+# registration is a few kB of JSON, and FastAPI parses a JSON body whole before the route's checks run (a
+# 40 MB array of zeros held 200 MB of Python objects: a body of the upload limit, a few GB per request).
+JSON_BODY_BYTES = 1 << 20
+_UPLOAD = ("POST", "/v1/scenes")
+
 
 def _has_body(headers: dict) -> bool:
     try:
@@ -42,20 +50,40 @@ class _Guard:
     - a request to the API (``/v1/``) that carries a body is authenticated from its headers *before* a byte of
       the body is read: without a valid token the client gets 401 (or 429) at once and the connection is
       closed, so an anonymous client cannot make the server spool an upload (FastAPI reads a form before it
-      runs the route's dependencies). The principal is left in the scope for the route's scope check.
-    - bodies over ``max_body`` bytes are refused (413, from Content-Length or while streaming), and a body
+      runs the route's dependencies). The token must also hold the scope the route needs (403 before the body,
+      so a read or agent token cannot make the server receive an upload either). The principal is left in
+      the scope for the route's own check.
+    - bodies over the upload limit (scene uploads) or over ``JSON_BODY_BYTES`` (every other request) are refused
+      (413, from Content-Length or while streaming), and a body
       must arrive whole within ``body_timeout_s`` (408 and the connection closed: a client trickling a byte a
       second cannot hold a request open).
     - request counts and latency (time to the response start) per route template are recorded."""
 
-    def __init__(self, app, *, ctx: ServiceContext) -> None:
+    def __init__(self, app, *, ctx: ServiceContext, routers: tuple = ()) -> None:
         self.app = app
         self.ctx = ctx
+        # the routers, in the order the app includes them (without prefixes): which scope a request's route
+        # needs, known before its body is read
+        self.routers = routers
+        self._scopes: dict[int, Optional[str]] = {}
+
+    def _needed_scope(self, scope) -> Optional[str]:
+        """The scope the route of this request requires (None: no route matches, or it needs no token)."""
+        from starlette.routing import Match
+
+        for route in (r for router in self.routers for r in router.routes):
+            if hasattr(route, "dependant") and route.matches(scope)[0] is Match.FULL:
+                key = id(route)
+                if key not in self._scopes:
+                    self._scopes[key] = _dependency_scope(getattr(route, "dependant", None))
+                return self._scopes[key]
+        return None
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        limit = self.ctx.settings.upload_limits.max_body_bytes
+        upload = (scope.get("method"), scope.get("path")) == _UPLOAD
+        limit = self.ctx.settings.upload_limits.max_body_bytes if upload else JSON_BODY_BYTES
         headers = dict(scope.get("headers") or [])
         t0 = time.perf_counter()
         status = {"code": 500}
@@ -73,7 +101,11 @@ class _Guard:
         if _has_body(headers) and scope.get("path", "").startswith("/v1/"):
             try:
                 principal = scope[PRINCIPAL_KEY] = authenticate(self.ctx, scope)
-                if scope.get("method") == "POST" and scope.get("path") == "/v1/scenes":
+                needed = self._needed_scope(scope)  # a read token's upload is refused before it is received
+                refused = scope_error(principal, needed) if needed else None
+                if refused is not None:
+                    raise refused
+                if upload:
                     upload_of = self._start_upload(principal.owner)
             except ApiError as exc:
                 resp = problem(exc.status, exc.detail, instance=scope.get("path"),
@@ -158,6 +190,18 @@ class _Guard:
         m.requests.labels(method=scope.get("method", "?"), route=path, status=str(code)).inc()
         m.latency.labels(route=path).observe(time.perf_counter() - t0)
 
+def _dependency_scope(dependant) -> Optional[str]:
+    """The scope of the first ``require(...)`` dependency in a route's dependency tree (service/api/deps.py)."""
+    todo = [dependant] if dependant is not None else []
+    while todo:
+        d = todo.pop(0)
+        needed = getattr(d.call, "holo_scope", None)
+        if needed:
+            return needed
+        todo.extend(d.dependencies)
+    return None
+
+
 def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=None) -> FastAPI:
     """The service app. With ``start_workers`` its lifespan locks the data dir and runs the scheduler and the
     planner in this process (what `holo serve` does)."""
@@ -198,7 +242,7 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
                               "serve the stacks to display agents. Errors are application/problem+json.")
     app.state.ctx = ctx
     install_handlers(app)
-    app.add_middleware(_Guard, ctx=ctx)
+    app.add_middleware(_Guard, ctx=ctx, routers=(web.router, scenes.router, jobs.router, displays.router, app.router))
     app.add_middleware(web.SecurityHeaders)  # outermost: every answer, the Guard's 413 included
     app.include_router(web.router)  # before jobs: POST /v1/jobs/estimate, the page at /
     app.include_router(scenes.router)

@@ -13,8 +13,8 @@ from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal, allows, verify_token
 
-__all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "PRINCIPAL_KEY", "Ctx", "ReadScope",
-           "SubmitScope", "AgentScope", "AdminScope"]
+__all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "scope_error", "PRINCIPAL_KEY", "Ctx",
+           "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
 
 _bearer = HTTPBearer(auto_error=False, description="A token from `holo token create`.")
 _CHALLENGE = {"WWW-Authenticate": 'Bearer realm="holo"'}
@@ -87,6 +87,13 @@ def authenticate(ctx: ServiceContext, scope) -> Principal:
     raise ApiError(401, "invalid or revoked token (or expired)", headers=_CHALLENGE)
 
 
+def scope_error(principal: Principal, scope: str) -> Optional[ApiError]:
+    """The 403 for a token that lacks ``scope`` (None when it has it)."""
+    if allows(principal.scopes, scope):
+        return None
+    return ApiError(403, f"this token lacks the '{scope}' scope (it has: {', '.join(sorted(principal.scopes))})")
+
+
 def require(scope: str) -> Callable[..., Principal]:
     """A dependency that admits tokens allowing ``scope`` (401 without a valid token, 403 without the scope)."""
 
@@ -95,11 +102,13 @@ def require(scope: str) -> Callable[..., Principal]:
         # async on purpose: one indexed SQLite read (WAL readers never wait for writers) costs less than a
         # trip through the thread pool, which matters for agents polling status.
         principal = request.scope.get(PRINCIPAL_KEY) or authenticate(get_ctx(request), request.scope)
-        if not allows(principal.scopes, scope):
-            raise ApiError(403, f"this token lacks the '{scope}' scope (it has: {', '.join(sorted(principal.scopes))})")
+        refused = scope_error(principal, scope)
+        if refused is not None:
+            raise refused
         return principal
 
     dependency.__name__ = f"require_{scope}"
+    dependency.holo_scope = scope  # type: ignore[attr-defined] - read by the body guard (service/api/app.py)
     return dependency
 
 

@@ -212,17 +212,43 @@ def _answer(s: socket.socket, timeout: float) -> bytes:
 def test_an_unauthenticated_body_is_refused_before_it_is_read(live):
     """A 100 MB multipart with no token was spooled to disk before the 401. Now the 401 comes from the headers
     alone, with the body unsent, and the connection is closed."""
-    for auth in (b"", b"Authorization: Bearer hpt_x_wrong\r\n"):
+    reader, agent = (f"Authorization: Bearer {t}\r\n".encode() for t in (live.reader, live.agent))
+    for auth, status in ((b"", b"401"), (b"Authorization: Bearer hpt_x_wrong\r\n", b"401"),
+                         (reader, b"403"), (agent, b"403")):  # a valid token without submit: refused unread too
         head = (b"POST /v1/scenes HTTP/1.1\r\nHost: x\r\n" + auth
                 + b"Content-Type: multipart/form-data; boundary=XyZ\r\nContent-Length: 100000000\r\n\r\n")
         s = _raw(live, head, b'--XyZ\r\nContent-Disposition: form-data; name="bundle"; filename="b.zip"\r\n\r\n')
         t0 = time.monotonic()
         answer = _answer(s, 5.0)
         s.close()
-        assert answer.startswith(b"HTTP/1.1 401"), answer[:200]
+        assert answer.startswith(b"HTTP/1.1 " + status), answer[:200]
         assert time.monotonic() - t0 < 4 and b"connection: close" in answer.lower()
+        if status == b"403":
+            assert b"lacks the 'submit' scope" in answer, answer[-300:]
     staging = live.data_dir / "scenes" / ".staging"
     assert not staging.exists() or list(staging.iterdir()) == []
+
+
+def test_a_json_body_is_small_whatever_the_upload_limit(svc):
+    """Every route but the upload took bodies up to the upload limit (256 MiB) and FastAPI parsed them whole
+    before any check: a 40 MB JSON array held 200 MB, so a few submits of any token could take gigabytes."""
+    from service.api.app import JSON_BODY_BYTES
+
+    junk = b'{"scene_id": "sx", "junk": [' + b"0," * JSON_BODY_BYTES + b'0]}'
+    json_type = {"content-type": "application/json"}
+    with svc.client(svc.token("submit")) as c, svc.client(svc.token("agent")) as agent:
+        for client, path in ((c, "/v1/jobs"), (c, "/v1/jobs/estimate"), (agent, "/v1/displays/d1/heartbeat")):
+            r = client.post(path, content=junk, headers=json_type)  # declared length
+            assert r.status_code == 413 and f"limit of {JSON_BODY_BYTES} bytes" in r.json()["detail"], (path, r.text)
+            streamed = client.post(path, content=iter([junk[:1000], junk[1000:]]), headers=json_type)  # chunked
+            assert streamed.status_code == 413, (path, streamed.status_code, streamed.text[:200])
+        r = c.post("/v1/jobs", json={"scene_id": "snope", "optics": {"resolution_hw": [64, 64]}})
+        assert r.status_code == 422 and "no scene" in r.json()["detail"]  # a real job's body passes as before
+        # an upload may still be as large as the upload limit
+        big = {"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML, "notes.txt": os.urandom(JSON_BODY_BYTES).hex()
+                                         .encode()}), "application/zip")}
+        r = c.post("/v1/scenes", files=big)
+        assert r.status_code == 201, r.text
 
 
 def test_a_body_trickled_at_one_byte_a_second_times_out(live):
