@@ -27,7 +27,7 @@ from typing import Any, Optional, Protocol
 
 __all__ = ["Handle", "Engine", "LocalEngine", "group_alive", "kill_group", "driver_env", "RunAs",
            "SandboxUnavailable", "resolve_sandbox", "sandbox_blockers", "sandbox_env", "secure_data_dir",
-           "give_tree", "reclaim_tree", "kill_uids", "uid_alive"]
+           "give_tree", "reclaim_tree", "kill_uids", "uid_alive", "remove_leftovers", "SHARED_TMP"]
 
 _REPO = Path(__file__).resolve().parents[2]
 log = logging.getLogger("holo.service.sandbox")
@@ -260,6 +260,76 @@ def _uid_pids(uids: set[int]) -> list[int]:
     return pids
 
 
+# Folders every user may create entries in: what a sandbox user leaves there outlives its run (and /dev/shm is
+# memory), so it is removed once the user's processes are gone (the uid's next run may be another owner's).
+SHARED_TMP = ("/tmp", "/var/tmp", "/dev/shm", "/dev/mqueue")
+
+
+def remove_leftovers(uids, roots: tuple[str, ...] = SHARED_TMP, *, max_entries: int = 200_000) -> list[str]:
+    """Remove every entry the sandbox users ``uids`` own in the shared temporary folders ``roots`` (also in
+    world-writable folders below them, e.g. one another user made 0777), and their System V shared memory
+    segments, which outlive their processes too. Their processes must be gone. Returns what it removed."""
+    uids = set(uids)
+    removed: list[str] = []
+    left = [max_entries]  # a folder of millions of entries is not walked to its end
+
+    def sweep(folder: str, dev: int) -> None:
+        try:
+            it = os.scandir(folder)
+        except OSError:
+            return
+        with it:
+            for entry in it:
+                left[0] -= 1
+                if left[0] < 0:
+                    return
+                try:
+                    st = entry.stat(follow_symlinks=False)
+                except OSError:
+                    continue
+                if st.st_uid in uids:
+                    try:
+                        if stat.S_ISDIR(st.st_mode):
+                            shutil.rmtree(entry.path)  # fd-based on Linux: links inside are removed, not followed
+                        else:
+                            os.unlink(entry.path)
+                        removed.append(entry.path)
+                    except OSError as exc:
+                        log.warning("could not remove %s left by a sandbox user: %s", entry.path, exc)
+                elif stat.S_ISDIR(st.st_mode) and st.st_mode & stat.S_IWOTH and st.st_dev == dev:
+                    sweep(entry.path, dev)  # anyone may create entries in it
+
+    for root in roots:
+        try:
+            st = os.stat(root)
+        except OSError:
+            continue
+        if stat.S_ISDIR(st.st_mode):
+            sweep(root, st.st_dev)
+    removed.extend(_remove_shm_segments(uids))
+    return removed
+
+
+def _remove_shm_segments(uids: set[int]) -> list[str]:
+    try:
+        with open("/proc/sysvipc/shm") as fh:
+            rows = [ln.split() for ln in fh.read().splitlines()[1:]]
+    except OSError:
+        return []
+    ids = [int(r[1]) for r in rows if len(r) > 7 and int(r[7]) in uids]
+    if not ids:
+        return []
+    import ctypes
+    import ctypes.util
+
+    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    out = []
+    for shmid in ids:
+        if libc.shmctl(ctypes.c_int(shmid), ctypes.c_int(0), None) == 0:  # IPC_RMID
+            out.append(f"shm:{shmid}")
+    return out
+
+
 def uid_alive(uid: int) -> bool:
     """Whether any (non-zombie) process runs as ``uid``."""
     return bool(_uid_pids({uid}))
@@ -267,12 +337,16 @@ def uid_alive(uid: int) -> bool:
 
 def kill_uids(uids, *, timeout_s: float = 5.0) -> bool:
     """SIGKILL every process of the sandbox users ``uids`` (whatever group or session it moved to) until none
-    is left; returns whether none is."""
+    is left, then remove what they left in the shared temporary folders (:func:`remove_leftovers`: a run's
+    files there would reach the uid's next run, maybe another owner's); returns whether no process is left."""
     uids = set(uids)
     deadline = time.monotonic() + timeout_s
     while True:
         pids = _uid_pids(uids)
         if not pids:
+            gone = remove_leftovers(uids)
+            if gone:
+                log.info("removed what sandbox uids %s left in shared folders: %s", sorted(uids), gone[:20])
             return True
         if time.monotonic() > deadline:
             log.error("processes of sandbox uids %s survive SIGKILL: %s", sorted(uids), pids)

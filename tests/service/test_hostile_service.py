@@ -649,3 +649,61 @@ def test_scene_plans_are_claimed_in_turn_by_owner(svc):
         svc.db.update_scene(sid, plan_state="pending", plan=None)
     claimed = [svc.db.claim_next_plan()["id"] for _ in range(3)]
     assert claimed == ["salice0", "sbob", "salice1"], claimed
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="making files of another uid needs root")
+def test_what_a_sandbox_uid_leaves_in_shared_temporary_folders_is_removed_with_its_processes(tmp_path):
+    """Slot uids share /tmp, /var/tmp and /dev/shm, and the files a run left there stayed: the uid's next run
+    (another owner's job) could read them, and files in /dev/shm held memory until a reboot."""
+    import ctypes
+    import ctypes.util
+
+    from service.workers.engine import kill_uids, remove_leftovers
+
+    uid, other = 61_901, 61_902  # not the sandbox tests' uids
+    shared = tmp_path / "shared"
+    shared.mkdir(mode=0o1777)
+    os.chmod(shared, 0o1777)
+    world = shared / "made-0777-by-another"
+    world.mkdir()
+    os.chmod(world, 0o777)
+    closed = shared / "root-only"
+    closed.mkdir(mode=0o700)
+
+    def made_by(who: int, path: Path, *, folder: bool = False) -> Path:
+        if folder:
+            path.mkdir()
+            (path / "inside").write_bytes(b"x")
+            os.chown(path / "inside", who, who)
+        else:
+            path.write_bytes(b"secret of the last run")
+        os.chown(path, who, who)
+        return path
+
+    mine = [made_by(uid, shared / "f"), made_by(uid, shared / "d", folder=True), made_by(uid, world / "g")]
+    os.symlink("/etc/passwd", shared / "link")
+    os.lchown(shared / "link", uid, uid)
+    mine.append(shared / "link")
+    kept = [made_by(other, shared / "theirs"), made_by(uid, closed / "unreachable-to-it"), Path("/etc/passwd")]
+    gone = remove_leftovers({uid}, roots=(str(shared),))
+    assert sorted(gone) == sorted(map(str, mine)), gone
+    assert not any(os.path.lexists(p) for p in mine) and all(p.exists() for p in kept)
+    # System V shared memory outlives its processes too
+    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: become the sandbox uid, make a segment, leave
+        try:
+            os.setgroups([])
+            os.setgid(uid)
+            os.setuid(uid)
+            os.write(w, str(libc.shmget(0, 1 << 20, 0o1600)).encode())  # IPC_PRIVATE, IPC_CREAT | 0600
+        finally:
+            os._exit(0)
+    os.close(w)
+    shmid = int(os.read(r, 100) or b"-1")
+    os.close(r)
+    os.waitpid(pid, 0)
+    assert shmid >= 0
+    assert kill_uids({uid}, timeout_s=2.0)  # no processes left: the sweep of the real shared folders runs
+    assert libc.shmctl(ctypes.c_int(shmid), ctypes.c_int(0), None) != 0  # already removed
