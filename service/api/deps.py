@@ -51,6 +51,20 @@ def client_address(scope, trusted: tuple = ()) -> str:
     return hops[0] if hops else peer
 
 
+def failure_key(addr: str) -> str:
+    """What failed authentications are counted by: an IPv4 address, or an IPv6 address's /64 (one host is
+    commonly given a whole /64, so counting single IPv6 addresses would give it 2^64 fresh counts)."""
+    try:
+        ip = ipaddress.ip_address(addr)
+    except ValueError:
+        return addr
+    if ip.version == 4:
+        return str(ip)
+    if ip.ipv4_mapped is not None:  # ::ffff:a.b.c.d is that IPv4 client
+        return str(ip.ipv4_mapped)
+    return str(ipaddress.ip_network(f"{ip}/64", strict=False))
+
+
 def _in(addr: str, nets: tuple) -> bool:
     try:
         ip = ipaddress.ip_address(addr)
@@ -74,7 +88,7 @@ def authenticate(ctx: ServiceContext, scope) -> Principal:
     principal = verify_token(ctx.db, token) if token else None
     if principal is not None:
         return principal
-    client = client_address(scope, ctx.settings.trusted_proxy_networks)
+    client = failure_key(client_address(scope, ctx.settings.trusted_proxy_networks))
     wait = ctx.auth_failures.blocked_for(client, ctx.settings.auth_failures_per_minute)
     if wait > 0:
         raise ApiError(429, f"too many failed authentications from this address; try again in {wait:.0f} s",

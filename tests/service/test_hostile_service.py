@@ -173,6 +173,25 @@ def test_x_forwarded_for_counts_only_from_a_configured_proxy(tmp_path):
         ServiceSettings(data_dir=tmp_path, trusted_proxies="proxy.example")
 
 
+def test_an_ipv6_host_cannot_dodge_the_count_by_changing_address(tmp_path):
+    """A host is commonly given a whole IPv6 /64: counted per address, each of its 2^64 addresses had fresh
+    failures to spend."""
+    svc = App(tmp_path / "data", auth_failures_per_minute=3)
+    bad = {"Authorization": "Bearer hpt_x_wrong"}
+    for i in range(3):
+        with svc.client(address=f"2001:db8:0:1::{i + 1:x}") as c:
+            assert c.get("/v1/jobs", headers=bad).status_code == 401
+    with svc.client(address="2001:db8:0:1:ffff::9") as c:  # the same /64
+        assert c.get("/v1/jobs", headers=bad).status_code == 429
+        assert c.get("/v1/jobs", headers={"Authorization": f"Bearer {svc.token('read')}"}).status_code == 200
+    with svc.client(address="2001:db8:0:2::1") as c:  # the next /64 is another host
+        assert c.get("/v1/jobs", headers=bad).status_code == 401
+    with svc.client(address="::ffff:192.0.2.7") as c6, svc.client(address="192.0.2.7") as c4:
+        for _ in range(3):  # an IPv4 client seen through a mapped address is that client
+            assert c6.get("/v1/jobs", headers=bad).status_code == 401
+        assert c4.get("/v1/jobs", headers=bad).status_code == 429
+
+
 # ---- no body is read before authentication; a body has a deadline --------------------------------------------
 
 @pytest.fixture(scope="module")
