@@ -222,6 +222,17 @@ class Database:
             counts[r["state"]] = r["n"]
         return counts
 
+    def owner_scene_bytes(self, owner: str) -> int:
+        """Bytes of the unpacked bundles of ``owner``'s scenes (from their reports)."""
+        return int(self.one("SELECT COALESCE(SUM(json_extract(s.report, '$.total_bytes')), 0) AS n FROM scenes s "
+                            "JOIN scene_owners o ON o.scene_id = s.id WHERE o.owner = ?", (owner,))["n"] or 0)
+
+    def owner_job_folders(self, owner: str) -> list[dict]:
+        """State, folder and stored options of ``owner``'s jobs that hold their own folder (not reused results,
+        which share the folder of the job that computed them)."""
+        return self.query("SELECT id, state, artifact_dir, spec FROM jobs WHERE COALESCE(owner, 'default') = ? "
+                          "AND reused_from IS NULL", (owner,))
+
     def count_scenes(self, owner: str) -> int:
         return self.one("SELECT COUNT(*) AS n FROM scene_owners WHERE owner = ?", (owner,))["n"]
 

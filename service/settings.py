@@ -53,7 +53,7 @@ class ServiceSettings(BaseModel):
     ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray),
     ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle), ``HOLO_TRUSTED_PROXIES``
     (comma-separated), ``HOLO_BODY_TIMEOUT_S``, ``HOLO_MAX_QUEUED_JOBS_PER_OWNER``, ``HOLO_MAX_SCENES_PER_OWNER``,
-    ``HOLO_MAX_UPLOADS_PER_OWNER``, ``HOLO_OPEN_DISPLAY_OWNERS`` (comma-separated)."""
+    ``HOLO_MAX_UPLOADS_PER_OWNER``, ``HOLO_MAX_STORED_GB_PER_OWNER``, ``HOLO_OPEN_DISPLAY_OWNERS`` (comma-separated)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -98,6 +98,10 @@ class ServiceSettings(BaseModel):
     max_scenes_per_owner: int = Field(default=1000, ge=1, description="Scenes one owner may store; more get 403.")
     max_uploads_per_owner: int = Field(default=2, ge=1, description="Uploads of one owner in progress at once; "
                                                                    "more get 429 before their body is read.")
+    max_stored_gb_per_owner: Optional[float] = Field(default=None, gt=0, description="Bytes (GB) of scenes and "
+                                                     "job results one owner may store, counting what its queued "
+                                                     "jobs will write; uploads and submits past it get 403 "
+                                                     "(default: half the data dir's file system).")
     open_display_owners: list[str] = Field(default_factory=lambda: ["default"], description="Owners whose agents "
                                            "register a display name with their first heartbeat; any other "
                                            "owner's displays are registered by an admin (PUT /v1/displays/NAME).")
@@ -155,6 +159,14 @@ class ServiceSettings(BaseModel):
         return int(total - max(0.1 * total, 2**30))
 
     @property
+    def stored_bytes_per_owner(self) -> int:
+        """What one owner may store: ``max_stored_gb_per_owner``, else half the data dir's file system."""
+        if self.max_stored_gb_per_owner is not None:
+            return int(self.max_stored_gb_per_owner * 1e9)
+        st = os.statvfs(self.data_dir if self.data_dir.exists() else self.data_dir.parent)
+        return int(st.f_frsize * st.f_blocks // 2)
+
+    @property
     def sandbox_dir(self) -> Path:
         """Folders of sandboxed scene planning (``plan-<scene>/``)."""
         return self.data_dir / "sandbox"
@@ -175,6 +187,7 @@ class ServiceSettings(BaseModel):
                          ("max_queued_jobs_per_owner", "HOLO_MAX_QUEUED_JOBS_PER_OWNER"),
                          ("max_scenes_per_owner", "HOLO_MAX_SCENES_PER_OWNER"),
                          ("max_uploads_per_owner", "HOLO_MAX_UPLOADS_PER_OWNER"),
+                         ("max_stored_gb_per_owner", "HOLO_MAX_STORED_GB_PER_OWNER"),
                          ("open_display_owners", "HOLO_OPEN_DISPLAY_OWNERS")):
             if env.get(var):
                 data[key] = env[var]

@@ -6,6 +6,7 @@ reuse, and the submission itself (idempotency keys, content-addressed reuse, the
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 import secrets
 import sqlite3
@@ -17,6 +18,7 @@ from typing import Any, Optional
 from service.api.context import ServiceContext
 from service.api.problems import ApiError
 from service.auth import Principal
+from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.jobfiles import JobSpec
 from service.models import (
@@ -33,7 +35,8 @@ from service.models import (
 )
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY"]
+__all__ = ["admit_job", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY",
+           "output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
 
@@ -100,6 +103,73 @@ def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
                    encoder=req.encoder, iterations=req.iterations, method=req.method, wrp_planes=req.wrp_planes)
 
 
+# ---- what an owner stores -----------------------------------------------------------------------------------
+# Bytes a job writes per pixel, frame and colour: STACK.npz's float32 phase and 8-bit frames, frames.zip (PNGs
+# of those 8-bit frames, at most about their size), RESULT.npz's two complex64 fields when results are kept.
+_OUT_PER_SAMPLE = 4 + 1 + 1
+_RESULT_PER_SAMPLE = 16
+_OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
+
+
+def output_bytes(optics: dict, *, keep_result: bool) -> int:
+    """The most bytes a job with these (effective) optics leaves in its folder."""
+    h, w = optics.get("resolution_hw") or (1080, 1920)
+    n = int(h) * int(w) * len(optics.get("wavelengths_nm") or (0, 0, 0)) * int(optics.get("frames") or 1)
+    return n * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * int(h) * int(w) + _OUT_FIXED
+
+
+_finished_bytes: dict[str, tuple[int, int]] = {}  # a finished job's folder -> (its mtime_ns, bytes in it)
+
+
+def _folder_bytes(folder: str) -> int:
+    total = 0
+    for dirpath, _dirs, files in os.walk(folder):  # never follows a symlinked folder
+        for name in files:
+            try:
+                st = os.lstat(os.path.join(dirpath, name))
+            except OSError:
+                continue
+            total += st.st_size
+    return total
+
+
+def _finished_folder_bytes(folder: str) -> int:
+    try:
+        mtime = os.stat(folder).st_mtime_ns
+    except OSError:
+        return 0
+    hit = _finished_bytes.get(folder)
+    if hit is None or hit[0] != mtime:
+        hit = _finished_bytes[folder] = (mtime, _folder_bytes(folder))
+    return hit[1]
+
+
+def owner_stored_bytes(ctx: ServiceContext, owner: str) -> int:
+    """What ``owner`` stores: its scenes' bundles, its finished jobs' folders (a reused result counts once, for
+    the job that computed it) and, for each queued or running job, the most its run will leave."""
+    total = ctx.db.owner_scene_bytes(owner)
+    for row in ctx.db.owner_job_folders(owner):
+        folder = row["artifact_dir"] or ""
+        if row["state"] in FINAL_STATES:
+            total += _finished_folder_bytes(folder) if folder else 0
+        else:
+            optics = (row["spec"] or {}).get("optics") or {}
+            total += output_bytes(optics, keep_result=ctx.settings.keep_result)
+    return total
+
+
+def storage_error(ctx: ServiceContext, owner: str, adding: int, what: str) -> Optional[ApiError]:
+    """The 403 for an upload or job of ``adding`` bytes that would take ``owner`` past what it may store."""
+    cap = ctx.settings.stored_bytes_per_owner
+    stored = owner_stored_bytes(ctx, owner)
+    if stored + adding <= cap:
+        return None
+    return ApiError(403, f"this owner stores {stored / 1e9:.2f} GB of scenes and job results (counting what its "
+                         f"queued jobs will write) and {what} adds up to {adding / 1e9:.2f} GB, past the "
+                         f"{cap / 1e9:.3g} GB one owner may store (max_stored_gb_per_owner): delete finished jobs "
+                         "it no longer needs")
+
+
 def _job(ctx: ServiceContext, job_id: str) -> dict:
     row = ctx.db.get_job(job_id)
     if row is None:
@@ -144,6 +214,11 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}
     prev = reusable_job(ctx, key, principal.owner, fresh=True)
+    if prev is None:  # a reused result adds nothing; a new run writes its outputs
+        full = storage_error(ctx, principal.owner, output_bytes(row["spec"]["optics"],
+                                                                keep_result=ctx.settings.keep_result), "this job")
+        if full is not None:
+            raise full
     if prev is not None:
         row.update(state="succeeded", started_at=now, finished_at=now, artifact_dir=prev["artifact_dir"],
                    stack_sha256=prev["stack_sha256"], stack_bytes=prev["stack_bytes"], plan=prev["plan"],

@@ -28,6 +28,7 @@ from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import DEFAULT_OWNER
 from service.models import ID_PATTERN, SceneOut
+from service.submission import storage_error
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
 
 __all__ = ["router", "scene_out", "iso", "scene_id_for"]
@@ -72,8 +73,12 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
         entry_rel = report.entry.relative_to(root.resolve()).as_posix()
         scene_id = scene_id_for(owner, report.sha256, entry_rel)
         cap = ctx.settings.max_scenes_per_owner
-        if not ctx.db.scene_owned_by(scene_id, owner) and ctx.db.count_scenes(owner) >= cap:
-            raise UploadError(f"this owner stores {cap} scenes, the most it may (max_scenes_per_owner)", 403)
+        if not ctx.db.scene_owned_by(scene_id, owner):
+            if ctx.db.count_scenes(owner) >= cap:
+                raise UploadError(f"this owner stores {cap} scenes, the most it may (max_scenes_per_owner)", 403)
+            full = storage_error(ctx, owner, report.total_bytes, "this scene")
+            if full is not None:
+                raise UploadError(full.detail, 403)
         final = ctx.settings.scenes_dir / scene_id
         created = False
         if not (final / "bundle").is_dir():

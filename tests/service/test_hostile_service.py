@@ -726,3 +726,37 @@ def test_what_a_sandbox_uid_leaves_in_shared_temporary_folders_is_removed_with_i
     assert shmid >= 0
     assert kill_uids({uid}, timeout_s=2.0)  # no processes left: the sweep of the real shared folders runs
     assert libc.shmctl(ctypes.c_int(shmid), ctypes.c_int(0), None) != 0  # already removed
+
+
+def test_what_one_owner_stores_is_capped_in_bytes(tmp_path):
+    """The caps counted scenes and queued jobs, not bytes: 1000 scenes of 256 MiB, or finished jobs without
+    end (a 4096x2304 job with 64 frames and 3 colours leaves 40 GB), were one owner's to fill the disk with."""
+    from service.submission import output_bytes, owner_stored_bytes
+
+    svc = App(tmp_path / "data", max_stored_gb_per_owner=0.015)  # 15 MB an owner
+    svc.scene("alice", scene_id="salice")
+    svc.scene("bob", scene_id="sbob")
+    alice, bob = svc.token("submit", owner="alice"), svc.token("submit", owner="bob")
+    job = {"optics": {"resolution_hw": [256, 256], "wavelengths_nm": [520]}, "frames": 4}
+    one = output_bytes({"resolution_hw": [256, 256], "wavelengths_nm": [520], "frames": 4}, keep_result=True)
+    assert 10e6 < one < 11e6  # 256 x 256 x 4 samples, 22 bytes each, and the small files
+    with svc.client(alice) as a, svc.client(bob) as b:
+        first = a.post("/v1/jobs", json=small("salice", **job))
+        assert first.status_code == 202, first.text
+        r = a.post("/v1/jobs", json=small("salice", frames=4, optics={**job["optics"], "seed": 2}))
+        assert r.status_code == 403 and "max_stored_gb_per_owner" in r.json()["detail"], r.text
+        assert "0.015 GB one owner may store" in r.json()["detail"]
+        assert b.post("/v1/jobs", json=small("sbob", **job)).status_code == 202  # another owner's room is its own
+        # a finished job counts what its folder holds, not the prediction
+        svc.finish(first.json()["id"], b"x" * 1000)
+        assert owner_stored_bytes(svc.ctx, "alice") < 10_000
+        again = a.post("/v1/jobs", json=small("salice", frames=4, optics={**job["optics"], "seed": 2}))
+        assert again.status_code == 202, again.text
+        reused = a.post("/v1/jobs", json=small("salice", **job))  # a reused result adds nothing
+        assert reused.status_code == 202 and reused.json()["reused_from"] == first.json()["id"]
+        # an upload counts its unpacked bytes
+        files = {"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML, "big.txt": b"0123456789" * 600_000}),
+                 "application/zip")}
+        r = a.post("/v1/scenes", files=files)
+        assert r.status_code == 403 and "this scene adds up to 0.01 GB" in r.json()["detail"], r.text
+    assert ServiceSettings(data_dir=tmp_path).stored_bytes_per_owner > 0  # default: half the file system
