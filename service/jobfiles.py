@@ -61,6 +61,8 @@ class JobFile(JobOptions):
     attempt: Optional[int] = None  # files from before attempts were recorded
     scene_path: str
     keep_result: bool = True
+    # the kernel resource limits the driver lowers its own to first (service/workers/limits.py ProcessLimits)
+    limits: Optional[dict[str, int]] = None
 
 
 class ArtifactInfo(BaseModel):

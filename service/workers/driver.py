@@ -9,6 +9,11 @@ refused; ``status.json`` holds the message, and a step that crashed on its own: 
 SIGABRT, which the same input would give again), anything else (SIGKILL, the driver's own death) may be
 retried.
 
+Each step runs in an empty working folder of its own (a temporary one, removed after it), with absolute paths
+into the job dir: nothing a working directory holds is ever looked up (Mitsuba's default file resolver starts
+with it). The driver first lowers its own kernel resource limits to ``job.json``'s ``limits``
+(service/workers/limits.py; the steps inherit them); a step they stop fails for good, saying which limit.
+
 The driver leads its process group (the scheduler starts it with ``start_new_session``); the CLIs inherit the
 group, so one ``killpg`` stops the whole job. It asks the kernel for SIGTERM when its parent dies
 (``PR_SET_PDEATHSIG``) and then kills its group, and each CLI gets SIGKILL when the driver dies, so no render
@@ -21,9 +26,11 @@ import argparse
 import ctypes
 import json
 import os
+import resource
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import zipfile
 from pathlib import Path
@@ -37,6 +44,7 @@ from service.jobfiles import (
     Step,
     read_job_file,
 )
+from service.workers.limits import ProcessLimits, current_limits, explain_limit
 
 __all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm", "run_job"]
 
@@ -77,8 +85,9 @@ def _on_term(signum, frame) -> None:  # noqa: ARG001
 
 
 # Signals a step raises on itself when its input crashes it (Mitsuba on a malformed scene): a rerun crashes the
-# same way, so such a failure is final.
-_CRASH_SIGNALS = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGILL, signal.SIGFPE, signal.SIGABRT})
+# same way, so such a failure is final; so is a step its CPU-time or file-size limit stopped.
+_CRASH_SIGNALS = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGILL, signal.SIGFPE, signal.SIGABRT,
+                            signal.SIGXCPU, signal.SIGXFSZ})
 
 
 class StepFailed(Exception):
@@ -99,15 +108,31 @@ def _log_message(log: Path, prefix: str = "") -> Optional[str]:
     return None if last is None else last.removeprefix("error: ").removeprefix(prefix).strip()[:500]
 
 
+def _children_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> float:
-    """Run ``python -m MODULE ARGS`` (default: holo) as a child (same process group); returns seconds taken."""
+    """Run ``python -m MODULE ARGS`` (default: holo) as a child (same process group) in an empty working folder
+    (``args`` name files by absolute path); returns seconds taken."""
     write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
     t0 = time.monotonic()
-    with open(job_dir / f"{step}.log", "wb") as log:
+    cpu0 = _children_cpu_s()
+    with open(job_dir / f"{step}.log", "wb") as log, tempfile.TemporaryDirectory(prefix=f"holo-{step}-") as cwd:
         # the CLI dies with the driver, however the driver dies (even SIGKILL, which no handler sees)
         proc = subprocess.run([sys.executable, "-m", module, *args], stdout=log, stderr=subprocess.STDOUT,
-                              stdin=subprocess.DEVNULL, cwd=job_dir, preexec_fn=_child_dies_with_driver)
+                              stdin=subprocess.DEVNULL, cwd=cwd, preexec_fn=_child_dies_with_driver)
     if proc.returncode != 0:
+        try:
+            with open(job_dir / f"{step}.log", "rb") as fh:
+                fh.seek(max(0, fh.seek(0, os.SEEK_END) - 4000))
+                tail = fh.read().decode(errors="replace")
+        except OSError:
+            tail = ""
+        stopped = explain_limit(f"holo {step}", proc.returncode, tail, _children_cpu_s() - cpu0, current_limits())
+        if stopped is not None:
+            raise StepFailed(stopped, retryable=False)
         if proc.returncode < 0:
             sig = -proc.returncode
             if sig in _CRASH_SIGNALS:
@@ -159,9 +184,10 @@ def _peak_rss_bytes() -> int:
     return int(kib) * 1024
 
 
-def render_args(spec: JobFile, progress_path: str) -> list[str]:
-    """The job's `holo render` command line (after ``holo``), run in its job folder."""
-    args = ["render", spec.scene_path, "--out", "result.npz", "--optics-json", "optics.json",
+def render_args(spec: JobFile, progress_path: str, job_dir: Path = Path(".")) -> list[str]:
+    """The job's `holo render` command line (after ``holo``), its files in ``job_dir``."""
+    args = ["render", spec.scene_path, "--out", str(job_dir / "result.npz"), "--optics-json",
+            str(job_dir / "optics.json"),
             "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", progress_path]
     if spec.spp is not None:
         args += ["--spp", str(spec.spp)]
@@ -177,8 +203,8 @@ def run_job(job_dir: Path) -> RunStatus:
     timings: dict[str, float] = {}
     warnings: list[str] = []
     prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
-    timings["render_s"] = _run("render", render_args(spec, prog["render"]), job_dir)
-    encode = ["encode", "result.npz", "--out", "stack.npz", "--method", spec.encoder,
+    timings["render_s"] = _run("render", render_args(spec, prog["render"], job_dir), job_dir)
+    encode = ["encode", str(job_dir / "result.npz"), "--out", str(job_dir / "stack.npz"), "--method", spec.encoder,
               "--progress-jsonl", prog["encode"]]
     if spec.iterations is not None:
         encode += ["--iterations", str(spec.iterations)]
@@ -196,7 +222,8 @@ def run_job(job_dir: Path) -> RunStatus:
     # the preview image and the web page's focal sweep and view grid (service/workers/pictures.py), in one
     # process that reads the stack once (its seconds: pictures_s)
     try:
-        timings["pictures_s"] = _run("preview", ["stack.npz", "--out", "pictures", "--preview", "preview.png",
+        timings["pictures_s"] = _run("preview", [str(job_dir / "stack.npz"), "--out", str(job_dir / "pictures"),
+                                                "--preview", str(job_dir / "preview.png"),
                                                 "--preview-focus-mm", f"{preview_focus_mm(meta):.6f}"], job_dir,
                                     module="service.workers.pictures")
     except StepFailed as exc:
@@ -218,6 +245,17 @@ def run_job(job_dir: Path) -> RunStatus:
                      warnings=warnings)
 
 
+def _apply_limits(job_dir: Path) -> None:
+    """Lower this driver's resource limits to what ``job.json`` says (the steps inherit them); a job file
+    without them (written before they were) runs under the limits the driver was started with."""
+    try:
+        doc = json.loads((job_dir / "job.json").read_text()).get("limits")
+    except (OSError, ValueError, AttributeError):
+        return  # run_job reports the missing or broken job file
+    if doc is not None:
+        ProcessLimits.model_validate(doc).apply()
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("job_dir", type=Path)
@@ -228,6 +266,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     job_dir = args.job_dir.resolve()
     t0 = time.time()
     try:
+        _apply_limits(job_dir)
         status = run_job(job_dir)
         code = 0
     except StepFailed as exc:
@@ -241,7 +280,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     except (OSError, ValueError, AttributeError):
         attempt = None
     # uid: who ran it (a sandbox slot's uid when the service sandboxes jobs)
-    doc = {**status.to_json(), "total_s": time.time() - t0, "uid": os.getuid(), "attempt": attempt}
+    doc = {**status.to_json(), "total_s": time.time() - t0, "uid": os.getuid(), "attempt": attempt,
+           "limits": current_limits().model_dump(exclude_none=True)}  # what the run was held to
     write_json_atomic(job_dir / "status.json", doc)
     return code
 

@@ -5,7 +5,11 @@ With the sandbox on (service/workers/engine.py) the plan runs as the planner uid
 copy of the bundle in ``data_dir/sandbox/plan-<scene>/`` that it owns (its HOME and TMPDIR too); the copy is
 deleted afterwards, and so is anything the planner uid left running. Either way the plan runs in an empty
 working directory of its own, never the bundle's folder: Mitsuba's default file resolver starts with the working
-directory, and plugins are looked up through it as ``plugins/<name>.so``."""
+directory, and plugins are looked up through it as ``plugins/<name>.so``.
+
+The plan runs under kernel resource limits (service/workers/limits.py: memory, CPU time, open files, file
+size, and processes for the planner uid) and, besides, under a watch of its resident memory and wall clock; a
+plan stopped by any of them fails saying which."""
 
 from __future__ import annotations
 
@@ -32,12 +36,23 @@ from service.workers.engine import (
     resolve_sandbox,
     sandbox_env,
 )
+from service.workers.limits import ProcessLimits, explain_limit, plan_limits, wrap_command
 
 __all__ = ["Planner"]
 
 log = logging.getLogger("holo.service.planner")
 
 _WATCH_S = 0.25  # how often a running plan's resident memory is looked at
+
+
+def _cpu_seconds(pid: int) -> float:
+    """CPU time (user + system) process ``pid`` has used so far (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            rest = fh.read().rsplit(b")", 1)[1].split()
+        return (int(rest[11]) + int(rest[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def _rss_bytes(pid: int) -> int:
@@ -60,6 +75,8 @@ class Planner:
         # hold is killed (resident memory, watched; an address-space rlimit would also break CUDA, which
         # reserves far more than it uses).
         self.max_plan_rss_bytes = settings.worker_memory_bytes // 2
+        # the kernel's limits on the plan process (None: plan_limits of the settings, for the sandbox or not)
+        self.limits: Optional[ProcessLimits] = None
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._proc: Optional[subprocess.Popen] = None
@@ -130,7 +147,9 @@ class Planner:
         ``work``) when ``work`` is given. Killed past ``plan_timeout_s`` or ``max_plan_rss_bytes``."""
         import time
 
-        cmd = self._command(bundle / scene["entry"])
+        limits = self.limits or plan_limits(self.settings, sandboxed=work is not None)
+        cmd = wrap_command(limits, self._command(bundle / scene["entry"]))
+        cpu_used = 0.0
         extra = {} if work is None else self.run_as.popen_kwargs()
         if work is not None:
             log.info("scene %s: planning as uid %d", scene["id"], self.run_as.uid)
@@ -146,6 +165,7 @@ class Planner:
                     break
                 except subprocess.TimeoutExpired:
                     pass
+                cpu_used = max(cpu_used, _cpu_seconds(self._proc.pid))
                 rss = _rss_bytes(self._proc.pid)
                 if rss > self.max_plan_rss_bytes:
                     kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
@@ -163,7 +183,12 @@ class Planner:
         if self._stop.is_set():
             return  # stopped mid-plan: the scene stays 'running' and is planned again on the next start
         if rc != 0:
-            lines = [ln for ln in err.decode(errors="replace").strip().splitlines() if ln.strip()]
+            text = err.decode(errors="replace")
+            stopped = explain_limit("holo plan", rc, text[-4000:], cpu_used, limits)
+            if stopped is not None:
+                self._store(scene["id"], None, f"{stopped}; make the scene smaller")
+                return
+            lines = [ln for ln in text.strip().splitlines() if ln.strip()]
             msg = next((ln for ln in reversed(lines) if ln.startswith("error:")), lines[-1] if lines else "")
             if work is not None:  # the copy's path is nobody's business; say the bundle's
                 msg = msg.replace(str(bundle), str(self.settings.scenes_dir / scene["id"] / "bundle"))

@@ -12,6 +12,10 @@ uid ``sandbox_uid_base + 1 + k``: before launch the scene bundle is copied into 
 timed out, found on recovery) every process of that uid is killed, the dir is taken back (links and odd files
 dropped), the scene copy removed, and only then is the slot free again. ``status.json`` is the worker's word
 and is not trusted for integrity: the artifacts' hashes and sizes are the scheduler's own.
+
+Every run's ``job.json`` carries the kernel resource limits of its processes (service/workers/limits.py
+``job_limits``: memory, CPU time, open files, file size, processes for a sandbox uid), which the driver applies
+to itself before anything else, so every step inherits them.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from service.workers.engine import (
     resolve_sandbox,
     secure_data_dir,
 )
+from service.workers.limits import job_limits
 from service.workers.runfiles import ARTIFACTS, RUN_FILES, hash_artifacts, read_progress
 
 __all__ = ["Scheduler"]
@@ -296,8 +301,9 @@ class Scheduler:
                 scene_path = job_dir / "scene" / scene["entry"]
                 for sub in ("home", "tmp"):
                     (job_dir / sub).mkdir(exist_ok=True)
+            limits = job_limits(self.settings, sandboxed=run_as is not None)
             job_file = JobFile(**spec.options(), job_id=job_id, attempt=attempt, scene_path=str(scene_path),
-                               keep_result=self.settings.keep_result)
+                               keep_result=self.settings.keep_result, limits=limits.model_dump(exclude_none=True))
             write_json_atomic(job_dir / "job.json", job_file.model_dump(mode="json"))
             if run_as is not None:
                 give_tree(job_dir, run_as)
@@ -388,8 +394,9 @@ class Scheduler:
             timings["run_s"] = round(now - row["started_at"], 3)
             timings["queued_s"] = round(row["started_at"] - row["created_at"], 3)
         plan = status.plan
-        if status.warnings:
-            plan = {**(plan or {}), "warnings": list(status.warnings)}
+        if status.warnings:  # the steps name files by absolute path: the user sees them in the job's terms
+            roots = [self.settings.jobs_dir / job_id, self.settings.data_dir]
+            plan = {**(plan or {}), "warnings": [scrub_message(w, roots=roots) for w in status.warnings]}
         changed = self.db.update_job(
             job_id, where_state=("running",), state="succeeded", finished_at=now, stack_sha256=stack["sha256"],
             stack_bytes=stack["bytes"], timings=timings, plan=plan, error=None, artifacts=artifacts,

@@ -1,0 +1,199 @@
+"""Hostile uploads and jobs, the backstop: kernel resource limits (service/workers/limits.py) on the scene planner
+and on every process of a job, for whatever the bundle check and admission miss, and the steps of a job run in
+an empty working folder. Each test runs a stand-in for `holo plan` or a job step that does what a scene the
+checks let through could make Mitsuba do (fill memory, spin, write a huge file) and checks that it is stopped
+and fails for good in one line naming the limit. The bundle-side attacks are in test_hostile_bundles.py."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from service.workers.limits import ProcessLimits, job_limits, plan_limits
+from tests.service.helpers import REPO
+
+MB = 1 << 20
+
+
+class FakeDb:
+    def __init__(self) -> None:
+        self.stored: dict = {}
+
+    def update_scene(self, *a, **kw):
+        self.stored.update(kw)
+
+    def list_jobs(self, **kw):
+        return []
+
+
+def planner(tmp_path: Path, code: str, limits: ProcessLimits | None = None, **settings):
+    """A Planner whose `holo plan` is ``python -c CODE`` (its limits and the watch as the service sets them)."""
+    from service.settings import ServiceSettings
+    from service.workers import planner as planner_mod
+
+    s = ServiceSettings(data_dir=tmp_path / "data", **settings)
+    (s.scenes_dir / "s1" / "bundle").mkdir(parents=True)
+    db = FakeDb()
+    p = planner_mod.Planner(s, db)
+    p.limits = limits
+    p._command = lambda entry: [sys.executable, "-c", code]
+    return p, db
+
+
+_REPORT_LIMITS = """
+import json, resource
+names = {"memory_bytes": resource.RLIMIT_DATA, "cpu_s": resource.RLIMIT_CPU, "open_files": resource.RLIMIT_NOFILE,
+         "file_size_bytes": resource.RLIMIT_FSIZE, "core": resource.RLIMIT_CORE}
+print(json.dumps({"summary": [], "rlimits": {k: resource.getrlimit(v)[0] for k, v in names.items()}}))
+"""
+
+
+def test_the_plan_runs_under_the_settings_limits(tmp_path):
+    """The planner ran `holo plan` with the server's own (unlimited) rlimits: only a watch of its resident
+    memory and wall clock stood behind the bundle check."""
+    p, db = planner(tmp_path, _REPORT_LIMITS, worker_memory_mb=8000, plan_timeout_s=120)
+    p._plan({"id": "s1", "entry": "scene.xml"})
+    assert db.stored["plan_state"] == "ready", db.stored
+    want = plan_limits(p.settings, sandboxed=False)
+    assert want.memory_bytes == 4000 * 10**6 and want.cpu_s >= 120 and want.file_size_bytes == 1 << 30
+    got = db.stored["plan"]["rlimits"]
+    soft = {k: resource.getrlimit(v)[0] for k, v in (("open_files", resource.RLIMIT_NOFILE),)}
+    assert got == {"memory_bytes": want.memory_bytes, "cpu_s": want.cpu_s, "file_size_bytes": want.file_size_bytes,
+                   "open_files": min(want.open_files, soft["open_files"]), "core": 0}, got
+
+
+@pytest.mark.parametrize("code, limits, words", [
+    # memory the resident-memory watch would only see 0.25 s later (or never: allocated, not touched)
+    ("x = bytearray(1 << 30); import json; print(json.dumps({'summary': []}))", ProcessLimits(memory_bytes=256 * MB),
+     "holo plan needed more than the 268 MB of memory a process may use and was stopped"),
+    ("while True: pass", ProcessLimits(cpu_s=1), "holo plan used its 1 s of CPU time"),
+    ("f = open('big', 'wb'); f.write(b'x' * (3 << 20)); f.flush()",
+     ProcessLimits(file_size_bytes=MB), "holo plan tried to write a file over 1 MB"),
+])
+def test_a_plan_past_a_kernel_limit_fails_saying_which(tmp_path, code, limits, words):
+    p, db = planner(tmp_path, code, limits, plan_timeout_s=30)
+    p.max_plan_rss_bytes = 64 << 30  # the watch alone would let each of these through
+    t0 = time.monotonic()
+    p._plan({"id": "s1", "entry": "scene.xml"})
+    assert time.monotonic() - t0 < 20
+    assert db.stored["plan_state"] == "failed", db.stored
+    error = db.stored["plan_error"]
+    assert words in error and "\n" not in error and "Traceback" not in error, error
+
+
+def test_the_limits_never_raise_what_an_operator_set_lower(tmp_path):
+    code = ("import resource, sys; from service.workers.limits import ProcessLimits; "
+            "resource.setrlimit(resource.RLIMIT_CPU, (30, 60)); ProcessLimits(cpu_s=1000).apply(); "
+            "print(resource.getrlimit(resource.RLIMIT_CPU))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.stdout.strip() == "(30, 60)", out.stderr[-800:]
+
+
+# ---- jobs -------------------------------------------------------------------------------------------------------
+def _driver(tmp_path: Path, step_code: str, limits: dict | None) -> tuple[int, dict, Path]:
+    """Run the job driver's ``main`` in a process of its own with a job.json holding ``limits`` and one step,
+    ``python -m step`` running ``step_code`` (a stand-in for `holo render`)."""
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "step.py").write_text(step_code)
+    job = tmp_path / "job"
+    job.mkdir()
+    (job / "job.json").write_text(json.dumps({"job_id": "j1", "scene_path": "/nonexistent/scene.xml",
+                                              "optics": {}, **({"limits": limits} if limits else {})}))
+    code = ("import sys; from service.workers import driver\n"
+            "def run_job(job_dir):\n"
+            "    driver._run('render', [], job_dir, module='step')\n"
+            "    raise SystemExit('the step should have been stopped')\n"
+            "driver.run_job = run_job\n"
+            "sys.exit(driver.main([sys.argv[1]]))\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), str(mods)]))
+    proc = subprocess.run([sys.executable, "-c", code, str(job)], capture_output=True, text=True, timeout=120,
+                          env=env, cwd=tmp_path)
+    status = json.loads((job / "status.json").read_text()) if (job / "status.json").exists() else {}
+    return proc.returncode, status, job
+
+
+@pytest.mark.parametrize("step_code, limits, words", [
+    ("x = bytearray(1 << 30)\n", {"memory_bytes": 512 * MB},
+     "holo render needed more than the 537 MB of memory a process may use and was stopped"),
+    ("while True:\n    pass\n", {"cpu_s": 2}, "holo render used its 2 s of CPU time"),
+    ("import sys\nwith open(sys.argv[0] + '.out', 'wb') as f:\n    f.write(b'x' * (8 << 20))\n",
+     {"file_size_bytes": 4 * MB}, "holo render tried to write a file over 4 MB"),
+])
+def test_a_job_step_past_its_limits_fails_for_good_saying_which(tmp_path, step_code, limits, words):
+    """The scheduler's limits reach every step through job.json; without them the step fills memory, spins
+    until the job's 6 h wall clock, or fills the disk, and a SIGXCPU or SIGKILL was retried."""
+    from service.workers.driver import EXIT_FAILED
+
+    t0 = time.monotonic()
+    rc, status, _ = _driver(tmp_path, step_code, limits)
+    assert time.monotonic() - t0 < 60
+    assert rc == EXIT_FAILED and status.get("ok") is False and status.get("retryable") is False, (rc, status)
+    assert words in status["error"] and "\n" not in status["error"], status["error"]
+    for key, value in limits.items():
+        assert status["limits"][key] == value, status["limits"]
+
+
+def test_the_scheduler_hands_every_job_the_settings_limits(tmp_path):
+    from service.db import Database
+    from service.settings import ServiceSettings
+    from service.workers.engine import Handle
+    from service.workers.scheduler import Scheduler
+
+    launched = []
+
+    class FakeEngine:
+        name = "fake"
+
+        def launch(self, job_id, attempt, job_dir, **kw):
+            launched.append(json.loads((job_dir / "job.json").read_text()))
+            return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=None)
+
+    settings = ServiceSettings(data_dir=tmp_path / "data", worker_memory_mb=6000, job_timeout_s=100)
+    settings.data_dir.mkdir(parents=True)
+    db = Database(settings.db_path)
+    db.insert_scene({"id": "s1", "sha256": "0" * 64, "entry": "scene.xml", "report": {}, "plan_state": "ready",
+                     "created_at": time.time()})
+    db.insert_job({"id": "j1", "state": "running", "scene_id": "s1", "spec": {"optics": {}}, "cache_key": "k",
+                   "attempts": 1, "artifact_dir": str(settings.jobs_dir / "j1"), "created_at": time.time()})
+    Scheduler(settings, db, FakeEngine())._launch(db.get_job("j1"))
+    want = job_limits(settings, sandboxed=False)
+    assert want.memory_bytes == want.file_size_bytes == 6000 * 10**6 and want.cpu_s >= 100
+    assert launched and launched[0]["limits"] == want.model_dump(exclude_none=True), launched
+    assert "processes" not in launched[0]["limits"]  # only for a sandbox uid (it would count the server's)
+    assert job_limits(settings, sandboxed=True).processes >= 1024
+
+
+def test_job_steps_run_in_an_empty_folder(tmp_path):
+    """The steps ran in the job folder; now in an empty one, naming the job's files by absolute path (no
+    working directory ever holds anything Mitsuba's resolver could find)."""
+    from service.workers import driver
+
+    (tmp_path / "where.py").write_text("import json, os\nprint(json.dumps([os.getcwd(), os.listdir('.')]))\n")
+    job = tmp_path / "job"
+    job.mkdir()
+    (job / "plugins").mkdir()
+    (job / "plugins" / "sphere.so").write_text("not a plugin")
+    env_before = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = str(tmp_path)
+    try:
+        driver._run("render", [], job, module="where")
+    finally:
+        if env_before is None:
+            os.environ.pop("PYTHONPATH")
+        else:
+            os.environ["PYTHONPATH"] = env_before
+    cwd, listing = json.loads((job / "render.log").read_text())
+    assert listing == [] and Path(cwd) != job and not Path(cwd).exists()
+    from service.jobfiles import JobFile
+
+    args = driver.render_args(JobFile(job_id="j", scene_path=str(job / "s.xml"), optics={}), "p", job)
+    assert args[args.index("--out") + 1] == str(job / "result.npz")
+    assert args[args.index("--optics-json") + 1] == str(job / "optics.json")
