@@ -204,6 +204,8 @@ def trace_field(
                             planes=grid.planes if multi else None, ring_rows=rows_per_tile)
     if device is not None:
         dev = torch.device(device)
+        if dev.type == "cuda" and dev.index is None:  # "cuda" is the current GPU; tensors say "cuda:0"
+            dev = torch.device("cuda", torch.cuda.current_device())
     else:
         dev = bank_phasors[0].device if bank_phasors is not None else torch.device("cpu")
     out = None if on_tile is not None else torch.zeros((frames, C, H, W), dtype=torch.complex64, device=dev)
