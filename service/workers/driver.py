@@ -224,7 +224,8 @@ def run_job(job_dir: Path) -> RunStatus:
     try:
         timings["pictures_s"] = _run("preview", [str(job_dir / "stack.npz"), "--out", str(job_dir / "pictures"),
                                                 "--preview", str(job_dir / "preview.png"),
-                                                "--preview-focus-mm", f"{preview_focus_mm(meta):.6f}"], job_dir,
+                                                "--preview-focus-mm", f"{preview_focus_mm(meta):.6f}",
+                                                "--progress-jsonl", prog["preview"]], job_dir,
                                     module="service.workers.pictures")
     except StepFailed as exc:
         if exc.retryable:

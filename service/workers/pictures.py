@@ -33,7 +33,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 from holocore.evaluate.preview import depth_words
 from holocore.formats.meta import ViewMeta, parse_view_meta
@@ -125,9 +125,12 @@ def write_preview(loaded, out_png: Path, *, focus_mm: float, pupil_mm: float = 4
     os.replace(tmp, out_png)
 
 
-def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4.0, loaded=None) -> dict:
+def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4.0, loaded=None,
+                  progress: Optional[Callable[[str, int, int], None]] = None) -> dict:
     """Write the sweep and grid PNGs and ``index.json`` into ``out``; returns the index. ``loaded``: the
-    stack's (field, meta) when the caller has read it already."""
+    stack's (field, meta) when the caller has read it already. ``progress(stage, done, total)`` after each
+    view (the sweep's, then the grid's)."""
+    tick = progress or (lambda stage, done, total: None)
     import numpy as np
 
     from holocore.evaluate.preview import focus_depths, view_rgb
@@ -159,7 +162,11 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     if widened:
         sign = 1.0 if depths[-1] >= depths[0] else -1.0
         depths = [float(z) for z in np.linspace(mid - sign * 3 * dof, mid + sign * 3 * dof, sweep)]
-    views = [view_rgb(field, meta, focus_z_m=z, pupil_diameter_m=pupil_m) for z in depths]
+    total = len(depths) + GRID * GRID
+    views = []
+    for z in depths:
+        views.append(view_rgb(field, meta, focus_z_m=z, pupil_diameter_m=pupil_m))
+        tick("sweep", len(views), total)
     white = float(np.percentile(np.stack(views), 99.5)) or 1.0
     rows = _save(views, white, tmp, [f"sweep-{i:02d}.png" for i in range(len(depths))])
     for row, z in zip(rows, depths):
@@ -169,7 +176,10 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     g_pupil = half_box  # pupil radius R/2, edge eyes at R/2, corner eyes at 0.71 R: each sees much of the light
     step = half_box / 2
     offsets = [((i - GRID // 2) * step, (GRID // 2 - j) * step) for j in range(GRID) for i in range(GRID)]
-    gviews = [view_rgb(field, meta, focus_z_m=mid, pupil_diameter_m=g_pupil, view_offset_m=e) for e in offsets]
+    gviews = []
+    for e in offsets:
+        gviews.append(view_rgb(field, meta, focus_z_m=mid, pupil_diameter_m=g_pupil, view_offset_m=e))
+        tick("grid", len(depths) + len(gviews), total)
     gwhite = float(np.percentile(np.stack(gviews), 99.5)) or 1.0
     grows = _save(gviews, gwhite, tmp, [f"view-{k:02d}.png" for k in range(len(offsets))])
     for row, (ex, ey) in zip(grows, offsets):
@@ -207,6 +217,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--preview", type=Path, default=None,
                     help="also write the job's preview PNG here (one view, focused at --preview-focus-mm)")
     ap.add_argument("--preview-focus-mm", type=float, default=None)
+    ap.add_argument("--progress-jsonl", type=Path, default=None,
+                    help="append {stage, done, total, t} lines here as the views are made (the job's progress)")
     args = ap.parse_args(argv)
     if (args.preview is None) != (args.preview_focus_mm is None) or (
             args.preview_focus_mm is not None and not math.isfinite(args.preview_focus_mm)):
@@ -218,6 +230,12 @@ def main(argv: Optional[list[str]] = None) -> int:
     if not (math.isfinite(args.pupil_mm) and 0 < args.pupil_mm <= 100):
         print("error: --pupil-mm must be in (0, 100]", file=sys.stderr)
         return 2
+    def progress(stage: str, done: int, total: int) -> None:
+        if args.progress_jsonl is not None:
+            with open(args.progress_jsonl, "a") as fh:
+                fh.write(json.dumps({"stage": stage, "done": done, "total": total, "t": time.time()}) + "\n")
+
+    progress("load", 1, 1)
     loaded = None
     if args.preview is not None:  # first, and on its own: a failed preview does not stop the pictures
         try:
@@ -227,7 +245,8 @@ def main(argv: Optional[list[str]] = None) -> int:
         except (OSError, ValueError, KeyError) as exc:
             print(f"error: no preview: {type(exc).__name__}: {exc}", file=sys.stderr)
     try:
-        index = make_pictures(args.stack, args.out, sweep=args.sweep, pupil_mm=args.pupil_mm, loaded=loaded)
+        index = make_pictures(args.stack, args.out, sweep=args.sweep, pupil_mm=args.pupil_mm, loaded=loaded,
+                              progress=progress)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1

@@ -19,6 +19,8 @@ RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" f
              *(f"{s}.log" for s in STEPS))
 # Share of the whole run of each step with progress (the preview step makes the pictures too).
 STEP_WEIGHTS: dict[Step, float] = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
+# Stages a step reports as 1 of 1 before its real work starts (`holo encode` reads its input as "load").
+STARTING_STAGES = frozenset({"load"})
 # Where each stage of `holo render` ends, as a fraction of the render step (the stages it reports, in order).
 RENDER_STAGE_END: dict[RenderStage, float] = {"analysis": 0.1, "trace": 0.9, "propagate": 1.0}
 
@@ -75,6 +77,8 @@ def read_progress(job_dir: Path) -> Optional[Progress]:
     done, total = line.get("done", 0), line.get("total", 0)
     within = min(1.0, done / total) if isinstance(done, int) and isinstance(total, int) and total > 0 else 0.0
     stage = line.get("stage")
+    if stage in STARTING_STAGES:  # a step's first line ("load 1/1") says it began, not that it is done
+        within = 0.0
     if step == "render" and stage in RENDER_STAGE_END:
         ends = list(RENDER_STAGE_END.values())
         i = list(RENDER_STAGE_END).index(stage)

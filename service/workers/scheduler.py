@@ -201,15 +201,21 @@ class Scheduler:
     def _memory_need(self, row: dict) -> Optional[int]:
         """A queued job's predicted peak bytes; None to leave it queued for now (its scene's plan, which says
         how deep its recording planes go, is still pending); -1 when, with the plan known, it cannot fit the
-        workers' memory (the job is failed with the reason, as a submit would have been refused)."""
+        workers' memory (the job is failed with the reason, as a submit would have been refused).
+
+        No job starts before its scene's plan is ready: the plan is where Mitsuba first loads the scene, and a
+        scene that crashes Mitsuba or outgrows its limits there would do so again in the job. A job whose
+        scene's plan failed (queued in the moment between a submit's check and the plan's end) is failed."""
+        scene = self.db.get_scene(row["scene_id"])
+        if scene is not None and scene["plan_state"] in ("pending", "running"):
+            return None
+        if scene is not None and scene["plan_state"] == "failed":
+            self._fail(row["id"], row["attempts"], f"the scene's plan failed: {scene.get('plan_error') or ''}")
+            return -1
         mem = (row.get("estimate") or {}).get("memory") or {}
         if "plane_border_px" not in mem or mem["plane_border_px"] is not None or mem.get("planes_checked"):
             return _peak_bytes(row)  # known at submit or checked already (or from before planes were counted)
         from service.models import JobRequest, job_memory, memory_admission_error, plane_border_px
-
-        scene = self.db.get_scene(row["scene_id"])
-        if scene is not None and scene["plan_state"] in ("pending", "running"):
-            return None
         try:
             spec = JobSpec.model_validate(row["spec"])
             req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, preset=spec.preset, method=spec.method,
@@ -339,7 +345,10 @@ class Scheduler:
         rc = self.engine.poll(h)
         if rc is None:
             prog = read_progress(h.job_dir)
-            if prog is not None and prog != self._progress.get(job_id):
+            last = self._progress.get(job_id)
+            if prog is not None and last is not None and prog["fraction"] < last["fraction"]:
+                prog = {**prog, "fraction": last["fraction"]}  # the fraction done only ever grows
+            if prog is not None and prog != last:
                 self._progress[job_id] = prog
                 self.db.update_job(job_id, where_state=("running",), progress=prog)
             if time.monotonic() - h.started > self.settings.job_timeout_s:
