@@ -197,3 +197,45 @@ def test_job_steps_run_in_an_empty_folder(tmp_path):
     args = driver.render_args(JobFile(job_id="j", scene_path=str(job / "s.xml"), optics={}), "p", job)
     assert args[args.index("--out") + 1] == str(job / "result.npz")
     assert args[args.index("--optics-json") + 1] == str(job / "optics.json")
+
+
+def test_no_job_starts_before_its_scene_is_planned(tmp_path):
+    """A job queued while its scene was being planned started at once: a scene that crashes Mitsuba (or fills
+    its memory) did so in the plan and in the job side by side, and the job ran on after the plan failed."""
+    from service.db import Database
+    from service.settings import ServiceSettings
+    from service.workers.engine import Handle
+    from service.workers.scheduler import Scheduler
+
+    launched = []
+
+    class FakeEngine:
+        name = "fake"
+
+        def launch(self, job_id, attempt, job_dir, **kw):
+            launched.append(job_id)
+            return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=None)
+
+        def poll(self, handle):
+            return None
+
+    settings = ServiceSettings(data_dir=tmp_path / "data", workers=4)
+    settings.data_dir.mkdir(parents=True)
+    db = Database(settings.db_path)
+    for sid, state in (("splanning", "running"), ("sfailed", "failed"), ("sready", "ready")):
+        db.insert_scene({"id": sid, "sha256": sid.ljust(64, "0"), "entry": "scene.xml", "report": {},
+                         "plan_state": state, "plan_error": "holo plan failed (exit -11)" if state == "failed" else None,
+                         "created_at": time.time()})
+    for jid, sid in (("j1", "splanning"), ("j2", "sfailed"), ("j3", "sready")):
+        db.insert_job({"id": jid, "state": "queued", "scene_id": sid, "spec": {"optics": {}}, "cache_key": jid,
+                       "attempts": 0, "artifact_dir": str(settings.jobs_dir / jid), "created_at": time.time(),
+                       "estimate": {"memory": {"peak_bytes": 1000}}})
+    sched = Scheduler(settings, db, FakeEngine())
+    sched.tick()
+    assert launched == ["j3"], launched
+    assert db.get_job("j1")["state"] == "queued"  # waits for its plan
+    failed = db.get_job("j2")
+    assert failed["state"] == "failed" and "the scene's plan failed: holo plan failed (exit -11)" in failed["error"]
+    db.update_scene("splanning", plan_state="ready")
+    sched.tick()
+    assert launched == ["j3", "j1"], launched
