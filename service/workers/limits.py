@@ -38,6 +38,10 @@ __all__ = ["ProcessLimits", "current_limits", "explain_limit", "wrap_command", "
 CPU_KILL_AFTER_S = 5  # SIGKILL this long after SIGXCPU
 OPEN_FILES = 4096
 PLAN_FILE_SIZE_BYTES = 1 << 30
+# The least memory a plan or job process is held to, whatever the settings say: the interpreter with torch,
+# OpenBLAS's per-core buffers and CUDA's host side take about 1.5 GB before any work on a 16-core GPU machine
+# (CUDA's address-space reservations and device memory are not counted by RLIMIT_DATA).
+MIN_MEMORY_BYTES = 4 << 30
 
 
 class ProcessLimits(BaseModel):
@@ -93,18 +97,18 @@ def _processes() -> int:
 
 
 def plan_limits(settings, *, sandboxed: bool) -> ProcessLimits:
-    """What `holo plan` may use: half of the workers' memory, ``plan_timeout_s`` of CPU on every core, 1 GiB
-    files; the process count only under a sandbox uid."""
-    return ProcessLimits(memory_bytes=max(1 << 28, settings.worker_memory_bytes // 2),
+    """What `holo plan` may use: half of the workers' memory (at least ``MIN_MEMORY_BYTES``), ``plan_timeout_s``
+    of CPU on every core, 1 GiB files; the process count only under a sandbox uid."""
+    return ProcessLimits(memory_bytes=max(MIN_MEMORY_BYTES, settings.worker_memory_bytes // 2),
                          cpu_s=math.ceil(settings.plan_timeout_s) * _cpus(), open_files=OPEN_FILES,
                          file_size_bytes=PLAN_FILE_SIZE_BYTES, processes=_processes() if sandboxed else None)
 
 
 def job_limits(settings, *, sandboxed: bool) -> ProcessLimits:
     """What each process of a job may use: the workers' memory (no job may hold more, whatever it was admitted
-    at), ``job_timeout_s`` of CPU on every core, files no larger than that memory; the process count only under
-    a sandbox uid."""
-    memory = max(1 << 28, settings.worker_memory_bytes)
+    at; at least ``MIN_MEMORY_BYTES``), ``job_timeout_s`` of CPU on every core, files no larger than that
+    memory; the process count only under a sandbox uid."""
+    memory = max(MIN_MEMORY_BYTES, settings.worker_memory_bytes)
     return ProcessLimits(memory_bytes=memory, cpu_s=math.ceil(settings.job_timeout_s) * _cpus(),
                          open_files=OPEN_FILES, file_size_bytes=memory,
                          processes=_processes() if sandboxed else None)
@@ -128,8 +132,8 @@ def wrap_command(limits: ProcessLimits, cmd: list[str]) -> list[str]:
     return [sys.executable, "-m", "service.workers.limits", limits.to_arg(), "--", *cmd]
 
 
-_OUT_OF_MEMORY = re.compile(r"MemoryError|Cannot allocate memory|can't allocate memory|bad_alloc|out of memory",
-                            re.IGNORECASE)
+_OUT_OF_MEMORY = re.compile(r"MemoryError|Cannot allocate memory|can't allocate memory|bad_alloc|out of memory|"
+                            r"memory allocation (?:still )?failed", re.IGNORECASE)
 
 
 def _gb(n: int) -> str:

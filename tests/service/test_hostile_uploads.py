@@ -58,11 +58,11 @@ print(json.dumps({"summary": [], "rlimits": {k: resource.getrlimit(v)[0] for k, 
 def test_the_plan_runs_under_the_settings_limits(tmp_path):
     """The planner ran `holo plan` with the server's own (unlimited) rlimits: only a watch of its resident
     memory and wall clock stood behind the bundle check."""
-    p, db = planner(tmp_path, _REPORT_LIMITS, worker_memory_mb=8000, plan_timeout_s=120)
+    p, db = planner(tmp_path, _REPORT_LIMITS, worker_memory_mb=16000, plan_timeout_s=120)
     p._plan({"id": "s1", "entry": "scene.xml"})
     assert db.stored["plan_state"] == "ready", db.stored
     want = plan_limits(p.settings, sandboxed=False)
-    assert want.memory_bytes == 4000 * 10**6 and want.cpu_s >= 120 and want.file_size_bytes == 1 << 30
+    assert want.memory_bytes == 8000 * 10**6 and want.cpu_s >= 120 and want.file_size_bytes == 1 << 30
     got = db.stored["plan"]["rlimits"]
     soft = {k: resource.getrlimit(v)[0] for k, v in (("open_files", resource.RLIMIT_NOFILE),)}
     assert got == {"memory_bytes": want.memory_bytes, "cpu_s": want.cpu_s, "file_size_bytes": want.file_size_bytes,
@@ -169,6 +169,10 @@ def test_the_scheduler_hands_every_job_the_settings_limits(tmp_path):
     assert launched and launched[0]["limits"] == want.model_dump(exclude_none=True), launched
     assert "processes" not in launched[0]["limits"]  # only for a sandbox uid (it would count the server's)
     assert job_limits(settings, sandboxed=True).processes >= 1024
+    # a small worker_memory_mb never holds a process below what the interpreter, torch and CUDA need to start
+    small = ServiceSettings(data_dir=tmp_path / "small", worker_memory_mb=500)
+    assert job_limits(small, sandboxed=False).memory_bytes == 4 << 30
+    assert plan_limits(small, sandboxed=False).memory_bytes == 4 << 30
 
 
 def test_job_steps_run_in_an_empty_folder(tmp_path):
@@ -224,8 +228,8 @@ def test_no_job_starts_before_its_scene_is_planned(tmp_path):
     db = Database(settings.db_path)
     for sid, state in (("splanning", "running"), ("sfailed", "failed"), ("sready", "ready")):
         db.insert_scene({"id": sid, "sha256": sid.ljust(64, "0"), "entry": "scene.xml", "report": {},
-                         "plan_state": state, "plan_error": "holo plan failed (exit -11)" if state == "failed" else None,
-                         "created_at": time.time()})
+                         "plan_state": state, "created_at": time.time(),
+                         "plan_error": "holo plan failed (exit -11)" if state == "failed" else None})
     for jid, sid in (("j1", "splanning"), ("j2", "sfailed"), ("j3", "sready")):
         db.insert_job({"id": jid, "state": "queued", "scene_id": sid, "spec": {"optics": {}}, "cache_key": jid,
                        "attempts": 0, "artifact_dir": str(settings.jobs_dir / jid), "created_at": time.time(),
