@@ -111,11 +111,19 @@ _RESULT_PER_SAMPLE = 16
 _OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
 
 
-def output_bytes(optics: dict, *, keep_result: bool) -> int:
-    """The most bytes a job with these (effective) optics leaves in its folder."""
-    h, w = optics.get("resolution_hw") or (1080, 1920)
-    n = int(h) * int(w) * len(optics.get("wavelengths_nm") or (0, 0, 0)) * int(optics.get("frames") or 1)
-    return n * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * int(h) * int(w) + _OUT_FIXED
+_MOST_PLANES = 8  # wrp_planes 1..8; auto chooses at most holocore.plan.wrp_planes.MAX_WRP_PLANES (8)
+
+
+def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0) -> int:
+    """The most bytes a job with these (effective) optics has in its folder: what it leaves, and while it renders
+    the scratch files of its deeper recording planes (each a [frames, colours] stack of its grid, ``plane_border``
+    px wider than the SLM on each side, complex64; unlinked, but on the disk until the render ends)."""
+    h, w = (int(v) for v in optics.get("resolution_hw") or (1080, 1920))
+    c, f = len(optics.get("wavelengths_nm") or (0, 0, 0)), int(optics.get("frames") or 1)
+    out = h * w * c * f * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * h * w + _OUT_FIXED
+    b = int(plane_border or 0)
+    deeper = (_MOST_PLANES if wrp_planes == "auto" else int(wrp_planes)) - 1
+    return out + (deeper * f * c * (h + 2 * b) * (w + 2 * b) * 8 if b > 0 and deeper > 0 else 0)
 
 
 _finished_bytes: dict[str, tuple[int, int]] = {}  # a finished job's folder -> (its mtime_ns, bytes in it)
@@ -153,8 +161,10 @@ def owner_stored_bytes(ctx: ServiceContext, owner: str) -> int:
         if row["state"] in FINAL_STATES:
             total += _finished_folder_bytes(folder) if folder else 0
         else:
-            optics = (row["spec"] or {}).get("optics") or {}
-            total += output_bytes(optics, keep_result=ctx.settings.keep_result)
+            spec = row["spec"] or {}
+            border = (((row.get("estimate") or {}).get("memory") or {}).get("plane_border_px"))
+            total += output_bytes(spec.get("optics") or {}, keep_result=ctx.settings.keep_result,
+                                  wrp_planes=spec.get("wrp_planes", 1), plane_border=border)
     return total
 
 
@@ -215,8 +225,9 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
                     "source": "scene plan at default optics" if scene["plan"] else "pending"}}
     prev = reusable_job(ctx, key, principal.owner, fresh=True)
     if prev is None:  # a reused result adds nothing; a new run writes its outputs
-        full = storage_error(ctx, principal.owner, output_bytes(row["spec"]["optics"],
-                                                                keep_result=ctx.settings.keep_result), "this job")
+        need = output_bytes(row["spec"]["optics"], keep_result=ctx.settings.keep_result, wrp_planes=req.wrp_planes,
+                            plane_border=row["estimate"]["memory"]["plane_border_px"])
+        full = storage_error(ctx, principal.owner, need, "this job")
         if full is not None:
             raise full
     if prev is not None:

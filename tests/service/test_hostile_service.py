@@ -760,3 +760,26 @@ def test_what_one_owner_stores_is_capped_in_bytes(tmp_path):
         r = a.post("/v1/scenes", files=files)
         assert r.status_code == 403 and "this scene adds up to 0.01 GB" in r.json()["detail"], r.text
     assert ServiceSettings(data_dir=tmp_path).stored_bytes_per_owner > 0  # default: half the file system
+
+
+def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
+    """A deeper recording plane is held in a scratch file of [frames, colours] on its wider grid while the job
+    renders: at f = 300 mm on a 32x48 SLM a few MB of output came with tens of MB of scratch per frame, which
+    only the memory check (one frame of one colour) counted."""
+    from service.submission import output_bytes
+
+    svc = App(tmp_path / "data", worker_memory_mb=4000, max_stored_gb_per_owner=0.05)
+    sid = svc.scene("default", plan=_plan())
+    with svc.client(svc.token("submit")) as c:
+        one = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "optics": {**DEEP["optics"], "seed": 1}})
+        assert one.status_code == 202, one.text
+        border = one.json()["estimate"]["memory"]["plane_border_px"]
+        assert border > 500
+        opt = {"resolution_hw": [32, 48], "wavelengths_nm": [520], "frames": 1}
+        scratch = output_bytes(opt, keep_result=True, wrp_planes=2, plane_border=border) - \
+            output_bytes(opt, keep_result=True, wrp_planes=1)
+        assert scratch == (32 + 2 * border) * (48 + 2 * border) * 8 > 15e6
+        four = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "frames": 4})
+        assert four.status_code == 403 and "max_stored_gb_per_owner" in four.json()["detail"], four.text
+        flat = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "frames": 4, "wrp_planes": 1})
+        assert flat.status_code == 202, flat.text  # one plane: no scratch
