@@ -768,7 +768,7 @@ def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
     only the memory check (one frame of one colour) counted."""
     from service.submission import output_bytes
 
-    svc = App(tmp_path / "data", worker_memory_mb=4000, max_stored_gb_per_owner=0.05)
+    svc = App(tmp_path / "data", worker_memory_mb=4000, max_stored_gb_per_owner=0.09)
     sid = svc.scene("default", plan=_plan())
     with svc.client(svc.token("submit")) as c:
         one = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "optics": {**DEEP["optics"], "seed": 1}})
@@ -778,8 +778,15 @@ def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
         opt = {"resolution_hw": [32, 48], "wavelengths_nm": [520], "frames": 1}
         scratch = output_bytes(opt, keep_result=True, wrp_planes=2, plane_border=border) - \
             output_bytes(opt, keep_result=True, wrp_planes=1)
-        assert scratch == (32 + 2 * border) * (48 + 2 * border) * 8 > 15e6
-        four = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "frames": 4})
+        assert scratch == (32 + 2 * border) * (48 + 2 * border) * 8 > 35e6  # 40 MB a frame, output 4 MB
+        four = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "frames": 4})  # 4 frames of scratch
         assert four.status_code == 403 and "max_stored_gb_per_owner" in four.json()["detail"], four.text
         flat = c.post("/v1/jobs", json={"scene_id": sid, **DEEP, "frames": 4, "wrp_planes": 1})
         assert flat.status_code == 202, flat.text  # one plane: no scratch
+        # a queued job's scratch is not on the disk yet (at most the workers' running jobs hold theirs); a
+        # running one's is
+        again = {"scene_id": sid, **DEEP, "optics": {**DEEP["optics"], "seed": 3}}
+        assert c.post("/v1/jobs", json=again).status_code == 202
+        svc.db.claim_next_job(one.json()["id"])
+        r = c.post("/v1/jobs", json={**again, "optics": {**again["optics"], "seed": 4}})
+        assert r.status_code == 403, r.text
