@@ -12,8 +12,9 @@ bundle check and admission miss. A process under them cannot raise them again, a
 
 The values come from the service's settings (``plan_limits``, ``job_limits``): memory, what the workers may hold
 (``worker_memory_mb``; half of it for a plan), CPU, the run's wall-clock cap (``plan_timeout_s``,
-``job_timeout_s``) on every core; the largest file a job writes, its memory (every artifact is written from
-arrays it holds), a plan's 1 GiB (it writes only caches).
+``job_timeout_s``) on every core; the largest file a job may write, the most its folder may hold (given by the
+scheduler from the job's optics and planes, at least 1 GiB; a render streams its result to the disk, so that is
+not bounded by its memory), a plan's 1 GiB (it writes only caches).
 
 ``python -m service.workers.limits LIMITS_JSON -- CMD...`` applies them and executes CMD in place (same pid,
 so a caller's process group and memory watch stay valid); the planner starts `holo plan` so. The job driver
@@ -37,7 +38,7 @@ __all__ = ["ProcessLimits", "current_limits", "explain_limit", "wrap_command", "
 
 CPU_KILL_AFTER_S = 5  # SIGKILL this long after SIGXCPU
 OPEN_FILES = 4096
-PLAN_FILE_SIZE_BYTES = 1 << 30
+PLAN_FILE_SIZE_BYTES = MIN_FILE_SIZE_BYTES = 1 << 30
 # The least memory a plan or job process is held to, whatever the settings say: the interpreter with torch,
 # OpenBLAS's per-core buffers and CUDA's host side take about 1.5 GB before any work on a 16-core GPU machine
 # (CUDA's address-space reservations and device memory are not counted by RLIMIT_DATA).
@@ -104,13 +105,15 @@ def plan_limits(settings, *, sandboxed: bool) -> ProcessLimits:
                          file_size_bytes=PLAN_FILE_SIZE_BYTES, processes=_processes() if sandboxed else None)
 
 
-def job_limits(settings, *, sandboxed: bool) -> ProcessLimits:
+def job_limits(settings, *, sandboxed: bool, largest_file_bytes: Optional[int] = None) -> ProcessLimits:
     """What each process of a job may use: the workers' memory (no job may hold more, whatever it was admitted
-    at; at least ``MIN_MEMORY_BYTES``), ``job_timeout_s`` of CPU on every core, files no larger than that
-    memory; the process count only under a sandbox uid."""
+    at; at least ``MIN_MEMORY_BYTES``), ``job_timeout_s`` of CPU on every core, files no larger than
+    ``largest_file_bytes`` (at least 1 GiB; no limit when not known); the process count only under a sandbox
+    uid."""
     memory = max(MIN_MEMORY_BYTES, settings.worker_memory_bytes)
+    size = None if largest_file_bytes is None else max(MIN_FILE_SIZE_BYTES, int(largest_file_bytes))
     return ProcessLimits(memory_bytes=memory, cpu_s=math.ceil(settings.job_timeout_s) * _cpus(),
-                         open_files=OPEN_FILES, file_size_bytes=memory,
+                         open_files=OPEN_FILES, file_size_bytes=size,
                          processes=_processes() if sandboxed else None)
 
 

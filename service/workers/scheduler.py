@@ -14,7 +14,8 @@ dropped), the scene copy removed, and only then is the slot free again. ``status
 and is not trusted for integrity: the artifacts' hashes and sizes are the scheduler's own.
 
 Every run's ``job.json`` carries the kernel resource limits of its processes (service/workers/limits.py
-``job_limits``: memory, CPU time, open files, file size, processes for a sandbox uid), which the driver applies
+``job_limits``: memory, CPU time, open files, the largest file its folder may hold, processes for a sandbox
+uid), which the driver applies
 to itself before anything else, so every step inherits them.
 """
 
@@ -59,6 +60,20 @@ def _peak_bytes(row: dict) -> int:
     mem = (row.get("estimate") or {}).get("memory") or {}
     peak = mem.get("peak_bytes")
     return int(peak) if isinstance(peak, (int, float)) and peak > 0 else 0
+
+
+def _largest_file_bytes(row: dict, spec: JobSpec) -> Optional[int]:
+    """The most one file of the job can hold: all its folder may hold (service.submission.output_bytes, with
+    RESULT.npz and its deeper planes' scratch), with a quarter to spare; None while its planes' border is not
+    known (a job from before they were counted)."""
+    mem = (row.get("estimate") or {}).get("memory") or {}
+    border = 0 if spec.wrp_planes == 1 or spec.method == "direct" else mem.get("plane_border_px")
+    if border is None:
+        return None
+    from service.submission import output_bytes
+
+    most = output_bytes(spec.optics, keep_result=True, wrp_planes=spec.wrp_planes, plane_border=border)
+    return most + most // 4
 
 
 def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
@@ -307,7 +322,8 @@ class Scheduler:
                 scene_path = job_dir / "scene" / scene["entry"]
                 for sub in ("home", "tmp"):
                     (job_dir / sub).mkdir(exist_ok=True)
-            limits = job_limits(self.settings, sandboxed=run_as is not None)
+            limits = job_limits(self.settings, sandboxed=run_as is not None,
+                                largest_file_bytes=_largest_file_bytes(row, spec))
             job_file = JobFile(**spec.options(), job_id=job_id, attempt=attempt, scene_path=str(scene_path),
                                keep_result=self.settings.keep_result, limits=limits.model_dump(exclude_none=True))
             write_json_atomic(job_dir / "job.json", job_file.model_dump(mode="json"))

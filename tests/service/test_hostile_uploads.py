@@ -147,13 +147,13 @@ def test_the_scheduler_hands_every_job_the_settings_limits(tmp_path):
     from service.workers.engine import Handle
     from service.workers.scheduler import Scheduler
 
-    launched = []
+    launched = {}
 
     class FakeEngine:
         name = "fake"
 
         def launch(self, job_id, attempt, job_dir, **kw):
-            launched.append(json.loads((job_dir / "job.json").read_text()))
+            launched[job_id] = json.loads((job_dir / "job.json").read_text())["limits"]
             return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=None)
 
     settings = ServiceSettings(data_dir=tmp_path / "data", worker_memory_mb=6000, job_timeout_s=100)
@@ -161,18 +161,26 @@ def test_the_scheduler_hands_every_job_the_settings_limits(tmp_path):
     db = Database(settings.db_path)
     db.insert_scene({"id": "s1", "sha256": "0" * 64, "entry": "scene.xml", "report": {}, "plan_state": "ready",
                      "created_at": time.time()})
-    db.insert_job({"id": "j1", "state": "running", "scene_id": "s1", "spec": {"optics": {}}, "cache_key": "k",
-                   "attempts": 1, "artifact_dir": str(settings.jobs_dir / "j1"), "created_at": time.time()})
-    Scheduler(settings, db, FakeEngine())._launch(db.get_job("j1"))
-    want = job_limits(settings, sandboxed=False)
-    assert want.memory_bytes == want.file_size_bytes == 6000 * 10**6 and want.cpu_s >= 100
-    assert launched and launched[0]["limits"] == want.model_dump(exclude_none=True), launched
-    assert "processes" not in launched[0]["limits"]  # only for a sandbox uid (it would count the server's)
+    small = {"resolution_hw": [64, 64], "wavelengths_nm": [520.0], "frames": 1}
+    big = {"resolution_hw": [2304, 4096], "wavelengths_nm": [640.0, 520.0, 450.0], "frames": 64}
+    for jid, optics, extra, border in (("small", small, {}, 0), ("big", big, {}, 0),
+                                       ("planes", small, {"wrp_planes": 2}, None)):
+        db.insert_job({"id": jid, "state": "running", "scene_id": "s1", "spec": {"optics": optics, **extra},
+                       "cache_key": jid, "attempts": 1, "artifact_dir": str(settings.jobs_dir / jid),
+                       "created_at": time.time(), "estimate": {"memory": {"plane_border_px": border}}})
+        Scheduler(settings, db, FakeEngine())._launch(db.get_job(jid))
+    want = job_limits(settings, sandboxed=False).model_dump(exclude_none=True)
+    assert want["memory_bytes"] == 6000 * 10**6 and want["cpu_s"] >= 100 and "file_size_bytes" not in want
+    assert launched["small"] == {**want, "file_size_bytes": 1 << 30}, launched
+    # a render streams its result to the disk: the largest file is the job's folder, not its memory
+    assert launched["big"]["file_size_bytes"] > 40e9 > launched["big"]["memory_bytes"], launched
+    assert launched["planes"] == want  # deeper planes of a border not known: no size limit of ours
+    assert "processes" not in want  # only for a sandbox uid (it would count the server's own processes)
     assert job_limits(settings, sandboxed=True).processes >= 1024
     # a small worker_memory_mb never holds a process below what the interpreter, torch and CUDA need to start
-    small = ServiceSettings(data_dir=tmp_path / "small", worker_memory_mb=500)
-    assert job_limits(small, sandboxed=False).memory_bytes == 4 << 30
-    assert plan_limits(small, sandboxed=False).memory_bytes == 4 << 30
+    tiny = ServiceSettings(data_dir=tmp_path / "tiny", worker_memory_mb=500)
+    assert job_limits(tiny, sandboxed=False).memory_bytes == 4 << 30
+    assert plan_limits(tiny, sandboxed=False).memory_bytes == 4 << 30
 
 
 def test_job_steps_run_in_an_empty_folder(tmp_path):
