@@ -241,25 +241,52 @@ def serialized_counts(path: Path, name: str, shape_index: int) -> tuple[int, int
     return faces, verts
 
 
+_EXR_HEADER_BYTES = 65536
+_EXR_MULTIPART, _EXR_NON_IMAGE = 0x1000, 0x800  # version-field flags: several parts; deep data
+
+
 def _exr_pixels(path: Path, name: str) -> int:
+    """Pixels of an OpenEXR file's data window, read as OpenEXR reads its header: every attribute up to the
+    header's end, where a later attribute of a name replaces an earlier one (a 1-pixel ``dataWindow`` before
+    the real one hid it), so a name given twice is refused, as are a ``dataWindow`` that is not a box2i, a
+    header that does not end in its first 64 KiB, and multi-part or deep files (one header is read here)."""
     with path.open("rb") as fh:
-        head = fh.read(65536)
-    pos = 8
-    while pos < len(head):
+        head = fh.read(_EXR_HEADER_BYTES)
+    if len(head) < 9:
+        raise FileKindError(f"{name}: OpenEXR file shorter than its header")
+    (version,) = struct.unpack_from("<I", head, 4)
+    if version & (_EXR_MULTIPART | _EXR_NON_IMAGE):
+        raise FileKindError(f"{name}: multi-part and deep OpenEXR files are not supported; save one scan-line or "
+                            "tiled image")
+    pos, seen, window = 8, set(), None
+    while True:
+        if pos >= len(head):
+            raise FileKindError(f"{name}: OpenEXR header does not end within its first {_EXR_HEADER_BYTES} bytes")
+        if head[pos] == 0:  # the header's end
+            break
         end = head.find(b"\0", pos)
-        if end < 0 or end == pos:
-            break
-        attr = head[pos:end]
-        tend = head.find(b"\0", end + 1)
+        tend = head.find(b"\0", end + 1) if end >= 0 else -1
         if tend < 0 or tend + 5 > len(head):
-            break
-        (size,) = struct.unpack("<i", head[tend + 1:tend + 5])
-        value = head[tend + 5:tend + 5 + size]
-        if attr == b"dataWindow" and len(value) == 16:
-            x0, y0, x1, y1 = struct.unpack("<4i", value)
-            return max(0, x1 - x0 + 1) * max(0, y1 - y0 + 1)
-        pos = tend + 5 + max(size, 0)
-    raise FileKindError(f"{name}: OpenEXR header without a readable dataWindow")
+            raise FileKindError(f"{name}: OpenEXR header does not end within its first {_EXR_HEADER_BYTES} bytes")
+        attr, kind = head[pos:end], head[end + 1:tend]
+        (size,) = struct.unpack_from("<i", head, tend + 1)
+        if size < 0:
+            raise FileKindError(f"{name}: OpenEXR attribute {attr[:40]!r} has a bad size")
+        if tend + 5 + size > len(head):
+            raise FileKindError(f"{name}: OpenEXR header does not end within its first {_EXR_HEADER_BYTES} bytes")
+        if attr in seen:
+            raise FileKindError(f"{name}: OpenEXR header defines {attr[:40].decode('ascii', 'replace')!r} twice "
+                                "(OpenEXR keeps the last)")
+        seen.add(attr)
+        if attr == b"dataWindow":
+            if kind != b"box2i" or size != 16:
+                raise FileKindError(f"{name}: OpenEXR dataWindow is not a box2i")
+            window = struct.unpack_from("<4i", head, tend + 5)
+        pos = tend + 5 + size
+    if window is None:
+        raise FileKindError(f"{name}: OpenEXR header without a readable dataWindow")
+    x0, y0, x1, y1 = window
+    return max(0, x1 - x0 + 1) * max(0, y1 - y0 + 1)
 
 
 _HDR_HEADER_BYTES = 65536

@@ -251,3 +251,78 @@ def test_no_job_starts_before_its_scene_is_planned(tmp_path):
     db.update_scene("splanning", plan_state="ready")
     sched.tick()
     assert launched == ["j3", "j1"], launched
+
+
+# ---- OpenEXR: the data window as OpenEXR reads it ---------------------------------------------------------------
+def _exr_with_decoy(n: int) -> bytes:
+    """An n x n half-float EXR written by Mitsuba with a 1-pixel ``dataWindow`` put before the real one, its
+    line offsets moved to match: OpenEXR reads every attribute and keeps the last of a name."""
+    import struct
+
+    import numpy as np
+
+    from holocore.runtime.mitsuba_env import mitsuba
+
+    mi = mitsuba()
+    tmp = Path(os.environ.get("TMPDIR", "/tmp")) / f"holo-exr-{os.getpid()}.exr"
+    try:
+        mi.Bitmap(np.zeros((n, n, 3), dtype=np.float16)).write(str(tmp))
+        raw = tmp.read_bytes()
+    finally:
+        tmp.unlink(missing_ok=True)
+    pos = 8
+    while raw[pos] != 0:
+        end = raw.index(b"\0", pos)
+        tend = raw.index(b"\0", end + 1)
+        pos = tend + 5 + struct.unpack_from("<i", raw, tend + 1)[0]
+    table = pos + 1
+    chunks = (struct.unpack_from("<Q", raw, table)[0] - table) // 8
+    decoy = b"dataWindow\0box2i\0" + struct.pack("<i", 16) + struct.pack("<4i", 0, 0, 0, 0)
+    offsets = b"".join(struct.pack("<Q", struct.unpack_from("<Q", raw, table + 8 * k)[0] + len(decoy))
+                       for k in range(chunks))
+    return raw[:8] + decoy + raw[8:table] + offsets + raw[table + 8 * chunks:]
+
+
+def test_exr_decoy_data_window_no_longer_hides_the_real_one(tmp_path):
+    """The check took the first ``dataWindow``: a 1-pixel one before the real one counted 1 pixel while Mitsuba
+    (OpenEXR) loaded the whole image (here 64 x 64 under a 1000-pixel cap; 9000 x 9000 fits in about a MB)."""
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
+
+    root = tmp_path / "b"
+    root.mkdir()
+    (root / "sky.exr").write_bytes(_exr_with_decoy(64))
+    (root / "scene.xml").write_text('<scene version="3.0.0"><emitter type="envmap"><string name="filename" '
+                                    'value="sky.exr"/></emitter></scene>')
+    assert list(mitsuba().Bitmap(str(root / "sky.exr")).size()) == [64, 64]  # what the attack gets loaded
+    with pytest.raises(BundleError, match="defines 'dataWindow' twice") as info:
+        validate_bundle(root, limits=BundleLimits(max_image_pixels=1000))
+    assert "\n" not in str(info.value)
+
+
+def test_exr_headers_read_otherwise_are_refused(tmp_path):
+    import struct
+
+    from holocore.scene.filekinds import FileKindError, image_pixels
+
+    def pixels(data: bytes) -> int:
+        p = tmp_path / "t.exr"
+        p.write_bytes(data)
+        return image_pixels(p, "t.exr", "exr", max_pixels=1 << 26)
+
+    def attr(name: bytes, kind: bytes, value: bytes) -> bytes:
+        return name + b"\0" + kind + b"\0" + struct.pack("<i", len(value)) + value
+
+    magic = b"v/1\x01" + struct.pack("<I", 2)
+    window = attr(b"dataWindow", b"box2i", struct.pack("<4i", 0, 0, 99, 49))
+    assert pixels(magic + window + b"\0") == 5000
+    for data, words in (
+        (magic + attr(b"comment", b"string", b"x" * 70000) + window + b"\0", "does not end within its first"),
+        (magic + window, "does not end within its first"),
+        (magic + attr(b"dataWindow", b"box2f", struct.pack("<4f", 0, 0, 9, 9)) + b"\0", "is not a box2i"),
+        (b"v/1\x01" + struct.pack("<I", 2 | 0x1000) + window + b"\0", "multi-part and deep"),
+        (b"v/1\x01" + struct.pack("<I", 2 | 0x800) + window + b"\0", "multi-part and deep"),
+        (magic + b"x\0int\0" + struct.pack("<i", -5) + window + b"\0", "bad size"),
+    ):
+        with pytest.raises(FileKindError, match=words):
+            pixels(data)
