@@ -405,16 +405,19 @@ class LocalEngine:
     sandboxed = True  # can run drivers as a sandbox user (``run_as``)
 
     def launch(self, job_id: str, attempt: int, job_dir: Path, run_as: Optional[RunAs] = None) -> Handle:
-        """Start the driver; with ``run_as`` as that user, HOME and TMPDIR in ``job_dir`` (which it owns)."""
+        """Start the driver; with ``run_as`` as that user, HOME and TMPDIR in ``job_dir`` (which it owns), and
+        /tmp, /var/tmp, /dev/shm of its own where the platform allows (service.workers.private_tmp)."""
         log_fh = open(job_dir / "driver.log", "ab")
+        cmd = [sys.executable, "-m", "service.workers.driver", str(job_dir), "--parent-pid", str(os.getpid())]
         try:
             if run_as is not None:
                 os.fchown(log_fh.fileno(), run_as.uid, run_as.gid)
+                # started as root: the wrapper makes the private folders, then drops to the slot's uid
+                cmd = [sys.executable, "-m", "service.workers.private_tmp", str(job_dir / "tmp"), str(run_as.uid),
+                       str(run_as.gid), "--", *cmd]
             proc = subprocess.Popen(
-                [sys.executable, "-m", "service.workers.driver", str(job_dir), "--parent-pid", str(os.getpid())],
-                stdin=subprocess.DEVNULL, stdout=log_fh, stderr=subprocess.STDOUT, cwd=job_dir,
-                env=driver_env() if run_as is None else sandbox_env(job_dir), start_new_session=True,
-                **(run_as.popen_kwargs() if run_as is not None else {}))
+                cmd, stdin=subprocess.DEVNULL, stdout=log_fh, stderr=subprocess.STDOUT, cwd=job_dir,
+                env=driver_env() if run_as is None else sandbox_env(job_dir), start_new_session=True)
         finally:
             log_fh.close()
         return Handle(job_id=job_id, attempt=attempt, job_dir=job_dir, pid=proc.pid, obj=proc, run_as=run_as)

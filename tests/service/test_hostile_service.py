@@ -790,3 +790,44 @@ def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
         svc.db.claim_next_job(one.json()["id"])
         r = c.post("/v1/jobs", json={**again, "optics": {**again["optics"], "seed": 4}})
         assert r.status_code == 403, r.text
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a mount namespace and another uid need root")
+def test_a_sandboxed_job_gets_temporary_folders_of_its_own(tmp_path):
+    """Slot uids shared /tmp, /var/tmp and /dev/shm while their runs overlapped: what one run put there another
+    could find, and /dev/shm is memory. The job starter gives each run a namespace where they are its own folder
+    (where the platform grants CAP_SYS_ADMIN; else they stay shared and its leftovers are swept)."""
+    import subprocess
+    import sys
+
+    from service.workers.private_tmp import private_targets
+
+    uid = 61_903
+    own = tmp_path / "jobtmp"
+    own.mkdir()
+    os.chown(own, uid, uid)
+    tag = f"probe-{os.getpid()}-{time.monotonic_ns()}"
+    script = (f"id -u; ls -A /tmp /var/tmp /dev/shm | grep -c . ; echo a > /tmp/{tag}.t; echo b > /dev/shm/{tag}.s; "
+              f"echo c > /var/tmp/{tag}.v; ipcs -m | grep -c '^0x' || true")
+    r = subprocess.run([sys.executable, "-m", "service.workers.private_tmp", str(own), str(uid), str(uid), "--",
+                        "/bin/sh", "-c", script], cwd="/", capture_output=True, text=True, timeout=60,
+                       env={"PATH": os.environ["PATH"], "PYTHONPATH": str(Path(__file__).resolve().parents[2]),
+                            "PYTHONSAFEPATH": "1"})
+    assert r.returncode == 0, r.stderr
+    if "no namespace of its own" in r.stderr:
+        pytest.skip(f"this platform gives no mount namespace: {r.stderr.strip()}")
+    assert "private /tmp, /var/tmp, /dev/shm and System V IPC" in r.stderr, r.stderr
+    lines = r.stdout.split()
+    assert lines[0] == str(uid)
+    assert lines[1] == "3"  # the three listings' headers only: nothing of the host's folders is seen
+    assert lines[2] == "0"  # no System V segment of anyone else's
+    assert sorted(p.name for p in own.iterdir()) == sorted(f"{tag}.{x}" for x in "tsv")
+    assert all(p.stat().st_uid == uid and p.stat().st_mode & 0o077 == 0 for p in own.iterdir())
+    assert not any(Path(d, f"{tag}.{x}").exists() for d in ("/tmp", "/var/tmp", "/dev/shm") for x in "tsv")
+    # a folder that holds what the job reaches by absolute path is not mounted over (a data dir under /tmp)
+    assert private_targets(["/tmp/x/data/jobs/j1", "/usr/bin/python3"]) == ["/var/tmp", "/dev/shm"]
+    assert private_targets(["/srv/holo/jobs/j1"]) == ["/tmp", "/var/tmp", "/dev/shm"]
+    # refused: not dropping to an unprivileged uid
+    bad = subprocess.run([sys.executable, "-m", "service.workers.private_tmp", str(own), "0", "0", "--", "true"],
+                         capture_output=True, text=True, env={"PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    assert bad.returncode == 2 and "non-root" in bad.stderr

@@ -95,7 +95,9 @@ def _uids_of(pattern: tuple[bytes, ...]) -> set[int]:
             status = Path(f"/proc/{entry.name}/status").read_text()
         except OSError:
             continue
-        if all(b in cmd for b in pattern):
+        # the job starter runs as root for the moment it takes to make the run's private folders, then drops
+        # to the slot uid and executes the driver in place (same pid): it is not the driver
+        if all(b in cmd for b in pattern) and b"service.workers.private_tmp" not in cmd:
             out.add(int(next(ln for ln in status.splitlines() if ln.startswith("Uid:")).split()[1]))
     return out
 
