@@ -33,3 +33,25 @@ def test_device_check_dry_run(tmp_path):
         ph = z["phase"]
     assert ph.shape == (2, 3, 96, 128) and float(ph.min()) >= 0 and float(ph.max()) < 2 * np.pi
     assert "CPU / this" in r.stdout and "total" in r.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_full_display_figure_dry_run(tmp_path):
+    """bench/full_display.py, the full-display figure's script, at 64x96 x 2 frames on the CPU: it writes the
+    figure, the figures' JSON and the ladder; the encoder's loss falls with its iterations and every score is
+    finite."""
+    r = subprocess.run([sys.executable, str(REPO / "bench" / "full_display.py"), "--device", "cpu", "--resolution",
+                        "64x96", "--frames", "2", "--spp", "8", "--ladder", "3,12", "--default-rule", "0",
+                        "--gt-spp", "4", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600,
+                       cwd=REPO)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    doc = json.loads((tmp_path / "full_display_mirror.json").read_text())
+    assert doc["size"] == [64, 96, 3, 2] and doc["render"]["variant"].startswith("llvm")
+    assert [row["iterations"] for row in doc["ladder"]] == [3, 12]
+    assert doc["ladder"][1]["loss_mean"] < doc["ladder"][0]["loss_mean"]
+    assert [f["name"] for f in doc["focus"]] == ["mirror frame", "mirror image"]
+    scores = [s["psnr_db"] for row in doc["ladder"] for s in row["scores"].values()]
+    assert all(np.isfinite(scores))
+    assert (tmp_path / "full_display_mirror.jpg").stat().st_size > 1000
+    assert (tmp_path / "encode_ladder_mirror.md").read_text().count("|") > 20

@@ -197,3 +197,34 @@ def test_invalid_inputs():
         simulate_view(u, **{**kw, "distance_m": float("nan")})
     with pytest.raises(ValueError, match=r"\[F, C, H, W\]"):
         simulate_view(u[0], **kw)
+
+
+def _plane_wave(k_col: int, k_row: int, n: int = 256) -> torch.Tensor:
+    """A plane wave on exactly k cycles of the n x n window along each axis: direction sines lambda k / (n p)."""
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    return torch.tensor(np.exp(2j * np.pi * (k_col * j + k_row * i) / n)[None, None], dtype=torch.complex64)
+
+
+@pytest.mark.parametrize("k, inside", [((110, 110), False), ((60, 0), True)])
+def test_fourier_filter_removes_light_outside_the_cone_only(k, inside):
+    """A display's Fourier filter passes each colour's recording cone, direction sines <= lambda / 2p = 0.0625
+    here. A plane wave in the spectrum's corner (sines 0.0537 along both axes, 0.076 off axis) reaches a 4 mm
+    pupil (NA 0.1) without the filter and is gone with it; one inside the cone (0.029) is untouched."""
+    from holocore.evaluate.scoring import eye_view
+
+    u = _plane_wave(*k)
+    kw = dict(wavelengths_m=[LAM], pitch_m=P, focal_length_m=F_EYE, pupil_diameter_m=4e-3, distance_m=0.0)
+    bare = simulate_view(u, **kw)[0, 64:-64, 64:-64].mean().item()
+    filtered = simulate_view(u, **kw, fourier_filter=True)[0, 64:-64, 64:-64].mean().item()
+    assert bare == pytest.approx(1.0, rel=0.02)
+    if inside:
+        assert filtered == pytest.approx(bare, rel=1e-3)
+    else:
+        assert filtered < 0.02
+    # eye_view follows the display profile in the meta: a display with a filter, and one without a profile
+    meta = {"focal_length_m": F_EYE, "z_inf_m": 0.0, "pitch_m": P, "wavelengths_m": [LAM]}
+    with_filter = eye_view(u.numpy(), {**meta, "display": {"fourier_filter": True}}, focus_z_m=0.0,
+                           pupil_diameter_m=4e-3)[0, 64:-64, 64:-64].mean()
+    without = eye_view(u.numpy(), meta, focus_z_m=0.0, pupil_diameter_m=4e-3)[0, 64:-64, 64:-64].mean()
+    assert without == pytest.approx(bare, rel=1e-3)
+    assert with_filter == pytest.approx(filtered, rel=1e-3, abs=1e-4)

@@ -192,13 +192,14 @@ def lit_margin_px(meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
 # ---- one view -----------------------------------------------------------------------------------------------
 def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
              view_offset_m: tuple[float, float] = (0.0, 0.0), memory_budget_bytes: Optional[int] = None,
-             device=None) -> np.ndarray:
+             device=None, fourier_filter: Optional[bool] = None) -> np.ndarray:
     """Frame-averaged intensity float64 [C, H, W] the eye sees, on the ground truth's pixel grid.
 
     ``field_slm`` complex [F, C, H, W] on the SLM (z = 0), in memory or a chunked source
     (:func:`holocore.optics.fieldsource.open_slm_field`: read in chunks of frames of one color, sized by
     ``memory_budget_bytes``); focus at hologram depth ``focus_z_m`` (m); pupil ``pupil_diameter_m`` (m); eye
-    offset ``view_offset_m`` (m). See the module docstring for the shift.
+    offset ``view_offset_m`` (m). See the module docstring for the shift. ``fourier_filter``: whether the display
+    passes only each colour's recording cone (holocore.optics.viewing); None: as the meta's display profile says.
     """
     meta = parse_view_meta(meta)
     from holocore.optics.fieldsource import SlmFieldSource
@@ -222,7 +223,8 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
     a_row = -ey * dz / f / p  # rows run down: U'[i] = U[i + a_row]
     out = view_intensities(src, wavelengths_m=list(meta.wavelengths_m), pitch_m=p, focal_length_m=f,
                            pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
-                           shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes)[0]
+                           shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes,
+                           fourier_filter=meta.fourier_filter if fourier_filter is None else bool(fourier_filter))[0]
     out = out.cpu().numpy().astype(np.float64)
     return np.ascontiguousarray(out.clip(min=0.0))
 

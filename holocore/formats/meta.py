@@ -65,6 +65,12 @@ class _Meta(BaseModel, Mapping):
             raise ValueError("must be > 0 m")
         return v
 
+    @property
+    def fourier_filter(self) -> bool:
+        """True when the display the field was made for has a Fourier filter that passes only each colour's
+        recording cone (its profile's ``fourier_filter``); False for a field made without a display profile."""
+        return bool((self.display or {}).get("fourier_filter", False))
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON object as written to the file (optional fields the writer did not set left out); a new dict."""
         return self.model_dump(mode="json", exclude_unset=True)

@@ -6,6 +6,12 @@ NA = D / (2 f). We keep those in the angular spectrum of the field, propagate th
 focus plane (band-limited ASM, DESIGN §5) in the same padded FFT pass, take |.|^2 and average over frames
 (time multiplexing).
 
+A display with a Fourier filter (``fourier_filter``; DESIGN §6, the encoder's "cone" supervision) passes only
+each colour's recording cone, the disc of direction sines <= lambda / 2p: the view then keeps the plane waves
+inside both the pupil and that disc. Without it a phase-only hologram's light outside the cone (where the encoder
+parks what a phase-only SLM cannot help sending) reaches any pupil wider than the cone as a haze, and more of
+blue's and green's than of red's, whose cone is the widest: a cast the real display does not have.
+
 Sign of the row frequency: rows run down while y runs up (y = ((H-1)/2 - i) p), so a wave exp(i 2 pi f_y y)
 travelling upwards (f_y > 0) has DFT frequency -f_y along the row axis. The pupil therefore sits at
 row frequency -e_y / (f lambda).
@@ -32,6 +38,7 @@ from holocore.optics.propagation import (
     padded_shape,
     transfer_function,
 )
+from holocore.trace.randomfield import passband_mask
 
 __all__ = ["simulate_view", "view_intensities", "pupil_mask", "stack_to_field", "depth_of_field_m"]
 
@@ -97,13 +104,14 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                      pupil_diameter_m: float, distances_m: Sequence[float],
                      view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
                      pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
-                     memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
+                     memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False) -> torch.Tensor:
     """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (DESIGN §7).
 
     ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
     plane; see :func:`simulate_view` for the optics. ``shift_px`` = (rows, cols): the view is first shifted by
     that many pixels (U'[i, j] = U[i + a_row, j + a_col], exactly, on the spectrum of a grid padded by the
     shift; evaluate's off-axis eye). ``device``: where the FFTs run (default: the chunks' device).
+    ``fourier_filter``: the display's filter passes only each colour's recording cone (module docstring).
     """
     from holocore.runtime.membudget import frames_per_chunk
     from holocore.runtime.membudget import memory_budget_bytes as _budget
@@ -156,6 +164,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
                                       pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
                                       device=u0.device)
+                    if fourier_filter:
+                        mask &= torch.from_numpy(passband_mask((hp, wp), lam, pitch_m)).to(u0.device)
                     filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
                         if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
                     filt.mul_(mask.to(filt.real.dtype))
@@ -173,12 +183,14 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
 
 def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
                   pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
-                  pad_factor: float = 2, memory_budget_bytes: Optional[int] = None) -> torch.Tensor:
+                  pad_factor: float = 2, memory_budget_bytes: Optional[int] = None,
+                  fourier_filter: bool = False) -> torch.Tensor:
     """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
     the focus plane z_f (negative: focus behind it); pupil of ``pupil_diameter_m`` behind an eyepiece of
     ``focal_length_m``, centred at ``view_offset_m`` = (e_x, e_y) (m). One wavelength per channel.
+    ``fourier_filter``: the display passes only each colour's recording cone (module docstring).
     """
     if not isinstance(field, torch.Tensor) or not field.is_complex():
         raise ValueError("field must be a complex torch tensor [F, C, H, W] or [C, H, W]")
@@ -192,4 +204,5 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     z = validate.real("distance_m", distance_m)
     return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
                             pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
-                            pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes)[0]
+                            pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes,
+                            fourier_filter=fourier_filter)[0]
