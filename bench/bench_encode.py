@@ -1,4 +1,4 @@
-"""Encoder benchmarks (issue 14 items 1-2, issue 13 item 4): one SGD iteration against its FFT floor, error
+"""Encoder benchmarks: one SGD iteration against its FFT floor, error
 against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x 3 x 24.
 
     python bench/bench_encode.py floor  [--hw 1080x1920] [--frames 2] [--z-mm 85] [--repeats 3]

@@ -1,4 +1,4 @@
-"""Tracer benchmarks (issue 3): ratios measured in one run, written to bench/results/tracer.md (+ plots).
+"""Tracer benchmarks: ratios measured in one run, written to bench/results/tracer.md (+ plots).
 
     .venv/bin/python bench/bench_tracer.py [--quick]
 

@@ -1,4 +1,4 @@
-"""Several wave recording planes vs one (issue 14 item 3): rays for equal SLM-field accuracy on the demo scene.
+"""Several wave recording planes vs one: rays for equal SLM-field accuracy on the demo scene.
 
 For each plane count K (1, 2, 3 and auto) and rays per pixel N, two renders that differ only in the rays' seed
 (the same random-phase bank) give two independent Monte Carlo estimates U_a, U_b of the same SLM field. Their

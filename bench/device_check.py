@@ -1,4 +1,4 @@
-"""The CUDA path, measured end to end (issue 14 item 4): the demo scene rendered to a chosen convergence, encoded
+"""The CUDA path, measured end to end: the demo scene rendered to a chosen convergence, encoded
 and viewed, each stage a `holo` subprocess on the chosen device; prints per stage the seconds, the peak host
 RSS, the peak GPU memory (nvidia-smi, when there is one) and the ratio to the CPU figures of
 bench/results/cpu_fullscale.json (only where the size is the same). Run through bench/device_check.sh, which

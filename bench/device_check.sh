@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CUDA path end to end (issue 14 item 4): set up, then render the demo scene at 1080x1920 x 3 x 24 to 80%
+# The CUDA path end to end: set up, then render the demo scene at 1080x1920 x 3 x 24 to 80%
 # convergence, encode and view it on the GPU, printing times, GPU memory and the ratio to the CPU figures
 # (bench/results/cpu_fullscale.json). One prepared script for a bare GPU machine with Python 3.12.
 #

@@ -1,4 +1,4 @@
-"""display_agent: the lab daemon beside a holographic display (issue 6).
+"""display_agent: the lab daemon beside a holographic display.
 
 It follows the service over HTTP for finished phase stacks meant for its display, keeps a verified local
 cache, plays stacks on a phase-only SLM (time-multiplexed, colour-sequential) and steps a focus controller

@@ -1,5 +1,5 @@
 """An SLM field [F, C, H, W] read in chunks of frames of one color, from memory or from a file, so that viewing and
-evaluation never hold a whole full-size field (DESIGN.md §7; issue 14).
+evaluation never hold a whole full-size field (DESIGN.md §7).
 
 From a STACK.npz the field is exp(i phase) lit with the encoder's relative laser power per frame and color
 (``meta["encoder"]["illumination"]``, the scene's colour balance) unless ``equal_power``; ``quantized`` shows
