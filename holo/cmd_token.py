@@ -20,7 +20,7 @@ def _db(data_dir: Path):
     from service.db import Database
 
     if not data_dir.exists():
-        data_dir.mkdir(parents=True)
+        data_dir.mkdir(parents=True, mode=0o700)  # `holo serve` opens what the sandbox needs when it starts
     return Database(data_dir / "service.db")
 
 

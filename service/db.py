@@ -7,6 +7,7 @@ state = ...`` statements, so the scheduler's claim and the API's cancel can neve
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -64,6 +65,12 @@ class Database:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        # owner-only from its first byte, whatever the umask of whoever makes it (`holo token create` before
+        # the first `holo serve`); SQLite gives the -wal and -shm files the database file's mode
+        try:
+            os.close(os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        except FileExistsError:
+            pass
         self._local = threading.local()
         self._conn().executescript(_SCHEMA)
         self._migrate()

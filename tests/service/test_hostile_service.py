@@ -642,6 +642,36 @@ def test_unsandboxed_server_keeps_its_files_private_and_says_so(server_factory):
         assert "running as root without privilege separation" in srv.log()
 
 
+def test_a_token_made_before_the_first_serve_leaves_nothing_readable(tmp_path):
+    """`holo token create` on a new data dir made it 0755 and service.db 0644 (the user's umask) until the first
+    `holo serve` closed them: every job, scene and token hash readable by anyone on the host meanwhile."""
+    import stat
+    import subprocess
+    import sys
+
+    data = tmp_path / "fresh" / "data"
+    r = subprocess.run([sys.executable, "-m", "holo", "token", "create", "--data-dir", str(data), "--scope", "read"],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2], timeout=60,
+                       preexec_fn=lambda: os.umask(0o022))
+    assert r.returncode == 0, r.stderr
+    assert stat.S_IMODE(data.stat().st_mode) == 0o700
+    files = [p for p in data.iterdir() if p.name.startswith("service.db")]
+    assert files and all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in files), \
+        [(p.name, oct(p.stat().st_mode)) for p in files]
+    from service.db import Database
+
+    old = os.umask(0o022)
+    try:
+        db = Database(tmp_path / "other" / "service.db")  # any maker: the service, a test, a script
+        db.insert_token(token_id="t", token_hash="h", name="", scopes=["read"], created_at=0.0, owner="default",
+                        expires_at=None)
+    finally:
+        os.umask(old)
+    made = [p for p in (tmp_path / "other").iterdir()]
+    assert {p.name for p in made} >= {"service.db", "service.db-wal"}
+    assert all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in made), [(p.name, oct(p.stat().st_mode)) for p in made]
+
+
 def test_sandboxed_processes_get_an_allow_listed_environment(tmp_path, monkeypatch):
     """The sandbox's environment was the server's less a deny-list of secret-looking names: a proxy URL with a
     password, a cloud session or the data dir's location passed through."""
