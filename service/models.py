@@ -45,6 +45,9 @@ class JobRequest(BaseModel):
     wrp_planes: Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]] = Field(
         default="auto", description="Wave recording planes: 1..8, or 'auto' (chosen from the scene depth).")
     display: Optional[str] = Field(default=None, pattern=NAME_PATTERN, description="Display the job is for.")
+    name: Optional[str] = Field(default=None, min_length=1, max_length=120, pattern=r"^[^\x00-\x1f\x7f]+$",
+                                description="A name for people (the web page offers the uploaded file's); not "
+                                            "part of the result's content address.")
 
     @model_validator(mode="after")
     def _planes_need_wrp(self) -> "JobRequest":
@@ -71,6 +74,7 @@ class Heartbeat(BaseModel):
 
 class JobOut(BaseModel):
     id: str
+    name: Optional[str] = None
     state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
     display: Optional[str] = None
     scene_id: str

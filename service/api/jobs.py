@@ -1,17 +1,19 @@
-"""Job routes: submit (202, idempotent, content-addressed reuse), list, status, events (SSE), cancel, and the
-artifacts (stack with ETag/Range, 8-bit frames zip, preview PNG)."""
+"""Job routes: submit (202, idempotent, content-addressed reuse), list, status, events (SSE), cancel, delete, the
+steps' logs, and the artifacts (stack with ETag/Range, 8-bit frames zip, preview PNG)."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+import os
+import shutil
 import time
 from pathlib import Path
 from typing import Literal, Optional
 
-from fastapi import APIRouter, Header, Query, Request
+from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi import Path as PathParam
-from fastapi.responses import JSONResponse, StreamingResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from service import submission
@@ -38,7 +40,8 @@ def job_out(row: dict) -> dict:
     if row["state"] == "succeeded":
         links.update(stack=f"/v1/jobs/{jid}/stack", frames=f"/v1/jobs/{jid}/frames.zip",
                      preview=f"/v1/jobs/{jid}/preview.png")
-    return {"id": jid, "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
+    spec = row["spec"] if isinstance(row["spec"], dict) else {}
+    return {"id": jid, "name": spec.get("name"), "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
             "created_at": iso(row["created_at"]), "started_at": iso(row["started_at"]),
             "finished_at": iso(row["finished_at"]), "stack_sha256": row["stack_sha256"],
             "stack_bytes": row["stack_bytes"], "options": row["spec"], "progress": row["progress"],
@@ -73,7 +76,12 @@ def submit_job(
     """Queue a render job (202 + Location). An identical earlier result (same scene content, optics, options
     and code version) is reused at once; ``estimate`` gives the predicted seconds."""
     done = submission.submit_job(ctx, req, principal, idempotency_key)
-    return _accepted(done.job, replayed=done.replayed)
+    job = done.job
+    if req.name is not None and not done.replayed and job["spec"].get("name") != req.name:
+        # the name is for people only: kept in the stored options, outside the content address
+        ctx.db.update_job(job["id"], spec={**job["spec"], "name": req.name})
+        job = _get(ctx, job["id"])
+    return _accepted(job, replayed=done.replayed)
 
 
 @router.get("/v1/jobs", response_model=JobList, responses=PROBLEM_RESPONSES)
@@ -110,6 +118,74 @@ def cancel_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern
     if row["state"] == "running":
         ctx.wake_scheduler()
     return JSONResponse(job_out(_get(ctx, job_id)), status_code=202)
+
+
+@router.post("/v1/jobs/{job_id}/delete", status_code=204, responses=PROBLEM_RESPONSES)
+def delete_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern=ID_PATTERN)):
+    """Delete a finished (succeeded, failed or cancelled) job: its record, and its folder unless another job
+    reuses that result. A queued or running job must be cancelled first (``DELETE /v1/jobs/{id}``)."""
+    row = _get(ctx, job_id, principal)
+    if row["state"] not in FINAL_STATES:
+        raise ApiError(409, f"job {job_id} is {row['state']}; cancel it first (DELETE /v1/jobs/{job_id}), then "
+                            "delete it")
+    folder = Path(row["artifact_dir"] or "")
+    if not ctx.db.delete_job(job_id, where_state=FINAL_STATES):
+        raise ApiError(409, f"job {job_id} changed while it was being deleted; try again")
+    jobs_dir = ctx.settings.jobs_dir.resolve()
+    shared = ctx.db.jobs_with_artifact_dir(str(folder)) if row["artifact_dir"] else 1
+    if not shared and folder.is_dir() and folder.resolve().parent == jobs_dir:
+        shutil.rmtree(folder, ignore_errors=True)
+    return Response(status_code=204)
+
+
+_LOG_STEPS = ("render", "encode", "preview", "driver")
+_LOG_TAIL_BYTES = 64 * 1024
+
+
+def _log_text(path: Path, roots: list[str]) -> str:
+    """The last 64 KiB of a step's log, each line with the job's folder shown relative and every other server
+    path as ``<server path>`` (as the job's error says them)."""
+    from holocore.scene.errors import scrub_message
+
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        size = fh.tell()
+        fh.seek(max(0, size - _LOG_TAIL_BYTES))
+        data = fh.read().decode("utf-8", errors="replace")
+    lines = data.splitlines()
+    if size > _LOG_TAIL_BYTES and lines:
+        lines = [f"[the first {size - _LOG_TAIL_BYTES} bytes are left out]", *lines[1:]]
+    return "\n".join(scrub_message(ln, roots=roots, limit=4000) for ln in lines) + ("\n" if lines else "")
+
+
+@router.get("/v1/jobs/{job_id}/logs", responses=PROBLEM_RESPONSES)
+def job_logs(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
+    """The steps' logs the job has (render, encode, preview: each step's output; driver), with their sizes and
+    URLs. A reused result's logs are those of the job that computed it."""
+    row = _get(ctx, job_id, principal)
+    folder = Path(row["artifact_dir"] or "")
+    out = []
+    for step in _LOG_STEPS:
+        p = folder / f"{step}.log"
+        if row["artifact_dir"] and p.is_file() and not p.is_symlink():
+            out.append({"step": step, "bytes": p.stat().st_size, "url": f"/v1/jobs/{job_id}/logs/{step}"})
+    return JSONResponse({"logs": out})
+
+
+@router.get("/v1/jobs/{job_id}/logs/{step}", responses={200: {"content": {"text/plain": {}}}, **PROBLEM_RESPONSES})
+def job_log(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN),
+            step: Literal["render", "encode", "preview", "driver"] = PathParam()):
+    """One step's log as text (its last 64 KiB; server paths replaced by ``<server path>``)."""
+    row = _get(ctx, job_id, principal)
+    folder = Path(row["artifact_dir"] or "")
+    p = folder / f"{step}.log"
+    if not row["artifact_dir"] or not p.is_file() or p.is_symlink():
+        raise ApiError(404, f"job {job_id} has no {step} log (yet)")
+    try:
+        text = _log_text(p, [str(folder), str(folder.resolve())])
+    except OSError:  # a sandboxed run's folder is its slot's until the run ends
+        raise ApiError(404, f"job {job_id}'s {step} log cannot be read while the job runs sandboxed") from None
+    return PlainTextResponse(text, headers={"Cache-Control": "no-cache"})
 
 
 def _sse(event: str, data: dict) -> str:

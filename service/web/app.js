@@ -1,5 +1,6 @@
-// The results page: sign in with a token, the job list with live progress, a submit form with the estimate,
-// and a job page with the plan, timings, downloads and what the hologram looks like (focal sweep, view grid).
+// The results page: sign in with a token, the job list with live progress, a submit form with the estimate and
+// the effect plan at the chosen options, and a job page with the plan, timings, logs, downloads, cancel, delete
+// and re-run, and what the hologram looks like (focal sweep, view grid).
 // Everything the service says is shown with textContent (dom.js); nothing is parsed as HTML.
 
 import { ApiError, blobURL, getJSON, postJSON, request, setUnauthorizedHandler, streamEvents, token } from "./api.js";
@@ -16,8 +17,15 @@ const state = {
   streams: new Map(), // job id -> AbortController (job list streams)
   page: null, // {id, abort, urls}
   scene: null, // the scene uploaded in the form
+  rerun: null, // the job whose options the form holds (re-run with changes)
+  rerunPending: null, // the job the Re-run button asked for, taken by the next visit to the home page
   timer: null,
+  shown: new Map(), // job id -> the largest fraction shown: progress never moves backwards on the page
+  thumbs: new Map(), // job id -> object URL of its preview (the list's thumbnails)
 };
+
+const plural = (n, one, many = `${one}s`) => `${n} ${n === 1 ? one : many}`;
+const aborted = (err) => err && err.name === "AbortError";
 
 function status(text, isError = false) {
   const s = $("status");
@@ -78,12 +86,15 @@ function route() {
   stopAll();
   if (m) {
     show("home", false); show("job", true);
-    showJob(m[1]);
+    showJob(m[1]).catch((err) => { if (!aborted(err)) status(`Could not show the job: ${err.message}`, true); });
   } else {
     show("job", false); show("home", true);
     refreshHome();
     state.timer = setInterval(refreshHome, 10000);
-    if (state.scene) estimateSoon();
+    const again = state.rerunPending;
+    state.rerunPending = null;
+    if (again) prefillRerun(again).catch((err) => status(`Could not re-run: ${err.message}`, true));
+    else if (state.scene) estimateSoon();
   }
 }
 
@@ -99,9 +110,42 @@ async function sceneName(id) {
   }
 }
 
+// The fraction shown for a job: the largest one shown so far (a step's progress file starting over, or a
+// restarted stream, never moves the bar back); 1 once it has succeeded.
 function pct(job) {
+  if (job.state === "succeeded") return 1;
   const f = job.progress && typeof job.progress.fraction === "number" ? job.progress.fraction : 0;
-  return job.state === "succeeded" ? 1 : Math.max(0, Math.min(1, f));
+  const p = Math.max(state.shown.get(job.id) || 0, Math.max(0, Math.min(1, f)));
+  if (job.state === "running") state.shown.set(job.id, p);
+  return p;
+}
+
+// What is left, from the estimate: its seconds less the time run so far, or (past the estimate) the time run so
+// far scaled by the fraction still to do.
+function eta(job) {
+  const est = job.estimate && typeof job.estimate.seconds === "number" ? job.estimate.seconds : null;
+  if (job.state === "queued") return est === null ? "waiting for a worker" : `waiting for a worker; about ${fmtSeconds(est)} once it starts`;
+  if (job.state !== "running" || est === null || !job.started_at) return "";
+  const ran = Math.max(0, (Date.now() - Date.parse(job.started_at)) / 1000);
+  const p = pct(job);
+  if (ran < est) return `about ${fmtSeconds(est - ran)} left`;
+  if (p > 0.05) return `about ${fmtSeconds(ran * (1 - p) / p)} left (past the estimate of ${fmtSeconds(est)})`;
+  return `past the estimate of ${fmtSeconds(est)}`;
+}
+
+function jobName(job) {
+  if (job.name) return job.name;
+  const sc = state.scenes.get(job.scene_id);
+  return sc ? sc.entry : job.scene_id;
+}
+
+function optionsText(job) {
+  const o = job.options || {};
+  const optics = o.optics || {};
+  const res = (optics.resolution_hw || []).join("x");
+  return [res && `${res} px`, typeof optics.frames === "number" ? plural(optics.frames, "frame") : null,
+          o.preset, o.encoder, o.render_time_limit_s ? `${fmtSeconds(o.render_time_limit_s)} limit` : null,
+          o.spp ? `${o.spp} rays/px` : null].filter(Boolean).join(" · ");
 }
 
 function actualSeconds(job) {
@@ -126,21 +170,46 @@ function estimateCells(job) {
 function progressCell(job) {
   const p = pct(job);
   const stage = job.progress && job.progress.stage ? job.progress.stage : "";
-  return el("td", {},
+  const left = eta(job);
+  return el("td", { class: "progress-cell" },
     el("progress", { max: "1", value: String(p) }),
-    el("span", { class: "muted" }, ` ${Math.round(100 * p)}%${stage && !FINAL.has(job.state) ? " " + stage : ""}`));
+    el("span", { class: "muted" }, ` ${Math.round(100 * p)}%${stage && !FINAL.has(job.state) ? " " + stage : ""}`),
+    left ? el("div", { class: "muted eta" }, left) : null);
+}
+
+function thumbCell(job) {
+  const td = el("td", { class: "thumb" });
+  const url = state.thumbs.get(job.id);
+  if (url) td.append(el("img", { src: url, alt: "preview", class: "thumb" }));
+  return td;
 }
 
 function jobRow(job) {
   const scene = state.scenes.has(job.scene_id) ? state.scenes.get(job.scene_id).entry : job.scene_id;
   return el("tr", { "data-job-id": job.id, class: `state-${job.state}` },
-    el("td", {}, el("a", { href: `#/jobs/${job.id}`, class: "mono" }, job.id)),
+    thumbCell(job),
+    el("td", { class: "job-name" }, el("a", { href: `#/jobs/${job.id}` }, jobName(job)),
+       el("div", { class: "mono muted" }, job.id)),
     el("td", { class: "scene-name", title: job.scene_id }, scene),
+    el("td", { class: "options" }, optionsText(job)),
     el("td", {}, job.display || "–"),
-    el("td", {}, el("span", { class: `badge ${job.state}` }, job.state)),
+    el("td", { class: "state" }, el("span", { class: `badge ${job.state}` }, job.state),
+       job.error ? el("div", { class: "error reason" }, job.error) : null),
     progressCell(job),
     ...estimateCells(job),
     el("td", {}, fmtTime(job.created_at)));
+}
+
+// Thumbnails of the newest succeeded jobs' previews (fetched once each; blob: URLs, as every picture here).
+async function loadThumbs(jobs) {
+  const want = jobs.filter((j) => j.state === "succeeded" && j.links.preview && !state.thumbs.has(j.id)).slice(0, 24);
+  for (const j of want) {
+    try {
+      state.thumbs.set(j.id, await blobURL(j.links.preview));
+      const row = $("jobs").tBodies[0].querySelector(`tr[data-job-id="${CSS.escape(j.id)}"]`);
+      if (row) row.replaceWith(jobRow(state.jobs.get(j.id) || j));
+    } catch (_) { state.thumbs.set(j.id, null); }
+  }
 }
 
 function updateRow(job) {
@@ -159,8 +228,9 @@ async function refreshHome() {
     for (const j of jobs) { state.jobs.set(j.id, j); body.append(jobRow(j)); }
     show("jobs-empty", jobs.length === 0);
     for (const j of jobs) if (!FINAL.has(j.state)) follow(j.id);
+    loadThumbs(jobs);
     await refreshDisplays();
-    status("");
+    if ($("status").classList.contains("error")) status("");  // an earlier load's failure is over
   } catch (err) {
     if (!(err instanceof ApiError && err.status === 401)) status(`Could not load the jobs: ${err.message}`, true);
   }
@@ -208,7 +278,9 @@ async function loadProfiles() {
 }
 
 function profile() {
-  return state.profiles.profiles.find((p) => p.name === $("profile").value) || state.profiles.profiles[0];
+  const v = $("profile").value;
+  if (state.rerun && v === `job:${state.rerun.id}`) return { name: v, optics: state.rerun.options.optics };
+  return state.profiles.profiles.find((p) => p.name === v) || state.profiles.profiles[0];
 }
 
 function applyProfile() {
@@ -229,8 +301,25 @@ function jobBody() {
   const planes = $("wrp-planes").value;
   body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
   if ($("display").value.trim()) body.display = $("display").value.trim();
+  if ($("job-name").value.trim()) body.name = $("job-name").value.trim();
   return body;
 }
+
+// The form's state goes with the scene it was made for: a new upload (refused or not) takes the old one away
+// first, so Submit can never send the previous scene.
+function forgetScene() {
+  state.scene = null;
+  state.rerun = null;
+  estimateSeq++; clearTimeout(estimateTimer);
+  show("job-form", false); show("rerun-note", false); show("form-plan-box", false);
+  $("submit-button").disabled = true;
+  setText($("estimate"), ""); setText($("submit-error"), "");
+  const sel = $("profile");
+  for (const o of [...sel.options]) if (o.value.startsWith("job:")) o.remove();
+  if (!sel.value && state.profiles) { sel.value = state.profiles.default; applyProfile(); }
+}
+
+function nameFromFile(file) { return file ? file.name.replace(/\.zip$/i, "").slice(0, 120) : ""; }
 
 async function upload(ev) {
   ev.preventDefault();
@@ -240,6 +329,7 @@ async function upload(ev) {
   fd.append("bundle", file, "bundle.zip");
   if ($("entry").value.trim()) fd.append("entry", $("entry").value.trim());
   $("upload-button").disabled = true;
+  forgetScene();
   const info = clear($("scene-info"));
   info.append(el("p", { class: "muted" }, "Uploading and checking the bundle…"));
   try {
@@ -247,11 +337,13 @@ async function upload(ev) {
     state.scene = sc;
     state.scenes.set(sc.id, sc);
     showScene(sc);
+    $("job-name").value = nameFromFile(file);
     show("job-form", true);
     estimateSoon();
     waitForPlan(sc.id);
   } catch (err) {
-    clear(info).append(el("p", { class: "error" }, `Scene refused: ${err.message}`));
+    const why = String(err.message).replace(/^scene refused:\s*/i, "");
+    clear(info).append(el("p", { class: "error", id: "scene-error" }, `Scene refused: ${why}`));
   } finally {
     $("upload-button").disabled = false;
   }
@@ -265,7 +357,6 @@ function showScene(sc) {
        el("span", { class: "mono muted" }, sc.id)),
     el("p", { class: "muted" }, `${(r.files || []).length} files, ${fmtBytes(r.total_bytes)}; plugins: `
        + `${(r.plugins || []).join(", ") || "–"}; effect plan: ${sc.plan_state}`));
-  if (sc.plan && sc.plan.summary) info.append(el("ul", { class: "plan" }, sc.plan.summary.map((s) => el("li", {}, s))));
   for (const w of [...(r.warnings || []), ...(r.ignored || [])]) info.append(el("p", { class: "warning" }, String(w)));
   if (sc.plan_error) info.append(el("p", { class: "error" }, sc.plan_error));
 }
@@ -292,31 +383,51 @@ function estimateSoon() {
   estimateTimer = setTimeout(estimate, 250);
 }
 
+// Boxes that must hold something (their label's words); every other check is the server's, whose refusal says
+// what to change (the browser's own range checks would only say "invalid").
+const REQUIRED = [["frames", "Frames"], ["res-h", "Resolution (rows)"], ["res-w", "Resolution (columns)"]];
+
+function showFormPlan(plan) {
+  const ul = clear($("form-plan"));
+  for (const line of (plan && plan.summary) || []) ul.append(el("li", {}, line));
+  show("form-plan-box", !!ul.firstChild);
+}
+
 async function estimate() {
   if (!state.scene) return;
   const seq = ++estimateSeq;
   const out = $("estimate");
   setText($("submit-error"), "");
-  if (!$("job-form").checkValidity()) { setText(out, "Fill in the options to see the estimate."); return; }
+  out.classList.remove("error");
+  const empty = REQUIRED.filter(([id]) => !$(id).value.trim()).map(([, words]) => words);
+  if (empty.length) { setText(out, `Fill in ${empty.join(", ")} to see the estimate.`); return; }
+  if (state.scene.plan_state === "failed") {
+    setText(out, "Cannot submit: the scene's plan failed (see above); fix the scene and upload it again.");
+    out.classList.add("error"); showFormPlan(null);
+    return;
+  }
   try {
     const e = await postJSON("/v1/jobs/estimate", jobBody());
-    if (seq !== estimateSeq) return;
+    if (seq !== estimateSeq || !state.scene) return;
     const m = e.estimate.memory || {};
     const rays = e.estimate.spp_assumed === null ? "rays until the time limit"
       : `${e.estimate.spp_assumed} rays per pixel`;
     setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
+    showFormPlan(e.plan);
     $("submit-button").disabled = false;
   } catch (err) {
     if (seq !== estimateSeq) return;
     setText(out, `Cannot submit: ${err.message}`);
     out.classList.add("error");
+    showFormPlan(null);
   }
 }
 
 async function submit(ev) {
   ev.preventDefault();
+  if (!state.scene || $("submit-button").disabled) return;  // only what the estimate just accepted goes out
   $("submit-button").disabled = true;
   try {
     const resp = await request("/v1/jobs", { method: "POST", json: jobBody() });
@@ -341,8 +452,13 @@ function keep(url) { if (state.page) state.page.urls.push(url); return url; }
 
 function fact(dl, term, value) { dl.append(el("dt", {}, term), el("dd", {}, value)); }
 
+// The plan the job's own render made; a queued job holds only its scene's plan at the scene's default optics,
+// which is not this job's (other frames, resolution, recording planes), so that is never shown as its plan.
+function ownPlan(job) { return job.plan && !job.plan.source ? job.plan : null; }
+
 function renderJob(job) {
   setText($("job-id"), job.id);
+  setText($("job-name-title"), jobName(job));
   const dl = clear($("job-facts"));
   const est = job.estimate || {};
   const t = job.timings || {};
@@ -353,37 +469,136 @@ function renderJob(job) {
   fact(dl, "Display", job.display || "–");
   const o = job.options || {};
   const optics = o.optics || {};
-  fact(dl, "Options", `${(optics.resolution_hw || []).join("x")} px, ${optics.frames} frames, `
-    + `${(optics.wavelengths_nm || []).length} colors, preset ${o.preset}, encoder ${o.encoder}`
+  fact(dl, "Options", `${(optics.resolution_hw || []).join("x")} px, ${plural(optics.frames, "frame")}, `
+    + `${plural((optics.wavelengths_nm || []).length, "color")}, preset ${o.preset}, encoder ${o.encoder}`
     + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
-    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${o.spp} rays per pixel` : ""));
+    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : ""));
   fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
   fact(dl, "Memory", `estimated peak ${fmtBytes((est.memory || {}).peak_bytes)} (${(est.memory || {}).peak_stage || "–"}), `
     + `measured peak ${fmtBytes(t.peak_rss_bytes)}`);
+  if (typeof t.engine === "string") fact(dl, "Ran on", `the ${t.engine} engine${job.attempts > 1 ? `, attempt ${job.attempts}` : ""}`);
   fact(dl, "Created", fmtTime(job.created_at));
   if (job.finished_at) fact(dl, "Finished", fmtTime(job.finished_at));
   if (job.reused_from) fact(dl, "Reused from", el("a", { href: `#/jobs/${job.reused_from}` }, job.reused_from));
   const p = pct(job);
   $("job-bar").style.width = `${(100 * p).toFixed(1)}%`;
+  $("job-bar").dataset.fraction = String(p);
+  const left = eta(job);
   setText($("job-stage"), FINAL.has(job.state) ? "" : `${Math.round(100 * p)}% · ${job.progress ? job.progress.step + " / "
-    + job.progress.stage : "waiting for a worker"}`);
-  setText($("job-error"), job.error || "");
+    + job.progress.stage : "waiting for a worker"}${left && job.state === "running" ? " · " + left : ""}`
+    + (job.state === "queued" && left ? ` (${left})` : ""));
+  setText($("job-error"), job.error ? `Failed: ${job.error}` : "");
+  renderActions(job);
 
   const plan = clear($("plan"));
-  for (const line of (job.plan && job.plan.summary) || []) plan.append(el("li", {}, line));
-  if (!plan.firstChild) plan.append(el("li", { class: "muted" }, job.plan && job.plan.source === "pending"
-    ? "The effect plan follows once the scene has been planned." : "No plan yet."));
+  const own = ownPlan(job);
+  for (const line of (own && own.summary) || []) plan.append(el("li", {}, line));
+  if (!plan.firstChild) {
+    plan.append(el("li", { class: "muted", id: "plan-note" }, FINAL.has(job.state)
+      ? (job.state === "succeeded" ? "The render recorded no plan." : `No effect plan: the job ${job.state === "failed" ? "failed" : "was cancelled"} before its render made one.`)
+      : "The effect plan at this job's options comes when it renders."));
+  }
   const warns = clear($("warnings"));
-  for (const w of (job.plan && job.plan.warnings) || []) warns.append(el("li", {}, w));
+  for (const w of (own && own.warnings) || (job.plan && job.plan.warnings) || []) warns.append(el("li", {}, w));
 
   const tb = clear($("timings").tBodies[0]);
   for (const [k, v] of Object.entries(t)) {
-    if (k === "peak_rss_bytes") continue;
-    tb.append(el("tr", {}, el("td", {}, k.replace(/_s$/, "")),
-      el("td", { class: "num" }, typeof v === "number" ? v.toFixed(2) : String(v))));
+    if (k === "peak_rss_bytes" || typeof v !== "number" || !k.endsWith("_s")) continue;
+    tb.append(el("tr", {}, el("td", {}, k.replace(/_s$/, "")), el("td", { class: "num" }, v.toFixed(2))));
   }
+  const none = !tb.firstChild;
+  $("timings").hidden = none;
+  setText($("timings-note"), !none ? "" : t.reused ? "Reused an earlier result: nothing ran."
+    : job.state === "queued" ? "Nothing has run yet." : job.state === "running" ? "The steps' seconds come when it finishes."
+    : `No step timings: the job ${job.state === "failed" ? "failed" : "was cancelled"} before it finished.`);
   renderDownloads(job);
+}
+
+function renderActions(job) {
+  const may = !!(state.me && state.me.may_submit);
+  show("job-cancel", may && !FINAL.has(job.state));
+  show("job-delete", may && FINAL.has(job.state));
+  show("job-rerun", may);
+  $("job-cancel").onclick = async () => {
+    $("job-cancel").disabled = true;
+    try {
+      const done = await (await request(`/v1/jobs/${encodeURIComponent(job.id)}`, { method: "DELETE" })).json();
+      if (state.page && state.page.id === job.id) renderJob(done);
+    } catch (err) { status(`Not cancelled: ${err.message}`, true); }
+    $("job-cancel").disabled = false;
+  };
+  $("job-delete").onclick = async () => {
+    if (!window.confirm(`Delete job ${jobName(job)} and its files? This cannot be undone.`)) return;
+    $("job-delete").disabled = true;
+    try {
+      await request(`/v1/jobs/${encodeURIComponent(job.id)}/delete`, { method: "POST" });
+      state.jobs.delete(job.id);
+      status(`Deleted job ${jobName(job)}.`);
+      location.hash = "#/";
+    } catch (err) { status(`Not deleted: ${err.message}`, true); }
+    $("job-delete").disabled = false;
+  };
+  $("job-rerun").onclick = () => { state.rerunPending = job; location.hash = "#/"; };
+}
+
+// Re-run with changes: the form takes the job's scene, optics (as a "profile" of its own) and options.
+async function prefillRerun(job) {
+  forgetScene();
+  const sc = await getJSON(`/v1/scenes/${encodeURIComponent(job.scene_id)}`);
+  state.scenes.set(sc.id, sc);
+  state.scene = sc;
+  state.rerun = job;
+  showScene(sc);
+  const o = job.options || {};
+  const optics = o.optics || {};
+  const sel = $("profile");
+  sel.prepend(el("option", { value: `job:${job.id}` }, `as job ${jobName(job)} (${(optics.resolution_hw || []).join("x")}, `
+    + `${optics.pitch_um} µm, ${plural((optics.wavelengths_nm || []).length, "color")})`));
+  sel.value = `job:${job.id}`;
+  $("res-h").value = optics.resolution_hw[0];
+  $("res-w").value = optics.resolution_hw[1];
+  $("frames").value = optics.frames;
+  $("preset").value = o.preset;
+  $("encoder").value = o.encoder;
+  $("time-limit").value = o.render_time_limit_s || "";
+  $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
+  $("wrp-planes").value = String(o.wrp_planes || "auto");
+  $("display").value = job.display || "";
+  $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);
+  setText($("rerun-note"), `Re-run of job ${jobName(job)} (${job.id}) on its scene: change what you want and submit.`);
+  show("rerun-note", true);
+  show("job-form", true);
+  $("submit").scrollIntoView();
+  if (sc.plan_state !== "ready" && sc.plan_state !== "failed") waitForPlan(sc.id);
+  estimateSoon();
+}
+
+// The steps' logs: a button per log, the chosen one's text below (the failing step's first on a failed job).
+async function showLogs(job, page) {
+  let logs;
+  try {
+    ({ logs } = await getJSON(`/v1/jobs/${encodeURIComponent(job.id)}/logs`, { signal: page.abort.signal }));
+  } catch (err) { if (aborted(err)) throw err; logs = []; }
+  if (state.page !== page) return;
+  const tabs = clear($("log-tabs"));
+  show("logs-card", logs.length > 0);
+  if (!logs.length) return;
+  const open = async (entry, button) => {
+    for (const b of tabs.querySelectorAll("button")) b.classList.toggle("active", b === button);
+    try {
+      const text = await (await request(entry.url, { signal: page.abort.signal })).text();
+      if (state.page === page) { setText($("log-text"), text || "(empty)"); $("log-text").dataset.step = entry.step; }
+    } catch (err) { if (!aborted(err) && state.page === page) setText($("log-text"), `Could not read the log: ${err.message}`); }
+  };
+  let first = null;
+  for (const entry of logs) {
+    const b = el("button", { type: "button", class: "small", "data-step": entry.step }, `${entry.step}.log (${fmtBytes(entry.bytes)})`);
+    b.addEventListener("click", () => open(entry, b));
+    tabs.append(b);
+    if (entry.step !== "driver") first = [entry, b];  // the last step that ran (the failing one on a failed job)
+  }
+  if (first) await open(...first);
 }
 
 function renderDownloads(job) {
@@ -409,21 +624,33 @@ function renderDownloads(job) {
   if (job.stack_sha256) box.append(el("span", { class: "mono muted" }, ` stack sha256 ${job.stack_sha256.slice(0, 16)}…`));
 }
 
+// Everything one job's page shows, emptied: the next job (or a missing one) starts from nothing.
+function resetJobPage() {
+  for (const id of ["job-facts", "job-downloads", "plan", "warnings", "log-tabs", "grid"]) clear($(id));
+  clear($("timings").tBodies[0]);
+  for (const id of ["job-id", "job-name-title", "job-stage", "job-error", "look-note", "timings-note", "log-text",
+                    "focus-label", "grid-label"]) setText($(id), "");
+  $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
+  $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
+  for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun"]) show(id, false);
+}
+
 async function showJob(id) {
   leaveJobPage();
   const page = { id, abort: new AbortController(), urls: [] };
   state.page = page;
-  clear($("grid")); $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
-  setText($("look-note"), "");
-  show("look", false);
+  resetJobPage();
   let job;
   try {
-    job = await getJSON(`/v1/jobs/${id}`);
+    job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
   } catch (err) {
+    if (aborted(err) || state.page !== page) return;
     setText($("job-id"), id);
     setText($("job-error"), err.status === 404 ? "No such job (or it is another owner's)." : err.message);
+    show("timings-card", false);
     return;
   }
+  show("timings-card", true);
   await sceneName(job.scene_id);
   if (state.page !== page) return;
   renderJob(job);
@@ -436,9 +663,12 @@ async function showJob(id) {
       }, page.abort.signal);
     } catch (_) { if (page.abort.signal.aborted) return; }
     if (state.page !== page) return;
-    job = await getJSON(`/v1/jobs/${id}`);
+    job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
+    if (state.page !== page) return;
     renderJob(job);
   }
+  await showLogs(job, page);
+  if (state.page !== page) return;
   if (job.state === "succeeded") await showPictures(job, page);
 }
 
@@ -494,6 +724,10 @@ function init() {
   $("upload-form").addEventListener("submit", upload);
   $("job-form").addEventListener("submit", submit);
   $("job-form").addEventListener("input", estimateSoon);
+  // a select may say only "change"; a text box's change (on leaving it) follows an input event already, and
+  // re-estimating then would turn Submit off under the click that left the box
+  $("job-form").addEventListener("change", (ev) => { if (ev.target.tagName === "SELECT") estimateSoon(); });
+  $("bundle").addEventListener("change", () => { forgetScene(); clear($("scene-info")); });
   $("profile").addEventListener("change", () => { applyProfile(); estimateSoon(); });
   window.addEventListener("hashchange", route);
   if (token.get()) start().catch(() => signedOut("Please sign in again.")); else signedOut();
