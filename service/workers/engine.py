@@ -268,44 +268,51 @@ SHARED_TMP = ("/tmp", "/var/tmp", "/dev/shm", "/dev/mqueue")
 def remove_leftovers(uids, roots: tuple[str, ...] = SHARED_TMP, *, max_entries: int = 200_000) -> list[str]:
     """Remove every entry the sandbox users ``uids`` own in the shared temporary folders ``roots`` (also in
     world-writable folders below them, e.g. one another user made 0777), and their System V shared memory
-    segments, which outlive their processes too. Their processes must be gone. Returns what it removed."""
+    segments, which outlive their processes too. Their processes must be gone. Every step goes through folder
+    descriptors, never a path: another sandbox user, still running, may own a folder on the way and swap it for
+    a link elsewhere. Returns what it removed."""
     uids = set(uids)
     removed: list[str] = []
     left = [max_entries]  # a folder of millions of entries is not walked to its end
+    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
 
-    def sweep(folder: str, dev: int) -> None:
-        try:
-            it = os.scandir(folder)
-        except OSError:
-            return
-        with it:
-            for entry in it:
-                left[0] -= 1
-                if left[0] < 0:
-                    return
-                try:
-                    st = entry.stat(follow_symlinks=False)
-                except OSError:
-                    continue
+    def sweep(fd: int, where: str, dev: int) -> None:
+        with os.scandir(fd) as it:
+            entries = list(it)
+        for entry in entries:
+            left[0] -= 1
+            if left[0] < 0:
+                return
+            path = f"{where}/{entry.name}"
+            try:
+                st = entry.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            try:
                 if st.st_uid in uids:
-                    try:
-                        if stat.S_ISDIR(st.st_mode):
-                            shutil.rmtree(entry.path)  # fd-based on Linux: links inside are removed, not followed
-                        else:
-                            os.unlink(entry.path)
-                        removed.append(entry.path)
-                    except OSError as exc:
-                        log.warning("could not remove %s left by a sandbox user: %s", entry.path, exc)
+                    if stat.S_ISDIR(st.st_mode):
+                        shutil.rmtree(entry.name, dir_fd=fd)  # fd-based: links inside are removed, not followed
+                    else:
+                        os.unlink(entry.name, dir_fd=fd)
+                    removed.append(path)
                 elif stat.S_ISDIR(st.st_mode) and st.st_mode & stat.S_IWOTH and st.st_dev == dev:
-                    sweep(entry.path, dev)  # anyone may create entries in it
+                    sub = os.open(entry.name, flags, dir_fd=fd)  # anyone may create entries in it
+                    try:
+                        sweep(sub, path, dev)
+                    finally:
+                        os.close(sub)
+            except OSError as exc:
+                log.warning("could not remove %s left by a sandbox user: %s", path, exc)
 
     for root in roots:
         try:
-            st = os.stat(root)
+            fd = os.open(root, flags)
         except OSError:
             continue
-        if stat.S_ISDIR(st.st_mode):
-            sweep(root, st.st_dev)
+        try:
+            sweep(fd, root.rstrip("/"), os.fstat(fd).st_dev)
+        finally:
+            os.close(fd)
     removed.extend(_remove_shm_segments(uids))
     return removed
 

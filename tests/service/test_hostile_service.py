@@ -734,9 +734,15 @@ def test_what_a_sandbox_uid_leaves_in_shared_temporary_folders_is_removed_with_i
     os.lchown(shared / "link", uid, uid)
     mine.append(shared / "link")
     kept = [made_by(other, shared / "theirs"), made_by(uid, closed / "unreachable-to-it"), Path("/etc/passwd")]
+    elsewhere = tmp_path / "elsewhere"  # another running uid's link to a folder: never followed
+    elsewhere.mkdir()
+    kept.append(made_by(uid, elsewhere / "not-in-a-shared-folder"))
+    os.symlink(elsewhere, shared / "swapped")
+    os.lchown(shared / "swapped", other, other)
+    kept.append(shared / "swapped")
     gone = remove_leftovers({uid}, roots=(str(shared),))
     assert sorted(gone) == sorted(map(str, mine)), gone
-    assert not any(os.path.lexists(p) for p in mine) and all(p.exists() for p in kept)
+    assert not any(os.path.lexists(p) for p in mine) and all(os.path.lexists(p) for p in kept)
     # System V shared memory outlives its processes too
     libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
     r, w = os.pipe()
