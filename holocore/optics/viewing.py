@@ -38,7 +38,7 @@ from holocore.optics.propagation import (
     padded_shape,
     transfer_function,
 )
-from holocore.trace.randomfield import passband_mask
+from holocore.display.optics import theta_max_rad
 
 __all__ = ["simulate_view", "view_intensities", "pupil_mask", "stack_to_field", "depth_of_field_m"]
 
@@ -164,8 +164,10 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
                                       pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
                                       device=u0.device)
-                    if fourier_filter:
-                        mask &= torch.from_numpy(passband_mask((hp, wp), lam, pitch_m)).to(u0.device)
+                    if fourier_filter:  # the recording cone: a centred disc of sine lambda / 2p (edge kept)
+                        cone_d = 2.0 * focal_length_m * math.sin(theta_max_rad(lam, max(validate.pitch_pair(pitch_m))))
+                        mask &= pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
+                                           pupil_diameter_m=cone_d * (1.0 + 1e-9), device=u0.device)
                     filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
                         if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
                     filt.mul_(mask.to(filt.real.dtype))

@@ -9,17 +9,14 @@ then on the same path goes on as an ordinary incoherent path (emitter sampling w
 from ``rr_depth``), whose radiance is the radiance leaving P times the chain's throughput. The path depth is
 counted from P, so the radiance equals what Mitsuba's ``path`` integrator returns for a ray arriving at P.
 
-Fusing the two (instead of a first hit, a chain, then ``integrator.sample`` from the last chain vertex) traces
-P once, not twice, and keeps every ray in one kernel. :func:`holocore.trace.reference_chain.trace_chain` remains the
-reference implementation (and the cache pre-pass's); tests compare the two.
-
-A BSDF that mixes delta and smooth lobes (plastic) decides chain or image point with one sample; at an image
-point it draws a fresh sample for the incoherent path, so that P's radiance includes all its lobes, as the
-reference implementation's ``integrator.sample`` from the previous vertex does.
+Fusing the two traces P once, not twice, in one kernel; :func:`holocore.trace.reference_chain.trace_chain`
+(a first hit, a chain, then ``integrator.sample``) is the reference the tests compare with. A BSDF that mixes
+delta and smooth lobes (plastic) decides chain or image point with one sample; at an image point it draws a
+fresh sample for the incoherent path, so that P's radiance includes all its lobes, as the reference does.
 
 One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in this order:
 
-1. :func:`_intersect`: the vertex the current segment reaches, and :func:`_absorb`: Beer-Lambert
+1. :func:`_intersect`: the vertex the current segment reaches, and :func:`holocore.trace.media.absorb`: Beer-Lambert
    attenuation of the segment by the homogeneous absorbing medium it travels in (docs/physics.md);
 2. :func:`_emission`: the emission found there by the previous BSDF sample, MIS-weighted (paper Eq. 1, L_e),
    or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
@@ -40,6 +37,7 @@ from typing import TYPE_CHECKING, NamedTuple
 from holocore.scene.features import has_media, has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.differentials import igehy_transfer
+from holocore.trace.media import absorb, extinction, sensor_medium, transmittance
 
 if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
     import mitsuba as mi
@@ -191,7 +189,7 @@ def trace_wave_paths(
         delta_prev=dr.full(mi.Bool, True, R),
         chain=dr.full(mi.Bool, True, R), D=V3d(v64), dP=[V3d(e1), V3d(e2), V3d(zero3), V3d(zero3)],
         dD=[V3d(zero3), V3d(zero3), V3d(e1), V3d(e2)], frame=[V3d(e1), V3d(e2)], n_cur=dr.full(F64, 1.0, R),
-        medium=_sensor_medium(scene, R) if media else None, nd=dr.zeros(mi.UInt32, R),
+        medium=sensor_medium(scene, R) if media else None, nd=dr.zeros(mi.UInt32, R),
         d=dr.zeros(F64, R), done=dr.full(mi.Bool, False, R), bad=dr.full(mi.Bool, False, R),
         capped=dr.full(mi.Bool, False, R), escaped=dr.full(mi.Bool, False, R), cached=dr.full(mi.Bool, False, R))
     if media:
@@ -207,7 +205,7 @@ def trace_wave_paths(
     def body(p: _PathState, sampler: mi.Sampler) -> tuple[_PathState, mi.Sampler]:
         v = _intersect(scene, p)  # 1. the vertex this segment reaches
         if s.media:
-            _absorb(p, v)  # 1'. Beer-Lambert along the segment, before anything it carries is counted
+            absorb(p, v)  # 1'. Beer-Lambert along the segment, before anything it carries is counted
         p.escaped |= p.active & v.chain0 & ~v.si.is_valid()  # a coherent path that leaves the scene
         Le = _emission(scene, p, v)  # 2. Eq. 1's L_e reached by the previous BSDF sample, MIS-weighted
         cached = mi.Bool(False)
@@ -252,51 +250,6 @@ def _intersect(scene: mi.Scene, p: _PathState) -> _Vertex:
     bsdf = si.bsdf(p.ray)
     return _Vertex(ray=p.ray, pi=pi, si=si, hit=hit, bsdf=bsdf, flags=bsdf.flags(), chain0=p.chain,
                    in_chain=hit & p.chain, is_emitter=si.shape.is_emitter())
-
-
-def _sensor_medium(scene: mi.Scene, width: int) -> mi.MediumPtr:
-    """The medium the ``width`` rays start in: the scene's first sensor's (Mitsuba's ``<sensor>`` holding a
-    ``<medium>``); null pointers (vacuum) when it has none."""
-    mi = mitsuba()
-    import drjit as dr
-
-    sensors = scene.sensors()
-    medium = sensors[0].get_medium() if sensors else None
-    none = dr.zeros(mi.MediumPtr, width)
-    return none if medium is None else dr.select(dr.full(mi.Bool, True, width), mi.MediumPtr(medium), none)
-
-
-def _sigma_t(medium, p: _PathState, v: _Vertex, active) -> mi.Color3f:
-    """A homogeneous medium's extinction sigma_t per colour (1/m; Mitsuba's ``scale`` included): one constant
-    per colour, so it is read at the segment's origin; 0 where ``active`` is off or the pointer is null."""
-    mi = mitsuba()
-    import drjit as dr
-
-    mei = dr.zeros(mi.MediumInteraction3f)
-    mei.p, mei.wi, mei.t, mei.wavelengths = p.ray.o, -p.ray.d, 0.0, v.si.wavelengths
-    _sigma_s, _sigma_n, sigma_t = medium.get_scattering_coefficients(mei, active)
-    return dr.select(active, sigma_t, 0.0)
-
-
-def _transmittance(sigma_t: mi.Color3f, t: mi.Float) -> mi.Color3f:
-    """Beer-Lambert, exp(-sigma_t t) per colour over t (m), in intensity (the amplitude takes its square
-    root, exp(-sigma_t t / 2)); exactly 1 where sigma_t = 0, also over an infinite t (no 0 * inf)."""
-    import drjit as dr
-
-    return dr.select(sigma_t > 0, dr.exp(-sigma_t * t), 1.0)
-
-
-def _absorb(p: _PathState, v: _Vertex) -> None:
-    """Step 1': the segment just traced crossed its medium (Mitsuba's media: the sensor's, or the side of the
-    last boundary the ray left into): the throughput takes its transmittance. Only homogeneous absorbing media
-    reach the tracer (the scene check refuses scattering ones). The length is measured from the previous
-    vertex, not from the spawned ray's origin, which Mitsuba offsets by ~1e-4 m; a segment that leaves the
-    scene inside a medium is fully absorbed."""
-    import drjit as dr
-
-    inside = p.active & (p.medium != None)  # noqa: E711 (Dr.Jit compares pointers lane by lane)
-    t = dr.select(v.si.is_valid(), dr.norm(v.si.p - p.si_prev.p), dr.inf)
-    p.beta = p.beta * _transmittance(_sigma_t(p.medium, p, v, inside), t)
 
 
 def _emission(scene: mi.Scene, p: _PathState, v: _Vertex) -> mi.Color3f:
@@ -347,7 +300,7 @@ def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sample
     mis_em = dr.select(ds.delta, 1.0, _mis(ds.pdf, pdf))
     if s.media:  # the shadow segment's own medium: the side of a medium boundary it leaves into, else the ray's
         shadow = dr.select(v.si.is_medium_transition(), v.si.target_medium(ds.d), p.medium)
-        em_w = em_w * _transmittance(_sigma_t(shadow, p, v, em_on & (shadow != None)), ds.dist)  # noqa: E711
+        em_w = em_w * transmittance(extinction(shadow, p.ray, v.si, em_on & (shadow != None)), ds.dist)  # noqa: E711
     Lr = dr.select(em_on & ~go_on, p.beta * mis_em * val * em_w, 0.0)
     return _Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
 
