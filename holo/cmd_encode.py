@@ -41,6 +41,9 @@ def encode(
     device: Optional[str] = typer.Option(None, help="auto (CUDA when available) | cpu | cuda | cuda:N; default: "
                                                     "HOLO_DEVICE, else auto."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
+    init: Optional[Path] = typer.Option(None, "--init", help="sgd: start from this STACK.npz's phases (same frames, "
+                                                             "colours and pixels): a re-render of the scene, or an "
+                                                             "encode stopped early, goes on from there."),
 ) -> None:
     """Encode a render's WRP field into a phase-only stack: phase [F, C, H, W] in [0, 2pi) and 8-bit frames."""
     if method not in ("sgd", "dpac", "naive"):
@@ -49,6 +52,8 @@ def encode(
         fail(f"--iterations must be in 0..1000000, got {iterations}")
     if not result.is_file():
         fail(f"result not found: {result}")
+    if init is not None and not init.is_file():
+        fail(f"start stack not found: {init}")
 
     from holocore.encode import encoder as encoding
     from holocore.runtime.device import torch_device
@@ -79,7 +84,8 @@ def encode(
     try:
         res, _ = encode_file(result, out, method=method, fourier_filter=fourier_filter,
                              memory_limit_bytes=int(memory_limit_gb * 2**30), device=dev, lut=lut_table,
-                             lut_source=None if lut is None else lut.name, progress=write_progress, **options)
+                             lut_source=None if lut is None else lut.name, progress=write_progress,
+                             init_path=init, **options)
     except (ValueError, OSError) as exc:
         fail(str(exc))
     write_progress("save", 1, 1)

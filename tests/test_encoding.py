@@ -477,3 +477,29 @@ def test_heap_reuse_changes_no_number(monkeypatch):
     monkeypatch.setattr(encoding_sgd, "heap_reuse", lambda enabled=True: contextlib.nullcontext())
     without = enc.encode_sgd(target, **kw)
     assert np.array_equal(with_reuse.phase, without.phase) and np.array_equal(with_reuse.loss, without.loss)
+
+
+def test_warm_start_goes_on_from_the_start_stack(tmp_path):
+    """encode_file(init_path=STACK): the SGD starts from that stack's phases. Its starting error is the start
+    stack's final error, it ends lower, and 40 + 40 iterations get about as far as 80 from the naive phase (Adam's
+    moments start afresh); a stack of another shape or a non-SGD method is refused in one line."""
+    from holocore.encode.stream import encode_file
+    from holocore.io import save_result
+
+    target = _small_target(frames=2)
+    meta = {"focal_length_m": 0.02, "z_inf_m": 1e-3, "z_wrp_m": Z, "pitch_m": P, "wavelengths_m": LAMS}
+    save_result(tmp_path / "R.npz", slm_field=target, wrp_field=target, meta=meta)
+    first, _ = encode_file(tmp_path / "R.npz", tmp_path / "A.npz", iterations=40, stop_db=0.0)
+    more, m = encode_file(tmp_path / "R.npz", tmp_path / "B.npz", iterations=40, stop_db=0.0,
+                          init_path=tmp_path / "A.npz")
+    scratch, _ = encode_file(tmp_path / "R.npz", tmp_path / "C.npz", iterations=80, stop_db=0.0)
+    assert np.allclose(more.loss_init, first.loss, rtol=1e-4, atol=1e-6)
+    assert np.all(more.loss < first.loss)
+    assert float(more.loss.mean()) < 1.1 * float(scratch.loss.mean())
+    assert m["encoder"]["init"] == "stack A.npz"
+    other = _small_target(frames=3)
+    save_result(tmp_path / "R3.npz", slm_field=other, wrp_field=other, meta=meta)
+    with pytest.raises(ValueError, match="same frames, colours and pixels"):
+        encode_file(tmp_path / "R3.npz", tmp_path / "D.npz", iterations=5, init_path=tmp_path / "A.npz")
+    with pytest.raises(ValueError, match="applies to method .sgd. only"):
+        encode_file(tmp_path / "R.npz", tmp_path / "E.npz", method="dpac", init_path=tmp_path / "A.npz")

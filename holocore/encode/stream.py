@@ -82,11 +82,14 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                 fourier_filter: Optional[bool] = None, memory_limit_bytes: int = 8 * 2**30,
                 block_frames: Optional[int] = None, device: Union[str, torch.device] = "cpu",
                 lut: Optional[np.ndarray] = None, lut_source: Optional[str] = None,
-                progress: Optional[Callable[[str, int, int], None]] = None, **sgd: Any) -> tuple[EncodeResult, dict]:
+                progress: Optional[Callable[[str, int, int], None]] = None, init_path: Optional[Union[str, Path]] = None,
+                **sgd: Any) -> tuple[EncodeResult, dict]:
     """Encode ``result_path``'s ``wrp_field`` into STACK.npz at ``out_path`` block by block; returns the result
     (``phase`` left empty: it is in the file) and the stack's meta. ``fourier_filter`` None: the RESULT meta's
     display decides (True when it names none). ``block_frames`` None: as many frames as ``memory_limit_bytes``
-    allows."""
+    allows. ``init_path``: a STACK.npz of the same shape whose phases the SGD starts from (a warm start: the
+    stack of an earlier render of the same scene and display, or an encode stopped early, goes on from where it
+    was instead of from the naive phase; the stop rule ends it once it gains no more)."""
     t0 = time.perf_counter()
     result_path, out_path = Path(result_path), Path(out_path)
     meta = read_meta(result_path)
@@ -106,6 +109,17 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     sup = supervision_for(bool(fourier_filter))
     sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
                                "efficiency_weight": 0.0, **sgd}) if method == "sgd" else {}
+    init_src = None
+    if init_path is not None:
+        if method != "sgd":
+            raise ValueError(f"a start phase (init) applies to method 'sgd' only, not {method!r}")
+        try:
+            init_src = NpyMember(init_path, "phase")
+        except (OSError, KeyError, ValueError) as exc:
+            raise ValueError(f"cannot read the start phase from {Path(init_path).name}: {exc}") from None
+        if tuple(init_src.shape) != (F, C, H, W):
+            raise ValueError(f"the start stack {Path(init_path).name} holds phase {list(init_src.shape)}, but the "
+                             f"render is {[F, C, H, W]}: a warm start needs the same frames, colours and pixels")
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
     n_blocks = math.ceil(F / fb)
@@ -129,8 +143,13 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                     t = torch.from_numpy(src.read_fc(f0, f1, c)).to(device=device, dtype=torch.complex64)
                     if not bool(torch.isfinite(torch.view_as_real(t)).all()):
                         raise ValueError(f"{result_path}: wrp_field contains NaN or infinite values")
+                    phi0 = None
+                    if init_src is not None:
+                        phi0 = torch.from_numpy(np.ascontiguousarray(init_src.read_fc(f0, f1, c), np.float32))
+                        if not bool(torch.isfinite(phi0).all()):
+                            raise ValueError(f"the start stack {Path(init_path).name} holds NaN or infinite phases")
                     blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
-                                       progress=cb, **sgd_opts)
+                                       progress=cb, init=phi0, **sgd_opts)
                     del t
                     block[:, c] = wrap_phase(blk.phase)
                     acc.add(f0, c, blk)
@@ -150,7 +169,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
             if method == "sgd":
                 opts.update({"lr": sgd_opts["lr"], "tol": sgd_opts["tol"], "stop_db": sgd_opts["stop_db"],
                              "efficiency_weight": sgd_opts["efficiency_weight"],
-                             "max_iterations": sgd_opts["iterations"], "init": "naive"})
+                             "max_iterations": sgd_opts["iterations"],
+                             "init": "naive" if init_path is None else f"stack {Path(init_path).name}"})
             res = acc.result(method, np.empty((0, C, H, W), np.float32), sup, t0, opts)
             out_meta = parse_stack_meta(stack_meta(meta, res, lut=lut, lut_source=lut_source), what=str(out_path))
             with zf.open("meta.npy", "w") as mf:
