@@ -1,6 +1,6 @@
 """Predicted versus measured render time: the timing goal that used to be a test.
 
-``tests/test_evaluation.py::test_estimate_is_near_the_measured_time`` asserted that a warm render of the demo
+``tests/evaluate/test_evaluation.py::test_estimate_is_near_the_measured_time`` asserted that a warm render of the demo
 scene took between 0.5x and 2x the committed default calibration's prediction; on a loaded machine it failed
 (a timed assertion). The suite now checks only what is deterministic (the estimate counts the render's own
 rays and stages, and grows with them as its model says); the time itself is measured here.

@@ -18,7 +18,7 @@ __all__ = ["SHARED_SCENES", "FULL_TIER_ONLY", "FULL_TIER_ONLY_MODULES"]
 # two runs on 2 shared cores (load 2-5; everything else, 1460 s in all, then without the tests over 2 s, since
 # a module's fixture moves to the next test that uses it). The quick tier keeps cheaper tests of each package
 # (optics, trace, plan, encode, evaluate, service, agent), the service's end-to-end jobs (tests/service/
-# test_e2e.py) and one end-to-end render (tests/test_cli_render.py); 3 min on 2 shared cores. Test file ->
+# test_e2e.py) and one end-to-end render (tests/cli/test_cli_render.py); 3 min on 2 shared cores. Test file ->
 # test names (a name without [params]: every case).
 FULL_TIER_ONLY: dict[str, list[str]] = {
     "tests/agent/test_agent_e2e.py": [
@@ -76,7 +76,7 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
     "tests/service/test_units.py": [
         "test_second_server_on_the_same_data_dir_is_refused", "test_serve_and_token_cli_errors",
     ],
-    "tests/test_baseline_defaults.py": [
+    "tests/baselines/test_baseline_defaults.py": [
         "test_every_baseline_runs_with_its_defaults_on_each_project_scene[cbox]",
         "test_every_baseline_runs_with_its_defaults_on_each_project_scene[demo]",
         "test_every_baseline_runs_with_its_defaults_on_each_project_scene[paper-glass]",
@@ -86,44 +86,44 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
         "test_every_baseline_runs_with_its_defaults_on_each_project_scene[veach-mis]",
         "test_every_baseline_runs_with_its_defaults_on_the_shared_bundles",
     ],
-    "tests/test_baseline_focal_stack.py": [
+    "tests/baselines/test_baseline_focal_stack.py": [
         "test_a_time_limit_stops_each_colour_early_and_otherwise_changes_nothing",
         "test_cli_writes_result_and_stack", "test_each_plane_is_sharp_at_its_own_focus_and_the_loss_falls",
         "test_render_focal_stack_puts_its_planes_at_the_cards",
         "test_the_result_and_its_stack_load_in_view_and_evaluate",
     ],
-    "tests/test_baseline_light_field.py": [
+    "tests/baselines/test_baseline_light_field.py": [
         "test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite",
         "test_cli_light_field_writes_a_result_and_rejects_bad_input",
         "test_parallax_is_right_and_the_card_off_the_rs_plane_never_focuses",
         "test_the_fit_reads_a_stereogram_back_and_fits_phase_only_frames_to_a_light_field",
     ],
-    "tests/test_bundle_semantics.py": [
+    "tests/scene/test_bundle_semantics.py": [
         "test_preloaded_plugins_never_resolve_through_a_scene_folder",
         "test_traced_loads_never_open_a_file_outside_their_bundle",
     ],
-    "tests/test_cli_render.py": [
+    "tests/cli/test_cli_render.py": [
         "test_bad_options_are_refused_clearly[args5---time-limit-s]",
         "test_bad_options_are_refused_clearly[args6---time-limit-s]", "test_plan_json",
     ],
-    "tests/test_device_check.py": [
+    "tests/bench/test_device_check.py": [
         "test_device_check_dry_run",
     ],
-    "tests/test_display.py": [
+    "tests/display/test_display.py": [
         "test_plan_of_a_wide_camera_uses_the_displays_f_and_says_the_view_differs",
         "test_plan_options_override_a_profile_file",
     ],
-    "tests/test_encoding.py": [
+    "tests/encode/test_encoding.py": [
         "test_blocks_of_frames_give_the_unchunked_stack", "test_complex_scale_of_the_target_only_shifts_the_phase",
         "test_heap_reuse_changes_no_number", "test_sgd_looks_better_than_naive_to_a_viewer",
         "test_sgd_on_a_traced_scene", "test_sgd_reaches_its_error_on_a_random_phase_target_and_beats_naive",
         "test_stop_rule_in_decibels", "test_streamed_file_encoding_equals_the_in_memory_one",
         "test_without_a_fourier_filter_the_light_outside_the_cone_counts",
     ],
-    "tests/test_estimate_probe.py": [
+    "tests/plan/test_estimate_probe.py": [
         "test_a_real_probe_measures_positive_costs",
     ],
-    "tests/test_evaluation.py": [
+    "tests/evaluate/test_evaluation.py": [
         "test_a_phase_stack_is_lit_with_its_laser_powers",
         "test_a_view_offset_moves_the_reconstruction_like_the_ground_truth[offset0]",
         "test_a_view_offset_moves_the_reconstruction_like_the_ground_truth[offset1]",
@@ -133,13 +133,13 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
         "test_reconstruction_lands_on_the_ground_truth_pixel", "test_render_estimate_cli",
         "test_the_estimate_counts_the_work_the_render_does",
     ],
-    "tests/test_formats_light.py": [
+    "tests/formats/test_formats_light.py": [
         "test_agent_and_formats_import_without_torch_mitsuba_drjit",
     ],
-    "tests/test_paper_report.py": [
+    "tests/bench/test_paper_report.py": [
         "test_frames_the_convergence_map_may_share", "test_reference_against_itself_and_cue_depth",
     ],
-    "tests/test_paper_scenes.py": [
+    "tests/scene/test_paper_scenes.py": [
         "test_demo_renders_a_paper_scene", "test_depth_scene_spans_the_paper_image_volume",
         "test_fast_preset_keeps_the_glossy_highlight",
         "test_glass_ball_images_the_card_at_the_paraxial_thick_lens_position",
@@ -147,7 +147,7 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
         "test_mirror_image_lies_at_the_apparent_depth_of_the_reflected_object",
         "test_small_render_is_finite_and_lit", "test_the_camera_sees_the_paper_display_view",
     ],
-    "tests/test_propagation.py": [
+    "tests/optics/test_propagation.py": [
         "test_asm_matches_rayleigh_sommerfeld[shape0-1e-06-5e-07-4e-06-0.0001-0.0-0.0]",
         "test_asm_matches_rayleigh_sommerfeld[shape1-2e-07-4.55e-07-7e-07-5e-06-0.0-0.0]",
         "test_inverse_fft_is_right_at_padded_production_sizes", "test_long_distance_phase_precision_complex64",
@@ -158,77 +158,77 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
         "test_chunked_views_equal_the_unchunked_ones", "test_streamed_chunked_render_equals_the_unchunked_one",
         "test_the_phase_bank_is_freed_before_the_slm_propagation",
     ],
-    "tests/test_time_limit.py": [
+    "tests/plan/test_time_limit.py": [
         "test_holo_render_with_a_time_limit", "test_the_passes_make_the_spp_weighted_mean",
     ],
-    "tests/test_view_cli.py": [
+    "tests/cli/test_view_cli.py": [
         "test_encode_writes_a_numpy_readable_stack",
         "test_service_preview_is_what_holo_view_writes_and_a_failed_preview_keeps_the_pictures",
         "test_view_focuses_on_the_right_point[result]",
     ],
-    "tests/test_viewing.py": [
+    "tests/optics/test_viewing.py": [
         "test_defocus_blur_grows_with_pupil_as_geometry_predicts",
         "test_frame_averaging_reduces_speckle_like_inverse_sqrt_frames", "test_point_source_focuses_at_its_depth",
     ],
-    "tests/tracer/test_cone_equaliser.py": [
+    "tests/optics/test_cone_equaliser.py": [
         "test_a_white_card_keeps_its_colour_in_every_view", "test_a_white_card_looks_white_through_the_report_pupil",
         "test_few_rays_do_not_tint_the_views",
     ],
-    "tests/tracer/test_directional_frames.py": [
+    "tests/trace/test_directional_frames.py": [
         "test_a_glowing_plate_has_far_less_speckle_with_directional_frames",
         "test_a_tilted_plate_is_as_bright_from_the_left_as_from_the_right",
         "test_a_white_plate_stays_white_in_every_view", "test_every_beam_carries_its_share_at_every_wrp_margin",
     ],
-    "tests/tracer/test_emitters.py": [
+    "tests/trace/test_emitters.py": [
         "test_a_textured_area_light_in_view_is_imaged",
         "test_every_emitter_kind_lights_the_hologram_like_mitsubas_render",
         "test_field_amplitude_goes_as_the_square_root_of_the_emitted_power",
     ],
-    "tests/tracer/test_eyebox.py": [
+    "tests/trace/test_eyebox.py": [
         "test_every_colour_leaves_within_the_common_cone",
     ],
-    "tests/tracer/test_focus.py": [
+    "tests/trace/test_focus.py": [
         "test_equal_radiance_at_two_depths_is_equally_bright", "test_plane_focuses_at_predicted_depth",
         "test_twice_the_radiance_gives_twice_the_intensity", "test_two_planes_focus_at_their_own_depths",
     ],
-    "tests/tracer/test_hard_cases.py": [
+    "tests/trace/test_hard_cases.py": [
         "test_camera_inside_glass", "test_point_like_emitter_between_the_prepass_rays_keeps_the_wrp_in_front",
         "test_rays_escape_and_emitter_seen_directly", "test_scene_that_cannot_fit_is_refused",
         "test_sub_wavelength_pitch_hemisphere", "test_surface_close_to_the_wrp_margin",
         "test_total_internal_reflection_in_glass_block", "test_two_facing_mirrors_hit_the_cap",
     ],
-    "tests/tracer/test_mirror_glass.py": [
+    "tests/trace/test_mirror_glass.py": [
         "test_convex_mirror_sphere_obeys_the_mirror_equation", "test_flat_mirror_focuses_at_the_virtual_image",
         "test_glass_slab_brings_the_image_closer", "test_rays_through_a_glass_ball_add_up_coherently",
     ],
-    "tests/tracer/test_path_reuse.py": [
+    "tests/trace/test_path_reuse.py": [
         "test_frames_have_equal_mean_intensity",
     ],
-    "tests/tracer/test_plan.py": [
+    "tests/plan/test_plan.py": [
         "test_veach_mis_plan_has_no_coherent_loop",
         "test_cbox_plan_has_mirror_and_glass", "test_diffuse_scene_planned_equals_forced_and_traces_less",
         "test_veach_bidir_plan_is_glossy_with_glass",
     ],
-    "tests/tracer/test_sphere_pole.py": [
+    "tests/trace/test_sphere_pole.py": [
         "test_fused_kernel_images_the_axis_ray_at_the_ball_lens_focus[poles-on-the-axis]",
         "test_reference_chain_images_the_axis_ray_at_the_ball_lens_focus[poles-on-the-axis]",
     ],
-    "tests/tracer/test_tilted_surface.py": [
+    "tests/trace/test_tilted_surface.py": [
         "test_a_tilted_white_plate_has_the_colour_and_brightness_of_a_facing_one_in_every_view",
     ],
-    "tests/tracer/test_wrp_planes.py": [
+    "tests/trace/test_wrp_planes.py": [
         "test_two_planes_estimate_the_same_field_with_far_less_noise",
     ],
 }
 # Whole modules, and a new test that takes long: list it here or mark it @pytest.mark.slow in its file.
 FULL_TIER_ONLY_MODULES: dict[str, str] = {
-    "tests/test_plugin_sweep.py::test_every_admitted_plugin_renders_or_is_refused_clearly":
-        "one render per admitted plugin; tests/tracer/test_emitters.py and test_hard_cases.py render the kinds",
+    "tests/scene/test_plugin_sweep.py::test_every_admitted_plugin_renders_or_is_refused_clearly":
+        "one render per admitted plugin; tests/trace/test_emitters.py and test_hard_cases.py render the kinds",
     "tests/service/test_ray.py": "a Ray cluster per test; tests/service/test_units.py covers the engine choice",
     "tests/service/test_ray_connect.py": "Ray Client start-up",
     "tests/service/test_web.py": "headless Chromium; tests/service/test_units.py covers the page's API",
     "tests/service/test_schemathesis.py": "API fuzzing; test_hostile*.py send bad input by hand",
-    "tests/tracer/test_wavekernel.py": "millions of rays against the reference chain; tests/tracer/test_sphere_pole.py "
+    "tests/trace/test_wavekernel.py": "millions of rays against the reference chain; tests/trace/test_sphere_pole.py "
                                        "runs both on few rays",
 }
 

@@ -3,7 +3,7 @@
 Everything here is per (frame, color): the target is scaled by its own peak (the loss is scale-free; its
 energy is recorded in the input's scale for the illumination), black targets are found per item, and the
 optimiser shares no number between items. A stack encoded block by block is therefore the stack encoded at
-once (tests/test_encoding.py checks it), and memory grows with the block, not with the stack.
+once (tests/encode/test_encoding.py checks it), and memory grows with the block, not with the stack.
 """
 
 from __future__ import annotations

@@ -169,7 +169,7 @@ def ifft2(spec: torch.Tensor) -> torch.Tensor:
 
     torch 2.13's CPU ``ifft2`` returns garbage for an unbatched 2048 x 2048 complex64 input on more than one
     thread (the grid of a 1024 x 1024 SLM padded 2x; ``ifftn`` too, while ``fft2`` and batched calls are right:
-    tests/test_propagation.py checks both at production sizes), so the project never calls it.
+    tests/optics/test_propagation.py checks both at production sizes), so the project never calls it.
     """
     return torch.fft.fft2(spec.conj()).conj_physical_().div_(spec.shape[-2] * spec.shape[-1])
 

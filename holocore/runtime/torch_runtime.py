@@ -6,7 +6,7 @@ two threads at once, MKL's lazy start-up races, and about one process in three t
 thread's half of every later call in a low-accuracy mode: float64 errors of 2e-11 (2e5 ulp) instead of 1 ulp,
 float32 errors of 3e-4. The same seed then gave arrays that differ between processes (a service job's stack
 against the CLI's), and the ASM transfer function lost accuracy. One small call on this thread first lets MKL
-start up alone (tests/test_propagation.py checks 1 ulp in fresh processes).
+start up alone (tests/optics/test_propagation.py checks 1 ulp in fresh processes).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from holocore.baselines.light_field import hogel_rays, rs_plane_depth, stereogram_fields
 from holocore.trace.mapping import HologramMap
-from tests.test_baseline_focal_stack import two_card_bundle
+from tests.baselines.test_baseline_focal_stack import two_card_bundle
 
 P, F_M, LAM = 8e-6, 0.05, 516.5e-9
 
@@ -182,7 +182,7 @@ def test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite():
     rays) and the sky behind it give finite radiance and a finite field."""
     from holocore.baselines.light_field import render_light_field
     from holocore.display.profiles import PAPER, display_optics
-    from tests.tracer.scenes import T, camera, emitting_plane, scene
+    from tests.trace.scenes import T, camera, emitting_plane, scene
 
     optics = display_optics(PAPER, overrides={"resolution_hw": (24, 32), "frames": 2, "z_inf_mm": 1.0})
     wall = {"type": "rectangle", "to_world": T().translate([0, 0, -2]).scale(5),

@@ -134,7 +134,7 @@ def test_glass_ball_images_the_card_at_the_paraxial_thick_lens_position(loaded):
     assert zc_expect == pytest.approx(0.3446, abs=1e-4)  # 0.345 m: z_inf + 7.25 mm, the surface at + 5 mm
     assert zc_expect < c - R  # in front of the ball's surface, far from the card
     # Rays near the axis: many copies, keep those refracted twice (in and out; a reflection is one bounce)
-    # (the ray exactly on the axis, at the sphere's poles: tests/tracer/test_sphere_pole.py)
+    # (the ray exactly on the axis, at the sphere's poles: tests/trace/test_sphere_pole.py)
     tans = np.repeat(np.array([[1e-4, 0.0], [0.0015, 0.0], [0.0, -0.0015], [-0.001, 0.001]]), 32, axis=0)
     res, d_cam = _chain(loaded["glass"], tans)
     two = res.valid & (res.n_delta == 2)

@@ -7,7 +7,7 @@ import pytest
 
 from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.scenes import T, camera, emitting_plane, scene
+from tests.trace.scenes import T, camera, emitting_plane, scene
 
 OPTICS = OpticsConfig(resolution_hw=(24, 32), wavelengths_nm=(640.0, 455.4), frames=2, focal_length_mm=20.0)
 OPTS = RenderOptions(preset="fast", spp=4)

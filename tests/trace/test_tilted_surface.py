@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.tracer.optics_probe import plate_view_colours
+from tests.trace.optics_probe import plate_view_colours
 
 
 def test_a_tilted_white_plate_has_the_colour_and_brightness_of_a_facing_one_in_every_view():

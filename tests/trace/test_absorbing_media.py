@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.tracer.scenes import T, camera, emitting_plane
+from tests.trace.scenes import T, camera, emitting_plane
 
 SIGMA = (20.0, 8.0, 2.0)  # 1/m per colour, given as rgb (1, 0.4, 0.1) x scale 20
 THICK = 0.05  # m: the slab's thickness
@@ -103,7 +103,7 @@ def test_the_whole_render_carries_the_absorption_and_says_so():
     from holocore.display.optics import OpticsConfig
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.load import from_mitsuba_scene
-    from tests.tracer.optics_probe import fov_deg
+    from tests.trace.optics_probe import fov_deg
 
     opt = OpticsConfig(resolution_hw=(48, 64), pitch_um=8.0, frames=2, focal_length_mm=50.0)
     sensor = camera(fov=fov_deg(64, 8e-6, 0.05))

@@ -76,7 +76,7 @@ def test_a_new_mode_is_one_class(scratch_registry):
     from holocore.display.profiles import PAPER
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.paper import paper_fov_x_deg
-    from tests.tracer.scenes import camera, emitting_plane, scene
+    from tests.trace.scenes import camera, emitting_plane, scene
 
     loaded = scene(sensor=camera(fov=paper_fov_x_deg()), plate=emitting_plane(-0.5, size=0.2))
     opt = PAPER.optics(resolution_hw=(32, 48), frames=3, z_inf_mm=4.0, frame_phases="flat_for_test")

@@ -83,7 +83,7 @@ def _plate_views(frame_phases: str, tilt_deg: float, *, spp: int = 256, frames: 
     from holocore.evaluate.scoring import default_pupil_m, eye_view, lit_margin_px
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.paper import paper_fov_x_deg
-    from tests.tracer.scenes import camera, emitting_plane, scene
+    from tests.trace.scenes import camera, emitting_plane, scene
 
     loaded = scene(sensor=camera(fov=paper_fov_x_deg()), plate=emitting_plane(-0.5, size=0.2, rotate_y_deg=tilt_deg))
     opt = PAPER.optics(resolution_hw=(135, 240), frames=frames, z_inf_mm=4.0, frame_phases=frame_phases)
@@ -154,7 +154,7 @@ def test_every_beam_carries_its_share_at_every_wrp_margin():
     from holocore.display.profiles import PAPER
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.paper import paper_fov_x_deg
-    from tests.tracer.scenes import camera, emitting_plane, scene
+    from tests.trace.scenes import camera, emitting_plane, scene
 
     loaded = scene(sensor=camera(fov=paper_fov_x_deg()), plate=emitting_plane(-0.5, size=0.2))
     H, W = 64, 96

@@ -10,14 +10,14 @@ import pytest
 
 from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.optics_probe import (
+from tests.trace.optics_probe import (
     best_focus,
     depth_of_field,
     dot_texture,
     fov_deg,
     intensity,
 )
-from tests.tracer.scenes import T, camera, emitting_plane, scene
+from tests.trace.scenes import T, camera, emitting_plane, scene
 
 LAM = 516.5e-9
 P = 4e-6

@@ -22,7 +22,7 @@ from holocore.scene.bundle import (
     validate_bundle,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SENSOR = '<sensor type="perspective"><float name="fov" value="40"/></sensor>'
 TRI = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 

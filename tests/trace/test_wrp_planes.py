@@ -11,8 +11,8 @@ import pytest
 from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
 from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
-from tests.tracer.optics_probe import fov_deg
-from tests.tracer.scenes import T, camera, scene
+from tests.trace.optics_probe import fov_deg
+from tests.trace.scenes import T, camera, scene
 
 MARGIN = 1.0e-3
 Z_WRP = 0.092

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.tracer.scenes import T, camera, emitting_plane, scene
+from tests.trace.scenes import T, camera, emitting_plane, scene
 
 N_GLASS, RADIUS_M, CENTRE_M, CARD_M = 1.5, 0.25, 0.75, 5.75  # the paper's glass scene: ball 0.5..1 m, card at 5.75 m
 COPIES = 24  # glass lobes are sampled: several copies of each ray, those refracted in and out are kept

@@ -8,7 +8,7 @@ import pytest
 
 from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.scenes import T, camera, scene
+from tests.trace.scenes import T, camera, scene
 
 OPT = OpticsConfig(resolution_hw=(40, 40), wavelengths_nm=(516.5,), focal_length_mm=20.0, frames=6, seed=3)
 

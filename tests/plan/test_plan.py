@@ -10,7 +10,7 @@ from holocore.display.optics import OpticsConfig
 from holocore.pipeline import RenderOptions, plan_scene, render_loaded
 from holocore.scene.load import load_scene
 from tests.project_scenes import SCENE_SOURCES
-from tests.tracer.scenes import T, camera, scene
+from tests.trace.scenes import T, camera, scene
 
 OPT = OpticsConfig(resolution_hw=(32, 32), frames=2, fit_camera_fov=True)  # f from the scene camera: the whole view
 

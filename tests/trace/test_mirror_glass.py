@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.optics_probe import dot_texture
-from tests.tracer.scenes import T, emitting_plane, scene
-from tests.tracer.test_focus import cam, focus_of, optics, z_holo
+from tests.trace.optics_probe import dot_texture
+from tests.trace.scenes import T, emitting_plane, scene
+from tests.trace.test_focus import cam, focus_of, optics, z_holo
 
 
 @pytest.fixture(scope="module")

@@ -129,7 +129,7 @@ def test_the_cli_focal_stack_runs_with_its_own_defaults_on_a_shallow_scene(tmp_p
 
 
 def _sweep_keys() -> list:
-    from tests.test_plugin_sweep import BODIES, CHECK_ONLY, REFUSED
+    from tests.scene.test_plugin_sweep import BODIES, CHECK_ONLY, REFUSED
 
     return [k for k in sorted(BODIES) if k not in REFUSED and k not in CHECK_ONLY]
 
@@ -137,6 +137,6 @@ def _sweep_keys() -> list:
 @pytest.mark.slow
 @pytest.mark.parametrize("key", _sweep_keys(), ids=lambda k: f"{k[0]}-{k[1]}")
 def test_every_baseline_runs_with_its_defaults_on_the_plugin_sweeps_scenes(key, tmp_path):
-    from tests.test_plugin_sweep import _write
+    from tests.scene.test_plugin_sweep import _write
 
     _check_all_baselines(_write(tmp_path / "scene", key) / "scene.xml")

@@ -20,8 +20,8 @@ from holocore.optics.cone_equaliser import (
     sheet_spectrum,
 )
 from holocore.pipeline import RenderOptions, render_loaded
-from tests.tracer.optics_probe import fov_deg
-from tests.tracer.scenes import T, camera, scene
+from tests.trace.optics_probe import fov_deg
+from tests.trace.scenes import T, camera, scene
 
 P = 8e-6
 LAMS = (640.0e-9, 516.5e-9, 455.4e-9)
@@ -216,7 +216,7 @@ def test_a_white_card_looks_white_through_the_report_pupil():
     import torch
 
     from holocore.optics.viewing import simulate_view
-    from tests.tracer.scenes import emitting_plane
+    from tests.trace.scenes import emitting_plane
 
     n, zc = 48, 0.5
     optics = OpticsConfig(resolution_hw=(n, n), wavelengths_nm=tuple(v * 1e9 for v in LAMS), pitch_um=P * 1e6,
@@ -239,7 +239,7 @@ def test_few_rays_do_not_tint_the_views():
     views, the blue 10 % brighter at the side than in the centre. Flattening signal plus noise (C4, the fit's
     noise-to-signal near the 0.37 that two independent renders measure) keeps every colour within 3 % of green in
     every view and of its own brightness across the views."""
-    from tests.tracer.optics_probe import plate_view_colours
+    from tests.trace.optics_probe import plate_view_colours
 
     c4 = plate_view_colours(0.0, spp=128, frames=24)
     for deg, v in c4.items():
