@@ -24,6 +24,7 @@ from service.metrics import Metrics, owner_registry
 from service.models import Problem
 from service.settings import ServiceSettings
 from service.version import SERVICE_VERSION, code_version
+from service.workers.private_tmp import can_make_private
 
 __all__ = ["create_app"]
 
@@ -257,14 +258,16 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
     @app.get("/readyz", tags=["health"], responses={503: {"description": "Not ready"}})
     def readyz():
         """Database reachable, data dir writable, scheduler alive; and whether jobs run sandboxed (``sandbox``:
-        on or off, and whether the server runs as root)."""
+        on or off, whether the server runs as root, whether jobs run as sandbox users and get temporary folders
+        of their own)."""
         checks = {"database": db.ping(), "data_dir_writable": os.access(settings.data_dir, os.W_OK),
                   "scheduler": (ctx.scheduler.alive() if ctx.scheduler is not None else not start_workers)}
         ok = all(checks.values())
         # the sandbox as resolved at start (auto: not resolved, no workers in this process); jobs: whether jobs
         # themselves run as sandbox users (not on an engine that runs them elsewhere, e.g. Ray)
-        sandbox = {"state": str(settings.sandbox), "root": os.geteuid() == 0,
-                   "jobs": None if ctx.scheduler is None else ctx.scheduler.sandbox_base is not None}
+        jobs_sandboxed = None if ctx.scheduler is None else ctx.scheduler.sandbox_base is not None
+        sandbox = {"state": str(settings.sandbox), "root": os.geteuid() == 0, "jobs": jobs_sandboxed,
+                   "private_tmp": bool(jobs_sandboxed) and can_make_private()}
         return JSONResponse({"status": "ready" if ok else "not ready", "checks": checks, "sandbox": sandbox},
                             status_code=200 if ok else 503)
 

@@ -20,7 +20,7 @@ import os
 import sys
 from typing import Iterable
 
-__all__ = ["TARGETS", "private_targets", "make_private", "main"]
+__all__ = ["TARGETS", "can_make_private", "private_targets", "make_private", "main"]
 
 TARGETS = ("/tmp", "/var/tmp", "/dev/shm")
 _CLONE_NEWNS = 0x00020000
@@ -28,6 +28,16 @@ _CLONE_NEWIPC = 0x08000000
 _MS_BIND = 4096
 _MS_REC = 16384
 _MS_PRIVATE = 1 << 18
+
+
+def can_make_private() -> bool:
+    """Whether this process may make the namespaces (CAP_SYS_ADMIN in its effective set)."""
+    try:
+        with open("/proc/self/status") as fh:
+            eff = next(int(ln.split()[1], 16) for ln in fh if ln.startswith("CapEff:"))
+    except (OSError, StopIteration, ValueError):
+        return False
+    return bool(eff >> 21 & 1)
 
 
 def _under(path: str, folder: str) -> bool:

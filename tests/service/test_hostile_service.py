@@ -630,7 +630,7 @@ def test_unsandboxed_server_keeps_its_files_private_and_says_so(server_factory):
     os.chmod(srv.data_dir / "service.db", 0o644)  # as a laxer umask left it
     srv.start()
     ready = httpx.get(f"{srv.url}/readyz").json()
-    assert ready["sandbox"] == {"state": "off", "root": os.geteuid() == 0, "jobs": False}, ready
+    assert ready["sandbox"] == {"state": "off", "root": os.geteuid() == 0, "jobs": False, "private_tmp": False}, ready
     with srv.client("submit") as c:
         r = c.post("/v1/scenes", files={"bundle": ("b.zip", _zip({"scene.xml": SCENE_XML}), "application/zip")})
         assert r.status_code == 201, r.text

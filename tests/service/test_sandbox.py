@@ -203,6 +203,15 @@ def test_job_runs_as_its_slot_uid_and_its_dir_is_taken_back(sbx):
     uids = watch.stop()
     status = json.loads((job_dir / "status.json").read_text())
     assert uids == {seen_dir.st_uid} and status["uid"] == seen_dir.st_uid
+    # its own /var/tmp and /dev/shm where the platform allows (this data dir is under /tmp, which stays shared)
+    from service.workers.private_tmp import can_make_private
+
+    import httpx
+
+    assert httpx.get(f"{sbx['server'].url}/readyz").json()["sandbox"]["private_tmp"] is can_make_private()
+    said = "sandbox: private /var/tmp, /dev/shm and System V IPC" if can_make_private() else \
+        "sandbox: shared temporary folders"
+    assert said in (job_dir / "driver.log").read_text()
     # taken back: ours, 0700, no scene copy, HOME or TMPDIR left
     st = job_dir.stat()
     assert (st.st_uid, stat.S_IMODE(st.st_mode)) == (0, 0o700)
@@ -237,6 +246,10 @@ def test_sandbox_users_cannot_read_the_database_the_lock_or_jobs(sbx):
     for side in ("service.db-wal", "service.db-shm"):
         if (data / side).exists():
             probes[side] = f"open({str(data / side)!r}, 'rb')"
+    # the probes run as the slot uids: a run ending meanwhile kills every process of its uid, probes included
+    with sbx["server"].client("reader") as c:
+        for job in sbx.get("queued", {}).values():
+            wait_state(c, job["id"], ("succeeded", "failed"), timeout=300)
     for uid in (PLANNER, SLOT0, SLOT1):
         ok = _as(uid, "import os; print(os.getuid(), os.getgid(), os.getgroups())")
         assert ok.returncode == 0 and ok.stdout.split() == [str(uid), str(uid), "[]"], ok.stderr
