@@ -7,6 +7,7 @@ import asyncio
 import json
 import os
 import shutil
+import stat
 import time
 from pathlib import Path
 from typing import Literal, Optional
@@ -147,7 +148,15 @@ def _log_text(path: Path, roots: list[str]) -> str:
     path as ``<server path>`` (as the job's error says them)."""
     from holocore.scene.errors import scrub_message
 
-    with open(path, "rb") as fh:
+    # While a sandboxed run goes on, its folder is its uid's and this process is root: the log may be swapped
+    # for a link (to the database, /etc/shadow), a fifo or a hard link between any check and the open, so the
+    # open itself refuses links and never blocks, and what it opened must be a plain file with one name.
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        raise OSError(f"{path.name} is not a plain file of the job's")
+    with os.fdopen(fd, "rb") as fh:
         fh.seek(0, os.SEEK_END)
         size = fh.tell()
         fh.seek(max(0, size - _LOG_TAIL_BYTES))

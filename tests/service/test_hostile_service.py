@@ -867,3 +867,30 @@ def test_a_sandboxed_job_gets_temporary_folders_of_its_own(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "service.workers.private_tmp", str(own), "0", "0", "--", "true"],
                          capture_output=True, text=True, env={"PYTHONPATH": str(Path(__file__).resolve().parents[2])})
     assert bad.returncode == 2 and "non-root" in bad.stderr
+
+
+def test_a_jobs_log_swapped_for_a_link_a_fifo_or_a_hard_link_is_not_read(svc, tmp_path):
+    """While a sandboxed run goes on its folder is its uid's and the server reads its logs as root: a log
+    swapped for a link to the database (or /etc/shadow) after the route's is_symlink check was read and served,
+    and a fifo held a server thread in open() for good."""
+    from service.api.jobs import _log_text
+
+    svc.scene("default")
+    with svc.client(svc.token("submit")) as c:
+        job = c.post("/v1/jobs", json=small("stest")).json()
+        folder = svc.finish(job["id"]).parent
+        (folder / "render.log").write_text("traced 4 rays\n")
+        assert c.get(f"/v1/jobs/{job['id']}/logs/render").text == "traced 4 rays\n"
+        secret = tmp_path / "secret.db"
+        secret.write_text("another owner's rows\n")
+        (folder / "render.log").unlink()
+        os.symlink(secret, folder / "render.log")
+        r = c.get(f"/v1/jobs/{job['id']}/logs/render")
+        assert r.status_code == 404 and "another owner" not in r.text
+    # what the route's own check cannot stop: the swap after it, as the open sees it
+    for name, make in (("link", lambda p: os.symlink(secret, p)), ("fifo", os.mkfifo),
+                       ("hard", lambda p: os.link(secret, p))):
+        p = folder / f"{name}.log"
+        make(p)
+        with pytest.raises(OSError):
+            _log_text(p, [str(folder)])  # the fifo: refused at once, not a thread blocked in open()
