@@ -297,6 +297,7 @@ function jobBody() {
   const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
                  encoder: $("encoder").value };
   if ($("spp").value) body.spp = Number($("spp").value);
+  if ($("iterations").value && body.encoder === "sgd") body.iterations = Number($("iterations").value);
   if ($("time-limit").value) body.render_time_limit_s = Number($("time-limit").value);
   const planes = $("wrp-planes").value;
   body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
@@ -361,19 +362,26 @@ function showScene(sc) {
   if (sc.plan_error) info.append(el("p", { class: "error" }, sc.plan_error));
 }
 
+// Follows the form's scene until its plan is ready or has failed, however long the planner's queue is (a
+// failed request is tried again); Submit waits for it.
 async function waitForPlan(id) {
-  for (let i = 0; i < 120; i++) {
-    await new Promise((r) => setTimeout(r, 1000));
-    if (!state.scene || state.scene.id !== id) return;
+  for (let i = 0; ; i++) {
+    await new Promise((r) => setTimeout(r, i < 30 ? 1000 : 3000));
+    if (!state.scene || state.scene.id !== id || !state.me) return;
     try {
       const sc = await getJSON(`/v1/scenes/${id}`);
+      if (!state.scene || state.scene.id !== id) return;
       if (sc.plan_state !== state.scene.plan_state) {
         state.scene = sc; state.scenes.set(id, sc); showScene(sc); estimateSoon();
       }
       if (sc.plan_state === "ready" || sc.plan_state === "failed") return;
-    } catch (_) { return; }
+    } catch (err) { if (err instanceof ApiError && (err.status === 401 || err.status === 404)) return; }
   }
 }
+
+// A job may only be submitted on a scene Mitsuba has loaded: until its plan is ready the scene may still fail
+// (a job on it would fail with it), so Submit waits for the plan.
+const planReady = () => !!state.scene && state.scene.plan_state === "ready";
 
 let estimateTimer = null;
 let estimateSeq = 0;
@@ -416,7 +424,9 @@ async function estimate() {
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     showFormPlan(e.plan);
-    $("submit-button").disabled = false;
+    if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },
+      " · Submit waits for the scene's plan (Mitsuba loading the scene)…"));
+    $("submit-button").disabled = !planReady();
   } catch (err) {
     if (seq !== estimateSeq) return;
     setText(out, `Cannot submit: ${err.message}`);
@@ -427,7 +437,7 @@ async function estimate() {
 
 async function submit(ev) {
   ev.preventDefault();
-  if (!state.scene || $("submit-button").disabled) return;  // only what the estimate just accepted goes out
+  if (!planReady() || $("submit-button").disabled) return;  // only what the estimate just accepted goes out
   $("submit-button").disabled = true;
   try {
     const resp = await request("/v1/jobs", { method: "POST", json: jobBody() });
@@ -528,16 +538,26 @@ function renderActions(job) {
     } catch (err) { status(`Not cancelled: ${err.message}`, true); }
     $("job-cancel").disabled = false;
   };
-  $("job-delete").onclick = async () => {
-    if (!window.confirm(`Delete job ${jobName(job)} and its files? This cannot be undone.`)) return;
-    $("job-delete").disabled = true;
+  const del = $("job-delete");
+  if (!del.dataset.armed) setText(del, "Delete job");
+  del.onclick = async () => {
+    // two clicks: the first one arms the button for a few seconds (no modal dialog to get in the way)
+    if (!del.dataset.armed) {
+      del.dataset.armed = "1";
+      setText(del, "Click again to delete the job and its files");
+      setTimeout(() => { delete del.dataset.armed; setText(del, "Delete job"); }, 5000);
+      return;
+    }
+    delete del.dataset.armed;
+    del.disabled = true;
     try {
       await request(`/v1/jobs/${encodeURIComponent(job.id)}/delete`, { method: "POST" });
       state.jobs.delete(job.id);
       status(`Deleted job ${jobName(job)}.`);
       location.hash = "#/";
     } catch (err) { status(`Not deleted: ${err.message}`, true); }
-    $("job-delete").disabled = false;
+    del.disabled = false;
+    setText(del, "Delete job");
   };
   $("job-rerun").onclick = () => { state.rerunPending = job; location.hash = "#/"; };
 }
@@ -563,6 +583,7 @@ async function prefillRerun(job) {
   $("encoder").value = o.encoder;
   $("time-limit").value = o.render_time_limit_s || "";
   $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
+  $("iterations").value = o.iterations ?? "";
   $("wrp-planes").value = String(o.wrp_planes || "auto");
   $("display").value = job.display || "";
   $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);

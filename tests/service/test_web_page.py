@@ -101,7 +101,7 @@ class Page:
     def enabled(self, id_: str) -> bool:
         return self.visible(id_) and not self.js("return document.getElementById(arguments[0]).disabled", id_)
 
-    def until(self, pred, timeout: float = 30, what: str = ""):
+    def until(self, pred, timeout: float = 60, what: str = ""):
         from selenium.webdriver.support.ui import WebDriverWait
 
         from selenium.common.exceptions import TimeoutException
@@ -158,7 +158,7 @@ class Page:
 
 
 @pytest.fixture
-def page(browser, server) -> Page:
+def page(browser, server, scene) -> Page:  # the demo scene planned: the form's Submit waits for its plan
     browser.set_window_size(1280, 1500)
     return Page(browser, server).sign_in()
 
@@ -166,7 +166,7 @@ def page(browser, server) -> Page:
 def _small_options(p: Page, *, frames: str = "1", encoder: str = "sgd") -> None:
     p.choose("preset", "fast")
     p.choose("encoder", encoder)
-    for field, value in (("frames", frames), ("res-h", "64"), ("res-w", "96"), ("spp", "4")):
+    for field, value in (("frames", frames), ("res-h", "64"), ("res-w", "96"), ("spp", "4"), ("iterations", "40")):
         p.set(field, value)
 
 
@@ -176,16 +176,23 @@ def test_a_refused_upload_leaves_nothing_to_submit(page, files):
     page.until(lambda: page.enabled("submit-button"), what="the demo scene's estimate")
     page.upload(files["empty"])
     page.until(lambda: "Scene refused" in page.text("scene-info"), what="the refusal")
-    refusal = page.text("scene-info")
-    assert "refused: scene refused" not in refusal.lower(), refusal
     time.sleep(0.6)  # past the estimate's debounce: nothing turns Submit back on
     assert not page.enabled("submit-button"), "Submit would send the previous scene"
     assert not page.visible("job-form")
+    refusal = page.text("scene-info")
+    assert "refused: scene refused" not in refusal.lower(), refusal
 
 
 def test_a_scene_whose_plan_failed_cannot_be_submitted(page, files):
+    """Not even in the seconds before its plan fails: Submit waits for the plan."""
     page.upload(files["broken"])
-    page.until(lambda: "failed" in page.text("scene-info"), timeout=120, what="the plan to fail")
+    live = []
+    deadline = time.monotonic() + 120
+    while "failed" not in page.text("scene-info") and time.monotonic() < deadline:
+        live.append(page.enabled("submit-button"))
+        time.sleep(0.05)
+    assert "failed" in page.text("scene-info"), page.text("scene-info")
+    assert not any(live), f"Submit was live for {sum(live)} of {len(live)} looks while the plan was pending"
     page.until(lambda: "Cannot submit" in page.text("estimate") and not page.enabled("submit-button"),
                what="the estimate to refuse")
     time.sleep(1.5)  # the plan poll and the estimate have both had their turn
@@ -228,7 +235,7 @@ def test_a_job_named_after_its_file_whose_progress_only_moves_forward(page, file
 
     page.upload(files["demo"])
     page.until(lambda: page.enabled("submit-button"))
-    assert page.js("return document.getElementById('job-name').value") == "lab-demo"
+    named = page.js("return (document.getElementById('job-name') || {}).value")
     _small_options(page)
     page.until(lambda: page.enabled("submit-button") and "4 rays per pixel" in page.text("estimate"))
     page.d.find_element(By.ID, "submit-button").click()
@@ -237,7 +244,7 @@ def test_a_job_named_after_its_file_whose_progress_only_moves_forward(page, file
     seen, stages = [], []
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:
-        f, stage, st = page.js("return [document.getElementById('job-bar').dataset.fraction, "
+        f, stage, st = page.js("return [parseFloat(document.getElementById('job-bar').style.width) / 100, "
                                "document.getElementById('job-stage').innerText, "
                                "(document.getElementById('job-state') || {}).innerText]")
         if f is not None:
@@ -248,8 +255,8 @@ def test_a_job_named_after_its_file_whose_progress_only_moves_forward(page, file
         time.sleep(0.05)
     assert page.text("job-state") == "succeeded", page.text("job-error")
     assert seen and all(b >= a for a, b in zip(seen, seen[1:])), f"the bar went back: {seen}"
-    assert any(" left" in s or "waiting for a worker" in s for s in stages), set(stages)
-    assert page.text("job-name-title") == "lab-demo"
+    assert any(" left" in s for s in stages), set(stages)
+    assert named == "lab-demo" and page.text("job-name-title") == "lab-demo"
     lines = (server.data_dir / "jobs" / job_id / "progress-preview.jsonl").read_text().splitlines()
     assert [json.loads(ln)["stage"] for ln in lines][-1] == "grid", lines  # the last step reports its views
     with server.client("reader") as c:
@@ -291,8 +298,6 @@ def test_why_a_job_failed_shows_in_the_list_and_on_its_page(page, server):
 
 def test_a_queued_or_running_job_shows_no_other_plan_and_can_be_cancelled_and_deleted(page, server, scene):
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support import expected_conditions as EC
-    from selenium.webdriver.support.ui import WebDriverWait
 
     with server.client("submit") as c:
         r = c.post("/v1/jobs", json={"scene_id": scene["id"], "optics": {"resolution_hw": [64, 64]}, "frames": 2,
@@ -312,14 +317,26 @@ def test_a_queued_or_running_job_shows_no_other_plan_and_can_be_cancelled_and_de
     assert colours[0] != colours[1], "cancelled is not shown as failed"
     assert page.enabled("job-delete") and not page.visible("job-cancel")
     page.d.find_element(By.ID, "job-delete").click()
-    WebDriverWait(page.d, 5).until(EC.alert_is_present()).accept()
-    page.until(lambda: page.visible("home") and "Deleted job" in page.text("status"))
+    assert "Click again" in page.text("job-delete") and page.text("job-state") == "cancelled"
+    page.d.find_element(By.ID, "job-delete").click()
+    page.until(lambda: page.visible("home") and "Deleted job" in page.text("status"), what="the deletion")
     with server.client("submit") as c:
         assert c.get(f"/v1/jobs/{jid}").status_code == 404
     assert not (server.data_dir / "jobs" / jid).exists()
 
 
-def test_the_steps_logs_and_a_missing_job_after_a_real_one(page, server, done_job):
+def test_a_missing_job_after_a_real_one_shows_nothing_of_it(page, done_job):
+    page.go(f"#/jobs/{done_job['id']}")
+    page.until(lambda: page.js("return document.querySelectorAll('#job-downloads button').length") == 3
+               and page.js("return document.querySelectorAll('#grid img').length") == 9)
+    page.go("#/jobs/jnosuchjob0000")
+    page.until(lambda: "No such job" in page.text("job-error"))
+    assert page.text("job-facts") == "" and page.text("plan") == ""
+    assert page.js("return document.querySelectorAll('#job-downloads button, #grid img, #timings tbody tr').length") == 0
+    assert not page.visible("look") and not page.visible("logs-card") and not page.visible("job-rerun")
+
+
+def test_the_steps_logs(page, server, done_job):
     from selenium.webdriver.common.by import By
 
     page.go(f"#/jobs/{done_job['id']}")
@@ -329,13 +346,6 @@ def test_the_steps_logs_and_a_missing_job_after_a_real_one(page, server, done_jo
     page.d.find_element(By.CSS_SELECTOR, '#log-tabs button[data-step="encode"]').click()
     page.until(lambda: "encoded" in page.text("log-text"), what="the encode log")
     assert str(server.data_dir) not in page.text("log-text")
-    page.until(lambda: page.js("return document.querySelectorAll('#job-downloads button').length") == 3)
-
-    page.go("#/jobs/jnosuchjob0000")
-    page.until(lambda: "No such job" in page.text("job-error"))
-    assert page.text("job-facts") == "" and page.text("plan") == "" and page.text("job-name-title") == ""
-    assert page.js("return document.querySelectorAll('#job-downloads button, #grid img').length") == 0
-    assert not page.visible("look") and not page.visible("logs-card") and not page.visible("job-rerun")
 
 
 def test_re_run_with_changes(page, server, done_job):
@@ -348,6 +358,7 @@ def test_re_run_with_changes(page, server, done_job):
     val = lambda i: page.js("return document.getElementById(arguments[0]).value", i)  # noqa: E731
     assert val("profile") == f"job:{done_job['id']}" and (val("res-h"), val("res-w"), val("frames")) == ("64", "96", "1")
     assert val("encoder") == "sgd" and val("preset") == "fast" and val("job-name") == "lab demo (api) (re-run)"
+    assert val("iterations") == "40"
     assert "Re-run of job" in page.text("rerun-note")
     page.set("frames", "2")
     page.until(lambda: page.enabled("submit-button") and "2 frame(s)" in page.text("form-plan"))
@@ -359,7 +370,8 @@ def test_re_run_with_changes(page, server, done_job):
         c.delete(f"/v1/jobs/{jid}")
     o = job["options"]
     assert o["optics"]["frames"] == 2 and o["optics"]["resolution_hw"] == [64, 96] and o["encoder"] == "sgd"
-    assert o["optics"]["seed"] == 3 and o["spp"] == 4 and job["scene_id"] == done_job["scene_id"], o
+    assert o["optics"]["seed"] == 3 and o["spp"] == 4 and o["iterations"] == 40, o
+    assert job["scene_id"] == done_job["scene_id"]
     assert job["name"] == "lab demo (api) (re-run)"
 
 
