@@ -182,7 +182,8 @@ def test_plan_runs_as_the_planner_uid(sbx):
     assert sbx["scene"]["plan_state"] == "ready", sbx["scene"]["plan_error"]
     assert sbx["plan_uids"] == {PLANNER}, sbx["plan_uids"]
     assert f"planning as uid {PLANNER}" in sbx["server"].log()
-    assert not list((sbx["server"].data_dir / "sandbox").iterdir())  # the plan's copy is gone
+    # the plan's copy is gone (removed just after the plan is stored, once the planner uid's processes are)
+    wait_for(lambda: not list((sbx["server"].data_dir / "sandbox").iterdir()), timeout=30, what="the plan's copy removed")
 
 
 def test_job_runs_as_its_slot_uid_and_its_dir_is_taken_back(sbx):
