@@ -18,7 +18,8 @@ The check sees what Mitsuba will do (issue 10), with Mitsuba's own rules, probed
   walked in all (each include every time), mesh faces/vertices and image pixels (read from headers as Mitsuba
   reads them, by content: a PNG named ``t.dat`` counts as an image; every use of a file counts). Only UTF-8 XML
   is read; every parser error is a BundleError. Plugins that read a file must name it (``_NEEDS_FILENAME``),
-  and property names hold no whitespace.
+  plugins Mitsuba crashes on without a property need it (``_NEEDS_PROPERTY``), a sampler's ``sample_count`` is
+  bounded, and property names hold no whitespace.
 - The scene's ``<integrator>`` is ignored: the hologram brings its own. ``entry_source`` gives the entry XML
   with its top-level integrators blanked (line and column numbers kept), and the report says what was ignored.
 Pure Python: no Mitsuba import.
@@ -133,6 +134,12 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
 # a missing one (SIGSEGV); the others fail later with a less clear message, so all of them must name it.
 _NEEDS_FILENAME = {"texture:bitmap", "emitter:envmap", "shape:obj", "shape:ply", "shape:serialized",
                    "shape:bsplinecurve", "shape:linearcurve", "bsdf:measured", "volume:gridvolume"}
+# Properties without which Mitsuba 3.9 crashes loading the plugin (``<bsdf type="blendbsdf"/>`` alone: SIGSEGV).
+_NEEDS_PROPERTY = {"bsdf:blendbsdf": ("weight",)}
+# A sampler's sample_count Mitsuba 3.9 survives: 0 divides by zero in multijitter (SIGFPE), and near 2**32
+# stratified, orthogonal and ldsampler never finish their constructor. The renderer brings its own sampler, so
+# the scene's is only instantiated.
+_MAX_SAMPLE_COUNT = 1 << 16
 # Shared objects by name (``libx.so.1``, ``x.dylib``, ``x.dll``, ``x.pyd``): Mitsuba looks plugins up as
 # ``plugins/<type>.so`` through its file resolver, so no such name may sit in a bundle, whatever it holds.
 _SHARED_OBJECT = re.compile(r"\.(?:so(?:\.[0-9]+)*|dylib|dll|pyd)$", re.IGNORECASE)
@@ -459,6 +466,8 @@ class _Walker:
                     raise BundleError(f"{where}: name {pname[:60]!r}: property names may not be empty or hold "
                                       "spaces or control characters")
                 props[pname] = tag
+                if tag == "integer" and pname == "sample_count" and (parent or "").startswith("sampler:"):
+                    _check_sample_count(attrs.get("value", ""), where)
             if tag in IGNORED_PLUGIN_TAGS and top and len(self.stack) == 1:
                 self.ignored.append(f"the scene's <{tag} type={attrs.get('type', '')[:40]!r}> (the hologram "
                                     "renderer brings its own)")
@@ -489,7 +498,19 @@ class _Walker:
             if plugin in _NEEDS_FILENAME and inner.get("filename") != "string":
                 raise BundleError(f"{where} type={kind!r}: needs a <string name=\"filename\" value=\"...\"/> "
                                   "naming its file (exactly that name, lower case)")
+            for needed in _NEEDS_PROPERTY.get(plugin or "", ()):
+                if needed not in inner:
+                    raise BundleError(f"{where} type={kind!r}: needs its {needed!r} property (Mitsuba crashes "
+                                      "without it)")
         return props
+
+
+def _check_sample_count(text: str, where: str) -> None:
+    """A sampler's ``sample_count``: an integer from 1 to ``_MAX_SAMPLE_COUNT``, written plainly."""
+    m = re.fullmatch(r"\s*\+?([0-9]{1,9})\s*", text)
+    if m is None or not 1 <= int(m.group(1)) <= _MAX_SAMPLE_COUNT:
+        raise BundleError(f"{where}: sample_count {text[:40]!r} must be an integer from 1 to {_MAX_SAMPLE_COUNT} "
+                          "(the hologram renderer chooses its own rays per pixel)")
 
 
 def _shape_index(node, params: _Params, where: str) -> int:

@@ -326,3 +326,54 @@ def test_exr_headers_read_otherwise_are_refused(tmp_path):
     ):
         with pytest.raises(FileKindError, match=words):
             pixels(data)
+
+
+# ---- plugins that crash or hang Mitsuba on load -------------------------------------------------------------------
+_LOAD = ("import sys; sys.path.insert(0, sys.argv[1]); from holocore.runtime.mitsuba_env import mitsuba; "
+         "mitsuba().load_string(sys.argv[2])")
+
+
+@pytest.mark.parametrize("body, signal_name, words", [
+    ('<shape type="sphere"><bsdf type="blendbsdf"/></shape>', "SIGSEGV", "needs its 'weight' property"),
+    ('<sensor type="perspective"><sampler type="multijitter"><integer name="sample_count" value="0"/></sampler>'
+     "</sensor>", "SIGFPE", "sample_count '0' must be an integer from 1 to 65536"),
+])
+def test_plugins_that_crash_mitsuba_are_refused(tmp_path, body, signal_name, words):
+    """Both made the plan (and any job on the scene) die on a signal while Mitsuba loaded the scene."""
+    import signal
+
+    from holocore.scene.bundle import BundleError, validate_bundle
+
+    xml = f'<scene version="3.0.0">{body}</scene>'
+    env = dict(os.environ, HOLO_MI_VARIANT="scalar_rgb")
+    proc = subprocess.run([sys.executable, "-c", _LOAD, str(REPO), xml], capture_output=True, timeout=300, env=env)
+    assert proc.returncode == -getattr(signal, signal_name), (proc.returncode, proc.stderr[-800:])
+    root = tmp_path / "b"
+    root.mkdir()
+    (root / "scene.xml").write_text(xml)
+    with pytest.raises(BundleError, match=words) as info:
+        validate_bundle(root)
+    assert "\n" not in str(info.value)
+
+
+def test_sample_counts_that_never_finish_loading_are_refused(tmp_path):
+    """stratified, orthogonal and ldsampler with a sample_count near 2**32 spun in their constructor (a plan
+    held the one planner until its timeout, every tenant's uploads waiting)."""
+    from holocore.scene.bundle import BundleError, validate_bundle
+
+    for i, (sampler, value) in enumerate((("stratified", "4294967295"), ("orthogonal", "4294967295"),
+                                          ("ldsampler", "$n"), ("independent", "65537"), ("stratified", "1e3"))):
+        root = tmp_path / f"b{i}"
+        root.mkdir()
+        (root / "scene.xml").write_text(
+            f'<scene version="3.0.0"><default name="n" value="4294967295"/><sensor type="perspective">'
+            f'<sampler type="{sampler}"><integer name="sample_count" value="{value}"/></sampler></sensor></scene>')
+        with pytest.raises(BundleError, match="must be an integer from 1 to 65536"):
+            validate_bundle(root)
+    ok = tmp_path / "ok"
+    ok.mkdir()
+    (ok / "scene.xml").write_text('<scene version="3.0.0"><default name="spp" value="64"/><sensor type="perspective">'
+                                  '<sampler type="stratified"><integer name="sample_count" value="$spp"/></sampler>'
+                                  '</sensor><shape type="sphere"><bsdf type="blendbsdf"><float name="weight" '
+                                  'value="0.5"/><bsdf type="diffuse"/><bsdf type="conductor"/></bsdf></shape></scene>')
+    validate_bundle(ok)
