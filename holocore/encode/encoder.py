@@ -21,6 +21,7 @@ The optimiser (manual-gradient Adam, less padding where z allows it, a per-item 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -213,6 +214,41 @@ def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: S
     sgd = dict(sgd or {})
     total = sgd.get("iterations", 0)
     n_blocks = C * math.ceil(F / chunk_frames)
+    grid = max((encoder_grid((H, W), z, lam, pitch_m) for lam in lams), key=lambda g: g[0] * g[1])
+    with small_ops_on_one_thread(method, dev, min(chunk_frames, F) * grid[0] * grid[1]):
+        _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init if init is not None
+                       else None, sgd, progress, total, n_blocks, phase, acc)
+    opts = {"fourier_filter": bool(fourier_filter), "chunk_frames": int(chunk_frames),
+            "grid": [list(encoder_grid((H, W), z, lam, pitch_m)) for lam in lams], **(options or {})}
+    return acc.result(method, phase, sup, t0, opts)
+
+
+# Below this many complex elements per operation (frames of a block x the padded grid) one SGD step is
+# hundreds of small ops of well under a millisecond each, and splitting each over threads costs more at
+# their barriers than it saves; on a CPU shared with other work (a second job, the browser watching it) a
+# thread that waits for a descheduled one made the 96x128, 2-frame encode of a service job take 55 s
+# instead of 2-3 s (the estimate's 4 s was right). Larger grids keep torch's threads.
+SMALL_OPS_ELEMENTS = 1 << 19
+
+
+@contextlib.contextmanager
+def small_ops_on_one_thread(method: str, dev, elements: int):
+    """torch on one thread while the SGD encoder works on ``elements`` per operation below SMALL_OPS_ELEMENTS
+    on the CPU (the thread count is restored after)."""
+    on_cpu = dev is None or torch.device(dev).type == "cpu"
+    if method != "sgd" or not on_cpu or elements >= SMALL_OPS_ELEMENTS or torch.get_num_threads() == 1:
+        yield
+        return
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init, sgd, progress, total,
+                   n_blocks, phase, acc) -> None:
     for c, lam in enumerate(lams):
         for f0 in range(0, F, chunk_frames):
             f1 = min(F, f0 + chunk_frames)
@@ -226,9 +262,6 @@ def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: S
                                supervision=sup, init=None if init is None else phi_init[f0:f1, c], progress=cb, **sgd)
             phase[f0:f1, c] = wrap_phase(blk.phase)
             acc.add(f0, c, blk)
-    opts = {"fourier_filter": bool(fourier_filter), "chunk_frames": int(chunk_frames),
-            "grid": [list(encoder_grid((H, W), z, lam, pitch_m)) for lam in lams], **(options or {})}
-    return acc.result(method, phase, sup, t0, opts)
 
 
 def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:

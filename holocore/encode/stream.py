@@ -28,6 +28,7 @@ from holocore.encode.encoder import (
     Assembler,
     EncodeResult,
     sgd_options,
+    small_ops_on_one_thread,
     supervision_for,
 )
 from holocore.encode.output import quantize, stack_meta
@@ -129,6 +130,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     fd, tmp = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".tmp")
     fd_u8, tmp_u8 = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".u8")
     os.close(fd_u8)
+    threads = small_ops_on_one_thread(method, device, min(fb, F) * grid[0] * grid[1])
+    threads.__enter__()
     try:
         with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf, \
                 open(tmp_u8, "wb") as u8f:
@@ -181,4 +184,5 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
         raise
     finally:
         Path(tmp_u8).unlink(missing_ok=True)
+        threads.__exit__(None, None, None)
     return res, out_meta
