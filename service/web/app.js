@@ -145,7 +145,7 @@ function optionsText(job) {
   const res = (optics.resolution_hw || []).join("x");
   return [res && `${res} px`, typeof optics.frames === "number" ? plural(optics.frames, "frame") : null,
           o.preset, o.encoder, o.render_time_limit_s ? `${fmtSeconds(o.render_time_limit_s)} limit` : null,
-          o.spp ? `${o.spp} rays/px` : null].filter(Boolean).join(" · ");
+          o.spp && !o.render_time_limit_s ? `${o.spp} rays/px` : null].filter(Boolean).join(" · ");
 }
 
 function actualSeconds(job) {
@@ -721,7 +721,7 @@ async function showPictures(job, page) {
   };
   slider.oninput = showFocus;
   showFocus();
-  setText($("look-note"), `Simulated reconstruction (${idx.shape_hw.join("x")} px, ${idx.frames} frames averaged): `
+  setText($("look-note"), `Simulated reconstruction (${idx.shape_hw.join("x")} px, ${plural(idx.frames, "frame")} averaged): `
     + `focal sweep with a ${idx.sweep.pupil_mm} mm pupil, ${idx.sweep.order}`
     + (idx.sweep.widened ? ` (the scene is shallower than the eye's depth of field, `
       + `${idx.sweep.depth_of_field_mm} mm: the sweep spans ±3 depths of field)` : "") + ".");
