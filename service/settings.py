@@ -53,7 +53,8 @@ class ServiceSettings(BaseModel):
     ``HOLO_ENGINE`` (local | ray), ``HOLO_RAY_ADDRESS``, ``HOLO_RAY_GPUS`` (GPUs per job on Ray),
     ``HOLO_MAX_ATTEMPTS``, ``HOLO_MAX_UPLOAD_MB`` (largest upload and unpacked bundle), ``HOLO_TRUSTED_PROXIES``
     (comma-separated), ``HOLO_BODY_TIMEOUT_S``, ``HOLO_MAX_QUEUED_JOBS_PER_OWNER``, ``HOLO_MAX_SCENES_PER_OWNER``,
-    ``HOLO_MAX_UPLOADS_PER_OWNER``, ``HOLO_MAX_STORED_GB_PER_OWNER``, ``HOLO_OPEN_DISPLAY_OWNERS`` (comma-separated)."""
+    ``HOLO_MAX_UPLOADS_PER_OWNER``, ``HOLO_MAX_STORED_GB_PER_OWNER``, ``HOLO_MAX_STREAMS_PER_OWNER``,
+    ``HOLO_OPEN_DISPLAY_OWNERS`` (comma-separated)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -98,6 +99,9 @@ class ServiceSettings(BaseModel):
     max_scenes_per_owner: int = Field(default=1000, ge=1, description="Scenes one owner may store; more get 403.")
     max_uploads_per_owner: int = Field(default=2, ge=1, description="Uploads of one owner in progress at once; "
                                                                    "more get 429 before their body is read.")
+    max_streams_per_owner: int = Field(default=20, ge=1, description="Job event streams (SSE) one owner may hold "
+                                       "open at once; more get 429 (each polls the database four times a second "
+                                       "until its job ends).")
     max_stored_gb_per_owner: Optional[float] = Field(default=None, gt=0, description="Bytes (GB) of scenes and "
                                                      "job results one owner may store, counting what its queued "
                                                      "jobs will write; uploads and submits past it get 403 "
@@ -188,6 +192,7 @@ class ServiceSettings(BaseModel):
                          ("max_scenes_per_owner", "HOLO_MAX_SCENES_PER_OWNER"),
                          ("max_uploads_per_owner", "HOLO_MAX_UPLOADS_PER_OWNER"),
                          ("max_stored_gb_per_owner", "HOLO_MAX_STORED_GB_PER_OWNER"),
+                         ("max_streams_per_owner", "HOLO_MAX_STREAMS_PER_OWNER"),
                          ("open_display_owners", "HOLO_OPEN_DISPLAY_OWNERS")):
             if env.get(var):
                 data[key] = env[var]

@@ -29,6 +29,7 @@ class ServiceContext:
     planner: Any = None
     auth_failures: AuthFailures = field(default_factory=AuthFailures)  # per app: failed authentications
     uploads_in_flight: dict = field(default_factory=dict)  # owner -> uploads being received or unpacked now
+    streams_open: dict = field(default_factory=dict)  # owner -> job event streams open now
     _lock_fd: Optional[int] = field(default=None, repr=False)
 
     def lock_data_dir(self) -> None:

@@ -208,35 +208,69 @@ async def job_events(request: Request, ctx: Ctx, principal: ReadScope,
     """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
     job reaches succeeded, failed or cancelled."""
     await run_in_threadpool(_get, ctx, job_id, principal)
+    held = _Held(ctx.streams_open, principal.owner, ctx.settings.max_streams_per_owner, job_id)
 
     async def stream():
-        last_state, last_progress, last_sent = None, None, time.monotonic()
-        while True:
-            row = await run_in_threadpool(ctx.db.get_job, job_id)
-            if row is None:
-                return
-            out = []
-            final = row["state"] in FINAL_STATES
-            state_changed = row["state"] != last_state
-            if state_changed and not final:
-                out.append(_sse("state", job_out(row)))
-            if row["progress"] != last_progress and row["state"] in ("running", "succeeded"):
-                out.append(_sse("progress", {"id": job_id, "state": row["state"], **(row["progress"] or {})}))
-            if state_changed and final:
-                out.append(_sse("state", job_out(row)))
-            last_state, last_progress = row["state"], row["progress"]
-            if out:
-                last_sent = time.monotonic()
-                yield "".join(out)
-            elif time.monotonic() - last_sent > 15:
-                last_sent = time.monotonic()
-                yield ": keep-alive\n\n"
-            if final or await request.is_disconnected():
-                return
-            await asyncio.sleep(0.25)
+        try:
+            async for chunk in _events(request, ctx, job_id):
+                yield chunk
+        finally:
+            held.release()
 
     return StreamingResponse(stream(), media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+class _Held:
+    """One of an owner's open event streams (``max_streams_per_owner``: each polls the database four times a
+    second until its job ends); 429 when the owner holds as many. Released when the stream ends, or when a
+    stream that never started is dropped."""
+
+    def __init__(self, counts: dict, owner: str, cap: int, job_id: str) -> None:
+        self.held = False
+        if counts.get(owner, 0) >= cap:
+            raise ApiError(429, f"this owner has {cap} event streams open, the most it may at once; close one or "
+                                f"poll GET /v1/jobs/{job_id}", headers={"Retry-After": "10"})
+        counts[owner] = counts.get(owner, 0) + 1
+        self.counts, self.owner, self.held = counts, owner, True
+
+    def release(self) -> None:
+        if self.held:
+            self.held = False
+            self.counts[self.owner] -= 1
+            if self.counts[self.owner] <= 0:
+                del self.counts[self.owner]
+
+    def __del__(self) -> None:
+        self.release()
+
+
+async def _events(request: Request, ctx: ServiceContext, job_id: str):
+    """A job's events until it reaches a final state or the client goes."""
+    last_state, last_progress, last_sent = None, None, time.monotonic()
+    while True:
+        row = await run_in_threadpool(ctx.db.get_job, job_id)
+        if row is None:
+            return
+        out = []
+        final = row["state"] in FINAL_STATES
+        state_changed = row["state"] != last_state
+        if state_changed and not final:
+            out.append(_sse("state", job_out(row)))
+        if row["progress"] != last_progress and row["state"] in ("running", "succeeded"):
+            out.append(_sse("progress", {"id": job_id, "state": row["state"], **(row["progress"] or {})}))
+        if state_changed and final:
+            out.append(_sse("state", job_out(row)))
+        last_state, last_progress = row["state"], row["progress"]
+        if out:
+            last_sent = time.monotonic()
+            yield "".join(out)
+        elif time.monotonic() - last_sent > 15:
+            last_sent = time.monotonic()
+            yield ": keep-alive\n\n"
+        if final or await request.is_disconnected():
+            return
+        await asyncio.sleep(0.25)
 
 
 def _artifact(request: Request, ctx: ServiceContext, job_id: str, kind: str, principal: Principal):

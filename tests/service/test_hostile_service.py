@@ -894,3 +894,53 @@ def test_a_jobs_log_swapped_for_a_link_a_fifo_or_a_hard_link_is_not_read(svc, tm
         make(p)
         with pytest.raises(OSError):
             _log_text(p, [str(folder)])  # the fifo: refused at once, not a thread blocked in open()
+
+
+def test_one_owner_holds_a_bounded_number_of_event_streams(tmp_path):
+    """Every open event stream polls the database four times a second (through the shared thread pool) until
+    its job ends, and one owner could open them without end: a few thousand held every tenant's requests up."""
+    import asyncio
+
+    svc = App(tmp_path / "data", max_streams_per_owner=2)
+    svc.scene("alice", scene_id="salice")
+    alice, bob = svc.token("submit", owner="alice"), svc.token("read", owner="bob")
+    with svc.client(alice) as c:
+        job = c.post("/v1/jobs", json=small("salice")).json()["id"]  # queued: its stream stays open
+
+    async def scenario():
+        async def open_stream(token: str, jid: str = job):
+            sent, gone = [], asyncio.Event()
+            scope = {"type": "http", "method": "GET", "path": f"/v1/jobs/{jid}/events", "raw_path": b"",
+                     "query_string": b"", "root_path": "", "scheme": "http", "http_version": "1.1",
+                     "server": ("test", 80), "client": ("10.0.0.1", 1),
+                     "headers": [(b"authorization", f"Bearer {token}".encode()), (b"host", b"test")]}
+
+            async def receive():
+                await gone.wait()
+                return {"type": "http.disconnect"}
+
+            async def send(message):
+                sent.append(message)
+
+            task = asyncio.create_task(svc.app(scope, receive, send))
+            while not (sent and (len(sent) > 1 or sent[0]["status"] != 200)) and not task.done():
+                await asyncio.sleep(0.01)
+            return sent[0]["status"], gone, task
+
+        async with svc.app.router.lifespan_context(svc.app):
+            first, second = await open_stream(alice), await open_stream(alice)
+            assert first[0] == second[0] == 200
+            third = await open_stream(alice)
+            assert third[0] == 429, third
+            with svc.client(bob) as b:  # another owner's streams are its own (its job: 404, not 429)
+                assert b.get(f"/v1/jobs/{job}/events").status_code == 404
+            first[1].set()  # the client goes: its stream ends and its place is free
+            await asyncio.wait_for(first[2], 5)
+            fourth = await open_stream(alice)
+            assert fourth[0] == 200
+            for _status, gone, task in (second, fourth):
+                gone.set()
+                await asyncio.wait_for(task, 5)
+        assert svc.ctx.streams_open == {}
+
+    asyncio.run(scenario())
