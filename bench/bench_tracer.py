@@ -244,16 +244,21 @@ def main() -> None:
     cbox = SHARED / "cbox-mirror-glass" / "cbox.xml"
     only = set(args.only or ["frames", "mitsuba", "direct", "fast"])
     n = 64 if args.quick else 128
-    res: dict = {"date": datetime.date.today().isoformat(), "machine": _machine(), "variant": variant()}
+    # --only reruns some benchmarks and keeps the others' latest figures (each with its own date and machine)
+    old = json.loads((RESULTS / "tracer.json").read_text()) if args.only and (RESULTS / "tracer.json").is_file() else {}
+    res: dict = {**old, "date": datetime.date.today().isoformat(), "machine": _machine(), "variant": variant()}
+    if old:
+        res["others_date"] = old.get("others_date") or old.get("date")
+    stamp = {"date": res["date"], "machine": res["machine"], "load_average": round(os.getloadavg()[0], 2)}
     if "frames" in only:
-        res["frames"] = bench_frames(cbox, n, n, spp=16)
+        res["frames"] = {**bench_frames(cbox, n, n, spp=16), **stamp}
         print("24 vs 1 frames:", json.dumps(res["frames"]))
     if "mitsuba" in only:
-        res["mitsuba"] = bench_vs_mitsuba(cbox, n, n, spp=16 if args.quick else 64)
+        res["mitsuba"] = {**bench_vs_mitsuba(cbox, n, n, spp=16 if args.quick else 64), **stamp}
         print("vs mitsuba path:", json.dumps(res["mitsuba"]))
     if "direct" in only:
         m = 64 if args.quick else 128
-        res["direct"] = bench_wrp_vs_direct(cbox, m, m, spps=[4, 16] if args.quick else [4, 16, 64])
+        res["direct"] = {**bench_wrp_vs_direct(cbox, m, m, spps=[4, 16] if args.quick else [4, 16, 64]), **stamp}
         print("wrp vs direct:", json.dumps(res["direct"]))
     if "fast" in only:
         room = ROOT / "out" / "bench_scene"
@@ -261,7 +266,7 @@ def main() -> None:
 
         # 256^2 (quick: 128^2): large enough that tracing, not the fixed per-render steps, sets the time
         m = 128 if args.quick else 256
-        res["fast"] = bench_fast_vs_full(write_demo_scene(room), m, m, ref_spp=128 if args.quick else 256)
+        res["fast"] = {**bench_fast_vs_full(write_demo_scene(room), m, m, ref_spp=128 if args.quick else 256), **stamp}
         print("fast vs full:", json.dumps(res["fast"]))
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "tracer.json").write_text(json.dumps(res, indent=2))
@@ -330,6 +335,11 @@ def write_markdown(res: dict) -> None:
         f = res["fast"]
         lines.append(f"| fast vs balanced (demo scene) | {f['speedup']:.2f}x faster, {f['psnr_loss_db']:+.2f} dB loss "
                      f"| >= 5x at <= 1 dB |")
+    when = [f"{k} {res[k]['date']} (load average {res[k]['load_average']})" for k in ("frames", "mitsuba", "direct", "fast")
+            if k in res and "date" in res[k]]
+    if when:
+        lines += ["", "Measured: " + "; ".join(when) + (f"; the other rows {res['others_date']}" if res.get(
+            "others_date") else "") + "."]
     if "fast" in res:
         f = res["fast"]
         lines += ["", f"Fast vs balanced at {f['shape']}: " + ", ".join(
