@@ -99,7 +99,7 @@ class ServiceSettings(BaseModel):
     max_scenes_per_owner: int = Field(default=1000, ge=1, description="Scenes one owner may store; more get 403.")
     max_uploads_per_owner: int = Field(default=2, ge=1, description="Uploads of one owner in progress at once; "
                                                                    "more get 429 before their body is read.")
-    max_streams_per_owner: int = Field(default=20, ge=1, description="Job event streams (SSE) one owner may hold "
+    max_streams_per_owner: int = Field(default=50, ge=1, description="Job event streams (SSE) one owner may hold "
                                        "open at once; more get 429 (each polls the database four times a second "
                                        "until its job ends).")
     max_stored_gb_per_owner: Optional[float] = Field(default=None, gt=0, description="Bytes (GB) of scenes and "
