@@ -143,7 +143,8 @@ _MAX_SAMPLE_COUNT = 1 << 16
 # Shared objects by name (``libx.so.1``, ``x.dylib``, ``x.dll``, ``x.pyd``): Mitsuba looks plugins up as
 # ``plugins/<type>.so`` through its file resolver, so no such name may sit in a bundle, whatever it holds.
 _SHARED_OBJECT = re.compile(r"\.(?:so(?:\.[0-9]+)*|dylib|dll|pyd)$", re.IGNORECASE)
-_XML_ENCODING = re.compile(rb"^(?:\xef\xbb\xbf)?\s*<\?xml[^>]*?\bencoding\s*=\s*([\"'])(.*?)\1", re.DOTALL)
+_XML_DECLARATION = re.compile(rb"^(?:\xef\xbb\xbf)?\s*<\?xml\s")
+_XML_ENCODING = re.compile(rb"\bencoding\s*=\s*([\"'])(.*?)\1", re.DOTALL)
 
 
 def _rel(root: Path, p: Path) -> str:
@@ -198,7 +199,9 @@ def _parse(path: Path, limits: BundleLimits, name: str):
     if path.stat().st_size > limits.max_xml_bytes:
         raise BundleError(f"{name}: XML larger than {limits.max_xml_bytes} bytes")
     raw = path.read_bytes()
-    m = _XML_ENCODING.match(raw[:1024])
+    # the whole declaration, however long (padding pushed an encoding past a fixed window, where expat and
+    # Mitsuba's parser still read it)
+    m = _XML_ENCODING.search(raw, 0, raw.find(b"?>")) if _XML_DECLARATION.match(raw) else None
     if m is not None and m.group(2).strip().lower() not in (b"utf-8", b"utf8"):
         # Mitsuba's parser reads anything but Latin-1 as UTF-8: any other declared encoding would make the two
         # parsers see different attribute values
@@ -220,7 +223,8 @@ def _parse(path: Path, limits: BundleLimits, name: str):
 
     try:
         # fed in one piece: expat rescans a token split over chunks, quadratic in a huge attribute
-        parser = XMLParser(target=DepthCapped(), forbid_dtd=True, forbid_entities=True, forbid_external=True)
+        parser = XMLParser(target=DepthCapped(), encoding="utf-8", forbid_dtd=True, forbid_entities=True,
+                           forbid_external=True)
         parser.feed(raw)
         root = parser.close()
     except BundleError:

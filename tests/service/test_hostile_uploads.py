@@ -377,3 +377,30 @@ def test_sample_counts_that_never_finish_loading_are_refused(tmp_path):
                                   '</sensor><shape type="sphere"><bsdf type="blendbsdf"><float name="weight" '
                                   'value="0.5"/><bsdf type="diffuse"/><bsdf type="conductor"/></bsdf></shape></scene>')
     validate_bundle(ok)
+
+
+def test_an_encoding_declared_past_the_first_kilobyte_is_still_seen(tmp_path):
+    """The declaration was looked for in the first 1024 bytes: padded past them, ``encoding="koi8-r"`` made
+    the check (expat) read a UTF-8 file name as other characters, naming a 4 x 4 image, while Mitsuba read it
+    as UTF-8 and loaded a 64 x 64 one past the pixel cap."""
+    from PIL import Image
+
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
+
+    root = tmp_path / "b"
+    root.mkdir()
+    Image.new("RGB", (4, 4)).save(root / ("\u00e9".encode().decode("koi8_r") + ".png"))  # what expat saw
+    Image.new("RGB", (64, 64)).save(root / "\u00e9.png")  # what Mitsuba loads
+    decl = b'<?xml version="1.0"' + b" " * 2000 + b' encoding="koi8-r"?>'
+    (root / "scene.xml").write_bytes(decl + (
+        '<scene version="3.0.0"><shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" '
+        'name="reflectance"><string name="filename" value="\u00e9.png"/></texture></bsdf></shape></scene>').encode())
+    from holocore.scene.load import _resolver_holding
+
+    mi = mitsuba()
+    with _resolver_holding(root):
+        params = mi.traverse(mi.load_file(str(root / "scene.xml")))
+    assert [params[k].shape for k in params.keys() if k.endswith("reflectance.data")] == [(64, 64, 3)]
+    with pytest.raises(BundleError, match="declares encoding 'koi8-r'; scene files must be UTF-8"):
+        validate_bundle(root, limits=BundleLimits(max_image_pixels=1000))
