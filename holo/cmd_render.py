@@ -10,21 +10,7 @@ from typing import Optional
 
 import typer
 
-from holo.common import OpticsOptions, fail, progress_writer, with_optics_options
-
-
-def parse_wrp_planes(text: str):
-    """--wrp-planes: an integer 1..8 or 'auto' (one-line error otherwise)."""
-    t = text.strip().lower()
-    if t == "auto":
-        return "auto"
-    try:
-        n = int(t)
-    except ValueError:
-        fail(f"--wrp-planes must be an integer 1..8 or auto, got {text!r}")
-    if not 1 <= n <= 8:
-        fail(f"--wrp-planes must be in 1..8 or auto, got {n}")
-    return n
+from holo.common import OpticsOptions, fail, parse_wrp_planes, progress_writer, with_optics_options
 
 
 def register(app: typer.Typer) -> None:

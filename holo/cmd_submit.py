@@ -10,13 +10,14 @@ from typing import Optional
 
 import typer
 
-from holo.common import fail
+from holo.common import OpticsOptions, fail, parse_wrp_planes, with_optics_options
 
 
 def register(app: typer.Typer) -> None:
     app.command("submit")(submit)
 
 
+@with_optics_options
 def submit(
     scene: Path = typer.Argument(..., help="Scene folder, .zip bundle, or the scene's .xml (its folder is sent)."),
     server: str = typer.Option(..., "--server", help="Service URL, e.g. http://127.0.0.1:8080"),
@@ -24,36 +25,35 @@ def submit(
     out: Optional[Path] = typer.Option(None, "--out", help="Where to write STACK.npz (omit: do not download)."),
     entry: Optional[str] = typer.Option(None, "--entry", help="Scene XML inside the bundle, when it holds several."),
     preset: str = typer.Option("balanced", help="fast | balanced | reference"),
-    frames: Optional[int] = typer.Option(None, help="Time-multiplexed frames."),
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset; with "
                                                  "--time-limit-s, the most)."),
     time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="Render for about this many "
                                                  "seconds (rays until the time is spent)."),
-    resolution: Optional[str] = typer.Option(None, help="SLM size HxW in pixels, e.g. 1080x1920."),
-    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="SLM pixel pitch in µm."),
-    wavelengths_nm: Optional[str] = typer.Option(None, "--wavelengths-nm", help="e.g. 640,516.5,455.4"),
-    seed: Optional[int] = typer.Option(None, help="Seed of rays and random-phase bank."),
-    optics_json: Optional[Path] = typer.Option(None, "--optics-json", help="OpticsConfig as a JSON file."),
     encoder: str = typer.Option("sgd", help="sgd | dpac"),
     iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd)."),
     method: str = typer.Option("wrp", help="wrp | direct"),
-    display: Optional[str] = typer.Option(None, help="Display the job is for (agents pick it up)."),
+    wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
+                                                               "the scene depth)."),
+    to_display: Optional[str] = typer.Option(None, "--to-display", help="The lab display the job is for (its "
+                                                                        "agent picks the stack up)."),
+    name: Optional[str] = typer.Option(None, "--name", help="A name for people (default: the service's, from the "
+                                                            "scene)."),
     idempotency_key: Optional[str] = typer.Option(None, "--idempotency-key", help="Repeat a submit safely."),
     no_wait: bool = typer.Option(False, "--no-wait", help="Print the job id and return at once."),
+    *,
+    optics: OpticsOptions,
 ) -> None:
-    """Upload SCENE, submit a render job, follow its progress and download the stack."""
-    from holo.common import optics_from_options
-
+    """Upload SCENE, submit a render job, follow its progress and download the stack. The optics options are
+    `holo render`'s (--display names the optics profile, as there); --to-display names the lab display."""
     token = token or os.environ.get("HOLO_TOKEN")
     if not token:
         fail("give --token or set HOLO_TOKEN")
     if not scene.exists():
         fail(f"scene not found: {scene}")
-    optics = optics_from_options(optics_json=optics_json, resolution=resolution, pitch_um=pitch_um,
-                                 wavelengths_nm=wavelengths_nm, seed=seed)
-    body = {"optics": optics.model_dump(mode="json"), "preset": preset, "frames": frames, "spp": spp,
+    _, cfg = optics.resolve()
+    body = {"optics": cfg.model_dump(mode="json"), "preset": preset, "frames": optics.frames, "spp": spp,
             "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method,
-            "display": display}
+            "wrp_planes": parse_wrp_planes(wrp_planes), "display": to_display, "name": name}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console

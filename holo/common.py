@@ -163,6 +163,20 @@ def optics_from_options(*, optics_json: Optional[Path] = None, display: Optional
     return OpticsOptions(display=display, optics_json=optics_json, **overrides).resolve()[1]
 
 
+def parse_wrp_planes(text: str):
+    """--wrp-planes: an integer 1..8 or 'auto' (one-line error otherwise)."""
+    t = text.strip().lower()
+    if t == "auto":
+        return "auto"
+    try:
+        n = int(t)
+    except ValueError:
+        fail(f"--wrp-planes must be an integer 1..8 or auto, got {text!r}")
+    if not 1 <= n <= 8:
+        fail(f"--wrp-planes must be in 1..8 or auto, got {n}")
+    return n
+
+
 def progress_writer(path: Optional[Path]) -> Callable[[str, int, int], None]:
     """A progress callback appending JSON lines {"stage", "done", "total", "t"} to path (no-op if None)."""
     if path is None:

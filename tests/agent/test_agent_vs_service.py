@@ -48,7 +48,7 @@ def test_agent_shows_what_the_service_rendered(tmp_path, scene_bundle):
                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         out = tmp_path / "STACK.npz"
         sub = subprocess.run([*HOLO, "submit", str(scene), "--server", url, "--token", token, "--preset", "fast",
-                              "--frames", "2", "--resolution", "32x32", "--iterations", "20", "--display", "benchE2E",
+                              "--frames", "2", "--resolution", "32x32", "--iterations", "20", "--to-display", "benchE2E",
                               "--out", str(out)], env=env(), capture_output=True, text=True, timeout=240)
         assert sub.returncode == 0, sub.stderr
         job_id = [l for l in sub.stdout.splitlines() if l.startswith("{")][-1].split('"job_id": "')[1].split('"')[0]
