@@ -1,7 +1,7 @@
 """The files a job's run is made of, typed: the job's options as stored (``jobs.spec``), ``job.json`` (what the
 scheduler asks the driver to do), ``status.json`` (how the driver says the run ended) and the steps and render
 stages the progress files name. Shared by the API (which stores the spec), the scheduler and the driver; light
-imports only (pydantic). Files written by earlier versions still read: fields added since have defaults."""
+imports only (pydantic, and holocore.plan.presets' names). Files written by earlier versions still read: fields added since have defaults."""
 
 from __future__ import annotations
 
@@ -9,9 +9,11 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, TypedDict, Union, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
+from holocore.plan.presets import MAX_WRP_PLANES, PresetName, RenderMethod
+
+__all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobFields", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
            "RunStatus", "Progress", "read_job_file", "read_run_status"]
 
 Step = Literal["render", "encode", "package", "preview", "pictures"]
@@ -22,24 +24,49 @@ STEPS: tuple[Step, ...] = get_args(Step)
 RenderStage = Literal["analysis", "trace", "propagate"]
 RENDER_STAGES: tuple[RenderStage, ...] = get_args(RenderStage)
 
-Preset = Literal["fast", "balanced", "reference"]
-Encoder = Literal["sgd", "dpac"]
-Method = Literal["wrp", "direct"]
-WrpPlanes = Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]]
+Preset = PresetName
+Encoder = Literal["sgd", "dpac"]  # the encoders a job may ask for (holocore.encode also has "naive", for tests)
+Method = RenderMethod
+WrpPlanes = Union[Annotated[int, Field(ge=1, le=MAX_WRP_PLANES)], Literal["auto"]]
 
 
-class JobOptions(BaseModel):
-    """What a job renders and encodes, besides the optics (a checked ``JobRequest``'s fields)."""
+class JobFields(BaseModel):
+    """What a job renders and encodes besides its optics: the one field list of the job options, with their
+    limits, that the request (``service.models.JobRequest``), the stored spec and ``job.json`` inherit. A field
+    added here reaches the request, the spec, the job file and the result's content address
+    (``service.models.cache_key``); the driver's argv (``service.workers.driver``) is the one other place that
+    names it."""
+
+    preset: Preset = "balanced"
+    frames: Optional[int] = Field(default=None, ge=1, le=256, description="Frames; overrides optics.frames.")
+    spp: Optional[int] = Field(default=None, ge=1, le=1_000_000, description="Rays per WRP pixel (default: "
+                                                                             "chosen by the preset).")
+    render_time_limit_s: Optional[float] = Field(
+        default=None, gt=0, allow_inf_nan=False, description="Render for about this many seconds: passes of rays "
+        "until the time is spent (spp is then the most rays per pixel; default the service's max_spp).")
+    encoder: Encoder = "sgd"
+    iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
+    method: Method = "wrp"
+    wrp_planes: WrpPlanes = Field(
+        default="auto", description=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or 'auto' (chosen from the scene "
+                                    "depth).")
+
+    @model_validator(mode="after")
+    def _planes_need_wrp(self):
+        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
+            raise ValueError("wrp_planes > 1 needs method 'wrp' (the direct method records on the SLM)")
+        return self
+
+    def fields(self) -> dict[str, Any]:
+        """The job fields alone (no optics, no run fields), as JSON."""
+        return self.model_dump(mode="json", include=set(JobFields.model_fields))
+
+
+class JobOptions(JobFields):
+    """The job fields as stored and handed to the driver (a checked ``JobRequest``'s, and the service's spp cap)."""
 
     model_config = ConfigDict(frozen=True, extra="ignore")
-    preset: Preset = "balanced"
-    frames: Optional[int] = None
-    spp: Optional[int] = None  # with render_time_limit_s: the most rays per pixel
     max_spp: Optional[int] = None  # without spp: the most rays per pixel the preset may choose (the service's cap)
-    render_time_limit_s: Optional[float] = None
-    encoder: Encoder = "sgd"
-    iterations: Optional[int] = None
-    method: Method = "wrp"
     wrp_planes: WrpPlanes = 1  # jobs stored before the option rendered one plane
 
     def options(self) -> dict[str, Any]:

@@ -8,13 +8,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Annotated, Any, Literal, Optional, Union
+from typing import Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field
 
 from holocore.display.optics import OpticsConfig
 from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
 from holocore.plan.presets import PRESETS
+from service.jobfiles import JobFields
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
@@ -25,35 +26,18 @@ NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 
 
-class JobRequest(BaseModel):
-    """A render job: scene, optics, quality, encoder, and the display it is for."""
+class JobRequest(JobFields):
+    """A render job: scene, optics, the job fields (service.jobfiles.JobFields: quality, encoder, recording
+    layout), and the display it is for."""
 
     model_config = ConfigDict(extra="forbid")
 
     scene_id: str = Field(pattern=ID_PATTERN, description="Id from POST /v1/scenes.")
     optics: OpticsConfig = Field(default_factory=OpticsConfig, description="The display's optics (OpticsConfig).")
-    preset: Literal["fast", "balanced", "reference"] = "balanced"
-    frames: Optional[int] = Field(default=None, ge=1, le=256, description="Frames; overrides optics.frames.")
-    spp: Optional[int] = Field(default=None, ge=1, le=1_000_000, description="Rays per WRP pixel (default: "
-                                                                             "chosen by the preset).")
-    render_time_limit_s: Optional[float] = Field(
-        default=None, gt=0, allow_inf_nan=False, description="Render for about this many seconds: passes of rays "
-        "until the time is spent (spp is then the most rays per pixel; default the service's max_spp).")
-    encoder: Literal["sgd", "dpac"] = "sgd"
-    iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
-    method: Literal["wrp", "direct"] = "wrp"
-    wrp_planes: Union[Annotated[int, Field(ge=1, le=8)], Literal["auto"]] = Field(
-        default="auto", description="Wave recording planes: 1..8, or 'auto' (chosen from the scene depth).")
     display: Optional[str] = Field(default=None, pattern=NAME_PATTERN, description="Display the job is for.")
     name: Optional[str] = Field(default=None, min_length=1, max_length=120, pattern=r"^[^\x00-\x1f\x7f]+$",
                                 description="A name for people (the web page offers the uploaded file's); not "
                                             "part of the result's content address.")
-
-    @model_validator(mode="after")
-    def _planes_need_wrp(self) -> "JobRequest":
-        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
-            raise ValueError("wrp_planes > 1 needs method 'wrp' (the direct method records on the SLM)")
-        return self
 
 
 class Showing(BaseModel):
@@ -358,10 +342,9 @@ def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: s
               max_spp: Optional[int] = None) -> str:
     """Content address of a job's result: scene content + optics + options + code version (not the display).
     ``max_spp``: the clamp on the preset's choice of spp (:func:`binding_max_spp`), when there is one."""
+    # every job field (service.jobfiles.JobFields) but frames, which the effective optics hold: a field added
+    # there is part of the address without a line here, so no two jobs that differ in one share a result
+    fields = {k: v for k, v in req.fields().items() if k != "frames"}
     doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
-           "preset": req.preset, "spp": req.spp, "encoder": req.encoder, "iterations": req.iterations,
-           "method": req.method, "code": code_version,
-           **({"max_spp": max_spp} if max_spp is not None else {}),
-           **({"render_time_limit_s": req.render_time_limit_s} if req.render_time_limit_s is not None else {}),
-           **({"wrp_planes": req.wrp_planes} if req.wrp_planes != 1 else {})}
+           "fields": fields, "code": code_version, **({"max_spp": max_spp} if max_spp is not None else {})}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

@@ -20,6 +20,7 @@ from service.api.problems import ApiError
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
+from holocore.plan.presets import MAX_WRP_PLANES
 from service.jobfiles import JobSpec
 from service.models import (
     JobRequest,
@@ -97,10 +98,9 @@ def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
     time-limited render's spp is its cap: the request's, else the service's max_spp; a preset's own choice of
     spp is clamped to max_spp: ``max_spp``)."""
     timed = req.render_time_limit_s is not None
-    return JobSpec(optics=effective_optics(req).model_dump(mode="json"), preset=req.preset, frames=req.frames,
-                   spp=spp_cap(req, limits) if timed else req.spp, max_spp=binding_max_spp(req, limits),
-                   render_time_limit_s=req.render_time_limit_s,
-                   encoder=req.encoder, iterations=req.iterations, method=req.method, wrp_planes=req.wrp_planes)
+    return JobSpec(optics=effective_optics(req).model_dump(mode="json"),
+                   **{**req.fields(), "spp": spp_cap(req, limits) if timed else req.spp},
+                   max_spp=binding_max_spp(req, limits))
 
 
 # ---- what an owner stores -----------------------------------------------------------------------------------
@@ -111,7 +111,7 @@ _RESULT_PER_SAMPLE = 16
 _OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
 
 
-_MOST_PLANES = 8  # wrp_planes 1..8; auto chooses at most holocore.plan.wrp_planes.MAX_WRP_PLANES (8)
+_MOST_PLANES = MAX_WRP_PLANES  # wrp_planes 1..8; auto chooses at most as many
 
 
 def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0) -> int:

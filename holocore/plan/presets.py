@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Literal, Mapping, get_args
 
-__all__ = ["PresetName", "PRESET_NAMES", "Preset", "PRESETS", "RenderMethod", "RENDER_METHODS"]
+__all__ = ["PresetName", "PRESET_NAMES", "Preset", "PRESETS", "RenderMethod", "RENDER_METHODS", "MAX_WRP_PLANES"]
 
 PresetName = Literal["fast", "balanced", "reference"]
 PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
@@ -21,6 +21,8 @@ PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
 # "wrp": trace to the wave recording plane(s), then ASM to the SLM; "direct": trace straight to the SLM.
 RenderMethod = Literal["wrp", "direct"]
 RENDER_METHODS: tuple[RenderMethod, ...] = get_args(RenderMethod)
+
+MAX_WRP_PLANES = 8  # the most wave recording planes a render may use (holocore.plan.wrp_planes chooses up to it)
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ from typing import Sequence
 import numpy as np
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
+from holocore.plan.presets import MAX_WRP_PLANES  # one limit for the CLI, the API and the planner
 
 __all__ = ["WrpPlanes", "place_planes", "choose_planes", "MAX_WRP_PLANES"]
 
-MAX_WRP_PLANES = 8
 MIN_GAP = 0.25  # least distance between two planes, in margins
 
 

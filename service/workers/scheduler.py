@@ -233,8 +233,7 @@ class Scheduler:
         from service.models import JobRequest, job_memory, memory_admission_error, plane_border_px
         try:
             spec = JobSpec.model_validate(row["spec"])
-            req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, preset=spec.preset, method=spec.method,
-                             wrp_planes=spec.wrp_planes)
+            req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, **spec.fields())
             border = plane_border_px(req, scene_plan=(scene or {}).get("plan"),
                                      plan_state=(scene or {}).get("plan_state", "failed"),
                                      limits=self.settings.job_limits)
