@@ -396,9 +396,10 @@ def test_an_encoding_declared_past_the_first_kilobyte_is_still_seen(tmp_path):
     (root / "scene.xml").write_bytes(decl + (
         '<scene version="3.0.0"><shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" '
         'name="reflectance"><string name="filename" value="\u00e9.png"/></texture></bsdf></shape></scene>').encode())
-    from holocore.scene.load import _resolver_holding
+    from holocore.scene.load import _resolver_holding, preload_plugins
 
     mi = mitsuba()
+    preload_plugins()  # as every load does: plugins are never looked up through the scene's folder
     with _resolver_holding(root):
         params = mi.traverse(mi.load_file(str(root / "scene.xml")))
     assert [params[k].shape for k in params.keys() if k.endswith("reflectance.data")] == [(64, 64, 3)]
