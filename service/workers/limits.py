@@ -139,6 +139,9 @@ _OUT_OF_MEMORY = re.compile(r"MemoryError|Cannot allocate memory|can't allocate 
                             r"memory allocation (?:still )?failed", re.IGNORECASE)
 
 
+_DEVICE = re.compile(r"CUDA|GPU|device|cuMem|OptiX", re.IGNORECASE)  # the GPU's memory is not ours to limit
+
+
 def _gb(n: int) -> str:
     return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.0f} MB"
 
@@ -155,7 +158,8 @@ def explain_limit(what: str, returncode: int, log_tail: str, cpu_used_s: float,
                 "and was stopped")
     if limits.open_files is not None and "Too many open files" in log_tail:
         return f"{what} opened more than {limits.open_files} files at once (the service's limit) and was stopped"
-    if limits.memory_bytes is not None and _OUT_OF_MEMORY.search(log_tail):
+    if limits.memory_bytes is not None and any(_OUT_OF_MEMORY.search(line) and not _DEVICE.search(line)
+                                               for line in log_tail.splitlines()):
         return f"{what} needed more than the {_gb(limits.memory_bytes)} of memory a process may use and was stopped"
     return None
 

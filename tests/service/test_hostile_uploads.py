@@ -405,3 +405,14 @@ def test_an_encoding_declared_past_the_first_kilobyte_is_still_seen(tmp_path):
     assert [params[k].shape for k in params.keys() if k.endswith("reflectance.data")] == [(64, 64, 3)]
     with pytest.raises(BundleError, match="declares encoding 'koi8-r'; scene files must be UTF-8"):
         validate_bundle(root, limits=BundleLimits(max_image_pixels=1000))
+
+
+def test_a_gpu_out_of_memory_is_not_blamed_on_the_memory_limit():
+    from service.workers.limits import explain_limit
+
+    limits = ProcessLimits(memory_bytes=8 << 30)
+    for tail in ("torch.OutOfMemoryError: CUDA out of memory. Tried to allocate 2.00 GiB",
+                 "RuntimeError: jit_malloc(): out of memory on device 0 (cuMemAlloc)"):
+        assert explain_limit("holo render", 1, tail, 0.0, limits) is None, tail
+    said = explain_limit("holo render", 1, "x\nMemoryError\n", 0.0, limits)
+    assert said == "holo render needed more than the 8.6 GB of memory a process may use and was stopped"
