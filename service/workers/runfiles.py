@@ -1,5 +1,6 @@
 """What the scheduler reads of a run's directory: progress (``step.json`` and ``progress-<step>.jsonl``),
-``status.json`` (typed in service/jobfiles.py) and the artifacts' hashes, computed here."""
+``status.json`` (typed in service/jobfiles.py) and the artifacts' hashes, computed here; and the partial outputs
+it removes after a stopped run."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ import hashlib
 import json
 import os
 import stat
+import time
 from pathlib import Path
 from typing import Optional
 
 from service.jobfiles import STEPS, Progress, RenderStage, Step
 
-__all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_artifacts", "read_progress"]
+__all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_artifacts", "read_progress", "remove_partials"]
 
 ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
 RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
@@ -88,3 +90,12 @@ def read_progress(job_dir: Path) -> Optional[Progress]:
     return Progress(step=step, stage=str(line.get("stage", step)), done=done if isinstance(done, int) else 0,
                     total=total if isinstance(total, int) else 0,
                     fraction=round(min(0.999, base + STEP_WEIGHTS[step] * within), 4))
+
+
+def remove_partials(job_dir: Path, *, after_s: float = 0.0) -> None:
+    """A stopped run's partial fields and artifacts are of no use; its logs stay. ``after_s``: wait first (a
+    cancelled run's processes may still be writing)."""
+    if after_s > 0:
+        time.sleep(after_s)
+    for name in ("result.npz", *ARTIFACTS):
+        (job_dir / name).unlink(missing_ok=True)

@@ -45,35 +45,15 @@ from service.workers.engine import (
     resolve_sandbox,
     secure_data_dir,
 )
+from service.workers import admission
 from service.workers.limits import job_limits
-from service.workers.runfiles import ARTIFACTS, RUN_FILES, hash_artifacts, read_progress
+from service.workers.runfiles import RUN_FILES, hash_artifacts, read_progress, remove_partials
 
 __all__ = ["Scheduler"]
 
 log = logging.getLogger("holo.service.scheduler")
 
 _SANDBOX_ONLY = ("scene", "home", "tmp")  # what a sandboxed run gets in its job dir, removed after it
-
-
-def _peak_bytes(row: dict) -> int:
-    """A job's predicted peak memory from its estimate (0 when it has none: jobs from before the estimate)."""
-    mem = (row.get("estimate") or {}).get("memory") or {}
-    peak = mem.get("peak_bytes")
-    return int(peak) if isinstance(peak, (int, float)) and peak > 0 else 0
-
-
-def _largest_file_bytes(row: dict, spec: JobSpec) -> Optional[int]:
-    """The most one file of the job can hold: all its folder may hold (service.submission.output_bytes, with
-    RESULT.npz and its deeper planes' scratch), with a quarter to spare; None while its planes' border is not
-    known (a job from before they were counted)."""
-    mem = (row.get("estimate") or {}).get("memory") or {}
-    border = 0 if spec.wrp_planes == 1 or spec.method == "direct" else mem.get("plane_border_px")
-    if border is None:
-        return None
-    from service.submission import output_bytes
-
-    most = output_bytes(spec.optics, keep_result=True, wrp_planes=spec.wrp_planes, plane_border=border)
-    return most + most // 4
 
 
 def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
@@ -214,41 +194,15 @@ class Scheduler:
             self.metrics.workers_busy.set(len(self.running))
 
     def _memory_need(self, row: dict) -> Optional[int]:
-        """A queued job's predicted peak bytes; None to leave it queued for now (its scene's plan, which says
-        how deep its recording planes go, is still pending); -1 when, with the plan known, it cannot fit the
-        workers' memory (the job is failed with the reason, as a submit would have been refused).
-
-        No job starts before its scene's plan is ready: the plan is where Mitsuba first loads the scene, and a
-        scene that crashes Mitsuba or outgrows its limits there would do so again in the job. A job whose
-        scene's plan failed (queued in the moment between a submit's check and the plan's end) is failed."""
-        scene = self.db.get_scene(row["scene_id"])
-        if scene is not None and scene["plan_state"] in ("pending", "running"):
-            return None
-        if scene is not None and scene["plan_state"] == "failed":
-            self._fail(row["id"], row["attempts"], f"the scene's plan failed: {scene.get('plan_error') or ''}")
+        """A queued job's predicted peak bytes (service.workers.admission); None to leave it queued for now; -1
+        when it cannot run (the job is failed with the reason)."""
+        a = admission.admit(row, self.db.get_scene(row["scene_id"]), self.settings)
+        if a.refusal is not None:
+            self._fail(row["id"], row["attempts"], a.refusal)
             return -1
-        mem = (row.get("estimate") or {}).get("memory") or {}
-        if "plane_border_px" not in mem or mem["plane_border_px"] is not None or mem.get("planes_checked"):
-            return _peak_bytes(row)  # known at submit or checked already (or from before planes were counted)
-        from service.models import JobRequest, job_memory, memory_admission_error, plane_border_px
-        try:
-            spec = JobSpec.model_validate(row["spec"])
-            req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, **spec.fields())
-            border = plane_border_px(req, scene_plan=(scene or {}).get("plan"),
-                                     plan_state=(scene or {}).get("plan_state", "failed"),
-                                     limits=self.settings.job_limits)
-        except ValueError as exc:  # a spec this version cannot read: the run will say what is wrong
-            log.warning("job %s: memory not re-estimated (%s)", row["id"], exc)
-            return _peak_bytes(row)
-        too_big = memory_admission_error(req, self.settings.worker_memory_bytes, plane_border=border)
-        if too_big:
-            self._fail(row["id"], row["attempts"], f"refused before it ran: {too_big}")
-            return -1
-        m = job_memory(req, plane_border=border)
-        estimate = dict(row.get("estimate") or {})
-        estimate["memory"] = {**m.as_dict(), "plane_border_px": border, "planes_checked": True}
-        self.db.update_job(row["id"], where_state=("queued",), estimate=estimate)
-        return m.peak_bytes
+        if a.estimate is not None:
+            self.db.update_job(row["id"], where_state=("queued",), estimate=a.estimate)
+        return a.need_bytes
 
     # ---- sandbox slots ---------------------------------------------------------------------------------
     def _free_slot(self) -> Optional[int]:
@@ -322,7 +276,7 @@ class Scheduler:
                 for sub in ("home", "tmp"):
                     (job_dir / sub).mkdir(exist_ok=True)
             limits = job_limits(self.settings, sandboxed=run_as is not None,
-                                largest_file_bytes=_largest_file_bytes(row, spec))
+                                largest_file_bytes=admission.largest_file_bytes(row, spec))
             job_file = JobFile(**spec.options(), job_id=job_id, attempt=attempt, scene_path=str(scene_path),
                                keep_result=self.settings.keep_result, limits=limits.model_dump(exclude_none=True))
             write_json_atomic(job_dir / "job.json", job_file.model_dump(mode="json"))
@@ -352,10 +306,10 @@ class Scheduler:
             self._progress.pop(job_id, None)
             if h.run_as is not None:
                 self._release_later(job_id, h, grace_s=self.settings.kill_grace_s,
-                                    then=lambda: self._remove_partials(h.job_dir))
+                                    then=lambda: remove_partials(h.job_dir))
                 return
             self.engine.kill(h, grace_s=self.settings.kill_grace_s)
-            self._cleanup_cancelled(h.job_dir)
+            threading.Thread(target=remove_partials, args=(h.job_dir,), kwargs={"after_s": 2.0}, daemon=True).start()
             return
         rc = self.engine.poll(h)
         if rc is None:
@@ -438,17 +392,3 @@ class Scheduler:
             log.warning("job %s: failed (attempt %d): %s", job_id, attempt, error)
             if self.metrics is not None:
                 self.metrics.jobs_finished.labels(state="failed").inc()
-
-    @staticmethod
-    def _cleanup_cancelled(job_dir: Path) -> None:
-        """A cancelled run's partial fields are of no use; its logs stay."""
-        def later() -> None:
-            time.sleep(2.0)
-            Scheduler._remove_partials(job_dir)
-
-        threading.Thread(target=later, daemon=True).start()
-
-    @staticmethod
-    def _remove_partials(job_dir: Path) -> None:
-        for name in ("result.npz", *ARTIFACTS):
-            (job_dir / name).unlink(missing_ok=True)
