@@ -23,8 +23,7 @@ One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in thi
 3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
 4. :func:`_coherent_step`: on a delta lobe, the float64 ray-differential transfer (Igehy 1999,
    :func:`holocore.trace.differentials.igehy_transfer`); at P behind delta vertices, the apparent distance d (DESIGN §4, docs/physics.md);
-5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next
-   ray, Russian roulette).
+5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next ray, RR).
 
 Units: world metres (positions, distances, d), unit direction vectors, radiance in the scene's units.
 """
