@@ -1,10 +1,10 @@
 """Scene bundles: a folder holding a Mitsuba 3 XML scene and every file it references, checked before Mitsuba
 parses anything (the service runs it on every upload; `holo` runs it before every load).
 
-The check sees what Mitsuba will do (issue 10), with Mitsuba's own rules, probed against Mitsuba 3.9:
+The check sees what Mitsuba will do, with Mitsuba's own rules, probed against Mitsuba 3.9:
 - ``<default>`` parameters form one ordered namespace over the entry and its includes, the first definition
   wins; we refuse a name defined twice, and a value holding ``$``. ``$name`` is substituted in every attribute
-  of every element (types, names, values, file names), the longest name first, in one pass (``_Params``);
+  of every element (types, names, values, file names), the longest name first, in one pass (``holocore.scene.bundle_xml.Params``);
   anything left with a ``$`` is refused (Mitsuba would call it an undefined parameter), and so is an attribute
   Mitsuba's replace-in-turn could read otherwise.
 - Every relative reference (``filename`` attributes and strings, ``<include>``, in the entry or in an include)
@@ -27,15 +27,14 @@ Pure Python: no Mitsuba import.
 
 from __future__ import annotations
 
-import hashlib
-import os
 import re
-import stat
-import struct
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Optional
 
+from holocore.scene.bundle_files import check_reference, content_sha256, file_reference, list_files, rel_name
+from holocore.scene.bundle_xml import Params, parse_xml
+from holocore.scene.errors import BundleError
 from holocore.scene.filekinds import (
     IMAGE_KINDS,
     FileKindError,
@@ -43,15 +42,10 @@ from holocore.scene.filekinds import (
     obj_counts,
     ply_counts,
     serialized_counts,
-    sniff_kind,
 )
 
 __all__ = ["BundleError", "BundleLimits", "BundleReport", "validate_bundle", "entry_source", "content_sha256",
            "ALLOWED_PLUGINS", "ALLOWED_TAGS", "IGNORED_PLUGIN_TAGS"]
-
-
-class BundleError(ValueError):
-    """The bundle is refused; the message says why, with bundle-relative names."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +123,6 @@ _EXPECTED_KINDS = {"shape:obj": ({"text"}, "an OBJ mesh"), "shape:ply": ({"ply"}
                    "shape:serialized": ({"serialized"}, "a Mitsuba serialized mesh"),
                    "texture:bitmap": (IMAGE_KINDS, "a readable image"), "emitter:envmap": (IMAGE_KINDS,
                                                                                          "a readable image")}
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
 # Plugins that read a file named by their ``filename`` string property. Mitsuba's bitmap texture dereferences
 # a missing one (SIGSEGV); the others fail later with a less clear message, so all of them must name it.
 _NEEDS_FILENAME = {"texture:bitmap", "emitter:envmap", "shape:obj", "shape:ply", "shape:serialized",
@@ -140,243 +133,13 @@ _NEEDS_PROPERTY = {"bsdf:blendbsdf": ("weight",)}
 # stratified, orthogonal and ldsampler never finish their constructor. The renderer brings its own sampler, so
 # the scene's is only instantiated.
 _MAX_SAMPLE_COUNT = 1 << 16
-# Shared objects by name (``libx.so.1``, ``x.dylib``, ``x.dll``, ``x.pyd``): Mitsuba looks plugins up as
-# ``plugins/<type>.so`` through its file resolver, so no such name may sit in a bundle, whatever it holds.
-_SHARED_OBJECT = re.compile(r"\.(?:so(?:\.[0-9]+)*|dylib|dll|pyd)$", re.IGNORECASE)
-_XML_DECLARATION = re.compile(rb"^(?:\xef\xbb\xbf)?\s*<\?xml\s")
-_XML_ENCODING = re.compile(rb"\bencoding\s*=\s*([\"'])(.*?)\1", re.DOTALL)
-
-
-def _rel(root: Path, p: Path) -> str:
-    return p.relative_to(root).as_posix()
-
-
-def _inside(root: Path, target: Path) -> bool:
-    try:
-        target.relative_to(root)
-        return True
-    except ValueError:
-        return False
-
-
-def _check_reference(root: Path, base: Path, value: str, what: str) -> Path:
-    """Resolve a reference as Mitsuba does (against the entry's folder ``base``); refuse escapes and misses."""
-    if not value or "\x00" in value or len(value) > 4096:
-        raise BundleError(f"{what}: empty or invalid file reference")
-    shown = value[:120]
-    if value.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", value) or "://" in value:
-        raise BundleError(f"{what}: absolute path {shown!r} is not allowed; paths must be relative to the bundle")
-    if "$" in value:
-        raise BundleError(f"{what}: {shown!r} uses an undefined $parameter")
-    if "\\" in value:
-        raise BundleError(f"{what}: {shown!r} holds a backslash; use '/' between folders")
-    parts = PurePosixPath(value).parts
-    if ".." in parts:
-        raise BundleError(f"{what}: {shown!r} leaves the scene bundle ('..' is not allowed in references)")
-    target = base.joinpath(*parts)
-    try:
-        resolved = target.resolve()
-        is_file = target.is_file()
-    except (OSError, RuntimeError) as exc:  # a name too long, a link loop: it names no file of the bundle
-        raise BundleError(f"{what}: {shown!r} is not a file of the bundle ({getattr(exc, 'strerror', None) or exc})"
-                          ) from None
-    if not _inside(root, resolved):
-        raise BundleError(f"{what}: {shown!r} leaves the scene bundle (a link points outside)")
-    if not is_file:
-        raise BundleError(f"{what}: {shown!r} is referenced but not in the bundle (references are relative to the "
-                          "scene file's folder, also inside includes)")
-    return resolved
-
-
-def _parse(path: Path, limits: BundleLimits, name: str):
-    """The root element of an XML file, parsed with defusedxml; nesting deeper than ``limits.max_xml_depth``
-    is refused while parsing (no deep tree is ever built). Every failure is a BundleError on one line."""
-    from xml.etree.ElementTree import ParseError, TreeBuilder
-
-    from defusedxml import DefusedXmlException
-    from defusedxml.ElementTree import XMLParser
-
-    if path.stat().st_size > limits.max_xml_bytes:
-        raise BundleError(f"{name}: XML larger than {limits.max_xml_bytes} bytes")
-    raw = path.read_bytes()
-    # the whole declaration, however long (padding pushed an encoding past a fixed window, where expat and
-    # Mitsuba's parser still read it)
-    m = _XML_ENCODING.search(raw, 0, raw.find(b"?>")) if _XML_DECLARATION.match(raw) else None
-    if m is not None and m.group(2).strip().lower() not in (b"utf-8", b"utf8"):
-        # Mitsuba's parser reads anything but Latin-1 as UTF-8: any other declared encoding would make the two
-        # parsers see different attribute values
-        raise BundleError(f"{name}: XML declares encoding {m.group(2)[:40].decode('ascii', 'replace')!r}; scene "
-                          "files must be UTF-8")
-
-    class DepthCapped(TreeBuilder):
-        depth = 0
-
-        def start(self, tag, attrs):
-            self.depth += 1
-            if self.depth > limits.max_xml_depth:
-                raise BundleError(f"{name}: XML elements nested deeper than {limits.max_xml_depth}")
-            return super().start(tag, attrs)
-
-        def end(self, tag):
-            self.depth -= 1
-            return super().end(tag)
-
-    try:
-        # fed in one piece: expat rescans a token split over chunks, quadratic in a huge attribute
-        parser = XMLParser(target=DepthCapped(), encoding="utf-8", forbid_dtd=True, forbid_entities=True,
-                           forbid_external=True)
-        parser.feed(raw)
-        root = parser.close()
-    except BundleError:
-        raise
-    except DefusedXmlException as exc:
-        raise BundleError(f"{name}: refused XML construct ({type(exc).__name__}): DTDs, entities and external "
-                          "references are not allowed") from None
-    except (ParseError, UnicodeError, ValueError, LookupError) as exc:
-        raise BundleError(f"{name}: not well-formed XML: {_one_line(exc)}") from None
-    except Exception as exc:  # noqa: BLE001 - whatever else the parser raises, the user gets one line
-        raise BundleError(f"{name}: XML could not be parsed ({type(exc).__name__}: {_one_line(exc)})") from None
-    if root is None:
-        raise BundleError(f"{name}: XML holds no element")
-    return root
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text[:200]
-
-
-class _Params:
-    """Mitsuba's ``<default>`` namespace: ordered, global over includes.
-
-    Mitsuba substitutes an attribute by replacing every ``$name`` of every parameter in turn, longest name
-    first (ties in no set order). Values hold no ``$``, so at each ``$`` that is the longest parameter name
-    starting there, unless a replacement made later in that order completes a longer name across the next
-    ``$`` (``$a$bc`` with parameters ``a``, ``aX`` and ``bc`` = ``X``): such an attribute is refused, and all
-    others are substituted in one pass, at most 64 dictionary lookups per ``$``."""
-
-    _LONGEST = 64  # _NAME's longest name
-
-    def __init__(self, limits: BundleLimits) -> None:
-        self.limits = limits
-        self.values: dict[str, str] = {}
-        self._stems: set[str] = set()  # proper prefixes of the names ("" once there is one)
-
-    def define(self, name: str, value: str, where: str) -> None:
-        if not _NAME.match(name):
-            raise BundleError(f"{where}: <default name={name[:40]!r}>: parameter names are letters, digits, '_', "
-                              "'.' and '-', starting with a letter or '_'")
-        if name in self.values:
-            raise BundleError(f"{where}: <default name={name!r}> is defined twice; define each parameter once")
-        if "$" in value:
-            raise BundleError(f"{where}: <default name={name!r}> has a value holding '$'; values are not expanded")
-        if len(self.values) >= self.limits.max_defaults:
-            raise BundleError(f"{where}: more than {self.limits.max_defaults} <default> parameters")
-        self.values[name] = value
-        self._stems.update(name[:i] for i in range(len(name)))
-
-    def substitute(self, value: str, where: str, budget: int) -> str:
-        """``value`` as Mitsuba substitutes it; BundleError for an undefined or ambiguous ``$parameter``, or
-        when the result would be longer than ``budget`` characters."""
-        if "$" not in value:
-            return value
-        pieces = value.split("$")
-        out = [pieces[0]]
-        size = len(pieces[0])
-        last = len(pieces) - 1
-        memo: dict[str, tuple[str, bool]] = {}  # segment -> (its replacement, could it join the next one)
-        for i in range(1, last + 1):
-            seg = pieces[i]
-            done = memo.get(seg)
-            if done is None:
-                done = memo[seg] = (self._replace(seg, value, where), seg in self._stems)
-            if done[1] and i < last:
-                raise BundleError(f"{where}: {value[:80]!r}: '${seg[:40]}' followed by another $parameter could "
-                                  "join it into a longer parameter name; separate them")
-            out.append(done[0])
-            size += len(done[0])
-            if size > budget:
-                raise BundleError(f"{where}: $parameters expand the scene's XML past "
-                                  f"{self.limits.max_xml_total_bytes} bytes")
-        return "".join(out)
-
-    def _replace(self, seg: str, value: str, where: str) -> str:
-        """The text after one ``$``: the longest parameter name it starts with, replaced."""
-        for n in range(min(len(seg), self._LONGEST), 0, -1):
-            if seg[:n] in self.values:
-                return self.values[seg[:n]] + seg[n:]
-        raise BundleError(f"{where}: {value[:80]!r} uses an undefined $parameter")
-
-
-def _file_reference(tag: str, attrs: dict[str, str]) -> Optional[str]:
-    """The file path an element names, if any: a ``filename`` attribute, or a string property whose name
-    says it is a file (``filename``, ``*_filename``, ``*file``)."""
-    if "filename" in attrs:
-        return attrs["filename"]
-    if tag == "string":
-        pname = attrs.get("name", "").lower()
-        if pname.endswith("filename") or pname.endswith("file"):
-            return attrs.get("value", "")
-    return None
-
-
-def _list_files(root: Path, limits: BundleLimits) -> tuple[list[Path], int, dict[str, str]]:
-    files: list[Path] = []
-    kinds: dict[str, str] = {}
-    total = 0
-    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
-        d = Path(dirpath)
-        for name in list(dirnames):
-            p = d / name
-            if p.is_symlink() and not _inside(root, p.resolve()):
-                raise BundleError(f"{_rel(root, p)}: symbolic link leaves the bundle")
-        for name in filenames:
-            p = d / name
-            rel = _rel(root, p)
-            if p.is_symlink() and not _inside(root, p.resolve()):
-                raise BundleError(f"{rel}: symbolic link leaves the bundle")
-            try:
-                st = p.stat()
-            except OSError:
-                raise BundleError(f"{rel}: dangling symbolic link or unreadable file") from None
-            if not stat.S_ISREG(st.st_mode):
-                raise BundleError(f"{rel}: not a regular file (devices, FIFOs and sockets are refused)")
-            files.append(p)
-            total += st.st_size
-            if len(files) > limits.max_files:
-                raise BundleError(f"bundle holds more than {limits.max_files} files")
-            if total > limits.max_total_bytes:
-                raise BundleError(f"bundle is larger than {limits.max_total_bytes} bytes")
-            try:
-                kinds[rel] = sniff_kind(p, rel)
-            except FileKindError as exc:
-                raise BundleError(str(exc)) from None
-            if _SHARED_OBJECT.search(name):  # by name too: whatever it holds, it is no scene data
-                raise BundleError(f"{rel}: shared-object names (.so, .dylib, .dll, .pyd) are not allowed in a "
-                                  "scene bundle")
-    return files, total, kinds
-
-
-def content_sha256(root: Path, files: list[Path]) -> str:
-    """Names and contents hashed unambiguously: for each file in name order, the byte length of its UTF-8
-    name, the name, the byte length of its content, the content (8-byte big-endian lengths)."""
-    h = hashlib.sha256(b"holo-bundle-v2\0")
-    for p in sorted(files, key=lambda q: _rel(root, q)):
-        name = _rel(root, p).encode("utf-8", "surrogateescape")
-        h.update(struct.pack(">Q", len(name)) + name + struct.pack(">Q", p.stat().st_size))
-        with p.open("rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-    return h.hexdigest()
-
-
 class _Walker:
     """One pass over the entry and its includes in document order, as Mitsuba's parser reads them."""
 
     def __init__(self, root: Path, entry: Path, limits: BundleLimits, kinds: dict[str, str]) -> None:
         self.root, self.base, self.limits, self.kinds = root, entry.parent, limits, kinds
         self.entry = entry
-        self.params = _Params(limits)
+        self.params = Params(limits)
         self.xml_bytes = 0  # charged against limits.max_xml_total_bytes
         self.parsed: dict[Path, object] = {}  # each XML file is parsed once, however often it is included
         self.plugins: set[str] = set()
@@ -390,7 +153,7 @@ class _Walker:
     def account(self, ref: Path, plugin: Optional[str], shape_index: int = 0) -> None:
         """Count what loading ``ref`` for ``plugin`` costs. Every use counts: each plugin element loads its own
         copy of its file (two shapes naming one mesh hold it twice)."""
-        rel = _rel(self.root, ref)
+        rel = rel_name(self.root, ref)
         kind = self.kinds.get(rel, "")
         expected = _EXPECTED_KINDS.get(plugin or "")
         if expected is not None and kind not in expected[0]:
@@ -424,7 +187,7 @@ class _Walker:
                               f"add) is larger than {self.limits.max_xml_total_bytes} bytes")
 
     def visit(self, xml: Path, depth: int = 0) -> None:
-        name = _rel(self.root, xml)
+        name = rel_name(self.root, xml)
         if xml in self.stack:
             raise BundleError(f"{name}: includes itself (include cycle)")
         if len(self.stack) >= self.limits.max_include_depth:
@@ -435,7 +198,7 @@ class _Walker:
         self.charge(xml.stat().st_size)
         el = self.parsed.get(xml)
         if el is None:
-            el = self.parsed[xml] = _parse(xml, self.limits, name)
+            el = self.parsed[xml] = parse_xml(xml, self.limits, name)
         if el.tag != "scene":
             raise BundleError(f"{name}: root element is <{str(el.tag)[:40]}>, expected <scene>")
         self.element(el, name, parent=None, top=True, depth=depth + 1)
@@ -480,7 +243,7 @@ class _Walker:
                 self.includes += 1
                 if self.includes > self.limits.max_includes:
                     raise BundleError(f"scene has more than {self.limits.max_includes} includes")
-                inc = _check_reference(self.root, self.base, attrs.get("filename", ""), f"{name}: include")
+                inc = check_reference(self.root, self.base, attrs.get("filename", ""), f"{name}: include")
                 self.referenced.add(inc)
                 self.visit(inc, depth)
                 continue
@@ -492,9 +255,9 @@ class _Walker:
             plugin = f"{tag}:{kind}" if tag in ALLOWED_PLUGINS else None
             if plugin == "shape:serialized":  # read before its filename, in whatever order the two come
                 self.shape_index = _shape_index(child, self.params, where)
-            value = _file_reference(tag, attrs)
+            value = file_reference(tag, attrs)
             if value is not None:
-                ref = _check_reference(self.root, self.base, value, f"{name}: filename")
+                ref = check_reference(self.root, self.base, value, f"{name}: filename")
                 self.referenced.add(ref)
                 user = parent if tag == "string" else plugin
                 self.account(ref, user, self.shape_index if user == "shape:serialized" else 0)
@@ -517,7 +280,7 @@ def _check_sample_count(text: str, where: str) -> None:
                           "(the hologram renderer chooses its own rays per pixel)")
 
 
-def _shape_index(node, params: _Params, where: str) -> int:
+def _shape_index(node, params: Params, where: str) -> int:
     """A serialized shape's ``shape_index`` (default 0), as Mitsuba reads the integer."""
     for child in node:
         if child.tag == "integer" and child.get("name") == "shape_index":
@@ -538,23 +301,23 @@ def validate_bundle(root: str | Path, *, entry: Optional[str] = None, limits: Bu
     if not root_in.is_dir():
         raise BundleError(f"scene bundle {root_in.name or root_in} is not a folder")
     root = root_in.resolve()
-    files, total, kinds = _list_files(root, limits)
+    files, total, kinds = list_files(root, limits)
     if entry is None:
         xmls = sorted(p for p in root.glob("*.xml") if p.is_file())
         if len(xmls) != 1:
             raise BundleError(f"bundle has {len(xmls)} XML files at its root; name the scene file (entry)")
         entry_path = xmls[0]
     else:
-        entry_path = _check_reference(root, root, entry, "entry")
+        entry_path = check_reference(root, root, entry, "entry")
         if entry_path.suffix.lower() != ".xml":
             raise BundleError(f"entry {entry[:120]!r} is not an .xml file")
     w = _Walker(root, entry_path, limits, kinds)
     w.visit(entry_path)
-    unused = [p for p in files if p not in w.referenced and p != entry_path and kinds[_rel(root, p)] != "xml"]
+    unused = [p for p in files if p not in w.referenced and p != entry_path and kinds[rel_name(root, p)] != "xml"]
     warnings = list(w.warnings)
     if unused:
-        warnings.append(f"{len(unused)} file(s) not referenced by the scene, e.g. {_rel(root, unused[0])}")
-    return BundleReport(entry=entry_path, files=sorted(_rel(root, p) for p in files), total_bytes=total,
+        warnings.append(f"{len(unused)} file(s) not referenced by the scene, e.g. {rel_name(root, unused[0])}")
+    return BundleReport(entry=entry_path, files=sorted(rel_name(root, p) for p in files), total_bytes=total,
                         sha256=content_sha256(root, files), plugins=sorted(w.plugins), warnings=warnings,
                         mesh_faces=w.faces, image_pixels=w.pixels, kinds=kinds, ignored=w.ignored)
 

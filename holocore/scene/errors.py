@@ -1,5 +1,5 @@
 """Messages that leak nothing: what went wrong in the user's terms, with bundle-relative paths, never the
-server's paths or another file's contents (issue 10 item 3). Pure Python."""
+server's paths or another file's contents; and the error a refused bundle raises. Pure Python."""
 
 from __future__ import annotations
 
@@ -7,7 +7,11 @@ import re
 from pathlib import Path
 from typing import Iterable
 
-__all__ = ["scrub_message"]
+__all__ = ["scrub_message", "BundleError"]
+
+
+class BundleError(ValueError):
+    """The bundle is refused; the message says why, with bundle-relative names."""
 
 _SOURCE_TAG = re.compile(r"\[[\w./-]+\.(?:cpp|h|hpp|py):\d+\]\s*")
 _ABS_PATH = re.compile(r"(?<![\w.:/-])(?:/[^\s/'\"`:,;()\[\]]+)+/?")

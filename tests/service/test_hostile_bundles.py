@@ -186,9 +186,9 @@ def test_substitution_at_the_cap_is_fast_and_right(tmp_path):
     t0 = time.monotonic()
     validate_bundle(root)
     assert time.monotonic() - t0 < 3.0
-    from holocore.scene.bundle import _Params
+    from holocore.scene.bundle_xml import Params
 
-    params = _Params(BundleLimits())
+    params = Params(BundleLimits())
     for name, value in (("a", "A"), ("ab", "AB"), ("abc_1", "X")):
         params.define(name, value, "scene.xml")
     assert params.substitute("$ab/$a-$abc_1.$abq", "w", 1000) == "AB/A-X.ABq"  # longest name first
