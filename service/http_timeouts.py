@@ -1,4 +1,4 @@
-"""uvicorn's h11 protocol with a deadline for request headers (issue 10 item 6): a connection that sends
+"""uvicorn's h11 protocol with a deadline for request headers: a connection that sends
 nothing, or sends its headers too slowly (slowloris), is closed after ``header_timeout_s``; uvicorn's own
 ``timeout_keep_alive`` closes idle keep-alive connections."""
 

@@ -73,13 +73,13 @@ class ServiceSettings(BaseModel):
     keep_result: bool = Field(default=True, description="Keep RESULT.npz (complex fields) after encoding.")
     job_limits: JobLimits = JobLimits()
     upload_limits: UploadLimits = UploadLimits()
-    # Privilege separation (issue 10 item 1; service/workers/engine.py, docs/service.md "Privilege separation").
+    # Privilege separation (service/workers/sandbox.py, docs/service.md "Privilege separation").
     sandbox: str = Field(default="auto", pattern=r"^(auto|on|off|[0-9]{1,10})$",
                          description="Run scene planning and jobs as unprivileged uids: auto (when root and "
                                      "possible), on (mandatory), off, or a uid base (on, with that base).")
     sandbox_uid_base: int = Field(default=61000, ge=1, le=2 ** 31 - 300, description="Planner uid; job slot k "
                                                                                        "runs as base + 1 + k.")
-    # Connections and authentication (issue 10 item 6).
+    # Connections and authentication.
     header_timeout_s: float = Field(default=10.0, gt=0, le=600, description="Time a client has to send a request's "
                                                                             "headers; slower connections are closed.")
     keepalive_timeout_s: float = Field(default=5.0, gt=0, le=600, description="Idle keep-alive connections close "
@@ -109,7 +109,7 @@ class ServiceSettings(BaseModel):
     open_display_owners: list[str] = Field(default_factory=lambda: ["default"], description="Owners whose agents "
                                            "register a display name with their first heartbeat; any other "
                                            "owner's displays are registered by an admin (PUT /v1/displays/NAME).")
-    # Memory admission (issue 11 item 3).
+    # Memory admission.
     worker_memory_mb: Optional[float] = Field(default=None, gt=0, description="Memory the workers may use together, "
                                                                              "MB (default: the machine's, less "
                                                                              "10% or 1 GiB, whichever is more).")

@@ -4,7 +4,7 @@ header declares (mesh faces and vertices, image pixels). Pure Python: no Mitsuba
 A bundle may hold only what a Mitsuba scene reads: XML, meshes (PLY, Mitsuba serialized, OBJ and other text),
 images (PNG, JPEG, BMP, TGA, OpenEXR, Radiance HDR, PFM, PNM), grid volumes and tensor files (measured BSDFs).
 Anything else (shared objects, executables, archives, unknown binaries) is refused, so nothing in a bundle can
-ever be loaded as code, whatever its name (issue 10: a ``plugins/sphere.so`` in a bundle).
+ever be loaded as code, whatever its name (a ``plugins/sphere.so`` in a bundle would be Mitsuba's plugin).
 """
 
 from __future__ import annotations

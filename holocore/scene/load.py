@@ -2,7 +2,7 @@
 its perspective sensor.
 
 Mitsuba resolves a plugin ``<type>`` to ``plugins/<type>.so`` through its file resolver, which normally
-searches the scene's folder first: a bundle could bring its own shared object (issue 10). So, before any scene
+searches the scene's folder first: a bundle could bring its own shared object. So, before any scene
 is parsed, every plugin of Mitsuba's own installation is loaded once (the plugin manager keeps them, and never
 looks a loaded name up again), with a resolver holding only Mitsuba's own folder (not the working directory);
 the bundle check refuses any file that is not scene data by its content, and shared-object names; and scenes
