@@ -22,6 +22,7 @@ import httpx
 import pytest
 
 from holocore.scene.bundle import BundleError, BundleLimits, validate_bundle
+from holocore.scene.bundle_xml import Params
 from holocore.scene.filekinds import FileKindError, image_pixels
 from tests.service.helpers import REPO, Server, wait_for
 
@@ -167,26 +168,40 @@ def test_a_mesh_named_by_two_shapes_counts_twice(tmp_path):
         validate_bundle(root, limits=BundleLimits(max_mesh_faces=1000))
 
 
+def _count_calls(monkeypatch, owner, name: str) -> list[int]:
+    """Count the calls of ``owner.name`` (a class's method or a module's function) from now on: [count]."""
+    calls = [0]
+    orig = getattr(owner, name)
+
+    def counted(*args, **kwargs):
+        calls[0] += 1
+        return orig(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, counted)
+    return calls
+
+
 # ---- <default> floods: one-pass substitution, caps --------------------------------------------------------------
-def test_default_flood_is_refused_at_once(tmp_path):
+def test_default_flood_is_refused_at_once(tmp_path, monkeypatch):
     """4000 defaults took the old check 91 s (every definition recompiled one regex of every name)."""
     defaults = "".join(f'<default name="p{i}" value="{i}"/>' for i in range(4000))
     uses = "".join(f'<float name="f{i}" value="$p{i % 100}"/>' for i in range(4000))
     root = bundle(tmp_path, defaults + f'<shape type="sphere">{uses}</shape>')
-    t0 = time.monotonic()
+    defined = _count_calls(monkeypatch, Params, "define")
     with pytest.raises(BundleError, match="more than 100 <default> parameters"):
         validate_bundle(root)
-    assert time.monotonic() - t0 < 2.0
+    assert defined[0] == 101  # refused at the first definition past the cap, before any substitution
 
 
-def test_substitution_at_the_cap_is_fast_and_right(tmp_path):
+def test_substitution_at_the_cap_is_one_pass_and_right(tmp_path, monkeypatch):
+    """At most one replacement (64 dictionary lookups at most) per ``$``: the work grows with the uses, not with
+    uses x parameters as the old check's (which recompiled one regex of every name)."""
     defaults = "".join(f'<default name="p{i}" value="{i}"/>' for i in range(100))
     uses = "".join(f'<float name="f{i}" value="$p{i % 100}"/>' for i in range(20000))
     root = bundle(tmp_path, defaults + f'<shape type="sphere">{uses}</shape>')
-    t0 = time.monotonic()
+    replaced = _count_calls(monkeypatch, Params, "_replace")
     validate_bundle(root)
-    assert time.monotonic() - t0 < 3.0
-    from holocore.scene.bundle_xml import Params
+    assert 0 < replaced[0] <= 20000
 
     params = Params(BundleLimits())
     for name, value in (("a", "A"), ("ab", "AB"), ("abc_1", "X")):
@@ -199,17 +214,21 @@ def test_substitution_at_the_cap_is_fast_and_right(tmp_path):
         params.substitute("$a$bc", "w", 1000)
 
 
-def test_one_huge_attribute_is_parsed_and_substituted_in_linear_time(tmp_path):
+def test_one_huge_attribute_is_parsed_and_substituted_in_linear_time(tmp_path, monkeypatch):
     """7 MiB in one attribute, 2.4 million ``$a``: fed to expat in chunks, the token was rescanned per chunk, and
     each ``$`` cost a scan of every name (10 s before; well under a second now)."""
     root = bundle(tmp_path, '<default name="a" value="1"/><shape type="sphere"><string name="s" value="'
                   + "$a " * 2_400_000 + '"/></shape>')
-    t0 = time.monotonic()
+    from defusedxml.ElementTree import XMLParser
+
+    fed = _count_calls(monkeypatch, XMLParser, "feed")
+    replaced = _count_calls(monkeypatch, Params, "_replace")
     validate_bundle(root)
-    assert time.monotonic() - t0 < 3.0
+    assert fed[0] == 1  # the whole file in one piece: expat scans the attribute once
+    assert replaced[0] == 1  # one replacement for the one distinct segment, 2.4 million times reused
 
 
-def test_substitution_and_includes_cannot_blow_the_xml_up(tmp_path):
+def test_substitution_and_includes_cannot_blow_the_xml_up(tmp_path, monkeypatch):
     big = "1 " * 30000
     root = bundle(tmp_path, f'<default name="v" value="{big}"/>'
                   f'<shape type="sphere"><string name="s" value="{"$v" * 400}"/></shape>')
@@ -217,10 +236,12 @@ def test_substitution_and_includes_cannot_blow_the_xml_up(tmp_path):
         validate_bundle(root)
     leaf = ('<scene version="3.0.0">' + '<float name="x" value="1"/>' * 8000 + "</scene>").encode()  # ~230 kB
     inc = bundle(tmp_path, '<include filename="leaf.xml"/>' * 100, {"leaf.xml": leaf}, name="inc")
-    t0 = time.monotonic()
+    import holocore.scene.bundle as bundle_module
+
+    parsed = _count_calls(monkeypatch, bundle_module, "parse_xml")
     with pytest.raises(BundleError, match="larger than 16777216 bytes"):
         validate_bundle(inc, entry="scene.xml")
-    assert time.monotonic() - t0 < 5.0
+    assert parsed[0] == 2  # the entry and the leaf once each: an include is walked again, never parsed again
 
 
 # ---- XML that made the API answer 500 ------------------------------------------------------------------------------
@@ -379,9 +400,8 @@ def test_a_plan_past_its_memory_is_stopped(tmp_path, monkeypatch):
     p.max_plan_rss_bytes = 150 * 1024 * 1024
     hog = "import time; x = bytearray(600 * 1024 * 1024); time.sleep(60)"
     monkeypatch.setattr(p, "_command", lambda entry: [sys.executable, "-c", hog])
-    t0 = time.monotonic()
     p._plan({"id": "s1", "entry": "scene.xml"})
-    assert time.monotonic() - t0 < 20
+    # the memory watch stopped it (the hog sleeps 60 s, the plan's timeout is 60 s: a timeout says so instead)
     assert stored["plan_state"] == "failed" and "used more than 0.2 GB of memory" in stored["plan_error"], stored
 
 
@@ -473,13 +493,11 @@ def test_hostile_bundles_get_one_line_4xx_and_the_server_keeps_serving(server):
         ("central directory flood", cd_flood(100_000, 1), 413, "more than 4000 entries"),
     ]
     with server.client("submit", timeout=30.0) as c:
-        for name, data, status, words in cases:
-            t0 = time.monotonic()
+        for name, data, status, words in cases:  # the client's 30 s timeout bounds each answer
             r = c.post("/v1/scenes", files={"bundle": ("b.zip", data, "application/zip")})
             assert r.status_code == status, (name, r.status_code, r.text[:300])
             detail = r.json()["detail"]
             assert words in detail and "\n" not in detail and "Traceback" not in detail, (name, detail)
-            assert time.monotonic() - t0 < 10, name
             assert c.get("/livez").status_code == 200, f"server down after {name}"  # same connection
     scenes = [p.name for p in (server.data_dir / "scenes").iterdir() if p.name != ".staging"]
     assert scenes == []
