@@ -32,6 +32,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+from paper_report import margin_px, phase_only_field, score_cell  # noqa: E402 (one scoring for both reports)
 
 
 def focus_planes(scene: str, meta: dict) -> list[tuple[str, float]]:
@@ -49,19 +52,10 @@ def focus_planes(scene: str, meta: dict) -> list[tuple[str, float]]:
     return [(names[0], zi + f * f / float(near_far[0])), (names[1], zi + f * f / float(near_far[1]))]
 
 
-def phase_only_field(enc) -> np.ndarray:
-    """What the display shows: sqrt(P) exp(i phi), P the encoder's laser powers [F, C]."""
-    P = np.sqrt(np.asarray(enc.illumination, dtype=np.float64)).astype(np.float32)
-    return (np.exp(1j * enc.phase.astype(np.float32)) * P[..., None, None]).astype(np.complex64)
-
-
 def score(recon: np.ndarray, truth: np.ndarray, margin: int) -> dict:
-    from holocore.evaluate.scoring import compare
-
-    H, W = recon.shape[-2:]
-    m = int(min(margin, max(0, (min(H, W) - 16) // 2)))
-    sc = compare(recon[:, m:H - m, m:W - m], truth[:, m:H - m, m:W - m])
-    return {"psnr_db": round(sc.psnr_db, 3), "ssim": round(sc.ssim, 4), "scale": sc.scale, "margin_px": m}
+    """The paper report's cell score (its margin already capped for tiny sizes) as a JSON row."""
+    psnr_db, ssim, scale = score_cell(recon, truth, margin)
+    return {"psnr_db": round(psnr_db, 3), "ssim": round(ssim, 4), "scale": scale, "margin_px": margin}
 
 
 def sheet(tiles: dict, wl, whites: dict, path: Path, *, tile_w: int) -> None:
@@ -127,7 +121,7 @@ def main() -> int:
     from holocore.display.profiles import PAPER
     from holocore.encode.encoder import encode_sgd
     from holocore.evaluate.groundtruth import GroundTruth
-    from holocore.evaluate.scoring import eye_view, lit_margin_px
+    from holocore.evaluate.scoring import eye_view
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.load import load_scene
     from holocore.scene.paper import write_paper_scene
@@ -158,7 +152,7 @@ def main() -> int:
     gt = GroundTruth(loaded, meta, shape_hw=(H, W), spp=args.gt_spp)
     truth = {name: gt.channels(focus_z_m=z, pupil_diameter_m=pupil) for name, z in planes}
     doc["ground_truth_s"] = time.perf_counter() - t0
-    margins = {name: lit_margin_px(meta, focus_z_m=z, pupil_diameter_m=pupil) for name, z in planes}
+    margins = {name: margin_px(meta, (H, W), focus_z_m=z, pupil_m=pupil, view=(0.0, 0.0)) for name, z in planes}
     whites = {name: float(np.percentile(truth[name], 99.0)) or 1.0 for name, _ in planes}
     doc["focus"] = [{"name": n, "z_mm": z * 1e3} for n, z in planes]
 
