@@ -80,9 +80,7 @@ def test_the_plan_runs_under_the_settings_limits(tmp_path):
 def test_a_plan_past_a_kernel_limit_fails_saying_which(tmp_path, code, limits, words):
     p, db = planner(tmp_path, code, limits, plan_timeout_s=30)
     p.max_plan_rss_bytes = 64 << 30  # the watch alone would let each of these through
-    t0 = time.monotonic()
-    p._plan({"id": "s1", "entry": "scene.xml"})
-    assert time.monotonic() - t0 < 20
+    p._plan({"id": "s1", "entry": "scene.xml"})  # the limit's words below, not the 30 s timeout's, say who stopped it
     assert db.stored["plan_state"] == "failed", db.stored
     error = db.stored["plan_error"]
     assert words in error and "\n" not in error and "Traceback" not in error, error
@@ -132,9 +130,7 @@ def test_a_job_step_past_its_limits_fails_for_good_saying_which(tmp_path, step_c
     until the job's 6 h wall clock, or fills the disk, and a SIGXCPU or SIGKILL was retried."""
     from service.workers.driver import EXIT_FAILED
 
-    t0 = time.monotonic()
-    rc, status, _ = _driver(tmp_path, step_code, limits)
-    assert time.monotonic() - t0 < 60
+    rc, status, _ = _driver(tmp_path, step_code, limits)  # the limit's words below say it was the limit
     assert rc == EXIT_FAILED and status.get("ok") is False and status.get("retryable") is False, (rc, status)
     assert words in status["error"] and "\n" not in status["error"], status["error"]
     for key, value in limits.items():
