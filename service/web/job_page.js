@@ -1,0 +1,261 @@
+// A job's page: its facts, progress with what is left, cancel, delete and re-run, the effect plan its own render
+// made, timings, the steps' logs, downloads, and what the hologram looks like (focal sweep, view grid).
+
+import { blobURL, getJSON, request, streamEvents } from "./api.js";
+import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
+import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
+import { sceneName } from "./jobs_list.js";
+import { FINAL, aborted, plural, show, state, status } from "./state.js";
+
+export function leaveJobPage() {
+  if (!state.page) return;
+  state.page.abort.abort();
+  for (const u of state.page.urls) URL.revokeObjectURL(u);
+  state.page = null;
+}
+
+function keep(url) { if (state.page) state.page.urls.push(url); return url; }
+
+function fact(dl, term, value) { dl.append(el("dt", {}, term), el("dd", {}, value)); }
+
+// The plan the job's own render made; a queued job holds only its scene's plan at the scene's default optics,
+// which is not this job's (other frames, resolution, recording planes), so that is never shown as its plan.
+function ownPlan(job) { return job.plan && !job.plan.source ? job.plan : null; }
+
+function renderJob(job) {
+  setText($("job-id"), job.id);
+  setText($("job-name-title"), jobName(job));
+  const dl = clear($("job-facts"));
+  const est = job.estimate || {};
+  const t = job.timings || {};
+  const actual = actualSeconds(job);
+  fact(dl, "State", el("span", { class: `badge ${job.state}`, id: "job-state" }, job.state));
+  const sc = state.scenes.get(job.scene_id);
+  fact(dl, "Scene", sc ? `${sc.entry} (${job.scene_id})` : job.scene_id);
+  fact(dl, "Display", job.display || "–");
+  const o = job.options || {};
+  const optics = o.optics || {};
+  fact(dl, "Options", `${(optics.resolution_hw || []).join("x")} px, ${plural(optics.frames, "frame")}, `
+    + `${plural((optics.wavelengths_nm || []).length, "color")}, preset ${o.preset}, encoder ${o.encoder}`
+    + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
+    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : ""));
+  fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
+    + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
+  fact(dl, "Memory", `estimated peak ${fmtBytes((est.memory || {}).peak_bytes)} (${(est.memory || {}).peak_stage || "–"}), `
+    + `measured peak ${fmtBytes(t.peak_rss_bytes)}`);
+  if (typeof t.engine === "string") fact(dl, "Ran on", `the ${t.engine} engine${job.attempts > 1 ? `, attempt ${job.attempts}` : ""}`);
+  fact(dl, "Created", fmtTime(job.created_at));
+  if (job.finished_at) fact(dl, "Finished", fmtTime(job.finished_at));
+  if (job.reused_from) fact(dl, "Reused from", el("a", { href: `#/jobs/${job.reused_from}` }, job.reused_from));
+  const p = pct(job);
+  $("job-bar").style.width = `${(100 * p).toFixed(1)}%`;
+  $("job-bar").dataset.fraction = String(p);
+  const left = eta(job);
+  setText($("job-stage"), FINAL.has(job.state) ? "" : `${Math.round(100 * p)}% · ${job.progress ? job.progress.step + " / "
+    + job.progress.stage : "waiting for a worker"}${left && job.state === "running" ? " · " + left : ""}`
+    + (job.state === "queued" && left ? ` (${left})` : ""));
+  setText($("job-error"), job.error ? `Failed: ${job.error}` : "");
+  renderActions(job);
+
+  const plan = clear($("plan"));
+  const own = ownPlan(job);
+  for (const line of (own && own.summary) || []) plan.append(el("li", {}, line));
+  if (!plan.firstChild) {
+    plan.append(el("li", { class: "muted", id: "plan-note" }, FINAL.has(job.state)
+      ? (job.state === "succeeded" ? "The render recorded no plan." : `No effect plan: the job ${job.state === "failed" ? "failed" : "was cancelled"} before its render made one.`)
+      : "The effect plan at this job's options comes when it renders."));
+  }
+  const warns = clear($("warnings"));
+  for (const w of (own && own.warnings) || (job.plan && job.plan.warnings) || []) warns.append(el("li", {}, w));
+
+  const tb = clear($("timings").tBodies[0]);
+  for (const [k, v] of Object.entries(t)) {
+    if (k === "peak_rss_bytes" || typeof v !== "number" || !k.endsWith("_s")) continue;
+    tb.append(el("tr", {}, el("td", {}, k.replace(/_s$/, "")), el("td", { class: "num" }, v.toFixed(2))));
+  }
+  const none = !tb.firstChild;
+  $("timings").hidden = none;
+  setText($("timings-note"), !none ? "" : t.reused ? "Reused an earlier result: nothing ran."
+    : job.state === "queued" ? "Nothing has run yet." : job.state === "running" ? "The steps' seconds come when it finishes."
+    : `No step timings: the job ${job.state === "failed" ? "failed" : "was cancelled"} before it finished.`);
+  renderDownloads(job);
+}
+
+function renderActions(job) {
+  const may = !!(state.me && state.me.may_submit);
+  show("job-cancel", may && !FINAL.has(job.state));
+  show("job-delete", may && FINAL.has(job.state));
+  show("job-rerun", may);
+  $("job-cancel").onclick = async () => {
+    $("job-cancel").disabled = true;
+    try {
+      const done = await (await request(`/v1/jobs/${encodeURIComponent(job.id)}`, { method: "DELETE" })).json();
+      if (state.page && state.page.id === job.id) renderJob(done);
+    } catch (err) { status(`Not cancelled: ${err.message}`, true); }
+    $("job-cancel").disabled = false;
+  };
+  const del = $("job-delete");
+  if (!del.dataset.armed) setText(del, "Delete job");
+  del.onclick = async () => {
+    // two clicks: the first one arms the button for a few seconds (no modal dialog to get in the way)
+    if (!del.dataset.armed) {
+      del.dataset.armed = "1";
+      setText(del, "Click again to delete the job and its files");
+      setTimeout(() => { delete del.dataset.armed; setText(del, "Delete job"); }, 5000);
+      return;
+    }
+    delete del.dataset.armed;
+    del.disabled = true;
+    try {
+      await request(`/v1/jobs/${encodeURIComponent(job.id)}/delete`, { method: "POST" });
+      state.jobs.delete(job.id);
+      status(`Deleted job ${jobName(job)}.`);
+      location.hash = "#/";
+    } catch (err) { status(`Not deleted: ${err.message}`, true); }
+    del.disabled = false;
+    setText(del, "Delete job");
+  };
+  $("job-rerun").onclick = () => { state.rerunPending = job; location.hash = "#/"; };
+}
+
+
+// The steps' logs: a button per log, the chosen one's text below (the failing step's first on a failed job).
+async function showLogs(job, page) {
+  let logs;
+  try {
+    ({ logs } = await getJSON(`/v1/jobs/${encodeURIComponent(job.id)}/logs`, { signal: page.abort.signal }));
+  } catch (err) { if (aborted(err)) throw err; logs = []; }
+  if (state.page !== page) return;
+  const tabs = clear($("log-tabs"));
+  show("logs-card", logs.length > 0);
+  if (!logs.length) return;
+  const open = async (entry, button) => {
+    for (const b of tabs.querySelectorAll("button")) b.classList.toggle("active", b === button);
+    try {
+      const text = await (await request(entry.url, { signal: page.abort.signal })).text();
+      if (state.page === page) { setText($("log-text"), text || "(empty)"); $("log-text").dataset.step = entry.step; }
+    } catch (err) { if (!aborted(err) && state.page === page) setText($("log-text"), `Could not read the log: ${err.message}`); }
+  };
+  let first = null;
+  for (const entry of logs) {
+    const b = el("button", { type: "button", class: "small", "data-step": entry.step }, `${entry.step}.log (${fmtBytes(entry.bytes)})`);
+    b.addEventListener("click", () => open(entry, b));
+    tabs.append(b);
+    if (entry.step !== "driver") first = [entry, b];  // the last step that ran (the failing one on a failed job)
+  }
+  if (first) await open(...first);
+}
+
+function renderDownloads(job) {
+  const box = clear($("job-downloads"));
+  if (job.state !== "succeeded") return;
+  const files = [["stack", "stack.npz", `${job.id}-stack.npz`], ["frames", "frames.zip", `${job.id}-frames.zip`],
+                 ["preview", "preview.png", `${job.id}-preview.png`]];
+  for (const [key, label, name] of files) {
+    if (!job.links[key]) continue;
+    const b = el("button", { type: "button", class: "download", "data-file": label }, `Download ${label}`);
+    b.addEventListener("click", async () => {
+      b.disabled = true;
+      try {
+        const url = await blobURL(job.links[key]);
+        const a = el("a", { href: url, download: name });
+        document.body.append(a); a.click(); a.remove();
+        setTimeout(() => URL.revokeObjectURL(url), 60000);
+      } catch (err) { status(`Download failed: ${err.message}`, true); }
+      b.disabled = false;
+    });
+    box.append(b);
+  }
+  if (job.stack_sha256) box.append(el("span", { class: "mono muted" }, ` stack sha256 ${job.stack_sha256.slice(0, 16)}…`));
+}
+
+// Everything one job's page shows, emptied: the next job (or a missing one) starts from nothing.
+function resetJobPage() {
+  for (const id of ["job-facts", "job-downloads", "plan", "warnings", "log-tabs", "grid"]) clear($(id));
+  clear($("timings").tBodies[0]);
+  for (const id of ["job-id", "job-name-title", "job-stage", "job-error", "look-note", "timings-note", "log-text",
+                    "focus-label", "grid-label"]) setText($(id), "");
+  $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
+  $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
+  for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun"]) show(id, false);
+}
+
+export async function showJob(id) {
+  leaveJobPage();
+  const page = { id, abort: new AbortController(), urls: [] };
+  state.page = page;
+  resetJobPage();
+  let job;
+  try {
+    job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
+  } catch (err) {
+    if (aborted(err) || state.page !== page) return;
+    setText($("job-id"), id);
+    setText($("job-error"), err.status === 404 ? "No such job (or it is another owner's)." : err.message);
+    show("timings-card", false);
+    return;
+  }
+  show("timings-card", true);
+  await sceneName(job.scene_id);
+  if (state.page !== page) return;
+  renderJob(job);
+  if (!FINAL.has(job.state)) {
+    try {
+      await streamEvents(`/v1/jobs/${id}/events`, (name, data) => {
+        if (name === "state") job = data;
+        else if (name === "progress") job = { ...job, state: data.state, progress: data };
+        renderJob(job);
+      }, page.abort.signal);
+    } catch (_) { if (page.abort.signal.aborted) return; }
+    if (state.page !== page) return;
+    job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
+    if (state.page !== page) return;
+    renderJob(job);
+  }
+  await showLogs(job, page);
+  if (state.page !== page) return;
+  if (job.state === "succeeded") await showPictures(job, page);
+}
+
+async function showPictures(job, page) {
+  show("look", true);
+  try {
+    const pv = keep(await blobURL(job.links.preview, { signal: page.abort.signal }));
+    if (state.page === page) $("preview-img").src = pv;
+  } catch (_) { $("preview-img").alt = "no preview"; }
+  let idx;
+  try {
+    idx = await getJSON(`/v1/jobs/${job.id}/pictures`, { signal: page.abort.signal });
+  } catch (err) {
+    setText($("look-note"), err.message);
+    return;
+  }
+  if (state.page !== page) return;
+  const sweep = idx.sweep.pictures;
+  const urls = await Promise.all(sweep.map((p) => blobURL(p.url, { signal: page.abort.signal }).then(keep)));
+  if (state.page !== page) return;
+  const slider = $("focus");
+  slider.max = String(sweep.length - 1);
+  slider.value = String(Math.floor((sweep.length - 1) / 2));
+  const showFocus = () => {
+    const i = Number(slider.value);
+    $("sweep-img").src = urls[i];
+    $("sweep-img").dataset.index = String(i);
+    setText($("focus-label"), `${sweep[i].z_mm.toFixed(3)} mm from the SLM (${sweep[i].words})`);
+  };
+  slider.oninput = showFocus;
+  showFocus();
+  setText($("look-note"), `Simulated reconstruction (${idx.shape_hw.join("x")} px, ${plural(idx.frames, "frame")} averaged): `
+    + `focal sweep with a ${idx.sweep.pupil_mm} mm pupil, ${idx.sweep.order}`
+    + (idx.sweep.widened ? ` (the scene is shallower than the eye's depth of field, `
+      + `${idx.sweep.depth_of_field_mm} mm: the sweep spans ±3 depths of field)` : "") + ".");
+  const grid = clear($("grid"));
+  for (const p of idx.grid.pictures) {
+    const url = keep(await blobURL(p.url, { signal: page.abort.signal }));
+    if (state.page !== page) return;
+    grid.append(el("img", { src: url, alt: `eye at ${p.offset_mm.join(", ")} mm`,
+                            title: `eye at x ${p.offset_mm[0]} mm, y ${p.offset_mm[1]} mm` }));
+  }
+  setText($("grid-label"), `View grid: eye ${idx.grid.cols}x${idx.grid.rows} across a ${idx.grid.eye_box_mm} mm eye box `
+    + `(${idx.grid.pupil_mm} mm pupil), focused at ${idx.grid.focus_mm} mm (${idx.grid.focus_words})`);
+}

@@ -1,0 +1,241 @@
+// The submit form: upload a bundle, the options (a display profile's, or a job's to re-run it with changes),
+// the estimate and the effect plan at the chosen options, and Submit, which only sends what the estimate
+// just accepted on a scene whose plan is ready.
+
+import { ApiError, getJSON, postJSON, request } from "./api.js";
+import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
+import { jobName } from "./job_facts.js";
+import { plural, show, state } from "./state.js";
+
+export async function loadProfiles() {
+  state.profiles = await getJSON("/v1/display-profiles");
+  const sel = clear($("profile"));
+  for (const p of state.profiles.profiles) {
+    sel.append(el("option", { value: p.name, title: p.description }, `${p.name} (${p.optics.resolution_hw.join("x")}, `
+      + `${p.optics.pitch_um} µm, ${p.optics.wavelengths_nm.length} colors)`));
+  }
+  sel.value = state.profiles.default;
+  applyProfile();
+}
+
+function profile() {
+  const v = $("profile").value;
+  if (state.rerun && v === `job:${state.rerun.id}`) return { name: v, optics: state.rerun.options.optics };
+  return state.profiles.profiles.find((p) => p.name === v) || state.profiles.profiles[0];
+}
+
+function applyProfile() {
+  const o = profile().optics;
+  $("res-h").value = o.resolution_hw[0];
+  $("res-w").value = o.resolution_hw[1];
+  $("frames").value = Math.min(o.frames, 64);
+}
+
+function jobBody() {
+  const o = { ...profile().optics };
+  delete o.frames;
+  o.resolution_hw = [Number($("res-h").value), Number($("res-w").value)];
+  const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
+                 encoder: $("encoder").value };
+  if ($("spp").value) body.spp = Number($("spp").value);
+  if ($("iterations").value && body.encoder === "sgd") body.iterations = Number($("iterations").value);
+  if ($("time-limit").value) body.render_time_limit_s = Number($("time-limit").value);
+  const planes = $("wrp-planes").value;
+  body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
+  if ($("display").value.trim()) body.display = $("display").value.trim();
+  if ($("job-name").value.trim()) body.name = $("job-name").value.trim();
+  return body;
+}
+
+// The form's state goes with the scene it was made for: a new upload (refused or not) takes the old one away
+// first, so Submit can never send the previous scene.
+export function forgetScene() {
+  state.scene = null;
+  state.rerun = null;
+  estimateSeq++; clearTimeout(estimateTimer);
+  show("job-form", false); show("rerun-note", false); show("form-plan-box", false);
+  $("submit-button").disabled = true;
+  setText($("estimate"), ""); setText($("submit-error"), "");
+  const sel = $("profile");
+  for (const o of [...sel.options]) if (o.value.startsWith("job:")) o.remove();
+  if (!sel.value && state.profiles) { sel.value = state.profiles.default; applyProfile(); }
+}
+
+function nameFromFile(file) { return file ? file.name.replace(/\.zip$/i, "").slice(0, 120) : ""; }
+
+async function upload(ev) {
+  ev.preventDefault();
+  const file = $("bundle").files[0];
+  if (!file) return;
+  const fd = new FormData();
+  fd.append("bundle", file, "bundle.zip");
+  if ($("entry").value.trim()) fd.append("entry", $("entry").value.trim());
+  $("upload-button").disabled = true;
+  forgetScene();
+  const info = clear($("scene-info"));
+  info.append(el("p", { class: "muted" }, "Uploading and checking the bundle…"));
+  try {
+    const sc = await (await request("/v1/scenes", { method: "POST", body: fd })).json();
+    state.scene = sc;
+    state.scenes.set(sc.id, sc);
+    showScene(sc);
+    $("job-name").value = nameFromFile(file);
+    show("job-form", true);
+    estimateSoon();
+    waitForPlan(sc.id);
+  } catch (err) {
+    const why = String(err.message).replace(/^scene refused:\s*/i, "");
+    clear(info).append(el("p", { class: "error", id: "scene-error" }, `Scene refused: ${why}`));
+  } finally {
+    $("upload-button").disabled = false;
+  }
+}
+
+export function showScene(sc) {
+  const r = sc.report || {};
+  const info = clear($("scene-info"));
+  info.append(
+    el("p", {}, "Scene ", el("strong", { id: "scene-entry" }, sc.entry), " ",
+       el("span", { class: "mono muted" }, sc.id)),
+    el("p", { class: "muted" }, `${(r.files || []).length} files, ${fmtBytes(r.total_bytes)}; plugins: `
+       + `${(r.plugins || []).join(", ") || "–"}; effect plan: ${sc.plan_state}`));
+  for (const w of [...(r.warnings || []), ...(r.ignored || [])]) info.append(el("p", { class: "warning" }, String(w)));
+  if (sc.plan_error) info.append(el("p", { class: "error" }, sc.plan_error));
+}
+
+// Follows the form's scene until its plan is ready or has failed, however long the planner's queue is (a
+// failed request is tried again); Submit waits for it.
+export async function waitForPlan(id) {
+  for (let i = 0; ; i++) {
+    await new Promise((r) => setTimeout(r, i < 30 ? 1000 : 3000));
+    if (!state.scene || state.scene.id !== id || !state.me) return;
+    try {
+      const sc = await getJSON(`/v1/scenes/${id}`);
+      if (!state.scene || state.scene.id !== id) return;
+      if (sc.plan_state !== state.scene.plan_state) {
+        state.scene = sc; state.scenes.set(id, sc); showScene(sc); estimateSoon();
+      }
+      if (sc.plan_state === "ready" || sc.plan_state === "failed") return;
+    } catch (err) { if (err instanceof ApiError && (err.status === 401 || err.status === 404)) return; }
+  }
+}
+
+// A job may only be submitted on a scene Mitsuba has loaded: until its plan is ready the scene may still fail
+// (a job on it would fail with it), so Submit waits for the plan.
+const planReady = () => !!state.scene && state.scene.plan_state === "ready";
+
+let estimateTimer = null;
+let estimateSeq = 0;
+export function estimateSoon() {
+  $("submit-button").disabled = true;
+  clearTimeout(estimateTimer);
+  estimateTimer = setTimeout(estimate, 250);
+}
+
+// Boxes that must hold something (their label's words); every other check is the server's, whose refusal says
+// what to change (the browser's own range checks would only say "invalid").
+const REQUIRED = [["frames", "Frames"], ["res-h", "Resolution (rows)"], ["res-w", "Resolution (columns)"]];
+
+function showFormPlan(plan) {
+  const ul = clear($("form-plan"));
+  for (const line of (plan && plan.summary) || []) ul.append(el("li", {}, line));
+  show("form-plan-box", !!ul.firstChild);
+}
+
+async function estimate() {
+  if (!state.scene) return;
+  const seq = ++estimateSeq;
+  const out = $("estimate");
+  setText($("submit-error"), "");
+  out.classList.remove("error");
+  const empty = REQUIRED.filter(([id]) => !$(id).value.trim()).map(([, words]) => words);
+  if (empty.length) { setText(out, `Fill in ${empty.join(", ")} to see the estimate.`); return; }
+  if (state.scene.plan_state === "failed") {
+    setText(out, "Cannot submit: the scene's plan failed (see above); fix the scene and upload it again.");
+    out.classList.add("error"); showFormPlan(null);
+    return;
+  }
+  try {
+    const e = await postJSON("/v1/jobs/estimate", jobBody());
+    if (seq !== estimateSeq || !state.scene) return;
+    const m = e.estimate.memory || {};
+    const rays = e.estimate.spp_assumed === null ? "rays until the time limit"
+      : `${e.estimate.spp_assumed} rays per pixel`;
+    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
+      + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
+    out.classList.remove("error");
+    showFormPlan(e.plan);
+    if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },
+      " · Submit waits for the scene's plan (Mitsuba loading the scene)…"));
+    $("submit-button").disabled = !planReady();
+  } catch (err) {
+    if (seq !== estimateSeq) return;
+    setText(out, `Cannot submit: ${err.message}`);
+    out.classList.add("error");
+    showFormPlan(null);
+  }
+}
+
+async function submit(ev) {
+  ev.preventDefault();
+  if (!planReady() || $("submit-button").disabled) return;  // only what the estimate just accepted goes out
+  $("submit-button").disabled = true;
+  try {
+    const resp = await request("/v1/jobs", { method: "POST", json: jobBody() });
+    const job = await resp.json();
+    state.jobs.set(job.id, job);
+    location.hash = `#/jobs/${job.id}`;
+  } catch (err) {
+    setText($("submit-error"), `Not submitted: ${err.message}`);
+    $("submit-button").disabled = false;
+  }
+}
+
+// Re-run with changes: the form takes the job's scene, optics (as a "profile" of its own) and options.
+export async function prefillRerun(job) {
+  forgetScene();
+  const sc = await getJSON(`/v1/scenes/${encodeURIComponent(job.scene_id)}`);
+  state.scenes.set(sc.id, sc);
+  state.scene = sc;
+  state.rerun = job;
+  showScene(sc);
+  const o = job.options || {};
+  const optics = o.optics || {};
+  const sel = $("profile");
+  sel.prepend(el("option", { value: `job:${job.id}` }, `as job ${jobName(job)} (${(optics.resolution_hw || []).join("x")}, `
+    + `${optics.pitch_um} µm, ${plural((optics.wavelengths_nm || []).length, "color")})`));
+  sel.value = `job:${job.id}`;
+  $("res-h").value = optics.resolution_hw[0];
+  $("res-w").value = optics.resolution_hw[1];
+  $("frames").value = optics.frames;
+  $("preset").value = o.preset;
+  $("encoder").value = o.encoder;
+  $("time-limit").value = o.render_time_limit_s || "";
+  $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
+  $("iterations").value = o.iterations ?? "";
+  $("wrp-planes").value = String(o.wrp_planes || "auto");
+  $("display").value = job.display || "";
+  $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);
+  setText($("rerun-note"), `Re-run of job ${jobName(job)} (${job.id}) on its scene: change what you want and submit.`);
+  show("rerun-note", true);
+  show("job-form", true);
+  $("submit").scrollIntoView();
+  if (sc.plan_state !== "ready" && sc.plan_state !== "failed") waitForPlan(sc.id);
+  estimateSoon();
+}
+
+
+// No estimate goes out after this (signing out), and none that was out comes back in.
+export function cancelEstimate() { clearTimeout(estimateTimer); estimateSeq++; }
+
+// The form's own listeners (the page's start calls this once).
+export function initForm() {
+  $("upload-form").addEventListener("submit", upload);
+  $("job-form").addEventListener("submit", submit);
+  $("job-form").addEventListener("input", estimateSoon);
+  // a select may say only "change"; a text box's change (on leaving it) follows an input event already, and
+  // re-estimating then would turn Submit off under the click that left the box
+  $("job-form").addEventListener("change", (ev) => { if (ev.target.tagName === "SELECT") estimateSoon(); });
+  $("bundle").addEventListener("change", () => { forgetScene(); clear($("scene-info")); });
+  $("profile").addEventListener("change", () => { applyProfile(); estimateSoon(); });
+}
