@@ -227,6 +227,7 @@ FULL_TIER_ONLY_MODULES: dict[str, str] = {
     "tests/service/test_ray.py": "a Ray cluster per test; tests/service/test_units.py covers the engine choice",
     "tests/service/test_ray_connect.py": "Ray Client start-up",
     "tests/service/test_web.py": "headless Chromium; tests/service/test_units.py covers the page's API",
+    "tests/service/test_web_compare.py": "headless Chromium on two jobs; tests/service/test_web_page.py drives the page",
     "tests/service/test_schemathesis.py": "API fuzzing; test_hostile*.py send bad input by hand",
     "tests/trace/test_wavekernel.py": "millions of rays against the reference chain; tests/trace/test_sphere_pole.py "
                                        "runs both on few rays",

@@ -1,9 +1,11 @@
 // The results page: sign in with a token, then the home page (the job list, the submit form) or one job's page,
 // chosen by the URL's hash. Everything the service says is shown with textContent (dom.js); nothing is parsed
-// as HTML. The parts: jobs_list.js, submit_form.js, job_page.js (state.js holds what they share).
+// as HTML. The parts: jobs_list.js, submit_form.js, job_page.js, compare.js (state.js holds what
+// they share).
 
 import { ApiError, getJSON, setUnauthorizedHandler, token } from "./api.js";
 import { $, setText } from "./dom.js";
+import { leaveCompare, routeCompare } from "./compare.js";
 import { leaveJobPage, showJob } from "./job_page.js";
 import { refreshHome } from "./jobs_list.js";
 import { cancelEstimate, estimateSoon, initForm, loadProfiles, prefillRerun } from "./submit_form.js";
@@ -15,7 +17,7 @@ function signedOut(message = "") {
   state.me = null;
   stopAll();
   cancelEstimate();
-  show("signin", true); show("home", false); show("job", false); show("signout", false);
+  show("signin", true); show("home", false); show("job", false); show("compare", false); show("signout", false);
   setText($("who"), "");
   setText($("signin-error"), message);
   $("token").focus();
@@ -51,6 +53,7 @@ function stopAll() {
   for (const c of state.streams.values()) c.abort();
   state.streams.clear();
   leaveJobPage();
+  leaveCompare();
   if (state.timer) { clearInterval(state.timer); state.timer = null; }
 }
 
@@ -58,7 +61,11 @@ function route() {
   if (!state.me) return;
   const m = /^#\/jobs\/([A-Za-z0-9_-]{1,64})$/.exec(location.hash);
   stopAll();
-  if (m) {
+  show("compare", false);
+  if (location.hash.startsWith("#/compare")) {
+    show("home", false); show("job", false); show("compare", true);
+    if (!routeCompare(location.hash)) status("That compare address names no two jobs.", true);
+  } else if (m) {
     show("home", false); show("job", true);
     showJob(m[1]).catch((err) => { if (!aborted(err)) status(`Could not show the job: ${err.message}`, true); });
   } else {

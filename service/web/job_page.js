@@ -3,6 +3,7 @@
 
 import { blobURL, getJSON, request, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
+import { offerCompare } from "./compare.js";
 import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
@@ -177,7 +178,7 @@ function resetJobPage() {
                     "focus-label", "grid-label"]) setText($(id), "");
   $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
   $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
-  for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun"]) show(id, false);
+  for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun", "job-compare"]) show(id, false);
 }
 
 export async function showJob(id) {
@@ -214,7 +215,10 @@ export async function showJob(id) {
   }
   await showLogs(job, page);
   if (state.page !== page) return;
-  if (job.state === "succeeded") await showPictures(job, page);
+  if (job.state === "succeeded") {
+    offerCompare(job, page.abort.signal).catch((err) => { if (!aborted(err)) $("job-compare").hidden = true; });
+    await showPictures(job, page);
+  }
 }
 
 async function showPictures(job, page) {
