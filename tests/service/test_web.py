@@ -15,7 +15,6 @@ import io
 import os
 import re
 import shutil
-import time
 import zipfile
 from fnmatch import fnmatch
 from html.parser import HTMLParser
@@ -226,7 +225,6 @@ def test_browser_signs_in_submits_follows_and_views_a_job(server, scene, tmp_pat
     bundle = tmp_path / "scene.zip"
     bundle.write_bytes(scene["zip"])
     shots = _shots_dir(tmp_path)
-    t0 = time.monotonic()
     driver = _browser()
     try:
         wait = WebDriverWait(driver, 30, poll_frequency=0.1)
@@ -346,7 +344,6 @@ def test_browser_signs_in_submits_follows_and_views_a_job(server, scene, tmp_pat
         assert text("job-state") == "succeeded"
     finally:
         driver.quit()
-    assert time.monotonic() - t0 < 150
 
 
 def test_pictures_index_and_pngs(server):
