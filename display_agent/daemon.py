@@ -1,10 +1,11 @@
 """The display agent daemon: follow the service, keep a verified cache, play on the SLM, report back.
 
-Two threads. The sync thread polls ``GET /v1/jobs?display=NAME&state=succeeded`` (newest first), fetches the
-newest usable stack (304/cache or a resumable, hash-checked download), hands it over once it is verified, and
-posts heartbeats; failures back off exponentially with jitter, capped, and are logged with what happened. The
-main thread owns the SLM (windowing systems want that): it maps phase to gray levels, preloads, and plays by
-the policy. A stack reaches the SLM only after every check passed, so nothing partial or corrupt is shown.
+Two threads. The sync thread polls ``GET /v1/jobs?display=NAME&state=succeeded`` (the most recently sent to
+the display first: submitted for it, or sent with ``POST /v1/jobs/{id}/display``), fetches the first usable
+stack (304/cache or a resumable, hash-checked download), hands it over once it is verified, and posts
+heartbeats; failures back off exponentially with jitter, capped, and are logged with what happened. The main
+thread owns the SLM (windowing systems want that): it maps phase to gray levels, preloads, and plays by the
+policy. A stack reaches the SLM only after every check passed, so nothing partial or corrupt is shown.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ class ServiceClient:
 
     # API ----------------------------------------------------------------------------------------------------
     def list_jobs(self, display: str, *, state: str = "succeeded", limit: int = 5) -> list[dict]:
-        """Jobs for ``display`` in ``state``, newest first."""
+        """Jobs for ``display`` in ``state``, the most recently sent to it first (the one it shows next)."""
         resp = self._request("GET", "/v1/jobs", params={"display": display, "state": state, "limit": limit})
         try:
             jobs = resp.json()["jobs"]

@@ -44,7 +44,15 @@ CREATE TABLE IF NOT EXISTS displays (
     message TEXT, token_id TEXT);
 CREATE TABLE IF NOT EXISTS scene_owners (
     scene_id TEXT NOT NULL, owner TEXT NOT NULL, created_at REAL NOT NULL, PRIMARY KEY (scene_id, owner));
+CREATE TABLE IF NOT EXISTS display_sends (
+    display TEXT NOT NULL, job_id TEXT NOT NULL, sent_at REAL NOT NULL, token_id TEXT,
+    PRIMARY KEY (display, job_id));
+CREATE INDEX IF NOT EXISTS display_sends_job ON display_sends(job_id);
 """
+# A job is shown on the display it was submitted for, and on every display it was sent to afterwards
+# (POST /v1/jobs/{id}/display): a send is a row of display_sends, so sending a job to one display takes it
+# from no other. A display's jobs are ordered by when each was last sent to it (a submit counts as a send at
+# the job's created_at): databases from before sends have no rows there and keep the submit order.
 # Columns added after the first release (tenancy, token expiry): added in place to older databases.
 _ADDED_COLUMNS = {"tokens": {"owner": "TEXT", "expires_at": "REAL"}, "jobs": {"owner": "TEXT"},
                   "displays": {"owner": "TEXT", "agent_token": "TEXT"}}
@@ -198,6 +206,7 @@ class Database:
             n = conn.execute(f"DELETE FROM jobs WHERE id = ? AND state IN ({marks})", (job_id, *where_state)).rowcount
             if n:
                 conn.execute("DELETE FROM idempotency WHERE job_id = ?", (job_id,))
+                conn.execute("DELETE FROM display_sends WHERE job_id = ?", (job_id,))
         return bool(n)
 
     def jobs_with_artifact_dir(self, artifact_dir: str) -> int:
@@ -206,16 +215,39 @@ class Database:
 
     def list_jobs(self, *, state: Optional[str] = None, display: Optional[str] = None,
                   scene_id: Optional[str] = None, owner: Optional[str] = None, limit: int = 50) -> list[dict]:
-        """Jobs newest first; ``owner`` limits them to one owner's (None: everyone's)."""
+        """Jobs newest first; ``owner`` limits them to one owner's (None: everyone's). With ``display``: the jobs
+        submitted for it or sent to it, the most recently sent first (each row's ``sent_at``: its last send to
+        that display, else its submit time)."""
         where, params = [], []
-        for col, value in (("state", state), ("display", display), ("scene_id", scene_id),
-                           ("COALESCE(owner, 'default')", owner)):
+        for col, value in (("state", state), ("scene_id", scene_id), ("COALESCE(owner, 'default')", owner)):
             if value is not None:
                 where.append(f"{col} = ?")
                 params.append(value)
-        sql = "SELECT * FROM jobs" + (" WHERE " + " AND ".join(where) if where else "")
-        sql += " ORDER BY created_at DESC, rowid DESC LIMIT ?"
-        return self.query(sql, (*params, int(limit)))
+        if display is None:
+            sql = "SELECT * FROM jobs" + (" WHERE " + " AND ".join(where) if where else "")
+            sql += " ORDER BY created_at DESC, rowid DESC LIMIT ?"
+            return self.query(sql, (*params, int(limit)))
+        where.append("(display = ? OR id IN (SELECT job_id FROM display_sends WHERE display = ?))")
+        sql = ("SELECT * FROM (SELECT jobs.*, COALESCE((SELECT s.sent_at FROM display_sends s WHERE s.display = ? "
+               "AND s.job_id = jobs.id), created_at) AS sent_at, rowid AS _rowid FROM jobs WHERE "
+               + " AND ".join(where) + ") ORDER BY sent_at DESC, _rowid DESC LIMIT ?")
+        rows = self.query(sql, (display, *params, display, display, int(limit)))
+        for r in rows:
+            r.pop("_rowid", None)
+        return rows
+
+    def send_job(self, job_id: str, display: str, *, token_id: Optional[str]) -> Optional[float]:
+        """Make ``job_id`` the job ``display`` shows next: record that it was sent there now, only while it is
+        succeeded. Returns the time of the send (Unix seconds), None when the job is not (or no longer) succeeded."""
+        now = time.time()
+        with self.tx() as conn:
+            done = conn.execute("SELECT 1 AS ok FROM jobs WHERE id = ? AND state = 'succeeded'", (job_id,)).fetchone()
+            if done is None:
+                return None
+            conn.execute("INSERT INTO display_sends (display, job_id, sent_at, token_id) VALUES (?, ?, ?, ?) "
+                         "ON CONFLICT (display, job_id) DO UPDATE SET sent_at = excluded.sent_at, "
+                         "token_id = excluded.token_id", (display, job_id, now, token_id))
+        return now
 
     def count_jobs(self, owner: Optional[str] = None) -> dict[str, int]:
         """Jobs by state (``owner``: that owner's only; None: everyone's)."""

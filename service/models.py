@@ -77,6 +77,9 @@ class JobOut(BaseModel):
     estimate: Optional[dict[str, Any]] = None
     reused_from: Optional[str] = None
     cache_key: str
+    sent_at: Optional[str] = Field(default=None, description="In GET /v1/jobs?display=NAME only: when the job was "
+                                   "last sent to NAME (POST /v1/jobs/{id}/display), else its submit time; that "
+                                   "list is in this order, the job the display shows next first.")
     links: dict[str, str]
 
 

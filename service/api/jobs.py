@@ -40,7 +40,8 @@ def job_out(row: dict) -> dict:
     links = {"self": f"/v1/jobs/{jid}", "events": f"/v1/jobs/{jid}/events"}
     if row["state"] == "succeeded":
         links.update(stack=f"/v1/jobs/{jid}/stack", frames=f"/v1/jobs/{jid}/frames.zip",
-                     preview=f"/v1/jobs/{jid}/preview.png")
+                     preview=f"/v1/jobs/{jid}/preview.png", phase=f"/v1/jobs/{jid}/phase",
+                     send=f"/v1/jobs/{jid}/display")
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
     return {"id": jid, "name": spec.get("name"), "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
             "created_at": iso(row["created_at"]), "started_at": iso(row["started_at"]),
@@ -48,7 +49,8 @@ def job_out(row: dict) -> dict:
             "stack_bytes": row["stack_bytes"], "options": row["spec"], "progress": row["progress"],
             "timings": row["timings"], "plan": row["plan"], "error": row["error"], "attempts": row["attempts"],
             "worker_pid": row["worker_pid"] if row["state"] == "running" else None, "estimate": row["estimate"],
-            "reused_from": row["reused_from"], "cache_key": row["cache_key"], "links": links}
+            "reused_from": row["reused_from"], "cache_key": row["cache_key"], "sent_at": iso(row.get("sent_at")),
+            "links": links}
 
 
 def _get(ctx: ServiceContext, job_id: str, principal: Optional[Principal] = None) -> dict:
@@ -94,7 +96,8 @@ async def list_jobs(
     scene_id: Optional[str] = Query(default=None, pattern=ID_PATTERN),
     limit: int = Query(default=50, ge=1, le=500),
 ):
-    """Jobs, newest first, filtered by state, display and scene."""
+    """Jobs, newest first, filtered by state, display and scene; with ``display``, the jobs submitted for it or
+    sent to it (POST /v1/jobs/{id}/display), the most recently sent first: the job it shows next."""
     rows = ctx.db.list_jobs(state=state, display=display, scene_id=scene_id, limit=limit,
                                          owner=None if principal.is_admin else principal.owner)
     return JSONResponse({"jobs": [job_out(r) for r in rows]})
