@@ -376,7 +376,7 @@ def test_re_run_with_changes(page, server, done_job):
 
 
 # ---- layout -----------------------------------------------------------------------------------------------
-def test_layout_at_390_and_1280_px(page, browser, done_job):
+def test_layout_at_390_1280_and_1920_px(page, browser, done_job):
     def fits() -> bool:
         return page.js("return document.documentElement.scrollWidth <= window.innerWidth + 1")
 
@@ -395,10 +395,15 @@ def test_layout_at_390_and_1280_px(page, browser, done_job):
     assert "engine" not in page.text("timings") and "local" not in page.text("timings")
     assert "1 frame," in page.text("job-facts") and "1 frames" not in page.text("job-facts")
     browser.set_window_size(390, 900)
-    assert fits(), page.js("return document.documentElement.scrollWidth")
+    assert fits(), page.js("""return [...document.querySelectorAll('body *')].filter(e => e.getBoundingClientRect().right
+        > window.innerWidth + 1 && !e.closest('.table-wrap')).map(e => e.tagName + '#' + e.id + '.' + e.className).slice(0, 8)""")
     page.go("#/")
     page.until(lambda: page.js("return !!document.querySelector(`tr[data-job-id=\"${arguments[0]}\"]`)", jid))
     assert fits(), page.js("return document.documentElement.scrollWidth")
+    browser.set_window_size(1920, 1200)  # a wide screen: nothing overflows
+    assert fits(), page.js("return document.documentElement.scrollWidth")
+    inner = page.js("const w = document.querySelector('#jobs').closest('.table-wrap'); return [w.scrollWidth, w.clientWidth]")
+    assert inner[0] <= inner[1] + 1, inner  # the job list needs no scrolling of its own at this width
     browser.set_window_size(1280, 1500)
     # a short name never breaks inside a word
     lines = page.js("""const td = document.querySelector(`tr[data-job-id="${arguments[0]}"] td.scene-name`);
