@@ -4,6 +4,7 @@
 import { blobURL, getJSON, request, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
 import { offerCompare } from "./compare.js";
+import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
 import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
@@ -179,6 +180,7 @@ function resetJobPage() {
   $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
   $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
   for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun", "job-compare"]) show(id, false);
+  resetPhaseFrames();
 }
 
 export async function showJob(id) {
@@ -217,6 +219,8 @@ export async function showJob(id) {
   if (state.page !== page) return;
   if (job.state === "succeeded") {
     offerCompare(job, page.abort.signal).catch((err) => { if (!aborted(err)) $("job-compare").hidden = true; });
+    showPhaseFrames(job, page).catch((err) => { if (!aborted(err)) status(`No phase frames: ${err.message}`, true); });
+    offerSend(job, page).catch((err) => { if (!aborted(err)) status(`Displays: ${err.message}`, true); });
     await showPictures(job, page);
   }
 }
