@@ -157,6 +157,25 @@ def render(
         console.print(f"  - {line}")
 
 
+def _write_picture(loaded, path: Path, *, width: int, spp: int) -> dict:
+    """The scene through its camera as an sRGB PNG at ``path``; what the plan's JSON says of it. A picture
+    that cannot be made is said, not fatal: the plan stands without it."""
+    import numpy as np
+    from PIL import Image
+
+    from holocore.evaluate.groundtruth import camera_picture
+    from holocore.evaluate.preview import to_png8
+
+    try:
+        rgb = camera_picture(loaded, max_width_px=width, spp=spp)
+        # white at the 99th percentile: a small bright lamp saturates instead of darkening the whole scene
+        u8 = to_png8(np.moveaxis(rgb, 0, -1), white=float(np.percentile(rgb, 99.0)) or 1.0)
+        Image.fromarray(u8).save(path, format="PNG")
+    except (ValueError, RuntimeError, OSError) as exc:
+        return {"error": f"no picture: {str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__}"}
+    return {"file": path.name, "width_px": int(u8.shape[1]), "height_px": int(u8.shape[0]), "spp": int(spp)}
+
+
 @with_optics_options
 def plan(
     scene: Path = typer.Argument(..., help="Scene folder or XML."),
@@ -165,10 +184,16 @@ def plan(
     force_all_effects: bool = typer.Option(False, "--force-all-effects"),
     wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
                                                              "the scene depth; the plan says where)."),
+    picture: Optional[Path] = typer.Option(None, "--picture", help="Also write a small picture of the scene "
+                                                                  "through its own camera (PNG, at most "
+                                                                  "--picture-width px wide)."),
+    picture_width: int = typer.Option(320, "--picture-width", min=8, max=4096, help="Its width in px."),
+    picture_spp: int = typer.Option(32, "--picture-spp", min=1, max=4096, help="Its samples per pixel."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Analyse a scene and print what the renderer would simulate (the EffectPlan), for the same display and
-    optics options as `holo render`."""
+    optics options as `holo render`. ``--picture`` writes what the scene's camera sees, the view the
+    hologram's field of view is drawn over."""
     profile, optics_cfg = optics.resolve()
     if not scene.exists():
         fail(f"scene not found: {scene}")
@@ -184,6 +209,8 @@ def plan(
     from holocore.display.profiles import display_meta
 
     doc = {**pl.to_dict(), "optics": json.loads(optics_cfg.model_dump_json()), **display_meta(profile, optics_cfg)}
+    if picture is not None:
+        doc["picture"] = _write_picture(loaded, picture, width=picture_width, spp=picture_spp)
     if as_json:
         print(json.dumps(doc, indent=2))
     else:
@@ -197,3 +224,7 @@ def plan(
         a = pl.analysis
         print(f"- WRP at {a.z_wrp_m * 1e3:.3f} mm from the SLM; image volume "
               f"{(a.z_near_holo_m or 0) * 1e3:.3f}..{(a.z_far_holo_m or 0) * 1e3:.3f} mm")
+        if picture is not None:
+            pic = doc["picture"]
+            print(f"- {pic['error']}" if "error" in pic else
+                  f"- picture: {picture} ({pic['width_px']}x{pic['height_px']} px, {pic['spp']} spp)")

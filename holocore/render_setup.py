@@ -64,10 +64,11 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     from holocore.plan.analysis import analyze
     from holocore.plan.effects import inventory, make_plan
     from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
+    from holocore.scene.load import sensor_film_hw
     from holocore.trace.mapping import HologramMap
 
     f = optics.focal_length_m(loaded.fov_x_deg)
-    fov = field_of_view_report(optics, loaded.fov_x_deg)
+    fov = field_of_view_report(optics, loaded.fov_x_deg, camera_film_hw=sensor_film_hw(loaded.sensor))
     hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m)
     inv = inventory(loaded.scene)
     ana = analyze(loaded.scene, hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,

@@ -16,6 +16,7 @@ from holocore.display.optics import OpticsConfig
 from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
 from holocore.plan.presets import PRESETS
 from service.jobfiles import JobFields
+from service.scene_view import FieldOfViewBox
 from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
@@ -80,6 +81,9 @@ class JobOut(BaseModel):
     sent_at: Optional[str] = Field(default=None, description="In GET /v1/jobs?display=NAME only: when the job was "
                                    "last sent to NAME (POST /v1/jobs/{id}/display), else its submit time; that "
                                    "list is in this order, the job the display shows next first.")
+    field_of_view_box: Optional[FieldOfViewBox] = Field(
+        default=None, description="In GET /v1/jobs/{id} only: where the hologram's view lies in the scene's "
+                                  "picture at the job's optics (None until the scene's plan is ready).")
     links: dict[str, str]
 
 
@@ -96,6 +100,11 @@ class SceneOut(BaseModel):
     plan_state: Literal["pending", "running", "ready", "failed"]
     plan: Optional[dict[str, Any]] = None
     plan_error: Optional[str] = None
+    picture_url: Optional[str] = Field(default=None, description="The scene through its camera (PNG), made with "
+                                       "its plan; None while the plan is pending, or when it failed.")
+    field_of_view_box: Optional[FieldOfViewBox] = Field(
+        default=None, description="Where the hologram's view lies in that picture at the plan's (the default "
+                                  "display's) optics; POST /v1/jobs/estimate gives it at a request's.")
 
 
 class DisplayOut(BaseModel):

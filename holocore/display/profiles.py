@@ -34,7 +34,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from holocore.display.optics import DISPLAY_FOCAL_LENGTH_MM, OpticsConfig
 
 __all__ = ["DisplayProfile", "DisplayError", "PAPER", "BUILTIN_DISPLAYS", "DEFAULT_DISPLAY", "load_display",
-           "load_display_file", "save_display", "display_optics", "display_meta", "field_of_view_report"]
+           "load_display_file", "save_display", "display_optics", "display_meta", "field_of_view_report",
+           "field_of_view_box"]
 
 PROFILE_SUFFIXES = (".json", ".toml")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
@@ -212,10 +213,41 @@ def display_meta(profile: DisplayProfile, optics: OpticsConfig) -> dict[str, Any
             "display": {**profile.model_dump(mode="json"), "overridden": overridden}}
 
 
-def field_of_view_report(optics: OpticsConfig, camera_fov_x_deg: float) -> dict[str, Any]:
+def field_of_view_box(optics: OpticsConfig, camera_fov_x_deg: float,
+                      camera_film_hw: tuple[int, int]) -> dict[str, Any]:
+    """Where the hologram's view lies in the scene camera's image (DESIGN §3): the hologram shows
+    2 atan(W p / 2f) by 2 atan(H p / 2f) around the camera's axis, the camera tan(fov_x / 2) across half its
+    width (square pixels: h / w of that across half its height). Lateral position is linear in the tangent of
+    the view angle on both, so the box's edges are the ratios of the tangents: ``x0, y0, x1, y1`` are fractions
+    of the camera image's width and height from its top-left corner, and lie outside 0..1 where the display
+    sees more than the camera (``beyond_camera``: the hologram's edges then show what the camera never
+    rendered)."""
+    h_px, w_px = (int(v) for v in camera_film_hw)
+    cam_x = float(camera_fov_x_deg)
+    if not (h_px > 0 and w_px > 0 and 0.0 < cam_x < 180.0):
+        raise ValueError(f"camera film {h_px}x{w_px} px at {cam_x} deg is not usable")
+    f = optics.focal_length_m(cam_x)
+    t_cam_x = math.tan(math.radians(cam_x) / 2.0)
+    t_cam_y = t_cam_x * h_px / w_px
+    t_holo_x = optics.width * optics.pitch_m / (2.0 * f)
+    t_holo_y = optics.resolution_hw[0] * optics.pitch_m / (2.0 * f)
+    fx, fy = 0.5 * t_holo_x / t_cam_x, 0.5 * t_holo_y / t_cam_y
+    box = {"x0": 0.5 - fx, "y0": 0.5 - fy, "x1": 0.5 + fx, "y1": 0.5 + fy}
+    eps = 1e-9
+    return {**box,
+            "hologram_fov_x_deg": optics.field_of_view_x_deg(cam_x),
+            "hologram_fov_y_deg": math.degrees(2.0 * math.atan(t_holo_y)),
+            "camera_fov_x_deg": cam_x, "camera_fov_y_deg": math.degrees(2.0 * math.atan(t_cam_y)),
+            "camera_film_hw_px": [h_px, w_px],
+            "beyond_camera": fx > 0.5 + eps or fy > 0.5 + eps}
+
+
+def field_of_view_report(optics: OpticsConfig, camera_fov_x_deg: float,
+                         camera_film_hw: Optional[tuple[int, int]] = None) -> dict[str, Any]:
     """The hologram's horizontal field of view against the scene camera's (DESIGN §3): the hologram shows
     2 atan(W p / 2f) around the camera's axis. ``differs`` when they differ by more than 0.1 % (or 0.01 deg);
-    ``summary`` says so in one line."""
+    ``summary`` says so in one line. With the camera's film size, ``camera_film_hw_px`` and ``box``
+    (:func:`field_of_view_box`: where the hologram's view lies in the camera's image) too."""
     f = optics.focal_length_m(camera_fov_x_deg)
     holo = optics.field_of_view_x_deg(camera_fov_x_deg)
     cam = float(camera_fov_x_deg)
@@ -236,5 +268,10 @@ def field_of_view_report(optics: OpticsConfig, camera_fov_x_deg: float) -> dict[
         if f_fit:
             line += (f" (fit_camera_fov, --fit-camera-fov in holo, fits the camera's view instead: f = "
                      f"{f_fit * 1e3:.3g} mm, hologram depth x {(f_fit / f) ** 2:.2g})")
-    return {"hologram_fov_x_deg": holo, "camera_fov_x_deg": cam, "differs": differs, "focal_length_m": f,
-            "focal_length_source": source, "summary": line}
+    out = {"hologram_fov_x_deg": holo, "camera_fov_x_deg": cam, "differs": differs, "focal_length_m": f,
+           "focal_length_source": source, "summary": line}
+    if camera_film_hw is not None:
+        box = field_of_view_box(optics, cam, camera_film_hw)
+        out["camera_film_hw_px"] = box["camera_film_hw_px"]
+        out["box"] = {k: box[k] for k in ("x0", "y0", "x1", "y1", "beyond_camera")}
+    return out

@@ -36,7 +36,7 @@ from holocore.formats.meta import MetaLike, parse_view_meta
 from holocore.scene.features import has_media, reference_integrator
 from holocore.trace.mapping import HologramMap
 
-__all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "channels_for_wavelengths",
+__all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "camera_picture", "channels_for_wavelengths",
            "pupil_diffraction", "GroundTruth"]
 
 MAX_GT_SPP = 1 << 16
@@ -126,6 +126,40 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
     img = mi.render(scene, sensor=sensor, integrator=integrator, spp=int(spp), seed=int(seed))
     rgb = np.array(img, dtype=np.float32)[..., :3]  # [H, W, 3]
     rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0)
+    return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
+
+
+def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed: int = 0) -> np.ndarray:
+    """What the scene's own camera sees, small: linear RGB float32 [3, h, w], at most ``max_width_px`` wide
+    with the camera's aspect (its film's h / w, square pixels) and its horizontal field of view, from its pose,
+    as a pinhole; Mitsuba's path tracer (volpath where the scene holds media) at ``spp`` samples per pixel.
+    A picture a person recognises the scene by, not a ground truth: the display's optics play no part, so the
+    hologram's view can be drawn over it (holocore.display.profiles.field_of_view_box)."""
+    from holocore.runtime.mitsuba_env import mitsuba
+    from holocore.scene.load import sensor_film_hw
+
+    mi = mitsuba()
+    if not 8 <= int(max_width_px) <= 4096:
+        raise ValueError(f"max_width_px must be in 8..4096, got {max_width_px!r}")
+    if not 1 <= int(spp) <= 4096:
+        raise ValueError(f"spp must be in 1..4096, got {spp!r}")
+    film_h, film_w = sensor_film_hw(loaded.sensor)
+    w = min(int(max_width_px), film_w)
+    h = max(1, round(w * film_h / film_w))
+    sensor = {
+        "type": "perspective", "fov": float(loaded.fov_x_deg), "fov_axis": "x", "near_clip": 1e-3,
+        "to_world": mi.ScalarTransform4f(
+            np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4).tolist()),
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+        "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                 "pixel_format": "rgb", "component_format": "float32"},
+    }
+    if loaded.sensor.get_medium() is not None:  # a camera inside a medium sees through it
+        sensor["medium"] = loaded.sensor.get_medium()
+    # The scene's own integrator may be anything (an AOV, a depth of 100): the picture takes the reference one.
+    integrator = mi.load_dict(reference_integrator(loaded.scene, max_depth=DEFAULT_MAX_DEPTH))
+    img = mi.render(loaded.scene, sensor=mi.load_dict(sensor), integrator=integrator, spp=int(spp), seed=int(seed))
+    rgb = np.nan_to_num(np.array(img, dtype=np.float32)[..., :3], nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0)
     return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
 
 

@@ -23,7 +23,8 @@ from holocore.runtime.mitsuba_env import mitsuba
 from holocore.scene.errors import scrub_message
 from holocore.scene.features import shape_name
 
-__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins", "unsupported_reason"]
+__all__ = ["LoadedScene", "SceneLoadError", "load_scene", "resolve_entry", "preload_plugins", "unsupported_reason",
+           "sensor_film_hw"]
 
 _PRELOAD_LOCK = threading.Lock()
 _PRELOADED: list[str] = []
@@ -116,6 +117,12 @@ def _sensor_fov_x_deg(sensor) -> float:
     if not (0.0 < fov < 180.0) or math.isnan(fov):
         raise ValueError(f"sensor field of view {fov} deg is not usable")
     return fov
+
+
+def sensor_film_hw(sensor) -> tuple[int, int]:
+    """The sensor's film size (rows, columns) in pixels: with its field of view, the camera's image."""
+    w, h = (int(v) for v in sensor.film().size())
+    return h, w
 
 
 _PERSPECTIVE = {"perspective", "thinlens"}

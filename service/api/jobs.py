@@ -27,6 +27,7 @@ from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest
+from service.scene_view import scene_field_of_view_box
 
 __all__ = ["router", "job_out"]
 
@@ -106,9 +107,25 @@ async def list_jobs(
 @router.get("/v1/jobs/{job_id}", response_model=JobOut, responses=PROBLEM_RESPONSES)
 async def get_job(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """A job's state, progress, timings, plan and error."""
-    # Polled by clients and agents: answered on the event loop (one indexed read) without re-validating the
+    # Polled by clients and agents: answered on the event loop (indexed reads) without re-validating the
     # body against JobOut (job_out builds exactly that shape; the schema tests check it).
-    return JSONResponse(job_out(_get(ctx, job_id, principal)))
+    row = _get(ctx, job_id, principal)
+    return JSONResponse({**job_out(row), "field_of_view_box": _job_fov_box(ctx, row)})
+
+
+def _job_fov_box(ctx: ServiceContext, row: dict) -> Optional[dict]:
+    """Where the hologram's view lies in the scene's picture at the job's optics (its stored spec's)."""
+    from holocore.display.optics import OpticsConfig
+
+    scene = ctx.db.get_scene(row["scene_id"])
+    spec = row["spec"] if isinstance(row["spec"], dict) else {}
+    if scene is None or not isinstance(spec.get("optics"), dict):
+        return None
+    try:
+        optics = OpticsConfig(**spec["optics"])
+    except (TypeError, ValueError):
+        return None
+    return scene_field_of_view_box(scene, optics)
 
 
 @router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional
 
-from fastapi import APIRouter, File, Form, UploadFile
+from fastapi import APIRouter, File, Form, Request, UploadFile
 from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
@@ -27,7 +27,10 @@ from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import DEFAULT_OWNER
+from service.api.files import file_response
+from service.integrity import artifact_intact
 from service.models import ID_PATTERN, SceneOut
+from service.scene_view import scene_field_of_view_box
 from service.submission import storage_error
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
 
@@ -40,10 +43,19 @@ def iso(t: Optional[float]) -> Optional[str]:
     return None if t is None else datetime.fromtimestamp(t, tz=timezone.utc).isoformat().replace("+00:00", "Z")
 
 
+def _picture(row: dict) -> Optional[dict]:
+    """What the stored plan says of the scene's picture when there is one (its size and SHA-256)."""
+    plan = row["plan"] if row["plan_state"] == "ready" and isinstance(row["plan"], dict) else {}
+    pic = plan.get("picture")
+    return pic if isinstance(pic, dict) and isinstance(pic.get("sha256"), str) else None
+
+
 def scene_out(row: dict) -> dict:
     return {"id": row["id"], "sha256": row["sha256"], "entry": row["entry"], "created_at": iso(row["created_at"]),
             "report": row["report"], "plan_state": row["plan_state"], "plan": row["plan"],
-            "plan_error": row["plan_error"]}
+            "plan_error": row["plan_error"],
+            "picture_url": f"/v1/scenes/{row['id']}/picture.png" if _picture(row) else None,
+            "field_of_view_box": scene_field_of_view_box(row)}
 
 
 def scene_id_for(owner: str, sha256: str, entry: str) -> str:
@@ -137,3 +149,32 @@ def get_scene(ctx: Ctx, principal: ReadScope, scene_id: str = PathParam(pattern=
     if row is None or not (principal.is_admin or ctx.db.scene_owned_by(scene_id, principal.owner)):
         raise ApiError(404, f"no scene {scene_id!r}")
     return scene_out(row)
+
+
+@router.get("/v1/scenes/{scene_id}/picture.png", responses={200: {"content": {"image/png": {}}},
+                                                             304: {"description": "Not modified"},
+                                                             **PROBLEM_RESPONSES})
+def get_scene_picture(request: Request, ctx: Ctx, principal: ReadScope, scene_id: str = PathParam(pattern=ID_PATTERN)):
+    """The scene through its own camera (at most 320 px wide, the camera's aspect, sRGB), made with its plan;
+    ``field_of_view_box`` in the scene's JSON says where the hologram's view lies on it."""
+    row = ctx.db.get_scene(scene_id)
+    if row is None or not (principal.is_admin or ctx.db.scene_owned_by(scene_id, principal.owner)):
+        raise ApiError(404, f"no scene {scene_id!r}")
+    if row["plan_state"] in ("pending", "running"):
+        raise ApiError(404, f"scene {scene_id} has no picture yet: it is made with the scene's plan, which is "
+                            f"{row['plan_state']}")
+    if row["plan_state"] == "failed":
+        raise ApiError(404, f"scene {scene_id} has no picture: its plan failed ({row['plan_error'] or 'no reason'})")
+    info = _picture(row)
+    path = ctx.settings.scenes_dir / scene_id / "picture.png"
+    if info is None or not path.is_file():
+        said = (row["plan"] or {}).get("picture") if isinstance(row["plan"], dict) else None
+        why = said.get("error") if isinstance(said, dict) and isinstance(said.get("error"), str) else None
+        raise ApiError(404, f"scene {scene_id} has no picture" + (f" ({why})" if why else
+                                                                  " (planned before pictures were made)"))
+    if not artifact_intact(path, info["sha256"]):
+        raise ApiError(409, f"scene {scene_id}: its picture fails its integrity check; it is not served")
+    resp = file_response(request, path, sha256=info["sha256"], media_type="image/png",
+                         filename=f"{scene_id}-picture.png")
+    resp.headers["Content-Disposition"] = f'inline; filename="{scene_id}-picture.png"'
+    return resp

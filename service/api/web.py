@@ -7,7 +7,8 @@
 - ``GET /v1/display-profiles``: the built-in display profiles and their optics (the form's "display profile").
 - ``POST /v1/jobs/estimate``: what ``POST /v1/jobs`` would predict (seconds, memory), after the same checks, and
   whether an earlier identical result would be reused; nothing is created. ``plan`` is the effect plan expected
-  at the request's options (from the scene's plan, made at its default optics; None while that is pending).
+  at the request's options (from the scene's plan, made at its default optics; None while that is pending),
+  ``field_of_view_box`` where the hologram's view lies in the scene's picture at the request's optics.
 - ``GET /v1/jobs/{id}/pictures`` and ``.../pictures/{file}``: the focal sweep and view grid the job's worker
   made when it finished (``service/workers/pictures.py``), as a JSON index and PNGs.
 
@@ -46,6 +47,7 @@ from service.models import (
     effective_optics,
     estimate_cost,
 )
+from service.scene_view import scene_field_of_view_box
 from service.submission import admit_job, reusable_job, scene_plane_border
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
@@ -173,7 +175,8 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
             "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"),
             "reuses": prev["id"] if prev is not None else None,
             "worker_memory_bytes": ctx.settings.worker_memory_bytes,
-            "plan": plan_at_options(req, scene, max_spp=max_spp)}
+            "plan": plan_at_options(req, scene, max_spp=max_spp),
+            "field_of_view_box": scene_field_of_view_box(scene, optics)}
 
 
 def plan_at_options(req: JobRequest, scene: dict, *, max_spp: Optional[int] = None) -> Optional[dict]:

@@ -38,11 +38,47 @@ from service.workers.engine import (
 )
 from service.workers.limits import ProcessLimits, explain_limit, plan_limits, wrap_command
 
-__all__ = ["Planner"]
+__all__ = ["Planner", "keep_picture", "PICTURE_NAME"]
 
 log = logging.getLogger("holo.service.planner")
 
 _WATCH_S = 0.25  # how often a running plan's resident memory is looked at
+# The scene's picture through its camera (`holo plan --picture`): small and cheap, a second or two of CPU.
+PICTURE_NAME = "picture.png"
+PICTURE_WIDTH_PX = 320
+PICTURE_SPP = 32
+_PICTURE_MAX_BYTES = 4 << 20
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def keep_picture(made: Path, scene_dir: Path, said: object) -> dict:
+    """Move the picture the plan made (``made``, in the plan's working folder) to ``scene_dir/picture.png``;
+    what the stored plan says of it: its size and SHA-256, or ``error``. The plan's folder is the planner
+    uid's, so the file is opened without following links and must be a plain PNG of bounded size whose
+    header gives the size the plan said."""
+    import hashlib
+    import stat as st_mod
+
+    said = said if isinstance(said, dict) else {}
+    if isinstance(said.get("error"), str):
+        return {"error": said["error"][:400]}
+    try:
+        fd = os.open(made, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return {"error": "no picture: holo plan wrote none"}
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        data = fh.read(_PICTURE_MAX_BYTES + 1) if st_mod.S_ISREG(st.st_mode) else b""
+    if not data.startswith(_PNG_MAGIC) or len(data) > _PICTURE_MAX_BYTES or data[12:16] != b"IHDR":
+        return {"error": "no picture: holo plan's picture is not a PNG of at most 4 MiB"}
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if (w, h) != (said.get("width_px"), said.get("height_px")):
+        return {"error": "no picture: holo plan's picture is not the size it said"}
+    tmp = scene_dir / f".{PICTURE_NAME}.tmp"
+    tmp.write_bytes(data)
+    os.replace(tmp, scene_dir / PICTURE_NAME)
+    return {"width_px": w, "height_px": h, "spp": said.get("spp"), "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest()}
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -140,7 +176,9 @@ class Planner:
             shutil.rmtree(work, ignore_errors=True)
 
     def _command(self, entry: Path) -> list[str]:
-        return [sys.executable, "-m", "holo", "plan", str(entry), "--json"]
+        # the picture goes into the plan's own empty working folder (relative: the one place it may write)
+        return [sys.executable, "-m", "holo", "plan", str(entry), "--json", "--picture", PICTURE_NAME,
+                "--picture-width", str(PICTURE_WIDTH_PX), "--picture-spp", str(PICTURE_SPP)]
 
     def _run_plan(self, scene: dict, bundle, work, cwd: Path) -> None:
         """``holo plan`` on ``bundle``, run in the empty folder ``cwd``; sandboxed (as ``self.run_as``, in
@@ -199,6 +237,9 @@ class Planner:
         except ValueError:
             self._store(scene["id"], None, "holo plan printed no JSON")
             return
+        if isinstance(doc, dict):
+            doc["picture"] = keep_picture(cwd / PICTURE_NAME, self.settings.scenes_dir / scene["id"],
+                                          doc.get("picture"))
         self._store(scene["id"], doc, None)
 
     def _store(self, scene_id: str, plan: Optional[dict], error: Optional[str]) -> None:
