@@ -219,7 +219,8 @@ class Database:
         submitted for it or sent to it, the most recently sent first (each row's ``sent_at``: its last send to
         that display, else its submit time)."""
         where, params = [], []
-        for col, value in (("state", state), ("scene_id", scene_id), ("COALESCE(owner, 'default')", owner)):
+        for col, value in (("jobs.state", state), ("jobs.scene_id", scene_id),
+                           ("COALESCE(jobs.owner, 'default')", owner)):
             if value is not None:
                 where.append(f"{col} = ?")
                 params.append(value)
@@ -227,11 +228,14 @@ class Database:
             sql = "SELECT * FROM jobs" + (" WHERE " + " AND ".join(where) if where else "")
             sql += " ORDER BY created_at DESC, rowid DESC LIMIT ?"
             return self.query(sql, (*params, int(limit)))
-        where.append("(display = ? OR id IN (SELECT job_id FROM display_sends WHERE display = ?))")
-        sql = ("SELECT * FROM (SELECT jobs.*, COALESCE((SELECT s.sent_at FROM display_sends s WHERE s.display = ? "
-               "AND s.job_id = jobs.id), created_at) AS sent_at, rowid AS _rowid FROM jobs WHERE "
-               + " AND ".join(where) + ") ORDER BY sent_at DESC, _rowid DESC LIMIT ?")
-        rows = self.query(sql, (display, *params, display, display, int(limit)))
+        # Two halves, each on an index (an OR of them would read every job of the state): the display's own jobs
+        # never sent to it, at their submit time, and the jobs sent to it, at their last send there.
+        also = "".join(f" AND {w}" for w in where)
+        sql = ("SELECT * FROM (SELECT jobs.*, jobs.created_at AS sent_at, jobs.rowid AS _rowid FROM jobs "
+               "WHERE jobs.display = ? AND jobs.id NOT IN (SELECT job_id FROM display_sends WHERE display = ?)"
+               f"{also} UNION ALL SELECT jobs.*, s.sent_at AS sent_at, jobs.rowid AS _rowid FROM display_sends s "
+               f"JOIN jobs ON jobs.id = s.job_id WHERE s.display = ?{also}) ORDER BY sent_at DESC, _rowid DESC LIMIT ?")
+        rows = self.query(sql, (display, display, *params, display, *params, int(limit)))
         for r in rows:
             r.pop("_rowid", None)
         return rows
