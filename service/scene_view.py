@@ -51,11 +51,14 @@ def field_of_view_box_for(optics: OpticsConfig, plan: Any) -> Optional[FieldOfVi
         return None
     holo = f"{_deg(box['hologram_fov_x_deg'])} x {_deg(box['hologram_fov_y_deg'])}"
     cam = f"{_deg(box['camera_fov_x_deg'])} x {_deg(box['camera_fov_y_deg'])}"
+    words = f"the hologram shows {holo} of the camera's {cam}"
     if box["beyond_camera"]:
-        words = (f"the hologram shows {holo}, more than the camera's {cam}: the box reaches past the picture, "
-                 "where the camera rendered nothing")
-    else:
-        words = f"the hologram shows {holo} of the camera's {cam}"
+        eps = 1e-9
+        wider, taller = box["x0"] < -eps or box["x1"] > 1 + eps, box["y0"] < -eps or box["y1"] > 1 + eps
+        how = "wider and taller" if wider and taller else "wider" if wider else "taller"
+        edges = "every edge" if wider and taller else "its left and right" if wider else "its top and bottom"
+        words += (f": {how} than the camera's view, so the box reaches past {edges}, where the camera rendered "
+                  "nothing")
     return FieldOfViewBox(**box, summary=words)
 
 

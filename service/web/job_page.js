@@ -7,6 +7,7 @@ import { offerCompare } from "./compare.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
 import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
+import { showJobPicture } from "./scene_picture.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
 
 export function leaveJobPage() {
@@ -202,6 +203,7 @@ export async function showJob(id) {
   await sceneName(job.scene_id);
   if (state.page !== page) return;
   renderJob(job);
+  showJobPicture(job, page.abort.signal).catch(() => {});
   if (!FINAL.has(job.state)) {
     try {
       await streamEvents(`/v1/jobs/${id}/events`, (name, data) => {

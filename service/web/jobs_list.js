@@ -3,6 +3,7 @@
 import { ApiError, blobURL, getJSON, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtTime } from "./dom.js";
 import { actualSeconds, eta, jobName, optionsText, pct } from "./job_facts.js";
+import { applyJobFilters, refreshQueue } from "./job_filters.js";
 import { FINAL, MAX_STREAMS, show, state, status } from "./state.js";
 
 export async function sceneName(id) {
@@ -90,6 +91,8 @@ export async function refreshHome() {
     const body = clear($("jobs").tBodies[0]);
     for (const j of jobs) { state.jobs.set(j.id, j); body.append(jobRow(j)); }
     show("jobs-empty", jobs.length === 0);
+    applyJobFilters();
+    refreshQueue();
     for (const j of jobs) if (!FINAL.has(j.state)) follow(j.id);
     loadThumbs(jobs);
     await refreshDisplays();

@@ -6,6 +6,7 @@ import { ApiError, getJSON, postJSON, request } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
 import { jobName } from "./job_facts.js";
 import { plural, show, state } from "./state.js";
+import { clearFormPicture, showFormPicture } from "./scene_picture.js";
 
 export async function loadProfiles() {
   state.profiles = await getJSON("/v1/display-profiles");
@@ -59,6 +60,7 @@ export function forgetScene() {
   const sel = $("profile");
   for (const o of [...sel.options]) if (o.value.startsWith("job:")) o.remove();
   if (!sel.value && state.profiles) { sel.value = state.profiles.default; applyProfile(); }
+  clearFormPicture();
 }
 
 function nameFromFile(file) { return file ? file.name.replace(/\.zip$/i, "").slice(0, 120) : ""; }
@@ -101,6 +103,7 @@ export function showScene(sc) {
        + `${(r.plugins || []).join(", ") || "–"}; effect plan: ${sc.plan_state}`));
   for (const w of [...(r.warnings || []), ...(r.ignored || [])]) info.append(el("p", { class: "warning" }, String(w)));
   if (sc.plan_error) info.append(el("p", { class: "error" }, sc.plan_error));
+  showFormPicture(sc, null);
 }
 
 // Follows the form's scene until its plan is ready or has failed, however long the planner's queue is (a
@@ -165,6 +168,7 @@ async function estimate() {
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     showFormPlan(e.plan);
+    showFormPicture(state.scene, e.field_of_view_box);
     if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },
       " · Submit waits for the scene's plan (Mitsuba loading the scene)…"));
     $("submit-button").disabled = !planReady();

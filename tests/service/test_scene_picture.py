@@ -170,7 +170,7 @@ def test_a_display_wider_than_the_camera_says_the_box_leaves_the_picture(server,
         box = r.json()["field_of_view_box"]
         assert _box(r.json()) == pytest.approx(_expected_box((1080, 1920), 8.0, f_mm=10.0), abs=1e-9)
         assert box["x0"] < 0 < 1 < box["x1"] and box["beyond_camera"] is True
-        assert "past the picture" in box["summary"]
+        assert "wider and taller than the camera's view" in box["summary"]
         r = c.post("/v1/jobs/estimate", json={"scene_id": lamp_scene["id"], "optics": {"fit_camera_fov": True}})
         box = r.json()["field_of_view_box"]
         assert (box["x0"], box["x1"]) == pytest.approx((0.0, 1.0), abs=1e-9)
