@@ -37,7 +37,7 @@ export async function showPhaseFrames(job, page) {
   card.append(
     el("h2", {}, "Phase frames"),
     el("p", { class: "muted", id: "phase-note" }, `What the SLM shows: ${plural(idx.frames, "frame")} × `
-      + `${plural(idx.colours.length, "colour")}, ${idx.width_px}×${idx.height_px} px; grey level 0..`
+      + `${plural(idx.colours.length, "colour")}, ${idx.height_px}x${idx.width_px} px; grey level 0..`
       + `${idx.levels_per_2pi - 1} is phase 0..2π.`),
     el("div", { class: "phase-controls" },
        el("label", { class: "inline" }, "Frame", slider, number), colours),

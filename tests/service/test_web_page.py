@@ -394,6 +394,10 @@ def test_layout_at_390_1280_and_1920_px(page, browser, done_job):
     assert max(tops) - min(tops) < 2, tops
     assert "engine" not in page.text("timings") and "local" not in page.text("timings")
     assert "1 frame," in page.text("job-facts") and "1 frames" not in page.text("job-facts")
+    # an element the page hides stays hidden whatever display its class gives it (a flex row of actions)
+    shown = page.js("return [...document.querySelectorAll('[hidden]')].filter(e => getComputedStyle(e).display "
+                    "!== 'none').map(e => e.id || e.className)")
+    assert shown == [], shown
     browser.set_window_size(390, 900)
     assert fits(), page.js("""return [...document.querySelectorAll('body *')].filter(e => e.getBoundingClientRect().right
         > window.innerWidth + 1 && !e.closest('.table-wrap')).map(e => e.tagName + '#' + e.id + '.' + e.className).slice(0, 8)""")

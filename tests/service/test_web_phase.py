@@ -103,7 +103,7 @@ def test_the_frames_browse_per_frame_and_colour(page, server, jobs):
     assert page.js("return document.querySelector('#phase-card h2').innerText") == "Phase frames"
     buttons = page.js("return [...document.querySelectorAll('#phase-colours button')].map(b => b.innerText)")
     assert buttons == ["red 638 nm", "green 520 nm", "blue 450 nm"], buttons
-    assert "3 frames × 3 colours, 40×24 px" in page.text("phase-note")
+    assert "3 frames × 3 colours, 24x40 px" in page.text("phase-note")
 
     f, c, first, aspect = _wait_shown(page, 0, 0, "frame 1 of 3, 638 nm")
     assert np.array_equal(first, _api_frame(server, jid, 0, 0))
