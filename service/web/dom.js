@@ -49,3 +49,14 @@ export function fmtTime(iso) {
   const d = new Date(iso);
   return isNaN(d) ? String(iso) : d.toLocaleString();
 }
+
+// A time short enough for a table cell: the time of day for today, else the day and the time (the full date
+// and time in the cell's title).
+export function fmtShortTime(iso) {
+  if (!iso) return "–";
+  const d = new Date(iso);
+  if (isNaN(d)) return String(iso);
+  const hm = d.toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" });
+  return d.toDateString() === new Date().toDateString() ? hm
+    : `${d.toLocaleDateString([], { month: "short", day: "numeric" })} ${hm}`;
+}

@@ -1,7 +1,7 @@
 // The home page's job list (live progress over event streams, thumbnails) and the displays table.
 
 import { ApiError, blobURL, getJSON, streamEvents } from "./api.js";
-import { $, clear, el, fmtBytes, fmtSeconds, fmtTime } from "./dom.js";
+import { $, clear, el, fmtBytes, fmtSeconds, fmtShortTime, fmtTime } from "./dom.js";
 import { actualSeconds, eta, jobName, optionsText, pct } from "./job_facts.js";
 import { applyJobFilters, refreshQueue } from "./job_filters.js";
 import { FINAL, MAX_STREAMS, show, state, status } from "./state.js";
@@ -61,7 +61,7 @@ function jobRow(job) {
        job.error ? el("div", { class: "error reason" }, job.error) : null),
     progressCell(job),
     ...estimateCells(job),
-    el("td", {}, fmtTime(job.created_at)));
+    el("td", { class: "num", title: fmtTime(job.created_at) }, fmtShortTime(job.created_at)));
 }
 
 // Thumbnails of the newest succeeded jobs' previews (fetched once each; blob: URLs, as every picture here).
