@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from holo.common import fail
+from holo.common import fail, progress_writer
 
 
 def register(app: typer.Typer) -> None:
@@ -22,7 +22,12 @@ def evaluate(
     scene: Path = typer.Option(..., "--scene", help="The scene bundle (folder or XML) the hologram shows."),
     out: Path = typer.Option(..., "--out", help="Folder for metrics.csv/json, per-cell images, focus_sheet.png."),
     focus_planes: int = typer.Option(5, "--focus-planes", help="Focus depths uniform across the image volume."),
+    focus_mm: Optional[str] = typer.Option(None, "--focus-mm", help="Focus depths instead, in mm from the SLM, "
+                                                                    "comma-separated (as holo view's --focus-mm)."),
     views: int = typer.Option(7, "--views", help="An N x N grid of eye positions (1: centre only)."),
+    views_at: str = typer.Option("all", "--views-at", help="all: every view at every focus; middle: the centre "
+                                                          "view at every focus, the others at the middle focus "
+                                                          "only (focus + N^2 - 1 cells; N odd)."),
     view_deg: float = typer.Option(0.5, "--view-deg", help="The grid spans +-this many degrees (pupil centre "
                                                              "direction sine = sin(angle))."),
     pupil_mm: Optional[float] = typer.Option(None, "--pupil-mm", help="Eye pupil diameter in mm (default: the "
@@ -30,6 +35,10 @@ def evaluate(
                                                                         "recording cone at every view)."),
     gt_spp: int = typer.Option(256, "--gt-spp", help="Samples per pixel of the ground-truth renders."),
     images: bool = typer.Option(True, "--images/--no-images", help="Write one side-by-side PNG per cell."),
+    pairs: bool = typer.Option(False, "--pairs", help="Also write each cell's reconstruction and ground truth as "
+                                                      "two PNGs (pairs/recon-fFF-vVV.png, pairs/truth-...), at one "
+                                                      "white level for all cells."),
+    progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     viewer: bool = typer.Option(False, "--viewer", help="The viewer-faithful score instead (docs/evaluation.md): "
                                                         "every pupil of --pupils-mm x an --eye-grid of eye "
                                                         "positions x the focus planes, one brightness scale per "
@@ -54,6 +63,18 @@ def evaluate(
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
     if not 1 <= gt_spp <= 65536:
         fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
+    focus_z_m = None
+    if focus_mm is not None:
+        try:
+            focus_z_m = [float(v) * 1e-3 for v in focus_mm.split(",") if v.strip()]
+        except ValueError:
+            fail(f"--focus-mm must be a comma-separated list of depths in mm, got {focus_mm!r}")
+        if not 1 <= len(focus_z_m) <= 64 or not all(math.isfinite(z) and 0 <= z <= 10.0 for z in focus_z_m):
+            fail(f"--focus-mm must list 1..64 depths in [0, 10000] mm, got {focus_mm!r}")
+    if views_at not in ("all", "middle"):
+        fail(f"--views-at must be all or middle, got {views_at!r}")
+    if views_at == "middle" and views % 2 == 0:
+        fail(f"--views-at middle needs an odd --views (the centre view is scored at every focus), got {views}")
     pupils_m = []
     if viewer:
         try:
@@ -81,6 +102,8 @@ def evaluate(
     from holocore.scene.load import load_scene
 
     t0 = time.perf_counter()
+    write_progress = progress_writer(progress_jsonl)
+    write_progress("load", 1, 1)
     try:
         budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
         field = open_slm_field(source)
@@ -96,7 +119,8 @@ def evaluate(
 
             vs = viewer_score(field, meta, truth, pupils_m=pupils_m, eye_grid=eye_grid, seed=seed,
                               eye_span_m=None if eye_span_mm is None else eye_span_mm * 1e-3,
-                              focus_planes=focus_planes, memory_budget_bytes=budget)
+                              focus_planes=focus_planes, focus_z_m=focus_z_m, progress=write_progress,
+                              memory_budget_bytes=budget)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     if viewer:
@@ -113,12 +137,13 @@ def evaluate(
                    f"(per-cell scales spread {vs.scale_spread:.2f}x) -> {out / 'viewer.json'}")
         return
     try:
-        ev = run_eval(field, meta, truth, focus_planes=focus_planes, views=views, view_deg=view_deg,
-                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images,
-                      memory_budget_bytes=budget)
+        ev = run_eval(field, meta, truth, focus_planes=focus_planes, focus_z_m=focus_z_m, views=views,
+                      view_deg=view_deg, views_at=views_at,
+                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images or pairs,
+                      progress=write_progress, memory_budget_bytes=budget)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
-    paths = write_outputs(ev, out, label=source.name)
+    paths = write_outputs(ev, out, label=source.name, sheets=images, pairs=pairs)
     f_m = meta.focal_length_m
     typer.echo(f"{'focus mm':>9} {'depth m':>8} {'view x,y mm':>14} {'PSNR dB':>8} {'SSIM':>6}")
     for c in ev.cells:

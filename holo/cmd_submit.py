@@ -38,6 +38,9 @@ def submit(
                                                                         "agent picks the stack up)."),
     name: Optional[str] = typer.Option(None, "--name", help="A name for people (default: the service's, from the "
                                                             "scene)."),
+    evaluate: bool = typer.Option(False, "--evaluate", help="Also score the hologram against Mitsuba thin-lens "
+                                                          "ground truth on the service (GET "
+                                                          "/v1/jobs/{id}/evaluation)."),
     idempotency_key: Optional[str] = typer.Option(None, "--idempotency-key", help="Repeat a submit safely."),
     no_wait: bool = typer.Option(False, "--no-wait", help="Print the job id and return at once."),
     *,
@@ -53,7 +56,8 @@ def submit(
     _, cfg = optics.resolve()
     body = {"optics": cfg.model_dump(mode="json"), "preset": preset, "frames": optics.frames, "spp": spp,
             "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method,
-            "wrp_planes": parse_wrp_planes(wrp_planes), "display": to_display, "name": name}
+            "wrp_planes": parse_wrp_planes(wrp_planes), "display": to_display, "name": name,
+            "evaluate": evaluate or None}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console

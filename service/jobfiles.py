@@ -16,7 +16,9 @@ from holocore.plan.presets import MAX_WRP_PLANES, PresetName, RenderMethod
 __all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobFields", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
            "RunStatus", "Progress", "read_job_file", "read_run_status"]
 
-Step = Literal["render", "encode", "package", "preview", "pictures"]
+# "evaluate" runs only for a job that asks for it (JobFields.evaluate), after the preview and pictures it pairs
+# its ground truth with.
+Step = Literal["render", "encode", "package", "preview", "pictures", "evaluate"]
 STEPS: tuple[Step, ...] = get_args(Step)
 # The stages `holo render` reports (holocore.pipeline: "analysis" once, "trace" per tile, "propagate" per frame
 # chunk), in order. Ray banks and the ambient cache are built between "analysis" and the first "trace" tile
@@ -50,6 +52,10 @@ class JobFields(BaseModel):
     wrp_planes: WrpPlanes = Field(
         default="auto", description=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or 'auto' (chosen from the scene "
                                     "depth).")
+    evaluate: bool = Field(
+        default=False, description="Also score the hologram against Mitsuba thin-lens ground truth (holo evaluate) at "
+        "the focal sweep's depths and a 3 x 3 grid of views, and, for more than one frame, the viewer-faithful score; "
+        "GET /v1/jobs/{id}/evaluation. A failed evaluation is a warning, not a failed job.")
 
     @model_validator(mode="after")
     def _planes_need_wrp(self):

@@ -237,7 +237,22 @@ def _spp(req: JobRequest) -> int:
 
 def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
                   plane_border: Optional[int] = 0) -> dict[str, Any]:
-    """Predicted seconds of a job, shown at submit time.
+    """Predicted seconds of a job, shown at submit time: :func:`_hologram_cost`, plus the evaluation against
+    ground truth when the job asks for it (``evaluate_s``, service/workers/evaluation.py's model)."""
+    out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
+    if req.evaluate:
+        from service.workers.evaluation import evaluation_seconds
+
+        o = effective_optics(req)
+        ev = evaluation_seconds(height=o.height, width=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
+        out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
+               "model": out["model"] + " + evaluation"}
+    return out
+
+
+def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                   plane_border: Optional[int] = 0) -> dict[str, Any]:
+    """Predicted seconds of a job's hologram (render, encode, package, pictures).
 
     The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which

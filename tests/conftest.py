@@ -40,6 +40,12 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
         "test_one_scale_sees_brightness_that_steps_with_the_eye",
         "test_one_share_for_every_colour_sees_a_red_cast_through_large_pupils",
     ],
+    "tests/service/test_evaluation_job.py": [
+        "test_an_evaluated_job_scores_every_depth_of_its_sweep",
+        "test_the_scores_of_a_depth_are_those_of_its_pictures",
+        "test_a_job_without_an_evaluation_answers_404_and_the_files_are_checked",
+        "test_the_estimate_counts_the_evaluation",
+    ],
     "tests/service/test_e2e.py": [
         "test_a_time_limited_job_renders_until_its_limit", "test_events_show_progress_then_the_final_state",
         "test_holo_submit_cli_uploads_follows_and_downloads", "test_upload_reports_the_bundle_and_plan_fills_in",

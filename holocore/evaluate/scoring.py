@@ -35,7 +35,8 @@ import numpy as np
 from holocore.formats.meta import MetaLike, ViewMeta, parse_view_meta
 
 __all__ = ["CellScore", "Cell", "Evaluation", "load_slm_field", "focus_planes_m", "view_offsets_m",
-           "default_pupil_m", "lit_margin_px", "eye_view", "compare", "evaluate", "write_outputs"]
+           "default_pupil_m", "lit_margin_px", "eye_view", "compare", "evaluate", "write_outputs", "pair_names",
+           "VIEWS_AT"]
 
 MAX_FOCUS_PLANES = 64
 MAX_VIEWS = 15
@@ -260,29 +261,45 @@ def compare(recon: np.ndarray, truth: np.ndarray, *, white_percentile: float = 9
 
 
 # ---- the grid -----------------------------------------------------------------------------------------------
+VIEWS_AT = ("all", "middle")
+
+
 def evaluate(field_slm: np.ndarray, meta: MetaLike, truth: Any, *, focus_planes: int = 5, views: int = 7,
              view_deg: float = 0.5, pupil_diameter_m: Optional[float] = None,
-             focus_z_m: Optional[Sequence[float]] = None, keep_images: bool = False, crop: bool = True,
-             progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None, device=None) -> Evaluation:
+             focus_z_m: Optional[Sequence[float]] = None, views_at: str = "all", keep_images: bool = False,
+             crop: bool = True, progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None,
+             device=None) -> Evaluation:
     """Score a hologram on a grid of focus planes x views against ground truth.
 
     ``truth``: a :class:`holocore.evaluate.groundtruth.GroundTruth` (or anything with ``channels(focus_z_m=,
     pupil_diameter_m=, view_offset_m=)`` -> [C, H, W]). ``focus_planes`` (1..64) uniform over the image volume
     unless ``focus_z_m`` lists depths (m); ``views`` x ``views`` eye offsets spanning +-``view_deg`` degrees;
-    pupil ``pupil_diameter_m`` (m, default :func:`default_pupil_m`). ``keep_images`` keeps both images per cell;
-    ``crop`` scores only the fully lit part (:func:`lit_margin_px`). ``field_slm``: an array or a chunked source
-    (:func:`holocore.optics.fieldsource.open_slm_field`), viewed in chunks that fit ``memory_budget_bytes``.
+    ``views_at``: ``"all"`` scores every view at every focus, ``"middle"`` the centre view at every focus and the
+    other views at the middle focus only (``len(focus) + views^2 - 1`` cells instead of the product; ``views``
+    odd); pupil ``pupil_diameter_m`` (m, default :func:`default_pupil_m`). ``keep_images`` keeps both images per
+    cell; ``crop`` scores only the fully lit part (:func:`lit_margin_px`). ``field_slm``: an array or a chunked
+    source (:func:`holocore.optics.fieldsource.open_slm_field`), viewed in chunks that fit ``memory_budget_bytes``.
     """
     meta = parse_view_meta(meta)
     zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
+    if not 1 <= len(zs) <= MAX_FOCUS_PLANES:
+        raise ValueError(f"focus depths must number 1..{MAX_FOCUS_PLANES}, got {len(zs)}")
+    if views_at not in VIEWS_AT:
+        raise ValueError(f"views_at must be one of {VIEWS_AT}, got {views_at!r}")
     grid = view_offsets_m(meta, views, view_deg)
+    if views_at == "middle" and views % 2 == 0:
+        raise ValueError(f"views_at 'middle' needs an odd number of views (the centre view is scored at every "
+                         f"focus), got {views}")
+    centre, middle = (views // 2, views // 2), len(zs) // 2
+    cells_at = [grid if views_at == "all" or fi == middle else [v for v in grid if v[0] == centre]
+                for fi in range(len(zs))]
     pupil = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(meta, view_deg=view_deg)
     if not (math.isfinite(pupil) and pupil > 0):
         raise ValueError(f"pupil_diameter_m must be finite and > 0, got {pupil_diameter_m!r}")
     cells: list[Cell] = []
-    total = len(zs) * len(grid)
+    total = sum(len(g) for g in cells_at)
     for fi, z in enumerate(zs):
-        for vi, (idx, e) in enumerate(grid):
+        for idx, e in cells_at[fi]:
             rec = eye_view(field_slm, meta, focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e,
                            memory_budget_bytes=memory_budget_bytes, device=device)
             gt = np.asarray(truth.channels(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e), dtype=np.float64)
@@ -300,9 +317,9 @@ def evaluate(field_slm: np.ndarray, meta: MetaLike, truth: Any, *, focus_planes:
             cells.append(Cell(focus_index=fi, view_index=idx, focus_z_m=z, view_offset_m=e, score=sc, margin_px=m,
                               recon=rec if keep_images else None, truth=gt if keep_images else None))
             if progress is not None:
-                progress("evaluate", fi * len(grid) + vi + 1, total)
+                progress("evaluate", len(cells), total)
     return Evaluation(cells=cells, pupil_diameter_m=pupil, wavelengths_m=list(meta.wavelengths_m),
-                      meta={"focus_z_m": zs, "views": views, "view_deg": float(view_deg)})
+                      meta={"focus_z_m": zs, "views": views, "view_deg": float(view_deg), "views_at": views_at})
 
 
 # ---- outputs ------------------------------------------------------------------------------------------------
@@ -337,9 +354,20 @@ def side_by_side(cell: Cell, wavelengths_m: Sequence[float]) -> np.ndarray:
     return sheet
 
 
-def write_outputs(ev: Evaluation, out_dir: str | Path, *, label: str = "") -> dict[str, Path]:
-    """Write metrics.csv, metrics.json, one side-by-side PNG per cell (if images were kept) and
-    focus_sheet.png (centre view: reconstructions over ground truths, near to far). Returns the paths."""
+def pair_names(cell: Cell, views: int) -> tuple[str, str]:
+    """The file names of a cell's reconstruction and ground truth PNGs (``--pairs``): ``recon-fFF-vVV.png`` and
+    ``truth-fFF-vVV.png``, FF the focus index, VV the view's index row * views + column (row 0 at the top)."""
+    tag = f"f{cell.focus_index:02d}-v{cell.view_index[1] * views + cell.view_index[0]:02d}"
+    return f"recon-{tag}.png", f"truth-{tag}.png"
+
+
+def write_outputs(ev: Evaluation, out_dir: str | Path, *, label: str = "", sheets: bool = True,
+                  pairs: bool = False) -> dict[str, Path]:
+    """Write metrics.csv, metrics.json and, for the cells whose images were kept: with ``sheets`` one
+    side-by-side PNG per cell (cells/) and focus_sheet.png (centre view: reconstructions over ground truths, near
+    to far); with ``pairs`` each cell's reconstruction (at its brightness scale) and ground truth as two PNGs in
+    pairs/ (:func:`pair_names`), all at one white, the largest cell white (``pair_white`` in metrics.json, gamma
+    ``pair_gamma``), so that brightness compares across cells. Returns the paths."""
     from PIL import Image
 
     out = Path(out_dir)
@@ -354,16 +382,31 @@ def write_outputs(ev: Evaluation, out_dir: str | Path, *, label: str = "") -> di
     doc = {"label": label, "mean_psnr_db": ev.mean_psnr_db, "mean_ssim": ev.mean_ssim,
            "pupil_diameter_mm": ev.pupil_diameter_m * 1e3, "wavelengths_m": ev.wavelengths_m, **ev.meta,
            "cells": rows}
-    paths["json"].write_text(json.dumps(doc, indent=1, default=float))
     kept = [c for c in ev.cells if c.recon is not None]
-    if not kept:
+    n = int(ev.meta.get("views", 1))
+    if pairs and kept:
+        from holocore.evaluate.preview import to_png8
+
+        white = max(c.score.white for c in kept)
+        pdir = out / "pairs"
+        pdir.mkdir(exist_ok=True)
+        for c, row in zip(ev.cells, rows):
+            if c.recon is None:
+                continue
+            recon_name, truth_name = pair_names(c, n)
+            Image.fromarray(to_png8(to_rgb(c.recon * c.score.scale, ev.wavelengths_m), white=white)).save(
+                pdir / recon_name)
+            Image.fromarray(to_png8(to_rgb(c.truth, ev.wavelengths_m), white=white)).save(pdir / truth_name)
+            row.update(recon_png=f"pairs/{recon_name}", truth_png=f"pairs/{truth_name}")
+        doc.update(pair_white=white, pair_gamma=2.2)
+    paths["json"].write_text(json.dumps(doc, indent=1, default=float))
+    if not kept or not sheets:
         return paths
     cdir = out / "cells"
     cdir.mkdir(exist_ok=True)
     for c in kept:
         name = f"f{c.focus_index}_v{c.view_index[0]}_{c.view_index[1]}.png"
         Image.fromarray(side_by_side(c, ev.wavelengths_m)).save(cdir / name)
-    n = int(ev.meta.get("views", 1))
     centre = (n // 2, n // 2)
     row = [c for c in kept if c.view_index == centre]
     if row:

@@ -14,7 +14,7 @@ from fastapi import Depends, FastAPI
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from service.api import display_sends, displays, jobs, phase_frames, queue, scenes, web
+from service.api import display_sends, displays, evaluation, jobs, phase_frames, queue, scenes, web
 from service.api.context import ServiceContext
 from service.api.deps import PRINCIPAL_KEY, authenticate, require, scope_error
 from service.api.problems import ApiError, install_handlers, problem
@@ -244,12 +244,14 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
     app.state.ctx = ctx
     install_handlers(app)
     app.add_middleware(_Guard, ctx=ctx, routers=(web.router, scenes.router, jobs.router, phase_frames.router,
-                                                    display_sends.router, displays.router, queue.router, app.router))
+                                                    evaluation.router, display_sends.router, displays.router,
+                                                    queue.router, app.router))
     app.add_middleware(web.SecurityHeaders)  # outermost: every answer, the Guard's 413 included
     app.include_router(web.router)  # before jobs: POST /v1/jobs/estimate, the page at /
     app.include_router(scenes.router)
     app.include_router(jobs.router)
     app.include_router(phase_frames.router)
+    app.include_router(evaluation.router)
     app.include_router(display_sends.router)
     app.include_router(displays.router)
     app.include_router(queue.router)

@@ -44,6 +44,8 @@ def job_out(row: dict) -> dict:
                      preview=f"/v1/jobs/{jid}/preview.png", phase=f"/v1/jobs/{jid}/phase",
                      send=f"/v1/jobs/{jid}/display")
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
+    if row["state"] == "succeeded" and spec.get("evaluate"):
+        links["evaluation"] = f"/v1/jobs/{jid}/evaluation"
     return {"id": jid, "name": spec.get("name"), "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
             "created_at": iso(row["created_at"]), "started_at": iso(row["started_at"]),
             "finished_at": iso(row["finished_at"]), "stack_sha256": row["stack_sha256"],
@@ -159,7 +161,7 @@ def delete_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern
     return Response(status_code=204)
 
 
-_LOG_STEPS = ("render", "encode", "preview", "driver")
+_LOG_STEPS = ("render", "encode", "preview", "evaluate", "driver")  # the steps that run a process, and the driver
 _LOG_TAIL_BYTES = 64 * 1024
 
 
@@ -189,8 +191,8 @@ def _log_text(path: Path, roots: list[str]) -> str:
 
 @router.get("/v1/jobs/{job_id}/logs", responses=PROBLEM_RESPONSES)
 def job_logs(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
-    """The steps' logs the job has (render, encode, preview: each step's output; driver), with their sizes and
-    URLs. A reused result's logs are those of the job that computed it."""
+    """The steps' logs the job has (render, encode, preview, evaluate: each step's output; driver), with their
+    sizes and URLs. A reused result's logs are those of the job that computed it."""
     row = _get(ctx, job_id, principal)
     folder = Path(row["artifact_dir"] or "")
     out = []
@@ -203,7 +205,7 @@ def job_logs(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_
 
 @router.get("/v1/jobs/{job_id}/logs/{step}", responses={200: {"content": {"text/plain": {}}}, **PROBLEM_RESPONSES})
 def job_log(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN),
-            step: Literal["render", "encode", "preview", "driver"] = PathParam()):
+            step: Literal[_LOG_STEPS] = PathParam()):
     """One step's log as text (its last 64 KiB; server paths replaced by ``<server path>``)."""
     row = _get(ctx, job_id, principal)
     folder = Path(row["artifact_dir"] or "")

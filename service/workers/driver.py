@@ -1,6 +1,7 @@
 """One job, in its own process group: `holo render`, `holo encode`, the 8-bit frames zip, then the preview image
 and the web page's pictures (``service.workers.pictures``: the preview as `holo view` makes it, focal sweep and
-view grid under ``pictures/``; one process).
+view grid under ``pictures/``; one process), and for a job that asks for it the evaluation against ground truth
+(`holo evaluate`, under ``evaluation/``: service/workers/evaluation.py).
 
 Run as ``python -m service.workers.driver JOB_DIR [--parent-pid PID]``. ``JOB_DIR/job.json`` says what to do;
 the driver writes ``step.json`` as each step starts, each CLI appends ``progress-<step>.jsonl``, and at the end
@@ -113,13 +114,17 @@ def _children_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo") -> float:
+def _run(step: Step, args: list[str], job_dir: Path, module: str = "holo", *, append: bool = False,
+         info: Optional[dict] = None) -> float:
     """Run ``python -m MODULE ARGS`` (default: holo) as a child (same process group) in an empty working folder
-    (``args`` name files by absolute path); returns seconds taken."""
-    write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time()})
+    (``args`` name files by absolute path); returns seconds taken. ``append``: add to the step's log (a step of
+    several processes); ``info``: more for step.json (the parts of such a step)."""
+    write_json_atomic(job_dir / "step.json", {"step": step, "index": STEPS.index(step), "t": time.time(),
+                                              **(info or {})})
     t0 = time.monotonic()
     cpu0 = _children_cpu_s()
-    with open(job_dir / f"{step}.log", "wb") as log, tempfile.TemporaryDirectory(prefix=f"holo-{step}-") as cwd:
+    mode = "ab" if append else "wb"
+    with open(job_dir / f"{step}.log", mode) as log, tempfile.TemporaryDirectory(prefix=f"holo-{step}-") as cwd:
         # the CLI dies with the driver, however the driver dies (even SIGKILL, which no handler sees)
         proc = subprocess.run([sys.executable, "-m", module, *args], stdout=log, stderr=subprocess.STDOUT,
                               stdin=subprocess.DEVNULL, cwd=cwd, preexec_fn=_child_dies_with_driver)
@@ -234,12 +239,26 @@ def run_job(job_dir: Path) -> RunStatus:
     if not (job_dir / "preview.png").is_file():
         warnings.append("no preview: " + (_log_message(job_dir / "preview.log", "no preview: ")
                                           or "the step did not write it"))
+    artifacts = {name: ArtifactInfo(sha256=file_sha256(job_dir / name), bytes=(job_dir / name).stat().st_size)
+                 for name in ("stack.npz", "frames.zip", "preview.png") if (job_dir / name).is_file()}
+    if spec.evaluate:  # the hologram stands without it: a failed evaluation is a warning unless it may be retried
+        from service.workers.evaluation import run_evaluation
+
+        try:
+            timings["evaluate_s"], more = run_evaluation(
+                job_dir, scene_path=spec.scene_path, meta=meta, shape_fchw=tuple(phase.shape),
+                stack_sha256=artifacts["stack.npz"].sha256, run=_run, failed=StepFailed)
+            warnings += more
+        except StepFailed as exc:
+            if exc.retryable:
+                raise
+            warnings.append(f"no evaluation: {exc}")
+        except (ValueError, OSError, KeyError, TypeError) as exc:
+            warnings.append(f"no evaluation: {exc}")
     timings["peak_rss_bytes"] = _peak_rss_bytes()
     if not spec.keep_result:
         (job_dir / "result.npz").unlink(missing_ok=True)
     plan = meta.get("plan") or {}
-    artifacts = {name: ArtifactInfo(sha256=file_sha256(job_dir / name), bytes=(job_dir / name).stat().st_size)
-                 for name in ("stack.npz", "frames.zip", "preview.png") if (job_dir / name).is_file()}
     return RunStatus(ok=True, stack_sha256=artifacts["stack.npz"].sha256, stack_bytes=artifacts["stack.npz"].bytes,
                      shape_fchw=list(phase.shape), artifacts=artifacts, timings=timings,
                      plan={"summary": plan.get("summary", []), "plan": plan, "render_timings": meta.get("timings")},

@@ -14,13 +14,19 @@ from typing import Optional
 
 from service.jobfiles import STEPS, Progress, RenderStage, Step
 
-__all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "RENDER_STAGE_END", "hash_artifacts", "read_progress", "remove_partials"]
+__all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "EVALUATE_WEIGHT", "RENDER_STAGE_END", "hash_artifacts",
+           "read_progress", "step_weights", "remove_partials"]
 
 ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
 RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
              *(f"{s}.log" for s in STEPS))
 # Share of the whole run of each step with progress (the preview step makes the pictures too).
 STEP_WEIGHTS: dict[Step, float] = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
+# A job that asks for an evaluation (job.json's ``evaluate``) spends about this share of its run on it (a ground
+# truth render and a simulated view per cell, service/workers/evaluation.py); the other steps share the rest in
+# the proportions above. The parts step.json names (``stages``: the cells, then the viewer score; ``part``: the
+# one running) share it evenly.
+EVALUATE_WEIGHT = 0.25
 # Stages a step reports as 1 of 1 before its real work starts (`holo encode` reads its input as "load").
 STARTING_STAGES = frozenset({"load"})
 # Where each stage of `holo render` ends, as a fraction of the render step (the stages it reports, in order).
@@ -67,13 +73,26 @@ def _last_json_line(path: Path) -> Optional[dict]:
     return None
 
 
+def step_weights(job_dir: Path) -> dict[str, float]:
+    """Each step's share of the run: :data:`STEP_WEIGHTS`, and the evaluation's when job.json asks for one."""
+    try:
+        evaluating = json.loads((job_dir / "job.json").read_text()).get("evaluate") is True
+    except (OSError, ValueError, AttributeError):
+        evaluating = False
+    if not evaluating:
+        return dict(STEP_WEIGHTS)
+    return {**{s: w * (1.0 - EVALUATE_WEIGHT) for s, w in STEP_WEIGHTS.items()}, "evaluate": EVALUATE_WEIGHT}
+
+
 def read_progress(job_dir: Path) -> Optional[Progress]:
     """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
     try:
-        step = json.loads((job_dir / "step.json").read_text())["step"]
+        doc = json.loads((job_dir / "step.json").read_text())
+        step = doc["step"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    if step not in STEP_WEIGHTS:
+    weights = step_weights(job_dir)
+    if not isinstance(step, str) or step not in weights:
         return None
     line = _last_json_line(job_dir / f"progress-{step}.jsonl") or {}
     done, total = line.get("done", 0), line.get("total", 0)
@@ -86,10 +105,15 @@ def read_progress(job_dir: Path) -> Optional[Progress]:
         i = list(RENDER_STAGE_END).index(stage)
         start = ends[i - 1] if i else 0.0
         within = start + (ends[i] - start) * within
-    base = sum(STEP_WEIGHTS[s] for s in STEPS[:STEPS.index(step)])
+    stages = doc.get("stages") if isinstance(doc, dict) else None
+    if isinstance(stages, list) and stages:  # a step of several parts (each a process with its own count)
+        part = doc.get("part") if isinstance(doc.get("part"), int) else 0
+        part = stages.index(stage) if stage in stages else min(max(part, 0), len(stages) - 1)
+        within = (part + within) / len(stages)
+    base = sum(weights.get(s, 0.0) for s in STEPS[:STEPS.index(step)])
     return Progress(step=step, stage=str(line.get("stage", step)), done=done if isinstance(done, int) else 0,
                     total=total if isinstance(total, int) else 0,
-                    fraction=round(min(0.999, base + STEP_WEIGHTS[step] * within), 4))
+                    fraction=round(min(0.999, base + weights[step] * within), 4))
 
 
 def remove_partials(job_dir: Path, *, after_s: float = 0.0) -> None:

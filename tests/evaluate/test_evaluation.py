@@ -204,6 +204,39 @@ def test_grid_helpers():
         view_offsets_m(meta, 0, 0.5)
 
 
+def test_views_at_middle_scores_a_cross_and_pairs_are_written_at_one_white(tmp_path):
+    """``views_at="middle"``: the centre view at every focus, the other views at the middle focus only; with
+    ``pairs`` each cell's view (at its scale) and ground truth as PNGs at one white level, named in metrics.json."""
+    from PIL import Image
+
+    from holocore.evaluate.scoring import evaluate, write_outputs
+
+    meta = {"focal_length_m": F_M, "z_inf_m": Z_INF, "pitch_m": P, "wavelengths_m": [LAM]}
+    rng = np.random.default_rng(1)
+    field = np.exp(2j * np.pi * rng.random((1, 1, 64, 64))).astype(np.complex64)
+
+    class Flat:  # a ground truth whose brightness grows with the focus depth
+        def channels(self, *, focus_z_m, pupil_diameter_m, view_offset_m):
+            return np.full((1, 64, 64), focus_z_m * 100.0) + rng.random((1, 64, 64))
+
+    zs = [Z_INF + 1e-4, Z_INF + 5e-4, Z_INF + 9e-4]
+    ev = evaluate(field, meta, Flat(), focus_z_m=zs, views=3, views_at="middle", keep_images=True)
+    got = [(c.focus_index, c.view_index) for c in ev.cells]
+    assert got == [(0, (1, 1)), *[(1, (col, row)) for row in range(3) for col in range(3)], (2, (1, 1))]
+    with pytest.raises(ValueError, match="odd"):
+        evaluate(field, meta, Flat(), focus_z_m=zs, views=2, views_at="middle")
+    paths = write_outputs(ev, tmp_path, sheets=False, pairs=True)
+    doc = json.loads(paths["json"].read_text())
+    assert "focus_sheet" not in paths and not (tmp_path / "cells").exists()
+    assert doc["pair_white"] == pytest.approx(max(c.score.white for c in ev.cells)) and doc["pair_gamma"] == 2.2
+    row = doc["cells"][0]
+    assert row["truth_png"] == "pairs/truth-f00-v04.png" and row["recon_png"] == "pairs/recon-f00-v04.png"
+    assert doc["cells"][1]["truth_png"] == "pairs/truth-f01-v00.png"
+    near = np.asarray(Image.open(tmp_path / doc["cells"][-1]["truth_png"]), dtype=float)
+    far = np.asarray(Image.open(tmp_path / row["truth_png"]), dtype=float)
+    assert near.mean() > far.mean()  # one white for all: the brighter truth is brighter in its PNG
+
+
 # ---- depth: a near card and a mirror showing a far card ------------------------------------------------------
 @pytest.fixture(scope="module")
 def cards(tmp_path_factory):

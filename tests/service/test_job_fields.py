@@ -8,7 +8,7 @@ from service.models import JobRequest, cache_key
 
 # a value other than the default for each field (frames lives in the effective optics, also in the address)
 OTHER = {"preset": "fast", "frames": 3, "spp": 7, "render_time_limit_s": 5.0, "encoder": "dpac", "iterations": 9,
-         "method": "direct", "wrp_planes": 1}
+         "method": "direct", "wrp_planes": 1, "evaluate": True}
 
 
 def _key(req: JobRequest) -> str:
