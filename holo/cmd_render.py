@@ -176,6 +176,19 @@ def _write_picture(loaded, path: Path, *, width: int, spp: int) -> dict:
     return {"file": path.name, "width_px": int(u8.shape[1]), "height_px": int(u8.shape[0]), "spp": int(spp)}
 
 
+def _probe(loaded, optics_cfg, options, *, startup_s: float) -> dict:
+    """What a probe render of the scene measured (holocore.plan.estimate_probe), as the plan's JSON says it;
+    a probe that fails leaves the plan as it is and says why."""
+    from holocore.calibration import probe_scene
+
+    try:
+        p = probe_scene(loaded, optics_cfg, options, startup_s=startup_s)
+    except (ValueError, RuntimeError, MemoryError) as exc:
+        return {"error": f"no probe: {str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__}"}
+    return {"startup_s": round(p.startup_s, 4), "compile_s": round(p.compile_s, 4),
+            "ray_color_s": p.ray_color_s, "probe_s": round(p.probe_s, 4)}
+
+
 @with_optics_options
 def plan(
     scene: Path = typer.Argument(..., help="Scene folder or XML."),
@@ -189,6 +202,9 @@ def plan(
                                                                   "--picture-width px wide)."),
     picture_width: int = typer.Option(320, "--picture-width", min=8, max=4096, help="Its width in px."),
     picture_spp: int = typer.Option(32, "--picture-spp", min=1, max=4096, help="Its samples per pixel."),
+    probe: bool = typer.Option(False, "--probe", help="Also time a short probe render of the scene (a few "
+                                                      "seconds) and give its cost per ray, from which a "
+                                                      "render's time is predicted (the service's estimates)."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Analyse a scene and print what the renderer would simulate (the EffectPlan), for the same display and
@@ -200,10 +216,14 @@ def plan(
     from holocore.pipeline import RenderOptions, plan_scene
     from holocore.scene.load import load_scene
 
+    from holocore.plan.estimate_probe import process_age_s
+
     try:
         loaded = load_scene(scene)
-        pl = plan_scene(loaded, optics_cfg, RenderOptions(preset=preset, force_all_effects=force_all_effects,
-                                                          wrp_planes=parse_wrp_planes(wrp_planes)))
+        startup_s = process_age_s()
+        render_options = RenderOptions(preset=preset, force_all_effects=force_all_effects,
+                                       wrp_planes=parse_wrp_planes(wrp_planes))
+        pl = plan_scene(loaded, optics_cfg, render_options)
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     from holocore.display.profiles import display_meta
@@ -211,6 +231,8 @@ def plan(
     doc = {**pl.to_dict(), "optics": json.loads(optics_cfg.model_dump_json()), **display_meta(profile, optics_cfg)}
     if picture is not None:
         doc["picture"] = _write_picture(loaded, picture, width=picture_width, spp=picture_spp)
+    if probe:
+        doc["probe"] = _probe(loaded, optics_cfg, render_options, startup_s=startup_s)
     if as_json:
         print(json.dumps(doc, indent=2))
     else:

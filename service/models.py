@@ -250,6 +250,21 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
     return out
 
 
+def _scene_probe(scene_plan: Optional[dict]):
+    """The probe render the scene's plan timed (``holo plan --probe``), or None when it has none (a plan made
+    before the probe, or a probe that failed)."""
+    from holocore.plan.estimate_probe import Probe
+
+    doc = (scene_plan or {}).get("probe")
+    try:
+        probe = Probe(startup_s=float(doc["startup_s"]), compile_s=float(doc["compile_s"]),
+                      ray_color_s=float(doc["ray_color_s"]), probe_s=float(doc["probe_s"]))
+    except (TypeError, KeyError, ValueError):
+        return None
+    ok = all(math.isfinite(v) and v >= 0 for v in (probe.compile_s, probe.ray_color_s)) and probe.ray_color_s > 0
+    return probe if ok else None
+
+
 def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
                    plane_border: Optional[int] = 0) -> dict[str, Any]:
     """Predicted seconds of a job's hologram (render, encode, package, pictures).
@@ -258,7 +273,10 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
     sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
     14 s for starting the job's four processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
-    preview (2e-7 s per pixel-color). Without a usable calibration: a linear model fitted on a 2-core CPU."""
+    preview (2e-7 s per pixel-color). When the scene's plan timed a probe render (``holo plan --probe``, run by
+    the planner), the render's stages take the scene's own cost per ray and kernel compilation from it
+    (``holocore.plan.estimate_probe``; the calibration alone, made on the demo scene, can be 5x low on
+    another). Without a usable calibration: a linear model fitted on a 2-core CPU."""
     from types import SimpleNamespace
 
     o = effective_optics(req)
@@ -275,19 +293,26 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     inv = (scene_plan or {}).get("inventory") or {}
     try:
         from holocore.plan.estimate import estimate_breakdown, features
+        from holocore.plan.estimate_probe import estimate_with_probe
 
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
         radius = ana.get("subhologram_radius_px")
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0)
         work = stages["total"]
+        probe = _scene_probe(scene_plan)
+        if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
+            render = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
+                                         subhologram_radius_px=radius)
+            work = render["total"] - render["startup"] + stages.get("encode", 0.0)  # start-up: in `fixed`
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
             work = req.render_time_limit_s + stages.get("encode", 0.0)
             return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
                     "model": "render time limit + calibrated encoder", "memory": memory}
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
-                "model": "calibrated" + (" + scene plan" if ana else ""), "memory": memory}
+                "model": "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""),
+                "memory": memory}
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
         if req.render_time_limit_s is not None:

@@ -177,7 +177,8 @@ class Planner:
 
     def _command(self, entry: Path) -> list[str]:
         # the picture goes into the plan's own empty working folder (relative: the one place it may write)
-        return [sys.executable, "-m", "holo", "plan", str(entry), "--json", "--picture", PICTURE_NAME,
+        # --probe: a short render timing what a ray of this scene costs, for the jobs' estimates
+        return [sys.executable, "-m", "holo", "plan", str(entry), "--json", "--probe", "--picture", PICTURE_NAME,
                 "--picture-width", str(PICTURE_WIDTH_PX), "--picture-spp", str(PICTURE_SPP)]
 
     def _run_plan(self, scene: dict, bundle, work, cwd: Path) -> None:
