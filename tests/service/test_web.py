@@ -1,12 +1,12 @@
-"""The results web page (issue 15) against a real `holo serve`: its security headers and API routes over HTTP,
+"""The results web page against a real `holo serve`: its security headers and API routes over HTTP,
 then the page itself in headless Chromium (Debian's chromium and chromium-driver, driven by selenium): sign in
 with a token, upload a scene whose folder is named like an XSS attempt, see the estimate, submit a small job,
 watch it finish over the live events, move the focus slider and see the picture change, view the job with a
 read-only token. Nothing the service says may run as HTML: the scene's name and a display's heartbeat message
 hold markup that must stay text.
 
-``HOLO_WEB_SCREENSHOTS=docs/screenshots`` makes the browser test save its screenshots there (the committed
-ones in docs/ were made so).
+``HOLO_WEB_SCREENSHOTS=DIR`` makes the browser test save its screenshots there (with the XSS test's scene
+name: the committed ones in docs/ come from scripts/web_screenshots.py and a real scene).
 """
 
 from __future__ import annotations
