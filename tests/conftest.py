@@ -234,6 +234,10 @@ FULL_TIER_ONLY_MODULES: dict[str, str] = {
     "tests/service/test_ray_connect.py": "Ray Client start-up",
     "tests/service/test_web.py": "headless Chromium; tests/service/test_units.py covers the page's API",
     "tests/service/test_web_compare.py": "headless Chromium on two jobs; tests/service/test_web_page.py drives the page",
+    "tests/service/test_web_journey.py": "headless Chromium through three jobs of the mirror room; "
+                                         "tests/service/test_web_page.py drives each part",
+    "tests/service/test_web_evaluation.py": "headless Chromium on an evaluated job; "
+                                            "tests/service/test_evaluation_job.py holds the API it shows",
     "tests/service/test_web_list.py": "headless Chromium on four jobs; tests/service/test_scene_picture.py and "
                                       "test_queue_status.py hold the API it shows",
     "tests/service/test_schemathesis.py": "API fuzzing; test_hostile*.py send bad input by hand",
