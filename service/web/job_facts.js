@@ -39,7 +39,8 @@ export function optionsText(job) {
   const res = (optics.resolution_hw || []).join("x");
   return [res && `${res} px`, typeof optics.frames === "number" ? plural(optics.frames, "frame") : null,
           o.preset, o.encoder, o.render_time_limit_s ? `${fmtSeconds(o.render_time_limit_s)} limit` : null,
-          o.spp && !o.render_time_limit_s ? `${o.spp} rays/px` : null].filter(Boolean).join(" · ");
+          o.spp && !o.render_time_limit_s ? `${o.spp} rays/px` : null, o.evaluate ? "evaluated" : null]
+    .filter(Boolean).join(" · ");
 }
 
 export function actualSeconds(job) {

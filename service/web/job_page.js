@@ -4,6 +4,7 @@
 import { blobURL, getJSON, request, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
 import { offerCompare } from "./compare.js";
+import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
 import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
@@ -41,7 +42,8 @@ function renderJob(job) {
   fact(dl, "Options", `${(optics.resolution_hw || []).join("x")} px, ${plural(optics.frames, "frame")}, `
     + `${plural((optics.wavelengths_nm || []).length, "color")}, preset ${o.preset}, encoder ${o.encoder}`
     + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
-    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : ""));
+    + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : "")
+    + (o.evaluate ? ", evaluated against ground truth" : ""));
   fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
   fact(dl, "Memory", `estimated peak ${fmtBytes((est.memory || {}).peak_bytes)} (${(est.memory || {}).peak_stage || "–"}), `
@@ -182,6 +184,7 @@ function resetJobPage() {
   $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
   for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun", "job-compare"]) show(id, false);
   resetPhaseFrames();
+  resetEvaluation();
 }
 
 export async function showJob(id) {
@@ -224,6 +227,8 @@ export async function showJob(id) {
     showPhaseFrames(job, page).catch((err) => { if (!aborted(err)) status(`No phase frames: ${err.message}`, true); });
     offerSend(job, page).catch((err) => { if (!aborted(err)) status(`Displays: ${err.message}`, true); });
     await showPictures(job, page);
+    if (state.page !== page) return;
+    await showEvaluation(job, page).catch((err) => { if (!aborted(err)) setText($("eval-note"), err.message); });
   }
 }
 

@@ -45,6 +45,7 @@ function jobBody() {
   body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
   if ($("display").value.trim()) body.display = $("display").value.trim();
   if ($("job-name").value.trim()) body.name = $("job-name").value.trim();
+  body.evaluate = $("evaluate").checked;
   return body;
 }
 
@@ -164,7 +165,8 @@ async function estimate() {
     const m = e.estimate.memory || {};
     const rays = e.estimate.spp_assumed === null ? "rays until the time limit"
       : `${e.estimate.spp_assumed} rays per pixel`;
-    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
+    const ev = typeof e.estimate.evaluate_s === "number" ? `; the evaluation ${fmtSeconds(e.estimate.evaluate_s)} of that` : "";
+    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}${ev}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     showFormPlan(e.plan);
@@ -218,6 +220,7 @@ export async function prefillRerun(job) {
   $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
   $("iterations").value = o.iterations ?? "";
   $("wrp-planes").value = String(o.wrp_planes || "auto");
+  $("evaluate").checked = !!o.evaluate;
   $("display").value = job.display || "";
   $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);
   setText($("rerun-note"), `Re-run of job ${jobName(job)} (${job.id}) on its scene: change what you want and submit.`);
