@@ -169,6 +169,7 @@ async function estimate() {
     setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}${ev}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
+    for (const w of e.warnings || []) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
     showFormPlan(e.plan);
     showFormPicture(state.scene, e.field_of_view_box);
     if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-__all__ = ["GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID", "EVALUATION_VERSION", "FILE_PATTERN",
+__all__ = ["evaluation_too_small", "GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID", "EVALUATION_VERSION", "FILE_PATTERN",
            "EvalPlan", "plan_evaluation", "cells_args", "viewer_args", "write_index", "run_evaluation",
            "evaluation_cells", "evaluation_seconds"]
 
@@ -263,6 +263,28 @@ def evaluation_cells(frames: int) -> tuple[int, int]:
     if frames > 1:
         return cells + len(VIEWER_PUPILS_MM) * VIEWER_EYE_GRID ** 2, 2
     return cells, 1
+
+
+def evaluation_too_small(optics: Any, *, camera_fov_x_deg: Optional[float] = None) -> Optional[str]:
+    """Why an evaluation would score nothing on this SLM (None when it can score): a view is scored only where
+    the SLM lights all of the pupil's bundle, a border of ceil(z NA / p) px at hologram depth z
+    (holocore.evaluate.scoring.lit_margin_px), and no depth it scores is nearer the SLM than virtual infinity,
+    so an SLM whose shorter side is under 2 ceil(z_inf NA / p) + 16 px has no depth to score. ``optics``: the
+    job's OpticsConfig; ``camera_fov_x_deg``: the scene camera's view (it sets f with fit_camera_fov)."""
+    from holocore.evaluate.scoring import default_pupil_m, lit_margin_px
+
+    try:
+        meta = {"wavelengths_m": tuple(optics.wavelengths_m), "focal_length_m": optics.focal_length_m(camera_fov_x_deg),
+                "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m}
+        pupil = default_pupil_m(meta, view_deg=VIEW_DEG)
+        need = 2 * lit_margin_px(meta, focus_z_m=optics.z_inf_m, pupil_diameter_m=pupil) + _MIN_LIT_PX
+    except (ValueError, TypeError):
+        return None  # the step itself says why, in its warning
+    h, w = (int(v) for v in optics.resolution_hw)
+    if min(h, w) >= need:
+        return None
+    return (f"no evaluation at {h}x{w} px: the ground truth is scored only where the SLM lights all of a "
+            f"{pupil * 1e3:.3g} mm pupil's light, which on this display needs at least {need} px on each side")
 
 
 def evaluation_seconds(*, height: int, width: int, colors: int, frames: int) -> float:

@@ -236,3 +236,27 @@ def test_progress_gives_the_evaluation_its_share(tmp_path):
     (tmp_path / "step.json").write_text(json.dumps({"step": "preview"}))
     (tmp_path / "progress-preview.jsonl").write_text(json.dumps({"stage": "sweep", "done": 18, "total": 18}) + "\n")
     assert read_progress(tmp_path)["fraction"] == 0.999
+
+
+def test_the_estimate_warns_when_the_slm_is_too_small_to_evaluate(server, scene):
+    """On the paper display (virtual infinity 80 mm) the scored border of a 1.6 mm pupil is about 160 px at
+    every depth, so a 270x480 SLM has nothing to score: the estimate says so before the submit, and names the
+    smallest side that has; at the test job's optics (virtual infinity 4 mm) it says nothing."""
+    import re
+
+    from holocore.display.profiles import load_display
+    from service.workers.evaluation import evaluation_too_small
+
+    small = {"scene_id": scene["id"], "optics": {"resolution_hw": [270, 480]}, "frames": 2, "preset": "fast",
+             "evaluate": True}
+    with server.client("submit") as c:
+        warned = c.post("/v1/jobs/estimate", json=small).json()["warnings"]
+        quiet = c.post("/v1/jobs/estimate", json={"scene_id": scene["id"], **EVAL_JOB, "evaluate": True}).json()
+        unasked = c.post("/v1/jobs/estimate", json={**small, "evaluate": False}).json()
+    assert len(warned) == 1 and "no evaluation at 270x480 px" in warned[0], warned
+    assert quiet["warnings"] == [] and unasked["warnings"] == []
+    need = int(re.search(r"at least (\d+) px", warned[0]).group(1))
+    paper = load_display("paper")
+    assert evaluation_too_small(paper.optics(resolution_hw=(need - 1, 2 * need))) is not None
+    assert evaluation_too_small(paper.optics(resolution_hw=(need, 2 * need))) is None
+    assert 300 < need < 400  # 2 ceil(80 mm x 0.0161 / 8 um) + 16
