@@ -25,7 +25,6 @@ place, so a reader never sees half of it.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -34,6 +33,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
+
+from holocore.formats.hashing import file_sha256
 
 __all__ = ["evaluation_too_small", "GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID", "EVALUATION_VERSION", "FILE_PATTERN",
            "EvalPlan", "plan_evaluation", "cells_args", "viewer_args", "write_index", "run_evaluation",
@@ -48,14 +49,6 @@ VIEWER_EYE_GRID = 3
 SWEEP_DEPTHS = 9  # the pictures step's sweep (service.workers.pictures), and the depths when it made none
 FILE_PATTERN = r"^(recon|truth)-f\d{2}-v\d{2}\.png$"  # holocore.evaluate.scoring.pair_names
 _MIN_LIT_PX = 16  # holocore.evaluate.scoring.evaluate refuses a view with less fully lit than this
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _num(v: Any) -> Optional[float]:
@@ -176,7 +169,7 @@ def write_index(out: Path, plan: EvalPlan, *, stack_sha256: str, viewer_error: O
         for key, col in (("hologram", "recon_png"), ("truth", "truth_png")):
             path = out / c[col]
             rows[f"{key}_file"] = path.name
-            rows[f"{key}_sha256"] = _sha256(path)
+            rows[f"{key}_sha256"] = file_sha256(path)
         return rows
 
     focus = []

@@ -35,6 +35,8 @@ import time
 from pathlib import Path
 from typing import Callable, Optional
 
+from holocore.formats.hashing import file_sha256
+
 from holocore.evaluate.preview import depth_words
 from holocore.formats.meta import ViewMeta, parse_view_meta
 
@@ -42,14 +44,6 @@ __all__ = ["make_pictures", "write_preview", "picture_key", "PICTURES_VERSION", 
 
 PICTURES_VERSION = 1
 GRID = 3
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def picture_key(stack_sha256: str, params: dict) -> str:
@@ -106,7 +100,7 @@ def _save(views, white: float, out: Path, names: list[str]) -> list[dict]:
     rows = []
     for v, name in zip(views, names):
         Image.fromarray(to_png8(v, white=white)).save(out / name, optimize=True)
-        rows.append({"file": name, "sha256": _sha256(out / name), "bytes": (out / name).stat().st_size})
+        rows.append({"file": name, "sha256": file_sha256(out / name), "bytes": (out / name).stat().st_size})
     return rows
 
 
@@ -136,7 +130,7 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     from holocore.evaluate.preview import focus_depths, view_rgb
     from holocore.optics.viewing import depth_of_field_m
 
-    stack_sha = _sha256(stack)
+    stack_sha = file_sha256(stack)
     params = {"sweep": sweep, "pupil_mm": pupil_mm, "grid": GRID}
     key = picture_key(stack_sha, params)
     try:

@@ -121,5 +121,25 @@ def wait_state(client: httpx.Client, job_id: str, states: tuple[str, ...], timeo
     return wait_for(check, timeout=timeout, interval=0.2, what=f"job {job_id} in {states}")
 
 
+def planned_scene(server: "Server", bundle: bytes) -> dict:
+    """Upload a zip bundle and wait for its plan to be ready or failed; the scene as the API answers it."""
+    with server.client("submit") as c:
+        r = c.post("/v1/scenes", files={"bundle": ("b.zip", bundle, "application/zip")})
+        assert r.status_code in (200, 201), r.text
+        sid = r.json()["id"]
+        return wait_for(lambda: (lambda s: s if s["plan_state"] in ("ready", "failed") else None)(
+            c.get(f"/v1/scenes/{sid}").json()), timeout=120, what=f"scene {sid}'s plan")
+
+
+def finished_job(server: "Server", body: dict, *, timeout: float = 240.0) -> dict:
+    """Submit ``body`` and wait for the job to succeed (an assertion with its error otherwise)."""
+    with server.client("submit") as c:
+        r = c.post("/v1/jobs", json=body)
+        assert r.status_code == 202, r.text
+        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=timeout)
+    assert job["state"] == "succeeded", job["error"]
+    return job
+
+
 SMALL_JOB = {"optics": {"resolution_hw": [64, 64], "seed": 7}, "preset": "fast", "frames": 2, "spp": 4,
              "encoder": "dpac"}

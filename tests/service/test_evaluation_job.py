@@ -22,7 +22,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.service.helpers import wait_for, wait_state, zip_dir
+from tests.service.helpers import planned_scene, wait_state, zip_dir
 
 EVAL_JOB = {"optics": {"resolution_hw": [96, 128], "seed": 3, "z_inf_mm": 4}, "preset": "fast", "frames": 2,
             "spp": 16, "encoder": "sgd", "iterations": 40, "wrp_planes": 1, "name": "evaluated"}
@@ -40,12 +40,7 @@ def demo(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def scene(server, demo):
-    with server.client("submit") as c:
-        r = c.post("/v1/scenes", files={"bundle": ("b.zip", demo["zip"], "application/zip")})
-        assert r.status_code in (200, 201), r.text
-        sid = r.json()["id"]
-        return wait_for(lambda: (lambda s: s if s["plan_state"] in ("ready", "failed") else None)(
-            c.get(f"/v1/scenes/{sid}").json()), timeout=120, what="the demo scene's plan")
+    return planned_scene(server, demo["zip"])
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.service.helpers import wait_state
+from tests.service.helpers import finished_job
 from tests.service.test_web_page import DONE_JOB, Page, browser, done_job, files, scene  # noqa: F401 (fixtures)
 
 OTHER_JOB = {**DONE_JOB, "encoder": "dpac", "frames": 2, "name": "lab demo (dpac)"}
@@ -19,12 +19,7 @@ OTHER_JOB.pop("iterations")
 
 @pytest.fixture(scope="module")
 def other_job(server, scene) -> dict:  # noqa: F811
-    with server.client("submit") as c:
-        r = c.post("/v1/jobs", json={"scene_id": scene["id"], **OTHER_JOB})
-        assert r.status_code == 202, r.text
-        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=240)
-    assert job["state"] == "succeeded", job["error"]
-    return job
+    return finished_job(server, {"scene_id": scene["id"], **OTHER_JOB})
 
 
 @pytest.fixture

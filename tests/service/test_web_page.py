@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.service.helpers import wait_for, wait_state
+from tests.service.helpers import finished_job, planned_scene, wait_state
 from tests.service.test_web import _browser
 
 BAD_RADIUS = ('<scene version="3.0.0">\n<sensor type="perspective"/>\n'
@@ -52,23 +52,13 @@ def files(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def scene(server, files) -> dict:
-    with server.client("submit") as c:
-        r = c.post("/v1/scenes", files={"bundle": ("b.zip", files["demo"].read_bytes(), "application/zip")})
-        assert r.status_code in (200, 201), r.text
-        sid = r.json()["id"]
-        return wait_for(lambda: (lambda s: s if s["plan_state"] in ("ready", "failed") else None)(
-            c.get(f"/v1/scenes/{sid}").json()), timeout=120, what="the demo scene's plan")
+    return planned_scene(server, files["demo"].read_bytes())
 
 
 @pytest.fixture(scope="module")
 def done_job(server, scene) -> dict:
     """A finished job on a non-square SLM (64x96), one frame, the SGD encoder."""
-    with server.client("submit") as c:
-        r = c.post("/v1/jobs", json={"scene_id": scene["id"], **DONE_JOB})
-        assert r.status_code == 202, r.text
-        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=240)
-    assert job["state"] == "succeeded", job["error"]
-    return job
+    return finished_job(server, {"scene_id": scene["id"], **DONE_JOB})
 
 
 @pytest.fixture(scope="module")
