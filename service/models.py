@@ -287,7 +287,10 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
-    iters = req.iterations if req.iterations is not None else 500
+    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
+
+    # without an asked count the encoder runs to at most 500 iterations, but its stop rule ends it far sooner
+    iters = req.iterations if req.iterations is not None else TYPICAL_STOP_ITERATIONS
     fixed = 14.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}

@@ -38,8 +38,14 @@ from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
 
-__all__ = ["estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
+__all__ = ["TYPICAL_STOP_ITERATIONS", "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
            "user_calibration_path", "DEFAULT_CALIBRATION", "CALIBRATION_VERSION", "save_calibration", "features"]
+
+# Where the SGD encoder's default stop rule (holocore.encode.sgd) ends a full-size encode (1080x1920 x 3 x 24,
+# the paper display: 143 iterations on average and 160 at most, bench/results/full_display/
+# encode_ladder_mirror.md; 150 on one frame, bench/results/encode.md): what an estimate assumes when no
+# iteration count is asked for (the encoder's cap is 500).
+TYPICAL_STOP_ITERATIONS = 160
 
 DEFAULT_CALIBRATION = Path(__file__).resolve().parent / "data" / "calibration_default.json"
 CALIBRATION_VERSION = 1

@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-from holocore.formats.hashing import file_sha256
 
 __all__ = ["evaluation_too_small", "GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID", "EVALUATION_VERSION", "FILE_PATTERN",
            "EvalPlan", "plan_evaluation", "cells_args", "viewer_args", "write_index", "run_evaluation",
@@ -158,6 +157,8 @@ def _viewer_summary(doc: dict) -> dict:
 def write_index(out: Path, plan: EvalPlan, *, stack_sha256: str, viewer_error: Optional[str] = None,
                 seconds: float = 0.0) -> dict:
     """``out/index.json`` from holo evaluate's ``metrics.json`` (and ``viewer.json``) there; returns it."""
+    from holocore.formats.hashing import file_sha256  # numpy comes with the package: not in the API process
+
     metrics = json.loads((out / "metrics.json").read_text())
     n = int(metrics.get("views", 1))
     centre = (n // 2, n // 2)
