@@ -141,5 +141,25 @@ def finished_job(server: "Server", body: dict, *, timeout: float = 240.0) -> dic
     return job
 
 
+def start_agent(server: "Server", tmp: Path, display: str, *, rate_hz: float, poll_interval_s: float,
+                heartbeat_interval_s: float, max_seconds: float):
+    """The real display agent for ``display`` with a simulated SLM under ``tmp``, running in a thread:
+    (agent, stop event, thread); set the event and join the thread to end it."""
+    import threading
+
+    from display_agent.config import load_config
+    from display_agent.daemon import Agent
+
+    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=server.agent, display=display,
+                                             slm=f"sim:{tmp / 'slm'}", rate_hz=rate_hz, cache_dir=tmp / "cache",
+                                             poll_interval_s=poll_interval_s,
+                                             heartbeat_interval_s=heartbeat_interval_s))
+    agent = Agent(cfg)
+    stop = threading.Event()
+    th = threading.Thread(target=agent.run, args=(stop,), kwargs={"max_seconds": max_seconds}, daemon=True)
+    th.start()
+    return agent, stop, th
+
+
 SMALL_JOB = {"optics": {"resolution_hw": [64, 64], "seed": 7}, "preset": "fast", "frames": 2, "spp": 4,
              "encoder": "dpac"}

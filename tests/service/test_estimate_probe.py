@@ -12,7 +12,7 @@ import pytest
 
 from holocore.plan.estimate import features
 from service.models import JobRequest, estimate_cost
-from tests.service.helpers import REPO, wait_for
+from tests.service.helpers import REPO, planned_scene, zip_dir
 
 PLAN = {"analysis": {"subhologram_radius_px": 6.0}, "inventory": {"primitives": 12}}
 PROBE = {"startup_s": 1.5, "compile_s": 0.7, "ray_color_s": 2.0e-7, "probe_s": 1.4}
@@ -61,20 +61,13 @@ def test_holo_plan_probe_times_the_scene(tmp_path):
 
 def test_the_services_estimate_uses_its_planners_probe(server):
     from holocore.scene.demo import write_demo_scene
-    import io
-    import zipfile
 
     tmp = server.data_dir.parent / "probe-scene"
     write_demo_scene(tmp)
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for p in sorted(tmp.rglob("*")):
-            if p.is_file():
-                zf.write(p, p.relative_to(tmp).as_posix())
+    scene = planned_scene(server, zip_dir(tmp))
+    assert scene["plan_state"] == "ready", scene.get("plan_error")
+    sid = scene["id"]
     with server.client("submit") as c:
-        sid = c.post("/v1/scenes", files={"bundle": ("demo.zip", buf.getvalue(), "application/zip")}).json()["id"]
-        wait_for(lambda: c.get(f"/v1/scenes/{sid}").json()["plan_state"] == "ready", timeout=180,
-                 what="the scene's plan")
         r = c.post("/v1/jobs/estimate", json={"scene_id": sid, "optics": {"resolution_hw": [270, 480]}, "frames": 8,
                                               "preset": "fast", "encoder": "dpac"})
         assert r.status_code == 200, r.text

@@ -12,7 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from tests.service.helpers import wait_for, wait_state
+from tests.service.helpers import finished_job, planned_scene, zip_dir
 
 # Two frames, three colours, an SLM wider than tall: a swapped H and W, frame or colour axis shows.
 JOB = {"optics": {"resolution_hw": [24, 40], "seed": 5, "wavelengths_nm": [638.0, 520.0, 450.0]}, "preset": "fast",
@@ -22,20 +22,12 @@ JOB = {"optics": {"resolution_hw": [24, 40], "seed": 5, "wavelengths_nm": [638.0
 @pytest.fixture(scope="module")
 def done(server, tmp_path_factory) -> dict:
     from holocore.scene.demo import write_demo_scene
-    from tests.service.helpers import upload
 
     folder = tmp_path_factory.mktemp("phase") / "demo"
     write_demo_scene(folder)
+    sid = planned_scene(server, zip_dir(folder))["id"]
+    job = finished_job(server, {"scene_id": sid, **JOB})
     with server.client("submit") as c:
-        r = upload(c, folder)
-        assert r.status_code in (200, 201), r.text
-        sid = r.json()["id"]
-        wait_for(lambda: c.get(f"/v1/scenes/{sid}").json()["plan_state"] in ("ready", "failed"), timeout=120,
-                 what="the scene's plan")
-        r = c.post("/v1/jobs", json={"scene_id": sid, **JOB})
-        assert r.status_code == 202, r.text
-        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=240)
-        assert job["state"] == "succeeded", job["error"]
         stack = c.get(f"/v1/jobs/{job['id']}/stack").content
         frames = c.get(f"/v1/jobs/{job['id']}/frames.zip").content
     with np.load(io.BytesIO(stack), allow_pickle=False) as z:

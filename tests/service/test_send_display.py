@@ -7,12 +7,11 @@ A database from before sends lists its display's jobs as it did, in submit order
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 
 import pytest
 
-from tests.service.helpers import wait_for, wait_state
+from tests.service.helpers import finished_job, planned_scene, start_agent, wait_for, wait_state, zip_dir
 
 JOB = {"optics": {"resolution_hw": [16, 24], "seed": 11}, "preset": "fast", "frames": 1, "spp": 2,
        "encoder": "dpac"}
@@ -23,27 +22,14 @@ def jobs(server, tmp_path_factory) -> dict:
     """Three succeeded jobs for display ``lab-1``, oldest first: one rendered, two more of other seeds (the
     newest is the one the display shows before anything is sent), and the scene."""
     from holocore.scene.demo import write_demo_scene
-    from tests.service.helpers import upload
-
     folder = tmp_path_factory.mktemp("send") / "demo"
     write_demo_scene(folder)
     with server.client("admin") as c:  # lab-1 and lab-2 are the default owner's, far-lab is another lab's
         for name, owner in (("lab-1", "default"), ("lab-2", "default"), ("far-lab", "lab2")):
             assert c.put(f"/v1/displays/{name}", json={"owner": owner}).status_code == 204
-    with server.client("submit") as c:
-        r = upload(c, folder)
-        assert r.status_code in (200, 201), r.text
-        sid = r.json()["id"]
-        wait_for(lambda: c.get(f"/v1/scenes/{sid}").json()["plan_state"] in ("ready", "failed"), timeout=120,
-                 what="the scene's plan")
-        ids = []
-        for seed in (11, 12, 13):
-            r = c.post("/v1/jobs", json={"scene_id": sid, **JOB, "optics": {**JOB["optics"], "seed": seed},
-                                         "display": "lab-1"})
-            assert r.status_code == 202, r.text
-            job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=240)
-            assert job["state"] == "succeeded", job["error"]
-            ids.append(job["id"])
+    sid = planned_scene(server, zip_dir(folder))["id"]
+    ids = [finished_job(server, {"scene_id": sid, **JOB, "optics": {**JOB["optics"], "seed": seed},
+                                 "display": "lab-1"})["id"] for seed in (11, 12, 13)]
     return {"ids": ids, "scene_id": sid}
 
 
@@ -52,17 +38,8 @@ def _first(c, display: str) -> str:
 
 
 def _agent(server, tmp: Path, display: str):
-    from display_agent.config import load_config
-    from display_agent.daemon import Agent
-
-    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=server.agent, display=display,
-                                             slm=f"sim:{tmp / 'slm'}", rate_hz=200, cache_dir=tmp / "cache",
-                                             poll_interval_s=0.1, heartbeat_interval_s=0.2))
-    agent = Agent(cfg)
-    stop = threading.Event()
-    th = threading.Thread(target=agent.run, args=(stop,), kwargs={"max_seconds": 120}, daemon=True)
-    th.start()
-    return agent, stop, th
+    return start_agent(server, tmp, display, rate_hz=200, poll_interval_s=0.1, heartbeat_interval_s=0.2,
+                       max_seconds=120)
 
 
 def _showing(server, display: str):

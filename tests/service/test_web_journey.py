@@ -6,12 +6,11 @@ changes and cancel that, re-run it again, and compare the two finished jobs side
 
 from __future__ import annotations
 
-import io
 import time
-import zipfile
 
 import pytest
 
+from tests.service.helpers import zip_dir
 from tests.service.test_web_page import Page, browser  # noqa: F401 (fixture)
 
 
@@ -21,13 +20,8 @@ def mirror_zip(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("journey")
     write_paper_scene("mirror", tmp / "scene")
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-        for p in sorted((tmp / "scene").rglob("*")):
-            if p.is_file():
-                zf.write(p, p.relative_to(tmp / "scene").as_posix())
     out = tmp / "mirror-room.zip"
-    out.write_bytes(buf.getvalue())
+    out.write_bytes(zip_dir(tmp / "scene"))
     return out
 
 

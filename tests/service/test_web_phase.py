@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import io
 import os
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.service.helpers import wait_for, wait_state
+from tests.service.helpers import finished_job, start_agent, wait_for
 from tests.service.test_web_page import Page, browser, files, scene  # noqa: F401 (module fixtures)
 
 # Three frames, three colours, wider than tall (24x40): a swapped axis or a frame index ignored shows.
@@ -29,31 +28,15 @@ def jobs(server, scene) -> dict:  # noqa: F811
     """The job whose page is shown, and a newer one for display lab-1 (the same options: its result reused)."""
     with server.client("admin") as c:
         assert c.put("/v1/displays/lab-1", json={"owner": "default"}).status_code == 204
-    with server.client("submit") as c:
-        out = {}
-        for key, extra in (("shown", {}), ("other", {"display": "lab-1", "name": "the other job"})):
-            r = c.post("/v1/jobs", json={"scene_id": scene["id"], **JOB, **extra})
-            assert r.status_code == 202, r.text
-            job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=240)
-            assert job["state"] == "succeeded", job["error"]
-            out[key] = job
-    return out
+    return {key: finished_job(server, {"scene_id": scene["id"], **JOB, **extra})
+            for key, extra in (("shown", {}), ("other", {"display": "lab-1", "name": "the other job"}))}
 
 
 @pytest.fixture(scope="module")
 def agent(server, jobs, tmp_path_factory):
     """The display agent of lab-1 with a simulated SLM, running while the module's tests do."""
-    from display_agent.config import load_config
-    from display_agent.daemon import Agent
-
-    tmp = tmp_path_factory.mktemp("agent")
-    cfg = load_config(env={}, overrides=dict(server_url=server.url, token=server.agent, display="lab-1",
-                                             slm=f"sim:{tmp / 'slm'}", rate_hz=100, cache_dir=tmp / "cache",
-                                             poll_interval_s=0.2, heartbeat_interval_s=0.3))
-    a = Agent(cfg)
-    stop = threading.Event()
-    th = threading.Thread(target=a.run, args=(stop,), kwargs={"max_seconds": 600}, daemon=True)
-    th.start()
+    a, stop, th = start_agent(server, tmp_path_factory.mktemp("agent"), "lab-1", rate_hz=100, poll_interval_s=0.2,
+                              heartbeat_interval_s=0.3, max_seconds=600)
     yield a
     stop.set()
     th.join(timeout=15)
