@@ -5,7 +5,9 @@
 #   bash scripts/test.sh --quick   the everyday run after a change: a representative subset, every package,
 #                                  under 4 minutes on 2 cores; the tests marked slow (tests/conftest.py,
 #                                  FULL_TIER_ONLY) are left to the full run. Sets up only a missing environment.
-# Other arguments go to pytest (e.g. a test file, -x, -k NAME).
+# Other arguments go to pytest (e.g. a test file, -x, -k NAME). Output written by native code (Dr.Jit, LLVM,
+# Mitsuba) goes straight to the terminal (--capture=sys): when such code aborts the process, its own last message
+# is then in the log beside Python's traceback instead of lost with pytest's captured file descriptors.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 quick=0
@@ -15,7 +17,7 @@ for a in "$@"; do
 done
 if [ "$quick" = 1 ]; then
   if ! .venv/bin/python -c "import holocore, mitsuba, torch" >/dev/null 2>&1; then bash scripts/setup.sh; fi
-  exec .venv/bin/python -m pytest -q -m "not slow" ${args[@]+"${args[@]}"}
+  exec .venv/bin/python -m pytest -q --capture=sys -m "not slow" ${args[@]+"${args[@]}"}
 fi
 bash scripts/setup.sh
-exec .venv/bin/python -m pytest -q ${args[@]+"${args[@]}"}
+exec .venv/bin/python -m pytest -q --capture=sys ${args[@]+"${args[@]}"}
