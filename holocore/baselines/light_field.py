@@ -40,6 +40,7 @@ from holocore import validate
 from holocore.baselines.adam_budget import AdamFitOptions, torch_device
 from holocore.baselines.registry import Baseline, register_baseline
 from holocore.display.optics import OpticsConfig
+from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import has_media, reference_integrator
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
@@ -136,6 +137,7 @@ def hogel_rays(shape_hw: tuple[int, int], *, hogel_px: int, pitch_m: float, wave
     return origin.reshape(-1, 3), d.reshape(-1, 3), inside.reshape(-1)
 
 
+@recording_kernels()
 def trace_light_field(scene: Any, hmap: Any, shape_hw: tuple[int, int], *, hogel_px: int, pitch_m: float,
                       wavelengths_m: Sequence[float], z_rs_m: float, spp: int = 16, seed: int = 0,
                       integrator: Optional[Any] = None) -> np.ndarray:

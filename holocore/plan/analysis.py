@@ -12,6 +12,7 @@ from pydantic import BaseModel
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.runtime.recording import recording_kernels
 from holocore.trace.mapping import HologramMap, camera_grid
 from holocore.trace.reference_chain import aligned, trace_chain
 
@@ -132,6 +133,7 @@ def _small_shape_depths(scene, hmap: HologramMap, dirs_c: np.ndarray, n_side: in
     return np.asarray(out, dtype=np.float64)
 
 
+@recording_kernels()
 def analyze(
     scene,
     hmap: HologramMap,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.runtime.recording import recording_kernels
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["RadianceCache", "build_cache"]
@@ -70,6 +71,7 @@ def _index_np(p: np.ndarray, n: np.ndarray, lo: np.ndarray, cell: float, res: in
     return ((ijk[:, 0] * res + ijk[:, 1]) * res + ijk[:, 2]) * _BINS + b
 
 
+@recording_kernels()
 def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: float, seed: int,
                 n_side: int = 160, samples: int = 16, res: int = 96, max_delta: int = 8,
                 max_depth: int = 6) -> RadianceCache:

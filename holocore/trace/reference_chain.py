@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.runtime.recording import recording_kernels
 
 __all__ = ["ChainResult", "trace_chain"]
 
@@ -61,6 +62,7 @@ def aligned(a: np.ndarray, dtype=np.float32) -> np.ndarray:
     return out
 
 
+@recording_kernels()
 def trace_chain(
     scene,
     origins: np.ndarray,

@@ -19,6 +19,7 @@ import torch
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.runtime.recording import recording_kernels
 from holocore.trace.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
 
 if TYPE_CHECKING:
@@ -164,6 +165,7 @@ def _to_torch(x, dev: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.asarray(x))
 
 
+@recording_kernels()
 def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
                 want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False,
                 taper: Optional[float] = None) -> dict:
