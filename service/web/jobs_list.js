@@ -122,7 +122,7 @@ async function refreshDisplays() {
   const { displays } = await getJSON("/v1/displays");
   const body = clear($("displays").tBodies[0]);
   for (const d of displays) {
-    const showing = d.showing ? `${d.showing.job_id} frame ${d.showing.frame}` : "–";
+    const showing = d.showing ? `${d.showing.job_id} frame ${d.showing.frame + 1}` : "–";  // from 1, as on the job page
     body.append(el("tr", {},
       el("td", {}, d.name), el("td", {}, d.owner || "–"), el("td", {}, d.state || "–"),
       el("td", { class: "mono" }, showing), el("td", { class: "message" }, d.message || ""),

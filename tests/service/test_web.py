@@ -221,6 +221,7 @@ def test_browser_signs_in_submits_follows_and_views_a_job(server, scene, tmp_pat
 
     with server.client("agent") as c:  # a display whose agent reports markup
         assert c.post("/v1/displays/lab-web/heartbeat", json={"agent_version": "test", "state": "showing",
+                                                              "showing": {"job_id": "j-first", "frame": 0},
                                                               "message": XSS_MESSAGE}).status_code == 204
     bundle = tmp_path / "scene.zip"
     bundle.write_bytes(scene["zip"])
@@ -247,6 +248,7 @@ def test_browser_signs_in_submits_follows_and_views_a_job(server, scene, tmp_pat
         # the display's markup message is text
         wait.until(lambda d: "projector warm" in text("displays"))
         assert XSS_MESSAGE in text("displays")
+        assert "j-first frame 1" in text("displays")  # frames count from 1, as on the job page and its frame box
 
         # upload, see the scene (its name is markup: text), options, estimate, submit
         driver.find_element(By.ID, "bundle").send_keys(str(bundle))
