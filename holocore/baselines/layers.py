@@ -31,6 +31,7 @@ from pydantic import Field
 from holocore import validate
 from holocore.baselines.registry import Baseline, BaselineOptions, register_baseline
 from holocore.display.optics import OpticsConfig
+from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import reference_integrator
 
 __all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers", "LayersOptions", "LayersBaseline"]
@@ -39,6 +40,7 @@ MAX_PLANES = 256
 MAX_SPP = 1 << 16
 
 
+@recording_kernels()
 def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, spp: int = 64, seed: int = 0,
          max_depth: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB float32 [3, H, W], eye-camera depth zc float64 [H, W] in m, 0 where nothing is hit).

@@ -33,6 +33,7 @@ import numpy as np
 
 from holocore import validate
 from holocore.formats.meta import MetaLike, parse_view_meta
+from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import has_media, reference_integrator
 from holocore.trace.mapping import HologramMap
 
@@ -99,6 +100,7 @@ def thinlens_sensor(hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: fl
     })
 
 
+@recording_kernels()
 def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: float, z_inf_m: float,
                         pitch_m: float, shape_hw: tuple[int, int], focus_z_m: float, pupil_diameter_m: float,
                         view_offset_m: tuple[float, float] = (0.0, 0.0), spp: int = 256, seed: int = 0,
@@ -129,6 +131,7 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
     return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
 
 
+@recording_kernels()
 def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed: int = 0) -> np.ndarray:
     """What the scene's own camera sees, small: linear RGB float32 [3, h, w], at most ``max_width_px`` wide
     with the camera's aspect (its film's h / w, square pixels) and its horizontal field of view, from its pose,
