@@ -10,8 +10,8 @@ have freed is freed once the last recording in the process ends. Objects dropped
 freed at once as ever: holocore holds the scene it traces for the whole trace.
 
 Use :func:`recording_kernels` as a decorator (or ``with``) on each function that records and evaluates kernels
-with scene calls (``ray_intersect``, BSDF and emitter calls, an integrator's ``sample``, ``mi.render``). Nesting and threads are
-counted: collection resumes when the outermost recording ends, and only if it was on before.
+with scene calls (``ray_intersect``, BSDF and emitter calls, an integrator's ``sample``, ``mi.render``). Nesting
+and threads are counted: collection resumes when the outermost recording ends, and only if it was on before.
 """
 
 from __future__ import annotations
