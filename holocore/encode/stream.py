@@ -34,6 +34,7 @@ from holocore.encode.encoder import (
 from holocore.encode.output import quantize, stack_meta
 from holocore.encode.sgd import encoder_grid
 from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
+from holocore.formats.npz import MemberShapeError
 from holocore.io import NpyMember
 
 BASE_BYTES = 1 << 30  # interpreter, torch, transfer functions and slack outside the per-frame working set
@@ -114,13 +115,14 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     if init_path is not None:
         if method != "sgd":
             raise ValueError(f"a start phase (init) applies to method 'sgd' only, not {method!r}")
-        try:
-            init_src = NpyMember(init_path, "phase")
+        try:  # the shape is checked from the member's header, before a compressed one is inflated
+            init_src = NpyMember(init_path, "phase", shape=(F, C, H, W))
+        except MemberShapeError as exc:
+            raise ValueError(f"the start stack {Path(init_path).name} holds phase {list(exc.shape)}, but the "
+                             f"render is {[F, C, H, W]}: a warm start needs the same frames, colours and pixels") \
+                from None
         except (OSError, KeyError, ValueError) as exc:
             raise ValueError(f"cannot read the start phase from {Path(init_path).name}: {exc}") from None
-        if tuple(init_src.shape) != (F, C, H, W):
-            raise ValueError(f"the start stack {Path(init_path).name} holds phase {list(init_src.shape)}, but the "
-                             f"render is {[F, C, H, W]}: a warm start needs the same frames, colours and pixels")
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
     n_blocks = math.ceil(F / fb)

@@ -16,7 +16,22 @@ from typing import Any, Iterator, Optional, Protocol, Sequence
 import numpy as np
 
 __all__ = ["atomic_savez", "require_fchw", "npz_members", "read_npz_meta", "NpyMember", "NpzWriter",
-           "PieceSource"]
+           "PieceSource", "MemberShapeError"]
+
+
+class MemberShapeError(ValueError):
+    """A member whose header declares another shape than the reader allows (found before its data is read)."""
+
+    def __init__(self, path: Path, name: str, shape: tuple[int, ...], expected: tuple[int, ...]) -> None:
+        super().__init__(f"{path.name}: {name} is {list(shape)}, expected {list(expected)}")
+        self.shape, self.expected = shape, expected
+
+
+def _read_header(fh) -> tuple[tuple[int, ...], bool, np.dtype]:
+    version = np.lib.format.read_magic(fh)
+    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read_header(fh)
+    return tuple(int(s) for s in shape), bool(fortran), np.dtype(dtype)
 
 
 class PieceSource(Protocol):
@@ -66,18 +81,26 @@ class NpyMember:
     """One array of an .npz, read in slabs with plain reads (no mmap, so the resident set stays bounded).
 
     Uncompressed members (``np.savez``, :class:`NpzWriter`) are read in place; a compressed one
-    (``np.savez_compressed``) is loaded whole once, so every file numpy can write still opens.
+    (``np.savez_compressed``) is loaded whole once, so every file numpy can write still opens. ``shape``: the
+    shape the caller allows; a member declaring another is refused (:class:`MemberShapeError`) from its .npy
+    header, before any of its data is inflated or read: a compressed member of a few hundred kB can inflate to
+    gigabytes.
     """
 
-    def __init__(self, path: str | Path, name: str) -> None:
+    def __init__(self, path: str | Path, name: str, *, shape: Optional[Sequence[int]] = None) -> None:
         self.path, self.name = Path(path), name
         self._whole: Optional[np.ndarray] = None
+        expected = None if shape is None else tuple(int(s) for s in shape)
         with zipfile.ZipFile(self.path) as zf:
             try:
                 info = zf.getinfo(name + ".npy")
             except KeyError:
                 raise ValueError(f"{self.path} has no array {name!r}") from None
             if info.compress_type != zipfile.ZIP_STORED:
+                with zf.open(info) as fh:  # inflates lazily: the header alone first
+                    declared = _read_header(fh)[0]
+                if expected is not None and declared != expected:
+                    raise MemberShapeError(self.path, name, declared, expected)
                 with zf.open(info) as fh:
                     self._whole = np.lib.format.read_array(fh, allow_pickle=False)
         if self._whole is not None:
@@ -90,11 +113,10 @@ class NpyMember:
                 raise ValueError(f"{self.path}: bad zip local header for {name}")
             n_name, n_extra = struct.unpack("<HH", head[26:30])
             fh.seek(info.header_offset + 30 + n_name + n_extra)
-            version = np.lib.format.read_magic(fh)
-            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                np.lib.format.read_array_header_2_0
-            shape, fortran, dtype = read_header(fh)
+            shape, fortran, dtype = _read_header(fh)
             self.offset = fh.tell()
+        if expected is not None and shape != expected:
+            raise MemberShapeError(self.path, name, shape, expected)
         if fortran and len(shape) > 1:
             raise ValueError(f"{self.path}: {name} is stored in Fortran order")
         self.shape, self.dtype = tuple(shape), np.dtype(dtype)

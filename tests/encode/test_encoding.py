@@ -503,3 +503,29 @@ def test_warm_start_goes_on_from_the_start_stack(tmp_path):
         encode_file(tmp_path / "R3.npz", tmp_path / "D.npz", iterations=5, init_path=tmp_path / "A.npz")
     with pytest.raises(ValueError, match="applies to method .sgd. only"):
         encode_file(tmp_path / "R.npz", tmp_path / "E.npz", method="dpac", init_path=tmp_path / "A.npz")
+
+
+def test_a_compressed_start_stack_of_another_shape_is_refused_from_its_header(tmp_path, monkeypatch):
+    """A compressed phase member is refused from its .npy header when its shape is not the render's: its data
+    (here 100 MB of zeros in a few hundred kB of zip) is never inflated; one line says why."""
+    from holocore.encode.stream import encode_file
+    from holocore.io import save_result
+
+    target = _small_target(frames=2)
+    meta = {"focal_length_m": 0.02, "z_inf_m": 1e-3, "z_wrp_m": Z, "pitch_m": P, "wavelengths_m": LAMS}
+    save_result(tmp_path / "R.npz", slm_field=target, wrp_field=target, meta=meta)
+    np.savez_compressed(tmp_path / "big.npz", phase=np.zeros((2, target.shape[1], 2048, 2048), np.float32))
+    assert (tmp_path / "big.npz").stat().st_size < 1_000_000
+    inflated = []
+    original = np.lib.format.read_array
+
+    def read_array(*a, **k):
+        out = original(*a, **k)
+        inflated.append(out.nbytes)
+        return out
+
+    monkeypatch.setattr(np.lib.format, "read_array", read_array)
+    with pytest.raises(ValueError, match="same frames, colours and pixels") as err:
+        encode_file(tmp_path / "R.npz", tmp_path / "D.npz", iterations=5, init_path=tmp_path / "big.npz")
+    assert "\n" not in str(err.value) and "2048" in str(err.value)
+    assert max(inflated, default=0) < 1_000_000, inflated
