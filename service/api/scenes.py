@@ -33,6 +33,7 @@ from service.models import ID_PATTERN, SceneOut
 from service.scene_view import scene_field_of_view_box
 from service.submission import storage_error
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
+from service.workers.planner import killed_from_outside
 
 __all__ = ["router", "scene_out", "iso", "scene_id_for"]
 
@@ -64,6 +65,17 @@ def scene_id_for(owner: str, sha256: str, entry: str) -> str:
     the same files; the default owner keeps the ids of a single-tenant service."""
     key = f"{sha256}\0{entry}" if owner == DEFAULT_OWNER else f"{owner}\0{sha256}\0{entry}"
     return "s" + hashlib.sha256(key.encode()).hexdigest()[:24]
+
+
+def _replan_if_killed(ctx: ServiceContext, scene_id: str) -> bool:
+    """A scene whose plan failed only because its process was killed from outside (the machine short of
+    memory, say) is planned again when its bundle is uploaded again: that failure says nothing of the
+    content. True when it went back to pending."""
+    row = ctx.db.get_scene(scene_id)
+    if row is None or row["plan_state"] != "failed" or not killed_from_outside(row["plan_error"]):
+        return False
+    return ctx.db.update_scene(scene_id, where_plan_state="failed", plan_state="pending", plan=None,
+                               plan_error=None, plan_updated_at=time.time())
 
 
 def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[UploadFile], entry: Optional[str],
@@ -105,6 +117,8 @@ def _ingest(ctx: ServiceContext, bundle: Optional[UploadFile], files: list[Uploa
                    "ignored": report.ignored}
         first = ctx.db.insert_scene({"id": scene_id, "sha256": report.sha256, "entry": entry_rel, "report": summary,
                                      "plan_state": "pending", "created_at": time.time()})
+        if not first:
+            first = _replan_if_killed(ctx, scene_id)
         created = ctx.db.add_scene_owner(scene_id, owner)
         return ctx.db.get_scene(scene_id), created, first
     finally:

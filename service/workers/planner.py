@@ -8,8 +8,15 @@ working directory of its own, never the bundle's folder: Mitsuba's default file 
 directory, and plugins are looked up through it as ``plugins/<name>.so``.
 
 The plan runs under kernel resource limits (service/workers/limits.py: memory, CPU time, open files, file
-size, and processes for the planner uid) and, besides, under a watch of its resident memory and wall clock; a
-plan stopped by any of them fails saying which."""
+size, and processes for the planner uid) and, besides, under a watch of its resident memory, its wall clock and
+how much it prints (``MAX_PLAN_OUTPUT_BYTES`` on each of stdout and stderr: the plan's JSON is small, and the
+whole output was read into the server's memory); a plan stopped by any of them fails saying which.
+
+A plan killed by SIGKILL or SIGTERM that no limit of its own explains was most likely stopped from outside (the
+kernel's out-of-memory killer choosing it for what others hold, an operator): it goes back to pending and is
+planned again, up to ``KILLED_RETRIES`` times in a server's life; after that it fails saying so
+(``KILLED_ERROR``), and uploading the same bundle again plans it afresh (service/api/scenes.py), so content is
+never blocked for good by someone else's memory."""
 
 from __future__ import annotations
 
@@ -17,6 +24,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -38,7 +46,8 @@ from service.workers.engine import (
 )
 from service.workers.limits import ProcessLimits, explain_limit, plan_limits, wrap_command
 
-__all__ = ["Planner", "keep_picture", "PICTURE_NAME"]
+__all__ = ["Planner", "keep_picture", "PICTURE_NAME", "MAX_PLAN_OUTPUT_BYTES", "KILLED_ERROR", "KILLED_RETRIES",
+           "killed_from_outside"]
 
 log = logging.getLogger("holo.service.planner")
 
@@ -49,6 +58,44 @@ PICTURE_WIDTH_PX = 320
 PICTURE_SPP = 32
 _PICTURE_MAX_BYTES = 4 << 20
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+MAX_PLAN_OUTPUT_BYTES = 4 << 20  # of each of stdout and stderr; a plan's JSON is tens of kB
+_EXTERNAL_SIGNALS = (signal.SIGKILL, signal.SIGTERM)  # what another process or the kernel sends; a crash is not
+KILLED_RETRIES = 2
+KILLED_ERROR = "holo plan was killed by a signal from outside"  # how a stored failure says it may be re-planned
+
+
+def killed_from_outside(plan_error: object) -> bool:
+    """Whether a failed plan's stored error says its process was killed from outside (worth planning again)."""
+    return isinstance(plan_error, str) and plan_error.startswith(KILLED_ERROR)
+
+
+class _Capped:
+    """Reads a pipe to its end on a thread of its own, keeping at most ``cap`` bytes; ``over`` is set (and the
+    reading stops) once the process has printed more."""
+
+    def __init__(self, pipe, cap: int) -> None:
+        self.pipe, self.cap, self.data = pipe, cap, bytearray()
+        self.over = threading.Event()
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        read = getattr(self.pipe, "read1", self.pipe.read)
+        try:
+            while True:
+                chunk = read(1 << 16)
+                if not chunk:
+                    return
+                if len(self.data) + len(chunk) > self.cap:
+                    self.over.set()
+                    return
+                self.data += chunk
+        except (OSError, ValueError):  # closed under it
+            return
+
+    def result(self) -> bytes:
+        self.thread.join(timeout=5)
+        return bytes(self.data)
 
 
 def keep_picture(made: Path, scene_dir: Path, said: object) -> dict:
@@ -118,6 +165,7 @@ class Planner:
         self._proc: Optional[subprocess.Popen] = None
         self._thread: Optional[threading.Thread] = None
         self.run_as: Optional[RunAs] = None
+        self._killed: dict[str, int] = {}  # scene id -> plans of it killed from outside in this server's life
 
     def start(self) -> None:
         base = resolve_sandbox(self.settings)
@@ -198,12 +246,24 @@ class Planner:
                                           env=driver_env() if work is None else sandbox_env(work),
                                           start_new_session=True, **extra)
             deadline = time.monotonic() + self.settings.plan_timeout_s
+            pipes = {"stdout": _Capped(self._proc.stdout, MAX_PLAN_OUTPUT_BYTES),
+                     "stderr": _Capped(self._proc.stderr, MAX_PLAN_OUTPUT_BYTES)}
             while True:
                 try:
-                    out, err = self._proc.communicate(timeout=_WATCH_S)
-                    break
+                    self._proc.wait(timeout=_WATCH_S)
                 except subprocess.TimeoutExpired:
                     pass
+                over = next((name for name, p in pipes.items() if p.over.is_set()), None)
+                if over is not None:
+                    kill_group(self._proc.pid, grace_s=0.5, proc=self._proc)
+                    self._store(scene["id"], None, f"holo plan printed more than {MAX_PLAN_OUTPUT_BYTES >> 20} MiB "
+                                                   f"on its {over} and was stopped")
+                    return
+                if self._proc.returncode is not None:
+                    out, err = pipes["stdout"].result(), pipes["stderr"].result()
+                    if any(p.over.is_set() for p in pipes.values()):
+                        continue  # the last of it came with the exit: refused above
+                    break
                 cpu_used = max(cpu_used, _cpu_seconds(self._proc.pid))
                 rss = _rss_bytes(self._proc.pid)
                 if rss > self.max_plan_rss_bytes:
@@ -227,6 +287,9 @@ class Planner:
             if stopped is not None:
                 self._store(scene["id"], None, f"{stopped}; make the scene smaller")
                 return
+            if rc < 0 and -rc in _EXTERNAL_SIGNALS:
+                self._killed_from_outside(scene["id"], signal.Signals(-rc).name)
+                return
             lines = [ln for ln in text.strip().splitlines() if ln.strip()]
             msg = next((ln for ln in reversed(lines) if ln.startswith("error:")), lines[-1] if lines else "")
             if work is not None:  # the copy's path is nobody's business; say the bundle's
@@ -243,9 +306,25 @@ class Planner:
                                           doc.get("picture"))
         self._store(scene["id"], doc, None)
 
+    def _killed_from_outside(self, scene_id: str, name: str) -> None:
+        """Back to pending, to be planned again (KILLED_RETRIES times; then a failure saying so)."""
+        import time
+
+        n = self._killed[scene_id] = self._killed.get(scene_id, 0) + 1
+        if n <= KILLED_RETRIES:
+            log.warning("scene %s: holo plan was killed by %s (not by a limit of its own): planned again",
+                        scene_id, name)
+            self.db.update_scene(scene_id, where_plan_state="running", plan_state="pending",
+                                 plan_updated_at=time.time())
+            return
+        del self._killed[scene_id]
+        self._store(scene_id, None, f"{KILLED_ERROR} ({name}) {n} times, none a limit of its own (most likely the "
+                                    "machine ran short of memory); upload the scene again to plan it again")
+
     def _store(self, scene_id: str, plan: Optional[dict], error: Optional[str]) -> None:
         import time
 
+        self._killed.pop(scene_id, None)
         if error is not None:  # bundle-relative paths only; no server path reaches the user or the database
             error = scrub_message(error, roots=[self.settings.scenes_dir / scene_id / "bundle",
                                                 self.settings.sandbox_dir / f"plan-{scene_id}" / "bundle",

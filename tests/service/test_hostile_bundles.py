@@ -359,9 +359,10 @@ def test_the_planner_runs_in_an_empty_folder(tmp_path, monkeypatch):
             seen["cwd"] = Path(kw["cwd"])
             seen["listing"] = sorted(os.listdir(kw["cwd"]))
             self.returncode, self.pid = 0, os.getpid()
+            self.stdout, self.stderr = io.BytesIO(b'{"summary": []}'), io.BytesIO(b"")
 
-        def communicate(self, timeout=None):
-            return b'{"summary": []}', b""
+        def wait(self, timeout=None):
+            return self.returncode
 
     class FakeDb:
         def update_scene(self, *a, **kw):

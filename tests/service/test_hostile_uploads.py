@@ -412,3 +412,70 @@ def test_a_gpu_out_of_memory_is_not_blamed_on_the_memory_limit():
         assert explain_limit("holo render", 1, tail, 0.0, limits) is None, tail
     said = explain_limit("holo render", 1, "x\nMemoryError\n", 0.0, limits)
     assert said == "holo render needed more than the 8.6 GB of memory a process may use and was stopped"
+
+
+# ---- a plan killed from outside; a plan that prints without end ----------------------------------------------------
+_KILL_ITSELF = "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"
+
+
+def test_a_plan_killed_from_outside_goes_back_to_pending(tmp_path):
+    """A SIGKILL that no limit of the plan's own explains (the out-of-memory killer choosing it for what others
+    hold) stored the scene's plan as failed for good. It goes back to pending, a few times, then fails saying
+    it may be planned again."""
+    from service.workers import planner as planner_mod
+
+    retries = getattr(planner_mod, "KILLED_RETRIES", 2)
+    p, db = planner(tmp_path, _KILL_ITSELF, plan_timeout_s=60)
+    for _ in range(retries):
+        p._plan({"id": "s1", "entry": "scene.xml"})
+        assert db.stored["plan_state"] == "pending" and "plan_error" not in db.stored, db.stored
+    p._plan({"id": "s1", "entry": "scene.xml"})
+    assert db.stored["plan_state"] == "failed" and planner_mod.killed_from_outside(db.stored["plan_error"]), \
+        db.stored
+    assert "SIGKILL" in db.stored["plan_error"] and "upload the scene again" in db.stored["plan_error"]
+
+
+def test_a_scene_whose_plan_was_killed_is_planned_again_on_upload(tmp_path):
+    """Re-uploading the bundle answered 200 with the failed plan: content blocked for good by someone else's
+    memory. Now it goes back to pending; a plan that failed on its own merits stays failed."""
+    from fastapi.testclient import TestClient
+
+    from service.api.app import create_app
+    from service.settings import ServiceSettings
+    from service.workers import planner as planner_mod
+    from tests.service.helpers import make_token, zip_dir
+
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "scene.xml").write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    app = create_app(ServiceSettings(data_dir=tmp_path / "data"), start_workers=False)
+    db = app.state.ctx.db
+    tok = make_token(tmp_path / "data", "submit")
+    with TestClient(app, headers={"Authorization": f"Bearer {tok}"}) as c:
+        def post():
+            r = c.post("/v1/scenes", files={"bundle": ("b.zip", zip_dir(tmp_path / "s"), "application/zip")})
+            assert r.status_code in (200, 201), r.text
+            return r.json()
+
+        sid = post()["id"]
+        killed = getattr(planner_mod, "KILLED_ERROR", "holo plan was killed by a signal from outside")
+        for error, again in ((f"{killed} (SIGKILL) 3 times", "pending"),
+                             ("holo plan failed (exit -11): crashed", "failed")):
+            db.update_scene(sid, plan_state="failed", plan_error=error)
+            doc = post()
+            assert doc["plan_state"] == again and db.get_scene(sid)["plan_state"] == again, (error, doc)
+            assert (doc["plan_error"] is None) == (again == "pending")
+
+
+def test_a_plan_that_prints_without_end_is_stopped(tmp_path):
+    """The plan's stdout was read whole into the server's memory: past a few MiB it is refused, and the plan
+    stopped, in one line."""
+    from service.workers import planner as planner_mod
+
+    cap = getattr(planner_mod, "MAX_PLAN_OUTPUT_BYTES", 4 << 20)
+    code = f"import sys, time; sys.stdout.write('x' * {cap + (1 << 20)}); sys.stdout.flush(); " \
+           "time.sleep(30)"
+    p, db = planner(tmp_path, code, plan_timeout_s=60)
+    t0 = time.monotonic()
+    p._plan({"id": "s1", "entry": "scene.xml"})
+    assert db.stored["plan_state"] == "failed" and "printed more than 4 MiB on its stdout" in db.stored["plan_error"]
+    assert time.monotonic() - t0 < 20, "stopped at once, not at its end"
