@@ -5,13 +5,13 @@ imports only (pydantic, and holocore.plan.presets' names). Files written by earl
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, TypedDict, Union, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from holocore.plan.presets import MAX_WRP_PLANES, PresetName, RenderMethod
+from service.untrusted import read_job_json
 
 __all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobFields", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
            "RunStatus", "Progress", "read_job_file", "read_run_status"]
@@ -140,15 +140,16 @@ class Progress(TypedDict):
 
 
 def read_job_file(job_dir: Path) -> JobFile:
-    """``job_dir/job.json`` (OSError, ValueError when missing or not a job file)."""
-    return JobFile.model_validate(json.loads((job_dir / "job.json").read_text()))
+    """``job_dir/job.json`` (OSError, ValueError when missing or not a job file; read as a job's files are,
+    service/untrusted.py)."""
+    return JobFile.model_validate(read_job_json(job_dir, "job.json"))
 
 
 def read_run_status(job_dir: Path, attempt: Optional[int] = None) -> Optional[RunStatus]:
     """``job_dir/status.json`` if it is a run status (written by run ``attempt`` when given: not by a stale
     earlier run), else None."""
     try:
-        status = RunStatus.model_validate(json.loads((job_dir / "status.json").read_text()))
+        status = RunStatus.model_validate(read_job_json(job_dir, "status.json"))
     except (OSError, ValueError, ValidationError):
         return None
     if attempt is not None and status.attempt != attempt:

@@ -7,7 +7,6 @@ request does no work."""
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Optional
@@ -22,6 +21,7 @@ from service.api.jobs import _get
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN
+from service.untrusted import open_job_file, read_job_json
 from service.workers.evaluation import FILE_PATTERN
 
 __all__ = ["router", "EvaluationOut", "EvaluationFocus", "EvaluationView", "ViewerScoreOut", "ViewerPupil"]
@@ -117,7 +117,7 @@ def _evaluated(ctx, job_id: str, principal) -> tuple[dict, Path, dict]:
                        f"job {job_id} is {row['state']}: it has no evaluation")
     folder = Path(row["artifact_dir"] or "") / "evaluation"
     try:
-        doc = json.loads((folder / "index.json").read_text()) if row["artifact_dir"] else None
+        doc = read_job_json(row["artifact_dir"], "evaluation/index.json") if row["artifact_dir"] else None
     except (OSError, ValueError):
         doc = None
     if not isinstance(doc, dict) or doc.get("stack_sha256") != row["stack_sha256"]:
@@ -169,14 +169,15 @@ def job_evaluation_file(request: Request, ctx: Ctx, principal: ReadScope, job_id
                         name: str = PathParam(pattern=FILE_PATTERN)):
     """One PNG of the evaluation (``truth-fFF-vVV.png``, ``recon-fFF-vVV.png``: focus FF, view VV), checked
     against the SHA-256 its index records."""
-    _, folder, doc = _evaluated(ctx, job_id, principal)
+    row, folder, doc = _evaluated(ctx, job_id, principal)
     sha = _files(doc).get(name)
     path = folder / "pairs" / name
+    root = Path(row["artifact_dir"])
     if sha is None or not path.is_file() or path.is_symlink():
         raise ApiError(404, f"job {job_id}'s evaluation has no picture {name!r}")
-    if not artifact_intact(path, sha):
+    if not artifact_intact(path, sha, root=root):
         raise ApiError(409, f"job {job_id}: evaluation picture {name} fails its integrity check; it is not served")
-    with open(path, "rb") as fh:
+    with open_job_file(root, f"evaluation/pairs/{name}") as fh:
         if fh.read(8) != _PNG_MAGIC:
             raise ApiError(409, f"job {job_id}: evaluation picture {name} is not a PNG; it is not served")
     resp = file_response(request, path, sha256=sha, media_type="image/png", filename=f"{job_id}-{name}")

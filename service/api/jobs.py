@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import shutil
-import stat
 import time
 from pathlib import Path
 from typing import Literal, Optional
@@ -28,6 +26,7 @@ from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest
 from service.scene_view import scene_field_of_view_box
+from service.untrusted import read_job_tail
 
 __all__ = ["router", "job_out"]
 
@@ -170,19 +169,10 @@ def _log_text(path: Path, roots: list[str]) -> str:
     path as ``<server path>`` (as the job's error says them)."""
     from holocore.scene.errors import scrub_message
 
-    # While a sandboxed run goes on, its folder is its uid's and this process is root: the log may be swapped
-    # for a link (to the database, /etc/shadow), a fifo or a hard link between any check and the open, so the
-    # open itself refuses links and never blocks, and what it opened must be a plain file with one name.
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    st = os.fstat(fd)
-    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
-        os.close(fd)
-        raise OSError(f"{path.name} is not a plain file of the job's")
-    with os.fdopen(fd, "rb") as fh:
-        fh.seek(0, os.SEEK_END)
-        size = fh.tell()
-        fh.seek(max(0, size - _LOG_TAIL_BYTES))
-        data = fh.read().decode("utf-8", errors="replace")
+    # While a sandboxed run goes on, its folder is its uid's and this process is root: the log may be swapped for
+    # a link, a fifo or a hard link at any time, so it is read as every file of a job's is (service/untrusted.py).
+    tail, size = read_job_tail(path.parent, path.name, tail_bytes=_LOG_TAIL_BYTES)
+    data = tail.decode("utf-8", errors="replace")
     lines = data.splitlines()
     if size > _LOG_TAIL_BYTES and lines:
         lines = [f"[the first {size - _LOG_TAIL_BYTES} bytes are left out]", *lines[1:]]

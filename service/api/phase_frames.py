@@ -22,6 +22,7 @@ from service.api.jobs import _get
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN
+from service.untrusted import JSON_MAX_BYTES, open_job_file
 
 __all__ = ["router", "colour_name", "PhaseIndex", "PhaseColour"]
 
@@ -76,6 +77,35 @@ def _intact(row: dict, name: str, sha: str | None) -> Path:
     return path
 
 
+def _job_shape(row: dict) -> tuple[int, int, int, int]:
+    """[F, C, H, W] the job's options ask for: what its stack and frames may hold, at most."""
+    o = ((row.get("spec") or {}).get("optics") or {}) if isinstance(row.get("spec"), dict) else {}
+    try:
+        h, w = (int(v) for v in o["resolution_hw"])
+        return int(o["frames"]), len(o["wavelengths_nm"]), h, w
+    except (KeyError, TypeError, ValueError):
+        raise ApiError(409, f"job {row['id']}: its stored options give no stack shape") from None
+
+
+def _member(zf: zipfile.ZipFile, name: str, *, max_bytes: int, what: str) -> zipfile.ZipInfo:
+    """The stored (uncompressed) member ``name`` of at most ``max_bytes``: the worker writes every member stored,
+    so a compressed one is not its, and its inflated size is checked before any byte is read."""
+    info = zf.getinfo(name)
+    if info.compress_type != zipfile.ZIP_STORED or info.compress_size != info.file_size:
+        raise ApiError(409, f"{what}: {name} is compressed; the worker writes it stored, so it is not served")
+    if info.file_size > max_bytes:
+        raise ApiError(409, f"{what}: {name} holds {info.file_size} bytes, more than the job's size allows "
+                            f"({max_bytes})")
+    return info
+
+
+def _png_max_bytes(h: int, w: int) -> int:
+    """The most an 8-bit grey H x W PNG can take: a filter byte a row, zlib's stored blocks (5 bytes per 64 KiB)
+    and the chunks' headers."""
+    raw = h * (w + 1)
+    return raw + 5 * (raw // 65535 + 1) + 4096
+
+
 @router.get("/v1/jobs/{job_id}/phase", response_model=PhaseIndex, responses=PROBLEM_RESPONSES)
 def phase_index(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """The job's phase frames: how many, the colours with their wavelengths (nm), the SLM's size in pixels, and
@@ -85,10 +115,15 @@ def phase_index(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=
 
     row = _succeeded(ctx, job_id, principal)
     stack = _intact(row, "stack.npz", row["stack_sha256"])
+    f_max, c_max, h_max, w_max = _job_shape(row)
+    what = f"job {job_id}'s stack.npz"
     try:
+        with open_job_file(stack.parent, stack.name) as fh, zipfile.ZipFile(fh) as zf:
+            _member(zf, "frames_u8.npy", max_bytes=f_max * c_max * h_max * w_max + 4096, what=what)
+            _member(zf, "meta.npy", max_bytes=JSON_MAX_BYTES, what=what)
         shape = NpyMember(stack, "frames_u8").shape
         meta = parse_stack_meta(read_npz_meta(stack), what="stack.npz")
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
         raise ApiError(409, f"job {job_id}: its stack.npz cannot be read ({type(exc).__name__})") from None
     if len(shape) != 4 or len(meta.wavelengths_m) != shape[1]:
         raise ApiError(409, f"job {job_id}: its stack.npz is not a [F, C, H, W] stack with one wavelength a colour")
@@ -111,8 +146,9 @@ def phase_frame(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = 
     row = _succeeded(ctx, job_id, principal)
     info = (row["artifacts"] or {}).get("frames.zip") or {}
     path = _intact(row, "frames.zip", info.get("sha256"))
+    _, _, h, w = _job_shape(row)
     try:
-        with zipfile.ZipFile(path) as zf:
+        with open_job_file(path.parent, path.name) as fh, zipfile.ZipFile(fh) as zf:
             names = zf.namelist()
             want = f"f{frame:03d}_c{colour}.png"
             if want not in names:
@@ -124,7 +160,8 @@ def phase_frame(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = 
                 if colour >= n_c:
                     raise ApiError(404, f"job {job_id} has {n_c} colour(s), 0..{n_c - 1}; no colour {colour}")
                 raise ApiError(404, f"job {job_id}: its frames.zip lacks frame {frame} colour {colour}")
-            data = zf.read(want)
+            member = _member(zf, want, max_bytes=_png_max_bytes(h, w), what=f"job {job_id}'s frames.zip")
+            data = zf.read(member)
     except (OSError, zipfile.BadZipFile):
         raise ApiError(409, f"job {job_id}: its frames.zip cannot be read") from None
     etag = f'"{info["sha256"][:32]}-f{frame}-c{colour}"'

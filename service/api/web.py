@@ -22,7 +22,6 @@ plain HTML written from the schema: FastAPI's try-it pages, which load their scr
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import re
 from functools import lru_cache
@@ -49,6 +48,7 @@ from service.models import (
 )
 from service.scene_view import scene_field_of_view_box
 from service.submission import admit_job, reusable_job, scene_plane_border
+from service.untrusted import open_job_file, read_job_json
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
 
@@ -255,7 +255,7 @@ def _job(ctx: ServiceContext, job_id: str, principal: Principal) -> dict:
 def _index(row: dict) -> tuple[Path, dict]:
     folder = Path(row["artifact_dir"] or "") / "pictures"
     try:
-        doc = json.loads((folder / "index.json").read_text())
+        doc = read_job_json(row["artifact_dir"] or "", "pictures/index.json")
     except (OSError, ValueError):
         doc = None
     if not isinstance(doc, dict) or doc.get("stack_sha256") != row["stack_sha256"]:
@@ -295,9 +295,9 @@ def job_picture(request: Request, ctx: Ctx, principal: ReadScope, job_id: str = 
     path = folder / name
     if info is None or not isinstance(info.get("sha256"), str) or not path.is_file():
         raise ApiError(404, f"job {job_id} has no picture {name!r}")
-    if not artifact_intact(path, info["sha256"]):
+    if not artifact_intact(path, info["sha256"], root=Path(row["artifact_dir"])):
         raise ApiError(409, f"job {job_id}: picture {name} fails its integrity check; it is not served")
-    with open(path, "rb") as fh:
+    with open_job_file(row["artifact_dir"], f"pictures/{name}") as fh:
         if fh.read(8) != _PNG_MAGIC:
             raise ApiError(409, f"job {job_id}: picture {name} is not a PNG; it is not served")
     resp = file_response(request, path, sha256=info["sha256"], media_type="image/png", filename=f"{job_id}-{name}")

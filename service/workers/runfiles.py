@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import stat
 import time
 from pathlib import Path
 from typing import Optional
 
 from service.jobfiles import STEPS, Progress, RenderStage, Step
+from service.untrusted import open_job_file, read_job_json, read_job_tail
 
 __all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "EVALUATE_WEIGHT", "RENDER_STAGE_END", "hash_artifacts",
            "read_progress", "step_weights", "remove_partials"]
@@ -35,17 +34,14 @@ RENDER_STAGE_END: dict[RenderStage, float] = {"analysis": 0.1, "trace": 0.9, "pr
 
 def hash_artifacts(job_dir: Path) -> dict[str, dict]:
     """{name: {"sha256", "bytes"}} of the job's artifacts, hashed here: plain files only (no symlink is
-    followed, no file with other hard links counts)."""
+    followed, no file with other hard links counts; service/untrusted.py)."""
     out: dict[str, dict] = {}
     for name in ARTIFACTS:
         try:
-            fd = os.open(job_dir / name, os.O_RDONLY | os.O_NOFOLLOW)
+            fh = open_job_file(job_dir, name)
         except OSError:
             continue
-        with os.fdopen(fd, "rb") as fh:
-            st = os.fstat(fh.fileno())
-            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
-                continue
+        with fh:
             h, n = hashlib.sha256(), 0
             for chunk in iter(lambda: fh.read(1 << 20), b""):
                 h.update(chunk)
@@ -54,13 +50,9 @@ def hash_artifacts(job_dir: Path) -> dict[str, dict]:
     return out
 
 
-def _last_json_line(path: Path) -> Optional[dict]:
+def _last_json_line(job_dir: Path, name: str) -> Optional[dict]:
     try:
-        with open(path, "rb") as fh:
-            fh.seek(0, os.SEEK_END)
-            size = fh.tell()
-            fh.seek(max(0, size - 4096))
-            lines = fh.read().strip().splitlines()
+        lines = read_job_tail(job_dir, name, tail_bytes=4096)[0].strip().splitlines()
     except OSError:
         return None
     for line in reversed(lines):
@@ -76,7 +68,7 @@ def _last_json_line(path: Path) -> Optional[dict]:
 def step_weights(job_dir: Path) -> dict[str, float]:
     """Each step's share of the run: :data:`STEP_WEIGHTS`, and the evaluation's when job.json asks for one."""
     try:
-        evaluating = json.loads((job_dir / "job.json").read_text()).get("evaluate") is True
+        evaluating = read_job_json(job_dir, "job.json").get("evaluate") is True
     except (OSError, ValueError, AttributeError):
         evaluating = False
     if not evaluating:
@@ -85,16 +77,17 @@ def step_weights(job_dir: Path) -> dict[str, float]:
 
 
 def read_progress(job_dir: Path) -> Optional[Progress]:
-    """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files."""
+    """{"step", "stage", "done", "total", "fraction"} from a run's step.json and progress files (read as a job's
+    files are, service/untrusted.py: a link, FIFO or huge file there reads as no progress, never blocks)."""
     try:
-        doc = json.loads((job_dir / "step.json").read_text())
+        doc = read_job_json(job_dir, "step.json")
         step = doc["step"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     weights = step_weights(job_dir)
     if not isinstance(step, str) or step not in weights:
         return None
-    line = _last_json_line(job_dir / f"progress-{step}.jsonl") or {}
+    line = _last_json_line(job_dir, f"progress-{step}.jsonl") or {}
     done, total = line.get("done", 0), line.get("total", 0)
     within = min(1.0, done / total) if isinstance(done, int) and isinstance(total, int) and total > 0 else 0.0
     stage = line.get("stage")

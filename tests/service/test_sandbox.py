@@ -59,6 +59,48 @@ def _tamper():
         print("tamper hook:", type(exc).__name__, exc, file=sys.stderr)
 
 atexit.register(_tamper)
+
+
+def _swap_while_running():
+    # in the job driver of seed 97, while it runs: step.json a FIFO for 3 s (a plain open() by the root-side
+    # scheduler would block for good), then for 3 s step.json naming the encode step and its progress file a
+    # link to a root-only file beside the data dir (read through the link, its text would reach the API)
+    import time
+    time.sleep(0.3)  # sys.argv names the module only once runpy has found it
+    if not sys.argv or not sys.argv[0].endswith(os.path.join("service", "workers", "driver.py")):
+        return
+    try:
+        if json.load(open("optics.json")).get("seed") != 97:
+            return
+        secret = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.getcwd()))), "secret.jsonl")
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 6.0:
+            fifo = time.monotonic() - t0 < 3.0
+            try:
+                if fifo:
+                    if os.path.lexists("step.json") and not stat.S_ISFIFO(os.lstat("step.json").st_mode):
+                        os.unlink("step.json")
+                    if not os.path.lexists("step.json"):
+                        os.mkfifo("step.json")
+                else:
+                    with open("step.json.tmp", "w") as fh:
+                        json.dump({"step": "encode", "index": 1}, fh)
+                    os.replace("step.json.tmp", "step.json")
+                    if not os.path.islink("progress-encode.jsonl"):
+                        if os.path.lexists("progress-encode.jsonl"):
+                            os.unlink("progress-encode.jsonl")
+                        os.symlink(secret, "progress-encode.jsonl")
+            except OSError:
+                pass
+            time.sleep(0.02)
+        if os.path.islink("progress-encode.jsonl"):
+            os.unlink("progress-encode.jsonl")
+    except Exception as exc:  # noqa: BLE001
+        print("swap hook:", type(exc).__name__, exc, file=sys.stderr)
+
+
+import stat, threading
+threading.Thread(target=_swap_while_running, daemon=True).start()
 '''
 
 
@@ -287,3 +329,38 @@ def test_an_artifact_swapped_for_a_link_to_the_database_is_dropped(sbx):
             r = c.get(f"/v1/jobs/{job['id']}/{kind}")
             assert r.status_code == 200 and b"SQLite format 3" not in r.content[:64]
     assert "removed from its dir" in sbx["server"].log()
+
+
+def test_a_job_that_swaps_its_files_for_fifos_and_links_leaves_the_scheduler_running(sbx):
+    """The scheduler (root) reads a running job's step.json and progress file on every tick: a FIFO there must
+    not block it, and a link to a root-only file must not put that file's text into the job's progress."""
+    from service.auth import create_token
+    from service.db import Database
+
+    server = sbx["server"]
+    secret = sbx["root"] / "secret.jsonl"
+    secret.write_text(json.dumps({"stage": "ROOT-ONLY-SECRET", "done": 1, "total": 2}) + "\n")
+    os.chmod(secret, 0o600)
+    hostile = _submit(sbx, 97)
+    other = create_token(Database(server.data_dir / "service.db"), scopes=("submit",), owner="bystander")[1]
+    stages = set()
+    with server.client(other) as b, server.client("reader") as c:
+        up = upload(b, sbx["root"] / "scene")  # the same bundle: the scene is the bystander's too
+        assert up.status_code in (200, 201), up.text
+        body = {"scene_id": up.json()["id"], **SMALL_JOB, "optics": {**SMALL_JOB["optics"], "seed": 96}}
+        r = b.post("/v1/jobs", json=body)
+        assert r.status_code == 202, r.text
+        bystander = r.json()["id"]
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:
+            job = c.get(f"/v1/jobs/{hostile['id']}").json()
+            stages.add(str((job.get("progress") or {}).get("stage")))
+            if job["state"] in ("succeeded", "failed", "cancelled"):
+                break
+            time.sleep(0.05)
+        done = wait_state(b, bystander, ("succeeded", "failed", "cancelled"), timeout=240)
+        assert done["state"] == "succeeded", done["error"]
+        assert c.get("/v1/queue").json()["workers"]["alive"] is True
+    assert not any("SECRET" in s for s in stages), stages
+    final = wait_state(server.client("reader"), hostile["id"], ("succeeded", "failed", "cancelled"), timeout=240)
+    assert final["state"] in ("succeeded", "failed")  # its own run is its business; it ended, the service went on
