@@ -131,11 +131,15 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
     return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
 
 
+_PICTURE_MAX_ASPECT = 4  # the picture's height is at most this many times its widest
+
+
 @recording_kernels()
 def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed: int = 0) -> np.ndarray:
-    """What the scene's own camera sees, small: linear RGB float32 [3, h, w], at most ``max_width_px`` wide
-    with the camera's aspect (its film's h / w, square pixels) and its horizontal field of view, from its pose,
-    as a pinhole; Mitsuba's path tracer (volpath where the scene holds media) at ``spp`` samples per pixel.
+    """What the scene's own camera sees, small: linear RGB float32 [3, h, w], at most ``max_width_px`` wide and
+    4 ``max_width_px`` tall, with the camera's aspect (its film's h / w, square pixels) and its horizontal field
+    of view, from its pose, as a pinhole; Mitsuba's path tracer (volpath where the scene holds media) at ``spp``
+    samples per pixel.
     A picture a person recognises the scene by, not a ground truth: the display's optics play no part, so the
     hologram's view can be drawn over it (holocore.display.profiles.field_of_view_box)."""
     from holocore.runtime.mitsuba_env import mitsuba
@@ -149,6 +153,9 @@ def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed:
     film_h, film_w = sensor_film_hw(loaded.sensor)
     w = min(int(max_width_px), film_w)
     h = max(1, round(w * film_h / film_w))
+    if h > _PICTURE_MAX_ASPECT * int(max_width_px):  # a tall film: the height is bounded too, the aspect kept
+        h = _PICTURE_MAX_ASPECT * int(max_width_px)
+        w = max(1, round(h * film_w / film_h))
     sensor = {
         "type": "perspective", "fov": float(loaded.fov_x_deg), "fov_axis": "x", "near_clip": 1e-3,
         "to_world": mi.ScalarTransform4f(

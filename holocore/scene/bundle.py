@@ -19,7 +19,7 @@ The check sees what Mitsuba will do, with Mitsuba's own rules, probed against Mi
   reads them, by content: a PNG named ``t.dat`` counts as an image; every use of a file counts). Only UTF-8 XML
   is read; every parser error is a BundleError. Plugins that read a file must name it (``_NEEDS_FILENAME``),
   plugins Mitsuba crashes on without a property need it (``_NEEDS_PROPERTY``), a sampler's ``sample_count`` is
-  bounded, and property names hold no whitespace.
+  bounded, a film's size is bounded (:func:`film_size_error`), and property names hold no whitespace.
 - The scene's ``<integrator>`` is ignored: the hologram brings its own. ``entry_source`` gives the entry XML
   with its top-level integrators blanked (line and column numbers kept), and the report says what was ignored.
 Pure Python: no Mitsuba import.
@@ -133,6 +133,24 @@ _NEEDS_PROPERTY = {"bsdf:blendbsdf": ("weight",)}
 # stratified, orthogonal and ldsampler never finish their constructor. The renderer brings its own sampler, so
 # the scene's is only instantiated.
 _MAX_SAMPLE_COUNT = 1 << 16
+# A film's size: nothing renders at it (the hologram has its own resolution), but it gives the camera's aspect, and
+# the scene's picture (holocore.evaluate.groundtruth.camera_picture) follows that aspect: a film of 1 x 30,000,000
+# px made a picture 30 M px tall and held the planner for minutes. Each side and the area are bounded here, at
+# upload, and again when a scene is loaded (holocore.scene.load.sensor_film_hw), by this one rule.
+MAX_FILM_SIDE_PX = 16384
+MAX_FILM_PIXELS = 1 << 26
+_DEFAULT_FILM_HW = (576, 768)  # Mitsuba's film without a width or height
+
+
+def film_size_error(height_px: int, width_px: int) -> Optional[str]:
+    """Why a film of ``height_px`` x ``width_px`` pixels is refused (None when it is not), in one line."""
+    if not (1 <= height_px <= MAX_FILM_SIDE_PX and 1 <= width_px <= MAX_FILM_SIDE_PX):
+        return (f"the camera's film is {width_px} x {height_px} px: each side must be 1 to {MAX_FILM_SIDE_PX} px "
+                "(the film gives the camera's aspect; the hologram has its own resolution)")
+    if height_px * width_px > MAX_FILM_PIXELS:
+        return (f"the camera's film is {width_px} x {height_px} px: at most {MAX_FILM_PIXELS} px in all "
+                "(the film gives the camera's aspect; the hologram has its own resolution)")
+    return None
 class _Walker:
     """One pass over the entry and its includes in document order, as Mitsuba's parser reads them."""
 
@@ -262,6 +280,8 @@ class _Walker:
                 user = parent if tag == "string" else plugin
                 self.account(ref, user, self.shape_index if user == "shape:serialized" else 0)
             inner = self.element(child, name, parent=plugin, top=False, depth=depth + 1)
+            if tag == "film":
+                _check_film(child, self.params, where)
             if plugin in _NEEDS_FILENAME and inner.get("filename") != "string":
                 raise BundleError(f"{where} type={kind!r}: needs a <string name=\"filename\" value=\"...\"/> "
                                   "naming its file (exactly that name, lower case)")
@@ -278,6 +298,21 @@ def _check_sample_count(text: str, where: str) -> None:
     if m is None or not 1 <= int(m.group(1)) <= _MAX_SAMPLE_COUNT:
         raise BundleError(f"{where}: sample_count {text[:40]!r} must be an integer from 1 to {_MAX_SAMPLE_COUNT} "
                           "(the hologram renderer chooses its own rays per pixel)")
+
+
+def _check_film(node, params: Params, where: str) -> None:
+    """A film's width and height (Mitsuba's defaults where it gives none), by :func:`film_size_error`."""
+    size = {"height": _DEFAULT_FILM_HW[0], "width": _DEFAULT_FILM_HW[1]}
+    for child in node:
+        if child.tag == "integer" and child.get("name") in size:
+            text = params.substitute(child.get("value", ""), where, 1 << 10)
+            if not re.fullmatch(r"\s*\+?[0-9]{1,9}\s*", text):
+                raise BundleError(f"{where}: film {child.get('name')} {text[:40]!r} must be an integer from 1 to "
+                                  f"{MAX_FILM_SIDE_PX}")
+            size[child.get("name")] = int(text)
+    why = film_size_error(size["height"], size["width"])
+    if why is not None:
+        raise BundleError(f"{where}: {why}")
 
 
 def _shape_index(node, params: Params, where: str) -> int:

@@ -120,8 +120,15 @@ def _sensor_fov_x_deg(sensor) -> float:
 
 
 def sensor_film_hw(sensor) -> tuple[int, int]:
-    """The sensor's film size (rows, columns) in pixels: with its field of view, the camera's image."""
+    """The sensor's film size (rows, columns) in pixels: with its field of view, the camera's image. ValueError
+    past the bound a bundle's film is held to (holocore.scene.bundle.film_size_error): a scene loaded without
+    the bundle check, or stored before the bound, is held to it too."""
+    from holocore.scene.bundle import film_size_error
+
     w, h = (int(v) for v in sensor.film().size())
+    why = film_size_error(h, w)
+    if why is not None:
+        raise ValueError(why)
     return h, w
 
 

@@ -514,3 +514,47 @@ def test_no_job_on_a_scene_whose_plan_failed(server):
         assert r.status_code == 422 and "its plan failed" in r.json()["detail"], r.text[:300]
         assert c.get("/v1/jobs").json()["jobs"] == []
     assert httpx.get(f"{server.url}/livez", timeout=5).status_code == 200
+
+
+# ---- the camera's film: bounded, since the scene's picture follows its aspect -----------------------------------
+_FILM = ('<scene version="3.0.0"><default name="h" value="{h}"/><sensor type="perspective"><film type="hdrfilm">'
+         '<integer name="width" value="{w}"/><integer name="height" value="$h"/></film></sensor></scene>')
+
+
+@pytest.mark.parametrize("w, h, words", [
+    (1, 30_000_000, "each side must be 1 to 16384 px"),
+    (16384, 16384, "px in all"),
+    (0, 480, "each side must be 1 to 16384 px"),
+    ("1e3", 480, "must be an integer"),
+])
+def test_a_film_past_its_bounds_is_refused_at_upload(tmp_path, w, h, words):
+    """A film of 1 x 30,000,000 px made a picture 30 M px tall and held the planner for 107 s at 2.35 GB: each
+    side and the area are bounded before Mitsuba sees the scene (through <default> parameters too), in one line."""
+    root = tmp_path / "b"
+    root.mkdir()
+    (root / "scene.xml").write_text(_FILM.format(w=w, h=h))
+    with pytest.raises(BundleError, match=words) as err:
+        validate_bundle(root)
+    assert "\n" not in str(err.value)
+    (root / "scene.xml").write_text(_FILM.format(w=640, h=480))
+    validate_bundle(root)
+
+
+def test_the_picture_of_a_tall_film_is_bounded_on_both_sides(tmp_path, monkeypatch):
+    """A film inside the bounds but 4096 times taller than wide: the picture keeps at most 4 x 320 px of height
+    (it followed the film's aspect from a width of at most 320, whatever the height came to); a film past the
+    bounds, loaded without the bundle check, is refused when its size is read."""
+    monkeypatch.setenv("HOLO_MI_VARIANT", "scalar_rgb")
+    from holocore.evaluate.groundtruth import camera_picture
+    from holocore.scene.load import load_scene
+
+    root = tmp_path / "tall"
+    root.mkdir()
+    (root / "scene.xml").write_text(_FILM.format(w=4, h=16384).replace(
+        "</sensor>", '</sensor><shape type="sphere"><bsdf type="diffuse"/></shape>'
+                     '<emitter type="constant"/>'))
+    pic = camera_picture(load_scene(root / "scene.xml"), max_width_px=320, spp=1)
+    assert pic.shape[1] <= 4 * 320 and pic.shape[2] >= 1, pic.shape
+    (root / "scene.xml").write_text(_FILM.format(w=1, h=20000))
+    with pytest.raises(ValueError, match="each side must be 1 to 16384 px"):
+        camera_picture(load_scene(root / "scene.xml", check_bundle=False), max_width_px=320, spp=1)
