@@ -271,11 +271,11 @@ class Database:
                             "JOIN scene_owners o ON o.scene_id = s.id WHERE o.owner = ?", (owner,))["n"] or 0)
 
     def owner_job_folders(self, owner: str) -> list[dict]:
-        """State, folder and (while queued or running) stored options and estimate of ``owner``'s jobs that hold
-        their own folder (not reused results, which share the folder of the job that computed them)."""
+        """State, folder and (while queued or running) stored options and estimate of each of ``owner``'s jobs,
+        reused results included: a folder is held by every job that points at it, whichever computed it."""
         return self.query("SELECT id, state, artifact_dir, CASE WHEN state IN ('queued', 'running') THEN spec END "
                           "AS spec, CASE WHEN state IN ('queued', 'running') THEN estimate END AS estimate FROM jobs "
-                          "WHERE COALESCE(owner, 'default') = ? AND reused_from IS NULL", (owner,))
+                          "WHERE COALESCE(owner, 'default') = ?", (owner,))
 
     def count_scenes(self, owner: str) -> int:
         return self.one("SELECT COUNT(*) AS n FROM scene_owners WHERE owner = ?", (owner,))["n"]

@@ -153,14 +153,18 @@ def _finished_folder_bytes(folder: str) -> int:
 
 
 def owner_stored_bytes(ctx: ServiceContext, owner: str) -> int:
-    """What ``owner`` stores: its scenes' bundles, its finished jobs' folders (a reused result counts once, for
-    the job that computed it), for each queued or running job the most its run will leave, and a running job's
-    scratch files. (A new job is checked with its own scratch: while it runs it holds that much too.)"""
+    """What ``owner`` stores: its scenes' bundles, its finished jobs' folders (each folder once, while any of the
+    owner's jobs holds it: a reused result keeps its folder on the disk after the job that computed it is
+    deleted), for each queued or running job the most its run will leave, and a running job's scratch files.
+    (A new job is checked with its own scratch: while it runs it holds that much too.)"""
     total = ctx.db.owner_scene_bytes(owner)
+    counted: set[str] = set()
     for row in ctx.db.owner_job_folders(owner):
         folder = row["artifact_dir"] or ""
         if row["state"] in FINAL_STATES:
-            total += _finished_folder_bytes(folder) if folder else 0
+            if folder and folder not in counted:
+                counted.add(folder)
+                total += _finished_folder_bytes(folder)
         else:  # a running job's scratch is on the disk now; a queued job's only once it runs
             spec = row["spec"] or {}
             border = (((row.get("estimate") or {}).get("memory") or {}).get("plane_border_px"))

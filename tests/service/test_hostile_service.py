@@ -797,6 +797,39 @@ def test_what_one_owner_stores_is_capped_in_bytes(tmp_path):
     assert ServiceSettings(data_dir=tmp_path).stored_bytes_per_owner > 0  # default: half the file system
 
 
+def test_reuse_then_delete_never_lowers_what_an_owner_is_charged_below_its_disk_use(tmp_path):
+    """A reused result was charged only to the job that computed it; deleting that job kept the folder (the
+    reusing job holds it) and charged it to nobody: compute, resubmit, delete, again, and the owner stored
+    gigabytes counted as nothing. Every job that holds a folder charges it, once per owner."""
+    from service.submission import owner_stored_bytes
+
+    svc = App(tmp_path / "data", max_stored_gb_per_owner=0.005)  # 5 MB an owner; a new job's prediction is 4.2
+    svc.scene("alice", scene_id="salice")
+    alice = svc.token("submit", owner="alice")
+    job = {"optics": {"resolution_hw": [8, 8], "wavelengths_nm": [520]}, "frames": 1}
+    with svc.client(alice) as a:
+        on_disk = 0
+        for seed in range(1, 5):
+            body = small("salice", frames=1, optics={**job["optics"], "seed": seed})
+            first = a.post("/v1/jobs", json=body)
+            if seed == 4:  # 3 x 300 kB held and 4.2 MB predicted: past 5 MB
+                assert first.status_code == 403 and "max_stored_gb_per_owner" in first.json()["detail"], first.text
+                break
+            assert first.status_code == 202, first.text
+            svc.finish(first.json()["id"], bytes([seed]) * 300_000)
+            on_disk += 300_000
+            reused = a.post("/v1/jobs", json=body)
+            assert reused.status_code == 202 and reused.json()["reused_from"] == first.json()["id"], reused.text
+            assert a.post(f"/v1/jobs/{first.json()['id']}/delete").status_code == 204
+            assert (Path(svc.db.get_job(reused.json()["id"])["artifact_dir"]) / "stack.npz").is_file()
+            assert owner_stored_bytes(svc.ctx, "alice") >= on_disk
+        # the last holder deleted: the folder goes, and so does the charge
+        last = reused.json()["id"]
+        folder = Path(svc.db.get_job(last)["artifact_dir"])
+        assert a.post(f"/v1/jobs/{last}/delete").status_code == 204
+        assert not folder.exists() and owner_stored_bytes(svc.ctx, "alice") == on_disk - 300_000
+
+
 def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
     """A deeper recording plane is held in a scratch file of [frames, colours] on its wider grid while the job
     renders: at f = 300 mm on a 32x48 SLM a few MB of output came with tens of MB of scratch per frame, which
