@@ -120,3 +120,73 @@ def test_another_owners_job_is_not_found_and_an_unfinished_one_has_no_frames(ser
             assert r.status_code == 409 and "is cancelled" in r.json()["detail"], r.text
     with server.client(None) as c:
         assert c.get(f"/v1/jobs/{jid}/phase/0/0.png").status_code == 401
+
+
+def _vm_hwm_kb(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as fh:
+        return next(int(ln.split()[1]) for ln in fh if ln.startswith("VmHWM:"))
+
+
+def _as_the_job_left_it(server, jid: str, name: str, data: bytes):
+    """Put ``data`` in the job's folder as ``name`` with the hash the scheduler would have recorded had the job
+    written it so (whatever a job leaves is hashed as it is); a context manager restoring the original."""
+    import contextlib
+    import hashlib
+
+    from service.db import Database
+
+    db = Database(server.data_dir / "service.db")
+    row = db.get_job(jid)
+    path = server.data_dir / "jobs" / jid / name
+    before, was = path.read_bytes(), {k: row[k] for k in ("artifacts", "stack_sha256")}
+    sha = hashlib.sha256(data).hexdigest()
+    path.write_bytes(data)
+    db.update_job(jid, artifacts={**row["artifacts"], name: {"sha256": sha, "bytes": len(data)}},
+                  **({"stack_sha256": sha} if name == "stack.npz" else {}))
+
+    @contextlib.contextmanager
+    def restored():
+        try:
+            yield
+        finally:
+            path.write_bytes(before)
+            db.update_job(jid, **was)
+    return restored()
+
+
+@pytest.mark.parametrize("bomb", ["deflated", "stored"])
+def test_a_frame_member_past_what_the_jobs_size_allows_is_refused_before_it_is_inflated(server, done, bomb):
+    """A 1 MB frames.zip whose member inflated to 1 GiB took the API from 76 MB to 2.2 GB on one frame request:
+    a member is checked (stored, as the worker writes it, and no larger than a 24 x 40 PNG can be) first."""
+    jid = done["job"]["id"]
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name in done["zip"].namelist():
+            big = name == "f000_c0.png"
+            data = b"\0" * ((256 << 20) if bomb == "deflated" else (2 << 20)) if big else done["zip"].read(name)
+            zf.writestr(name, data, compress_type=zipfile.ZIP_DEFLATED if bomb == "deflated" and big
+                        else zipfile.ZIP_STORED)
+    assert len(buf.getvalue()) < 3 << 20
+    hwm = _vm_hwm_kb(server.proc.pid)
+    with _as_the_job_left_it(server, jid, "frames.zip", buf.getvalue()), server.client("reader") as c:
+        r = c.get(f"/v1/jobs/{jid}/phase/0/0.png")
+        assert r.status_code == 409, r.status_code
+        assert ("compressed" if bomb == "deflated" else "more than the job's size allows") in r.json()["detail"]
+        ok = c.get(f"/v1/jobs/{jid}/phase/1/2.png")  # the job's other members are served as they are
+        assert ok.status_code == 200 and ok.content == done["zip"].read("f001_c2.png")
+    assert _vm_hwm_kb(server.proc.pid) - hwm < 128 << 10  # never near the member's 256 MiB
+
+
+def test_a_stack_with_compressed_members_has_no_phase_index(server, done):
+    """The index read the stack's frames_u8 header; a compressed member was loaded whole to find it."""
+    jid = done["job"]["id"]
+    buf = io.BytesIO()
+    with server.client("reader") as c:
+        stack = c.get(f"/v1/jobs/{jid}/stack").content
+    with np.load(io.BytesIO(stack), allow_pickle=False) as z:
+        np.savez_compressed(buf, **{k: z[k] for k in z.files})
+    with _as_the_job_left_it(server, jid, "stack.npz", buf.getvalue()), server.client("reader") as c:
+        r = c.get(f"/v1/jobs/{jid}/phase")
+        assert r.status_code == 409 and "compressed" in r.json()["detail"], r.text
+    with server.client("reader") as c:
+        assert c.get(f"/v1/jobs/{jid}/phase").json()["shape"] == [2, 3, 24, 40]
