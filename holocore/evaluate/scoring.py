@@ -35,8 +35,8 @@ import numpy as np
 from holocore.formats.meta import MetaLike, ViewMeta, parse_view_meta
 
 __all__ = ["CellScore", "Cell", "Evaluation", "load_slm_field", "focus_planes_m", "view_offsets_m",
-           "default_pupil_m", "lit_margin_px", "eye_view", "compare", "evaluate", "write_outputs", "pair_names",
-           "VIEWS_AT"]
+           "default_pupil_m", "lit_margin_px", "view_shift_px", "eye_view", "compare", "evaluate", "write_outputs",
+           "pair_names", "VIEWS_AT"]
 
 MAX_FOCUS_PLANES = 64
 MAX_VIEWS = 15
@@ -191,6 +191,18 @@ def lit_margin_px(meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
 
 
 # ---- one view -----------------------------------------------------------------------------------------------
+def view_shift_px(meta: MetaLike, *, focus_z_m: float, view_offset_m: tuple[float, float]) -> tuple[float, float]:
+    """(rows, cols) shift of the focus plane's content that an eye at ``view_offset_m`` (m) sees, in pixels
+    (:func:`holocore.optics.viewing.view_intensities`'s ``shift_px``): the eye sees plane point x at
+    f tan = x - e dz / f with dz = z_f - z_inf, so content moves by -e dz / f (x right, y up; rows run down).
+    One function for :func:`eye_view` and the fits that must see what it sees (the focal stack's pupil-aware fit)."""
+    meta = parse_view_meta(meta)
+    f, p = meta.focal_length_m, float(meta.pitch_m)
+    ex, ey = (float(v) for v in view_offset_m)
+    dz = float(focus_z_m) - meta.z_inf_m
+    return -ey * dz / f / p, ex * dz / f / p  # U'[i, j] = U[i + a_row, j + a_col]
+
+
 def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
              view_offset_m: tuple[float, float] = (0.0, 0.0), memory_budget_bytes: Optional[int] = None,
              device=None, fourier_filter: Optional[bool] = None) -> np.ndarray:
@@ -218,10 +230,7 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
     if not math.isfinite(z_f):
         raise ValueError(f"focus_z_m must be finite, got {focus_z_m!r}")
     ex, ey = (float(v) for v in view_offset_m)
-    dz = z_f - meta.z_inf_m
-    # The eye sees plane point x at f tan = x - e dz / f: content moves by -e dz / f (x right, y up).
-    a_col = ex * dz / f / p  # U'[j] = U[j + a_col]
-    a_row = -ey * dz / f / p  # rows run down: U'[i] = U[i + a_row]
+    a_row, a_col = view_shift_px(meta, focus_z_m=z_f, view_offset_m=(ex, ey))
     out = view_intensities(src, wavelengths_m=list(meta.wavelengths_m), pitch_m=p, focal_length_m=f,
                            pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
                            shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes,

@@ -185,14 +185,16 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
 
 def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
                   pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
-                  pad_factor: float = 2, memory_budget_bytes: Optional[int] = None,
-                  fourier_filter: bool = False) -> torch.Tensor:
+                  shift_px: tuple[float, float] = (0.0, 0.0), pad_factor: float = 2,
+                  memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False) -> torch.Tensor:
     """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
     the focus plane z_f (negative: focus behind it); pupil of ``pupil_diameter_m`` behind an eyepiece of
     ``focal_length_m``, centred at ``view_offset_m`` = (e_x, e_y) (m). One wavelength per channel.
-    ``fourier_filter``: the display passes only each colour's recording cone (module docstring).
+    ``shift_px``: the off-axis eye's shift of the focus plane's content (:func:`view_intensities`).
+    ``fourier_filter``: the display passes only each colour's recording cone (module docstring). Differentiable
+    in ``field`` (the focal stack's pupil-aware fit back-propagates through it).
     """
     if not isinstance(field, torch.Tensor) or not field.is_complex():
         raise ValueError("field must be a complex torch tensor [F, C, H, W] or [C, H, W]")
@@ -206,5 +208,5 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     z = validate.real("distance_m", distance_m)
     return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
                             pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
-                            pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes,
+                            shift_px=shift_px, pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes,
                             fourier_filter=fourier_filter)[0]
