@@ -372,10 +372,11 @@ def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: 
 
 def job_memory(req: JobRequest, *, plane_border: Optional[int] = 0) -> MemoryEstimate:
     """Predicted peak bytes of the job's render, encode and preview (holocore.plan.memory_estimate), with its
-    deeper recording planes' widest border (:func:`plane_border_px`; None, not known yet, counts as 0)."""
+    deeper recording planes' widest border (:func:`plane_border_px`; None, not known yet, counts as 0), and its
+    evaluation against ground truth when it asks for one."""
     o = effective_optics(req)
     return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames,
-                           plane_border_px=plane_border or 0)
+                           plane_border_px=plane_border or 0, evaluate=bool(req.evaluate))
 
 
 def memory_admission_error(req: JobRequest, worker_memory_bytes: int, *,
@@ -387,10 +388,13 @@ def memory_admission_error(req: JobRequest, worker_memory_bytes: int, *,
     o = effective_optics(req)
     planes = (f"; its deeper recording planes are {plane_border} px wider on each side than the SLM (their depth "
               "grows with f^2): wrp_planes 1, a shorter f or a shallower scene needs less" if plane_border else "")
+    evaluation = ("; its evaluation against ground truth grows with the SLM's pixels: without evaluate it needs "
+                  f"{max(m.render_bytes, m.encode_bytes, m.view_bytes) / 1e9:.1f} GB"
+                  if m.peak_stage == "evaluate" else "")
     return (f"the job needs about {m.peak_bytes / 1e9:.1f} GB at its peak ({m.peak_stage}; "
             f"{o.height}x{o.width} px x {len(o.wavelengths_nm)} colors x {o.frames} frames), but the workers have "
             f"{worker_memory_bytes / 1e9:.1f} GB: lower optics.resolution_hw, frames or the number of wavelengths "
-            f"(memory grows with their product){planes}")
+            f"(memory grows with their product){planes}{evaluation}")
 
 
 def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: str,

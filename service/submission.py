@@ -37,7 +37,7 @@ from service.models import (
 from service.settings import JobLimits
 
 __all__ = ["admit_job", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY",
-           "output_bytes", "owner_stored_bytes", "storage_error"]
+           "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
 
@@ -114,13 +114,33 @@ _OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
 _MOST_PLANES = MAX_WRP_PLANES  # wrp_planes 1..8; auto chooses at most as many
 
 
-def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0) -> int:
-    """The most bytes a job with these (effective) optics has in its folder: what it leaves, and while it renders
-    the scratch files of its deeper recording planes (each a [frames, colours] stack of its grid, ``plane_border``
-    px wider than the SLM on each side, complex64; unlinked, but on the disk until the render ends)."""
+# The evaluation's folder (service/workers/evaluation.py): per cell a PNG pair of the SLM's size, 8-bit RGB, which
+# PNG stores in at most 3 bytes a pixel and a filter byte a row (a noisy reconstruction hardly compresses), for
+# each of the most cells its scored views can have whatever the frames (the viewer score writes no pictures);
+# and its JSON. Measured (bench/results/evaluation_memory.md): 720x1280 with 17 cells 37 MB against a bound of
+# 95 MB (its pictures compress).
+_EVAL_FIXED = 1 << 20
+
+
+def evaluation_output_bytes(*, height_px: int, width_px: int) -> int:
+    """The most bytes a job's ``evaluation/`` folder holds on an SLM of ``height_px`` x ``width_px`` pixels."""
+    from service.workers.evaluation import evaluation_cells
+
+    cells, _ = evaluation_cells(1)
+    return cells * 2 * (3 * height_px * width_px + height_px) + _EVAL_FIXED
+
+
+def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0,
+                 evaluate: bool = False) -> int:
+    """The most bytes a job with these (effective) optics has in its folder: what it leaves (its evaluation's
+    folder when ``evaluate``), and while it renders the scratch files of its deeper recording planes (each a
+    [frames, colours] stack of its grid, ``plane_border`` px wider than the SLM on each side, complex64;
+    unlinked, but on the disk until the render ends)."""
     h, w = (int(v) for v in optics.get("resolution_hw") or (1080, 1920))
     c, f = len(optics.get("wavelengths_nm") or (0, 0, 0)), int(optics.get("frames") or 1)
     out = h * w * c * f * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * h * w + _OUT_FIXED
+    if evaluate:
+        out += evaluation_output_bytes(height_px=h, width_px=w)
     b = int(plane_border or 0)
     deeper = (_MOST_PLANES if wrp_planes == "auto" else int(wrp_planes)) - 1
     return out + (deeper * f * c * (h + 2 * b) * (w + 2 * b) * 8 if b > 0 and deeper > 0 else 0)
@@ -170,7 +190,8 @@ def owner_stored_bytes(ctx: ServiceContext, owner: str) -> int:
             border = (((row.get("estimate") or {}).get("memory") or {}).get("plane_border_px"))
             total += output_bytes(spec.get("optics") or {}, keep_result=ctx.settings.keep_result,
                                   wrp_planes=spec.get("wrp_planes", 1),
-                                  plane_border=border if row["state"] == "running" else 0)
+                                  plane_border=border if row["state"] == "running" else 0,
+                                  evaluate=bool(spec.get("evaluate")))
     return total
 
 
@@ -232,7 +253,7 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     prev = reusable_job(ctx, key, principal.owner, fresh=True)
     if prev is None:  # a reused result adds nothing; a new run writes its outputs
         need = output_bytes(row["spec"]["optics"], keep_result=ctx.settings.keep_result, wrp_planes=req.wrp_planes,
-                            plane_border=row["estimate"]["memory"]["plane_border_px"])
+                            plane_border=row["estimate"]["memory"]["plane_border_px"], evaluate=bool(req.evaluate))
         full = storage_error(ctx, principal.owner, need, "this job")
         if full is not None:
             raise full

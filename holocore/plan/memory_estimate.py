@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 __all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
-           "deepest_border_px", "ASM_COPIES"]
+           "deepest_border_px", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
 
 Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
@@ -49,17 +49,19 @@ class MemoryEstimate:
     render_bytes: int
     encode_bytes: int
     view_bytes: int
+    evaluate_bytes: int = 0  # the evaluation against ground truth (:func:`evaluation_bytes`); 0: not asked for
 
     @property
     def peak_bytes(self) -> int:
-        return max(self.render_bytes, self.encode_bytes, self.view_bytes)
+        return max(self.render_bytes, self.encode_bytes, self.view_bytes, self.evaluate_bytes)
 
     @property
-    def peak_stage(self) -> Stage:
-        return max(STAGES, key=lambda s: getattr(self, f"{s}_bytes"))
+    def peak_stage(self) -> str:
+        return max((*STAGES, "evaluate"), key=lambda s: getattr(self, f"{s}_bytes"))
 
     def as_dict(self) -> dict[str, int | str]:
         return {"render_bytes": self.render_bytes, "encode_bytes": self.encode_bytes, "view_bytes": self.view_bytes,
+                **({"evaluate_bytes": self.evaluate_bytes} if self.evaluate_bytes else {}),
                 "peak_bytes": self.peak_bytes, "peak_stage": self.peak_stage}
 
 
@@ -101,11 +103,38 @@ def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> in
     return int(math.ceil(depth_m * t / pitch_m - 1e-9))
 
 
+# The evaluate step (service/workers/evaluation.py: `holo evaluate`, a Mitsuba thin-lens ground truth at GT_SPP
+# samples and a simulated eye view per cell, each cell's reconstruction and truth kept as float64 [C, H, W] until
+# its PNG pair is written; then, for more than one frame, the viewer score in a process of its own) grows with the
+# SLM's pixels, well beyond the other stages: a fixed cost, a cost per pixel (the ground truth's wavefront of
+# H W GT_SPP samples, its film, the pupil's diffraction) and a cost per cell, pixel and colour (the kept images,
+# 16 bytes, and the view's transients), for the most cells either process scores (EVAL_MAX_CELLS: the sweep's 9
+# depths and 8 more views at its middle one, 17; the viewer's 2 pupils x 3 x 3 eyes, 18). The three constants are
+# the exact fit to the peak RSS of three runs (GNU time, demo scene, 1 frame; bench/bench_evaluation_memory.py,
+# bench/results/evaluation_memory.md, 2026-12-06): 352x480 with 2 cells 681 MB, 540x960 with 9 cells 1437 MB,
+# 720x1280 with 17 cells 2735 MB. Frames added nothing measurable (352x480: 2 frames 653 MB, its viewer run 747
+# MB); EVAL_MARGIN keeps the model above the runs' noise (the fit has no spare point to absorb it).
+EVAL_MAX_CELLS = 18
+EVAL_FIXED_BYTES = 440 * _MB
+EVAL_BYTES_PER_PIXEL = 1285.0
+EVAL_BYTES_PER_CELL_SAMPLE = 23.6
+EVAL_MARGIN = 1.15
+
+
+def evaluation_bytes(*, height_px: int, width_px: int, colors: int, frames: int) -> int:
+    """Predicted peak bytes of a job's evaluate step on an SLM of ``height_px`` x ``width_px`` pixels, ``colors``
+    wavelengths and ``frames`` frames (not counted: see above), with every cell an evaluation can have."""
+    px = float(height_px) * width_px
+    return int(EVAL_MARGIN * (EVAL_FIXED_BYTES + EVAL_BYTES_PER_PIXEL * px
+                              + EVAL_BYTES_PER_CELL_SAMPLE * EVAL_MAX_CELLS * colors * px))
+
+
 def estimate_memory(*, height_px: int, width_px: int, colors: int, frames: int,
-                    plane_border_px: int = 0) -> MemoryEstimate:
+                    plane_border_px: int = 0, evaluate: bool = False) -> MemoryEstimate:
     """Peak bytes of render, encode and view for an SLM of ``height_px`` x ``width_px`` pixels, ``colors``
     wavelengths and ``frames`` frames; ``plane_border_px``: the widest border of a deeper recording plane (0:
-    one plane), whose chaining the render holds on top (:func:`plane_chain_bytes`)."""
+    one plane), whose chaining the render holds on top (:func:`plane_chain_bytes`); ``evaluate``: the job is
+    evaluated against ground truth too (:func:`evaluation_bytes`)."""
     for name, v in (("height_px", height_px), ("width_px", width_px), ("colors", colors), ("frames", frames)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
             raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -114,4 +143,6 @@ def estimate_memory(*, height_px: int, width_px: int, colors: int, frames: int,
     n = float(height_px) * width_px * colors * frames
     peaks = {s: int(_interpolate(MEASURED_PEAKS[s], n)) for s in STAGES}
     peaks["render"] += plane_chain_bytes(height_px, width_px, plane_border_px)
+    if evaluate:
+        peaks["evaluate"] = evaluation_bytes(height_px=height_px, width_px=width_px, colors=colors, frames=frames)
     return MemoryEstimate(**{f"{s}_bytes": b for s, b in peaks.items()})

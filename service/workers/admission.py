@@ -44,7 +44,8 @@ def largest_file_bytes(row: dict, spec: JobSpec) -> Optional[int]:
         return None
     from service.submission import output_bytes
 
-    most = output_bytes(spec.optics, keep_result=True, wrp_planes=spec.wrp_planes, plane_border=border)
+    most = output_bytes(spec.optics, keep_result=True, wrp_planes=spec.wrp_planes, plane_border=border,
+                        evaluate=bool(spec.evaluate))
     return most + most // 4
 
 

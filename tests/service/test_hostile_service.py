@@ -983,3 +983,30 @@ def test_one_owner_holds_a_bounded_number_of_event_streams(tmp_path):
         assert svc.ctx.streams_open == {}
 
     asyncio.run(scenario())
+
+
+# ---- an evaluation against ground truth is part of the job's memory and storage ------------------------------
+def test_an_evaluated_job_is_admitted_with_its_evaluation(tmp_path):
+    """``evaluate: true`` left the estimate as it was (0.71 GB at 540x960) while the evaluate step peaked at
+    1.4 GB there (bench/results/evaluation_memory.md), about 2 KB an SLM pixel: the estimate now counts it, so a
+    4096x2304 evaluation is refused by memory where the hologram alone fits; and its folder (a PNG pair per cell)
+    counts in what the owner stores."""
+    svc = App(tmp_path / "data", worker_memory_mb=16000, max_stored_gb_per_owner=0.2)
+    svc.scene("alice", scene_id="salice")
+    tok = svc.token("submit", owner="alice")
+    job = small("salice", optics={"resolution_hw": [540, 960]}, frames=1)
+    with svc.client(tok) as c:
+        plain = c.post("/v1/jobs/estimate", json=job).json()["estimate"]["memory"]
+        evaluated = c.post("/v1/jobs/estimate", json={**job, "evaluate": True}).json()["estimate"]["memory"]
+        assert plain["peak_bytes"] < 1.0e9 and "evaluate_bytes" not in plain, plain
+        assert evaluated["peak_stage"] == "evaluate" and evaluated["peak_bytes"] >= 1.44e9, evaluated
+        big = {**job, "optics": {"resolution_hw": [2304, 4096]}}
+        assert c.post("/v1/jobs/estimate", json=big).status_code == 200
+        r = c.post("/v1/jobs/estimate", json={**big, "evaluate": True})
+        assert r.status_code == 422 and "(evaluate;" in r.json()["detail"], r.text
+        assert "its evaluation against ground truth grows with the SLM's pixels" in r.json()["detail"]
+        # storage: a queued job counts its folder's most, with its evaluation's (about 53 MB at 540x960 beside
+        # 42 MB): 0.2 GB holds two such jobs where it held four without
+        admitted = [c.post("/v1/jobs", json={**job, "optics": {"resolution_hw": [540, 960], "seed": i},
+                                             "evaluate": True}).status_code for i in range(5)]
+        assert admitted == [202, 202, 403, 403, 403], admitted
