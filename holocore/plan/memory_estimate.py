@@ -107,26 +107,28 @@ def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> in
 # samples and a simulated eye view per cell, each cell's reconstruction and truth kept as float64 [C, H, W] until
 # its PNG pair is written; then, for more than one frame, the viewer score in a process of its own) grows with the
 # SLM's pixels, well beyond the other stages: a fixed cost, a cost per pixel (the ground truth's wavefront of
-# H W GT_SPP samples, its film, the pupil's diffraction) and a cost per cell, pixel and colour (the kept images,
-# 16 bytes, and the view's transients), for the most cells either process scores (EVAL_MAX_CELLS: the sweep's 9
-# depths and 8 more views at its middle one, 17; the viewer's 2 pupils x 3 x 3 eyes, 18). The three constants are
-# the exact fit to the peak RSS of three runs (GNU time, demo scene, 1 frame; bench/bench_evaluation_memory.py,
-# bench/results/evaluation_memory.md, 2026-12-06): 352x480 with 2 cells 681 MB, 540x960 with 9 cells 1437 MB,
-# 720x1280 with 17 cells 2735 MB. Frames added nothing measurable (352x480: 2 frames 653 MB, its viewer run 747
-# MB); EVAL_MARGIN keeps the model above the runs' noise (the fit has no spare point to absorb it).
+# H W GT_SPP samples, its film, the pupil's diffraction), one per sample H W C F (the view of every frame) and one
+# per cell, pixel and colour (the kept images, 16 bytes, and the view's transients), for the most cells either
+# process scores (EVAL_MAX_CELLS: the sweep's 9 depths and 8 more views at its middle one, 17; the viewer's 2
+# pupils x 3 x 3 eyes, 18). Measured with GNU time on the demo scene (bench/bench_evaluation_memory.py,
+# bench/results/evaluation_memory.md, 2026-12-06): the constants per pixel and per cell are the exact fit to three
+# 1-frame runs (352x480 with 2 cells 681 MB, 540x960 with 9 cells 1437 MB, 720x1280 with 17 cells 2735 MB), the
+# one per sample the viewer run's growth from 2 to 8 frames at 352x480 (747 to 921 MB); EVAL_MARGIN keeps the
+# model above the runs' noise (the fit has no spare point to absorb it).
 EVAL_MAX_CELLS = 18
 EVAL_FIXED_BYTES = 440 * _MB
-EVAL_BYTES_PER_PIXEL = 1285.0
+EVAL_BYTES_PER_SAMPLE = 57.0
+EVAL_BYTES_PER_PIXEL = 1285.0 - 3 * EVAL_BYTES_PER_SAMPLE  # the 1-frame, 3-colour fit less its one frame's samples
 EVAL_BYTES_PER_CELL_SAMPLE = 23.6
 EVAL_MARGIN = 1.15
 
 
 def evaluation_bytes(*, height_px: int, width_px: int, colors: int, frames: int) -> int:
     """Predicted peak bytes of a job's evaluate step on an SLM of ``height_px`` x ``width_px`` pixels, ``colors``
-    wavelengths and ``frames`` frames (not counted: see above), with every cell an evaluation can have."""
+    wavelengths and ``frames`` frames, with every cell an evaluation can have (the model above)."""
     px = float(height_px) * width_px
-    return int(EVAL_MARGIN * (EVAL_FIXED_BYTES + EVAL_BYTES_PER_PIXEL * px
-                              + EVAL_BYTES_PER_CELL_SAMPLE * EVAL_MAX_CELLS * colors * px))
+    return int(EVAL_MARGIN * (EVAL_FIXED_BYTES + EVAL_BYTES_PER_PIXEL * px + EVAL_BYTES_PER_SAMPLE * px * colors
+                              * frames + EVAL_BYTES_PER_CELL_SAMPLE * EVAL_MAX_CELLS * colors * px))
 
 
 def estimate_memory(*, height_px: int, width_px: int, colors: int, frames: int,
