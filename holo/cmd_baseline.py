@@ -125,13 +125,19 @@ def focal_stack(
     stack: Optional[Path] = typer.Option(None, "--stack", help="Also write the phases as STACK.npz (8-bit frames, "
                                          "laser powers in meta.encoder.illumination)."),
     device: str = typer.Option("cpu", "--device", help="torch device of the optimisation: cpu, cuda or auto."),
+    fit: str = typer.Option("pupil-aware", "--fit", help="pupil-aware: targets and model through the viewer-"
+                            "faithful score's pupils (1.6-6 mm) x a jittered eye grid, one view per Adam step; "
+                            "centred: one centred pupil (--pupil-mm), one target per plane."),
+    eye_grid: int = typer.Option(3, "--eye-grid", help="--fit pupil-aware: n x n eye positions per pupil (1..9); "
+                                 "the targets are pupils x n^2 x planes Mitsuba renders."),
     optics: OpticsOptions = OpticsOptions(),
 ) -> None:
     """Focal stack: phase-only SGD of the frames on the frame-averaged amplitude at planes across the image
     volume, against Mitsuba thin-lens targets through the eye's pupil (time-multiplexed neural holography)."""
     _run("focal-stack", scene, out, optics, dict(planes=planes, spacing_mm=spacing_mm, pupil_mm=pupil_mm,
                                                  iterations=iterations, time_limit_s=time_limit_s, lr=lr,
-                                                 gt_spp=gt_spp, device=device), stack=stack)
+                                                 gt_spp=gt_spp, device=device, fit=fit, eye_grid=eye_grid),
+         stack=stack)
 
 
 @baseline_app.command("light-field")
