@@ -246,7 +246,8 @@ def _trace_pass(mi, dr, scene, sensor, integrator, *, H: int, W: int, n: int, p:
     zi_o, f2 = dr.opaque(mi.Float, zi), dr.opaque(mi.Float, f * f)
     z = dr.select(far | (zc <= 0.0), zi_o, zi_o + f2 / dr.maximum(zc, 1e-30))
     dr.eval(rgb, z)
-    rgb_np = np.nan_to_num(np.array(rgb, dtype=np.float64).reshape(-1, 3).T, nan=0.0, posinf=0.0, neginf=0.0)
+    rgb_np = np.array(rgb, dtype=np.float64)  # Dr.Jit gives the colour axis first: [3, S]
+    rgb_np = np.nan_to_num(rgb_np if rgb_np.shape[0] == 3 else rgb_np.T, nan=0.0, posinf=0.0, neginf=0.0)
     z_np = np.nan_to_num(np.array(z, dtype=np.float64), nan=zi, posinf=zi, neginf=zi)
     return np.maximum(z_np, zi), rgb_np.clip(min=0.0), np.array(pix, dtype=np.int64), lost
 
