@@ -298,9 +298,9 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
     a_col, a_row = ex * dzf / f / p, -ey * dzf / f / p  # eye_view's shift: content at z_inf stays put
     hp, wp = padded_shape((H, W), pad_factor)
     ky = torch.fft.fftfreq(hp, dtype=torch.float64)
-    kx = torch.fft.fftfreq(wp, dtype=torch.float64)
-    ramp = torch.polar(torch.ones(hp, wp, dtype=torch.float64),
-                       2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col))
+    kx = torch.fft.rfftfreq(wp, dtype=torch.float64)
+    ramp = torch.polar(torch.ones(hp, wp // 2 + 1, dtype=torch.float64),
+                       2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)).to(torch.complex64)
     out = np.empty((C, H, W), dtype=np.float64)
     for c, lam in enumerate(lams):
         mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=validate.positive(
@@ -309,19 +309,19 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
             cone_d = 2.0 * f * math.sin(theta_max_rad(lam, p))
             mask &= pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=cone_d * (1.0 + 1e-9))
         share = float(mask.sum()) / (hp * wp)  # of a full-band random-phase field, the light the eye accepts
-        acc = torch.zeros((hp, wp), dtype=torch.complex128)
+        acc = torch.zeros((hp, wp // 2 + 1), dtype=torch.complex64)
         for k, z in enumerate(zs):
-            img = torch.from_numpy(a[k, c].astype(np.float64))
+            img = torch.from_numpy(np.ascontiguousarray(a[k, c]))
             if not bool(img.any()):
                 continue
-            tf = transfer_function((hp, wp), z_f - z, lam, p, dtype=torch.complex128) * mask
-            psf = ifft2(tf)
+            ctf = transfer_function((hp, wp), z_f - z, lam, p, dtype=torch.complex64) * mask
+            psf = ifft2(ctf)
             psf = psf.real.square() + psf.imag.square()
             total = float(psf.sum())
             if total <= 0.0:
                 continue
-            acc += torch.fft.fft2(img, s=(hp, wp)) * torch.fft.fft2(psf / total)
-        view = ifft2(acc * ramp).real[:H, :W] * share
+            acc += torch.fft.rfft2(img, s=(hp, wp)) * torch.fft.rfft2(psf / total)
+        view = torch.fft.irfft2(acc * ramp, s=(hp, wp))[:H, :W].to(torch.float64) * share
         out[c] = view.numpy().clip(min=0.0)
     return out
 
