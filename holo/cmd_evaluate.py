@@ -1,5 +1,6 @@
-"""`holo evaluate`: score a hologram (RESULT.npz or STACK.npz) against Mitsuba thin-lens ground truth over a
-grid of focus planes x views (DESIGN.md §7), print PSNR / SSIM per cell and write side-by-side images."""
+"""`holo evaluate`: score a hologram (RESULT.npz or STACK.npz) against ground truth (by default the wave-optical
+one, docs/evaluation.md) over a grid of focus planes x views (DESIGN.md §7), print PSNR / SSIM per cell and write
+side-by-side images."""
 
 from __future__ import annotations
 
@@ -34,6 +35,9 @@ def evaluate(
                                                                         "largest that stays in every color's "
                                                                         "recording cone at every view)."),
     gt_spp: int = typer.Option(256, "--gt-spp", help="Samples per pixel of the ground-truth renders."),
+    truth_kind: str = typer.Option("wave", "--truth", help="wave: what an ideal hologram of this display shows "
+                                   "(wave-optical defocus through the pupil within the SLM's band); thinlens: "
+                                   "Mitsuba's thin-lens render with the in-focus Airy pattern (docs/evaluation.md)."),
     images: bool = typer.Option(True, "--images/--no-images", help="Write one side-by-side PNG per cell."),
     pairs: bool = typer.Option(False, "--pairs", help="Also write each cell's reconstruction and ground truth as "
                                                       "two PNGs (pairs/recon-fFF-vVV.png, pairs/truth-...), at one "
@@ -52,7 +56,7 @@ def evaluate(
         None, "--memory-budget-mb", help="Peak memory to stay within (MiB): the hologram is read and viewed in "
                                          "chunks of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
 ) -> None:
-    """Simulated views vs thin-lens ground truth: PSNR/SSIM per (focus, view) after one brightness scale."""
+    """Simulated views vs ground truth (--truth): PSNR/SSIM per (focus, view) after one brightness scale."""
     if not 1 <= focus_planes <= 64:
         fail(f"--focus-planes must be in 1..64, got {focus_planes}")
     if not 1 <= views <= 15:
@@ -61,6 +65,10 @@ def evaluate(
         fail(f"--view-deg must be in [0, 45) degrees, got {view_deg}")
     if pupil_mm is not None and not (math.isfinite(pupil_mm) and 0 < pupil_mm <= 1000):
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
+    from holocore.evaluate.truths import TRUTHS
+
+    if truth_kind not in TRUTHS:
+        fail(f"--truth must be one of {', '.join(TRUTHS)}, got {truth_kind!r}")
     if not 1 <= gt_spp <= 65536:
         fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
     focus_z_m = None
@@ -94,7 +102,7 @@ def evaluate(
     if not scene.exists():
         fail(f"scene not found: {scene}")
 
-    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.truths import ground_truth
     from holocore.evaluate.scoring import evaluate as run_eval
     from holocore.evaluate.scoring import write_outputs
     from holocore.optics.fieldsource import open_slm_field
@@ -113,7 +121,7 @@ def evaluate(
         if meta.get("scene_sha256") and sha and meta["scene_sha256"] != sha:
             typer.echo(f"  note: {source.name} was rendered from a different version of this scene "
                        "(content hash differs)", err=True)
-        truth = GroundTruth(loaded, meta, shape_hw=field.shape[-2:], spp=gt_spp)
+        truth = ground_truth(truth_kind, loaded, meta, shape_hw=tuple(field.shape[-2:]), spp=gt_spp)
         if viewer:
             from holocore.evaluate.viewer import viewer_score
 
@@ -129,10 +137,10 @@ def evaluate(
         out.mkdir(parents=True, exist_ok=True)
         (out / "viewer.json").write_text(json.dumps({"label": source.name, **vs.to_dict()}, indent=1, default=float))
         typer.echo(f"{'pupil mm':>8} {'PSNR dB':>8} {'SSIM':>6} {'bright max/min':>14} {'cast':>6} {'edge err':>8} "
-                   f"{'parallax px':>11}")
+                   f"{'parallax px':>11} {'band':>5}")
         for p in vs.pupils:
             typer.echo(f"{p.pupil_mm:8.2f} {p.mean_psnr_db:8.2f} {p.mean_ssim:6.3f} {p.brightness_max_over_min:14.3f} "
-                       f"{p.colour_cast:6.3f} {p.edge_error:8.3f} {p.parallax_error_px:11.2f}")
+                       f"{p.colour_cast:6.3f} {p.edge_error:8.3f} {p.parallax_error_px:11.2f} {p.band_share:5.2f}")
         typer.echo(f"mean over {len(vs.cells)} cells: PSNR {vs.mean_psnr_db:.2f} dB, one scale per colour "
                    f"(per-cell scales spread {vs.scale_spread:.2f}x) -> {out / 'viewer.json'}")
         return

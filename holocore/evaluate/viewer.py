@@ -38,6 +38,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore.display.optics import common_cone_sine, cone_sine
+from holocore.evaluate.wave_truth import band_share
 from holocore.formats.meta import MetaLike, parse_view_meta
 
 __all__ = ["DEFAULT_PUPILS_M", "eye_grid_m", "aperture_share", "ViewerCell", "PupilSummary", "ViewerScore",
@@ -156,6 +157,10 @@ class PupilSummary:
     sharpness: float
     parallax_error_px: float  # mean |shift(recon) - shift(truth)| between the outer eyes of each grid row
     parallax_ratio: float  # mean shift(recon) / shift(truth) (1: right parallax), over pairs that move >= 0.5 px
+    # share of the pupil the display can fill (the SLM's band, and the cone where a Fourier filter cuts it), mean
+    # over the eye grid and colours: below 1 the pupil is wider than the display's eyebox, an etendue deficit of
+    # the display reported beside the score, not charged in it (the wave ground truth has the same band)
+    band_share: float = math.nan
 
 
 @dataclass
@@ -348,7 +353,11 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
             edge_error=_finite_mean([c.edge_error for c in mine]),
             sharpness=_finite_mean([c.sharpness for c in mine]),
             parallax_error_px=float(np.mean([abs(sr - sg) for sr, sg in pr])) if pr else math.nan,
-            parallax_ratio=float(np.mean([sr / sg for sr, sg in moving])) if moving else math.nan))
+            parallax_ratio=float(np.mean([sr / sg for sr, sg in moving])) if moving else math.nan,
+            band_share=float(np.mean([band_share(wavelength_m=lam, pitch_m=float(meta.pitch_m),
+                                                 focal_length_m=meta.focal_length_m, pupil_diameter_m=D,
+                                                 view_offset_m=e, fourier_filter=meta.fourier_filter, samples=128)
+                                      for lam in lams for _i, e in eyes]))))
     return ViewerScore(cells=cells, pupils=summaries, scales=tuple(float(s) for s in scales),
                        whites=tuple(whites), wavelengths_m=tuple(lams), focus_z_m=tuple(zs),
                        eye_offsets_m=tuple(e for _i, e in eyes),

@@ -57,7 +57,7 @@ __all__ = ["DepthLayers", "depth_layers", "layer_spacing_m", "wave_view", "band_
 
 MAX_LAYERS = 64
 MAX_DELTA_BOUNCES = 8  # mirrors and smooth glass followed before the chain counts as lost
-_PASS_SAMPLES = 1 << 22  # samples traced at once (memory: about 200 bytes each)
+_PASS_SAMPLES = 1 << 21  # samples traced at once (Dr.Jit holds a few hundred bytes of state for each)
 
 
 @dataclass(frozen=True)
@@ -108,37 +108,37 @@ def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: flo
     })
     integrator = mi.load_dict(reference_integrator(scene, max_depth=int(max_depth)))
     per_pass = max(1, min(spp, _PASS_SAMPLES // (H * W)))
-    zs_all, rgb_all, pix_all = [], [], []
+    out: Optional[np.ndarray] = None  # [K, 3, H * W] sums, once the first pass has set the layers
+    z_layers = np.zeros(0)
     lost = 0
     for first in range(0, spp, per_pass):
         n = min(per_pass, spp - first)
         z, rgb, pix, n_lost = _trace_pass(mi, dr, scene, sensor, integrator, H=H, W=W, n=n, p=p, f=f, zi=zi,
                                           seed=int(seed) * 7919 + first)
-        zs_all.append(z)
-        rgb_all.append(rgb)
-        pix_all.append(pix)
         lost += n_lost
-    z = np.concatenate(zs_all)
-    near = float(np.max(z)) if z.size else zi
-    if z_max_m is not None:
-        near = min(near, float(z_max_m))
-    k = int(math.floor((near - zi) / dz + 1e-9)) + 2
-    if k > MAX_LAYERS:
-        k = MAX_LAYERS
-        dz = (near - zi) / (k - 1)
-    z_layers = zi + dz * np.arange(k)
-    out = np.zeros((k, 3, H * W), dtype=np.float64)
-    for z, rgb, pix in zip(zs_all, rgb_all, pix_all):
+        if out is None:  # the layers span z_inf to the nearest image the first pass saw (later ones clamp)
+            near = float(np.max(z)) if z.size else zi
+            if z_max_m is not None:
+                near = min(near, float(z_max_m))
+            k = int(math.floor((near - zi) / dz + 1e-9)) + 2
+            if k > MAX_LAYERS:
+                k = MAX_LAYERS
+                dz = (near - zi) / (k - 1)
+            z_layers = zi + dz * np.arange(k)
+            out = np.zeros((k, 3, H * W), dtype=np.float32)
+        k = len(z_layers)
         b = np.clip((z - zi) / dz, 0.0, k - 1.0)
-        b0 = np.minimum(np.floor(b).astype(np.int64), k - 2) if k > 1 else np.zeros_like(b, dtype=np.int64)
-        w1 = (b - b0) if k > 1 else np.zeros_like(b)
+        b0 = np.minimum(np.floor(b).astype(np.int64), max(k - 2, 0))
+        w1 = b - b0 if k > 1 else np.zeros_like(b)
+        lo, hi = b0 * (H * W) + pix, np.minimum(b0 + 1, k - 1) * (H * W) + pix
         for ch in range(3):
-            np.add.at(out[:, ch], (b0, pix), rgb[ch] * (1.0 - w1))
-            if k > 1:
-                np.add.at(out[:, ch], (b0 + 1, pix), rgb[ch] * w1)
+            acc = np.bincount(lo, weights=rgb[ch] * (1.0 - w1), minlength=k * H * W)
+            acc += np.bincount(hi, weights=rgb[ch] * w1, minlength=k * H * W)
+            out[:, ch] += acc.reshape(k, H * W).astype(np.float32)
+            del acc
+    assert out is not None
     out /= spp
-    return DepthLayers(rgb=out.reshape(k, 3, H, W).astype(np.float32), z_m=z_layers, lost=lost / (spp * H * W),
-                       spp=spp)
+    return DepthLayers(rgb=out.reshape(len(z_layers), 3, H, W), z_m=z_layers, lost=lost / (spp * H * W), spp=spp)
 
 
 _STEP = 1e-4  # finite-difference step of the pencil: a direction step in rad, an origin step of that times t
