@@ -5,9 +5,10 @@ holography): phase-only SGD of F frames on the amplitude of a focal stack.
    (:func:`default_stack_planes`: up to the paper's 5, uniform from its far to its near end, no two closer than
    the pupil's depth of focus, 2 lambda f^2 / D^2, which is the paper's 1.25 mm for red through a 1.6 mm pupil
    at f = 50 mm; a fixed spacing when asked, centred on the volume and never beyond optical infinity), one
-   Mitsuba thin-lens render per plane of
-   what the eye sees focused there through its pupil D (:class:`holocore.evaluate.groundtruth.GroundTruth`: the
-   ground truth `holo evaluate` scores against, diffraction-limited by the pupil). Per laser line the channel
+   ground-truth view per plane of what the eye sees focused there through its pupil D, from the ground truth
+   `holo evaluate` scores against (``truth``, :mod:`holocore.evaluate.truths`: by default the wave-optical one,
+   whose views of one depth-layer render cost an FFT pass each; ``thinlens``, a Mitsuba render each). Per laser
+   line the channel
    that holds it; all targets share one white level (their ``white_percentile``; emitters above it clip).
 2. Model: frame m's SLM field exp(i phi_m), propagated from the SLM (z = 0) to z_k with the band-limited ASM
    (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, DESIGN §5) through the same pupil disc
@@ -389,7 +390,8 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
                        gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
                        progress: Optional[Any] = None, display: Optional[Any] = None,
                        time_limit_s: Optional[float] = None, fit: str = "pupil-aware",
-                       fit_pupils_m: Optional[Sequence[float]] = None, fit_eye_grid: int = DEFAULT_FIT_EYE_GRID) -> Any:
+                       fit_pupils_m: Optional[Sequence[float]] = None, fit_eye_grid: int = DEFAULT_FIT_EYE_GRID,
+                       truth: str = "wave") -> Any:
     """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
 
     Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
@@ -413,7 +415,7 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     """
     import torch
 
-    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.truths import ground_truth
     from holocore.evaluate.scoring import default_pupil_m
     from holocore.optics.propagation import asm
     from holocore.render_meta import RenderResult, result_meta
@@ -455,7 +457,10 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
                          f"({ana.z_wrp_m * 1e3:.4f} mm)")
     H, W = optics.resolution_hw
     t1 = time.perf_counter()
-    truth = GroundTruth(loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
+    # the targets are the ground truth the score takes (holocore.evaluate.truths): fitted to another, the stack
+    # would be fitted to that one's errors
+    truth_kind = truth
+    truth = ground_truth(truth_kind, loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
     bank: Optional[list[tuple[float, tuple[float, float]]]] = None
     if fit == "pupil-aware":
         from holocore.evaluate.viewer import DEFAULT_PUPILS_M, eye_grid_m
@@ -486,7 +491,7 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
                                lr=lr, seed=optics.seed, device=device, progress=progress, time_limit_s=left,
                                views=bank, z_inf_m=optics.z_inf_m, fourier_filter=ff)
     del targets
-    fit_meta: dict[str, Any] = {"fit": fit, "target_renders": renders}
+    fit_meta: dict[str, Any] = {"fit": fit, "target_renders": renders, "truth": truth_kind}
     if bank is not None:
         fit_meta["bank"] = {"pupils_m": pupils, "eye_grid": fit_eye_grid, "eye_seed": int(optics.seed) + FIT_EYE_SEED,
                             "eye_offsets_m": [list(e) for _i, e in eyes], "views": len(bank),
@@ -552,6 +557,8 @@ class FocalStackOptions(AdamFitOptions):
                                                    "one view per Adam step; centred: one centred pupil (pupil_mm)")
     eye_grid: int = Field(DEFAULT_FIT_EYE_GRID, ge=1, le=9, description="pupil-aware: n x n eye positions per "
                           "pupil (targets: pupils x n^2 x planes renders)")
+    truth: Literal["wave", "thinlens"] = Field("wave", description="the ground truth of the targets "
+                                               "(holocore.evaluate.truths): the one the score takes")
 
 
 @register_baseline
@@ -581,4 +588,4 @@ class FocalStackBaseline(Baseline):
             pupil_diameter_m=None if options.pupil_mm is None else options.pupil_mm * 1e-3,
             iterations=options.iterations, lr=options.lr, gt_spp=options.gt_spp,
             device=torch_device(options.device), progress=progress, display=display,
-            time_limit_s=options.time_limit_s, fit=options.fit, fit_eye_grid=options.eye_grid)
+            time_limit_s=options.time_limit_s, fit=options.fit, fit_eye_grid=options.eye_grid, truth=options.truth)
