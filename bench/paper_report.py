@@ -88,15 +88,25 @@ def image_focus_m(scene: str, meta: dict) -> Optional[float]:
     return zi + f * f / float(zc)
 
 
-def cell_grid(scene: str, meta: dict, *, view_deg: float) -> tuple[list[tuple[str, float]], list[tuple[str, tuple]]]:
-    """Focus planes [(name, z)] (near, middle, far of the image volume, and the cue's image) and views
-    [(name, (ex, ey))] (left, centre, right at +-view_deg)."""
-    from holocore.evaluate.scoring import focus_planes_m
+def cell_grid(scene: str, meta: dict, *, view_deg: float, seed: int = 0,
+              avoid_m: Sequence[float] = ()) -> tuple[list[tuple[str, float]], list[tuple[str, tuple]]]:
+    """Focus planes [(name, z)] and views [(name, (ex, ey))] (left, centre, right at +-view_deg).
 
-    near, mid, far = focus_planes_m(meta, 3)
-    focus = [("near", near), ("middle", mid), ("far", far)]
+    The planes (docs/evaluation.md, "Focus planes"): the cue's image (the mirror image, the glass ball's image,
+    the highlight, the middle card) unless it lies on a method's own plane (``avoid_m``), and one drawn from
+    ``seed`` in each third of the image volume (near, middle, far), kept off the methods' planes and the image
+    by the blue SLM band's layer step (2 p^2 / lambda: the depth over which its defocus changes by a quarter
+    wave) where the third leaves room; a plane is never scored twice."""
+    from holocore.evaluate.scoring import fair_focus_planes_m
+    from holocore.evaluate.wave_truth import layer_spacing_m
+
+    gap = layer_spacing_m(pitch_m=float(meta["pitch_m"]), wavelength_m=min(meta["wavelengths_m"]))
     zi = image_focus_m(scene, meta)
-    if zi is not None:
+    image = zi is not None and all(abs(zi - z) >= gap for z in avoid_m)
+    far, mid, near = fair_focus_planes_m(meta, 3, seed=seed, avoid_m=[*avoid_m, *([zi] if image else [])],
+                                         min_gap_m=gap)
+    focus = [("near", near), ("middle", mid), ("far", far)]
+    if image:
         focus.append(("image", zi))
     e = float(meta["focal_length_m"]) * math.sin(math.radians(view_deg))
     return focus, [("left", (-e, 0.0)), ("centre", (0.0, 0.0)), ("right", (e, 0.0))]
@@ -128,15 +138,19 @@ def phase_only_field(enc: Any) -> np.ndarray:
 # ---- running ------------------------------------------------------------------------------------------------
 class Runner:
     def __init__(self, args, log) -> None:
+        from holocore.display.profiles import PAPER
+
         self.args, self.log = args, log
         self.H, self.W = args.shape_hw
         self.work = Path(args.work)
         self.work.mkdir(parents=True, exist_ok=True)
+        # the paper's display with its filter ("4f": a Fourier filter passes each colour's recording cone) or
+        # without one ("none": the prototype's SLM, eyepiece and iris; what the encoder parks outside the cone
+        # reaches the eye)
+        self.display = PAPER if args.filter == "4f" else PAPER.model_copy(update={"fourier_filter": False})
 
     def optics(self, frames: int, frame_phases: Optional[str] = None):
-        from holocore.display.profiles import PAPER
-
-        return PAPER.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm,
+        return self.display.optics(resolution_hw=(self.H, self.W), frames=frames, z_inf_mm=self.args.z_inf_mm,
                             frame_phases=frame_phases or self.args.frame_phases)
 
     def load(self, scene: str):
@@ -148,11 +162,10 @@ class Runner:
     def warm(self, loaded, methods=("wrp/balanced", "wrp/fast", "direct/balanced")) -> None:
         """Compile every kernel once (tiny size), so no timed run pays for JIT compilation."""
         from holocore.baselines.layers import render_layers
-        from holocore.display.profiles import PAPER
         from holocore.encode.encoder import encode_sgd
         from holocore.pipeline import RenderOptions, render_loaded
 
-        small = PAPER.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm,
+        small = self.display.optics(resolution_hw=(24, 32), frames=2, z_inf_mm=self.args.z_inf_mm,
                              frame_phases=self.args.frame_phases)
         for key in methods:
             method, preset = key.split("/")
@@ -169,14 +182,13 @@ class Runner:
 
     def render(self, loaded, frames: int, preset: str, spp: int, method: str = "wrp",
                time_limit_s: Optional[float] = None, frame_phases: Optional[str] = None):
-        from holocore.display.profiles import PAPER
         from holocore.pipeline import RenderOptions, render_loaded
 
         t0 = time.perf_counter()
         planes = self.args.wrp_planes if method == "wrp" else 1
         r = render_loaded(loaded, self.optics(frames, frame_phases), RenderOptions(preset=preset, method=method, spp=spp,
                                                                      wrp_planes=planes, time_limit_s=time_limit_s),
-                          display=PAPER)
+                          display=self.display)
         return r, time.perf_counter() - t0
 
     def encode(self, res):
@@ -187,7 +199,7 @@ class Runner:
         fixed = self.args.enc_iterations != "auto"
         enc = encode_sgd(res.wrp_field, z_wrp_m=m["z_wrp_m"], wavelengths_m=m["wavelengths_m"], pitch_m=m["pitch_m"],
                          iterations=int(self.args.enc_iterations) if fixed else self.args.enc_max_iterations,
-                         stop_db=0.0 if fixed else 0.05, fourier_filter=True)
+                         stop_db=0.0 if fixed else 0.05, fourier_filter=self.display.fourier_filter)
         return enc, time.perf_counter() - t0
 
     @staticmethod
@@ -200,20 +212,18 @@ class Runner:
 
     def layers(self, loaded, frames: int):
         from holocore.baselines.layers import render_layers
-        from holocore.display.profiles import PAPER
 
         t0 = time.perf_counter()
         r = render_layers(loaded, self.optics(frames), planes=self.args.layer_planes, spp=self.args.layer_spp,
-                          display=PAPER)
+                          display=self.display)
         return r, time.perf_counter() - t0
 
     def light_field(self, loaded, frames: int, **fit):
         from holocore.baselines.light_field import render_light_field
-        from holocore.display.profiles import PAPER
 
         t0 = time.perf_counter()
         r = render_light_field(loaded, self.optics(frames), hogel_px=self.args.lf_hogel_px, spp=self.args.lf_spp,
-                               display=PAPER, **fit)
+                               display=self.display, **fit)
         return r, time.perf_counter() - t0
 
     @staticmethod
@@ -233,15 +243,23 @@ class Runner:
     def focal_stack(self, loaded, frames: int, iterations: int, spacing_m: Optional[float] = 1.25e-3,
                     time_limit_s: Optional[float] = None):
         from holocore.baselines.focal_stack import render_focal_stack
-        from holocore.display.profiles import PAPER
 
         t0 = time.perf_counter()
         # pupil-aware: fitted through the viewer-faithful score's pupils and eye positions, the stronger
         # baseline (a centred fit was never asked for the views that score takes)
         r = render_focal_stack(loaded, self.optics(frames), iterations=iterations, gt_spp=self.args.fs_gt_spp,
-                               planes=5, spacing_m=spacing_m, display=PAPER, time_limit_s=time_limit_s,
-                               fit="pupil-aware")
+                               planes=5, spacing_m=spacing_m, display=self.display, time_limit_s=time_limit_s,
+                               fit="pupil-aware", truth=self.args.truth)
         return r, time.perf_counter() - t0
+
+    def fs_planes(self, meta: dict) -> list[float]:
+        """The focal stack's 5 target planes (m), as :meth:`focal_stack` will place them."""
+        from holocore.baselines.focal_stack import stack_plane_depths
+
+        ana = meta["analysis"]
+        return [float(z) for z in stack_plane_depths(
+            z_inf_m=meta["z_inf_m"], z_far_m=ana["z_far_holo_m"], z_near_m=ana["z_near_holo_m"], planes=5,
+            spacing_m=self.fs_spacing(meta), z_limit_m=meta["z_wrp_m"])]
 
     def fs_probe(self, meta: dict, pupil: float) -> tuple[float, float]:
         """(seconds of one focal-stack Adam iteration, seconds of its final no-gradient pass) at the report's frame
@@ -260,7 +278,7 @@ class Runner:
         T = np.random.default_rng(0).random((1, len(zs), 3, self.H, self.W))
         kw = dict(wavelengths_m=meta["wavelengths_m"], pitch_m=meta["pitch_m"], focal_length_m=meta["focal_length_m"],
                   pupil_diameter_m=pupil, frames=self.args.frames, views=[(pupil, (0.0, 0.0))],
-                  z_inf_m=meta["z_inf_m"], fourier_filter=True)
+                  z_inf_m=meta["z_inf_m"], fourier_filter=self.display.fourier_filter)
         t0 = time.perf_counter()
         optimise_focal_stack(T, zs, iterations=0, **kw)
         t1 = time.perf_counter()
@@ -270,8 +288,8 @@ class Runner:
 
     # ---- the equal-time comparison and Fig. 7 ----------------------------------------------------------------
     def equal(self, scene: str) -> dict:
-        from holocore.evaluate.groundtruth import GroundTruth
         from holocore.evaluate.scoring import default_pupil_m, eye_view
+        from holocore.evaluate.truths import ground_truth
 
         a, F, B = self.args, self.args.frames, self.args.budget_s
         loaded = self.load(scene)
@@ -286,6 +304,7 @@ class Runner:
         meta = lay.meta
         fields["layers"] = phase_only_field(enc)
         fields["layers (complex)"] = lay.slm_field
+        layer_planes = [float(z) for z in lay.meta["layers"]["plane_z_m"]]
         out["methods"]["layers"] = {"render_s": t_lay, "encode_s": t_enc, "time_s": t_lay + t_enc,
                                     "config": f"{a.layer_planes} planes, RGB-D {a.layer_spp} spp, {self.enc_label(enc)}"}
         self.log(f"[{scene}] layers {t_lay:.1f} s + encoder {t_enc:.1f} s")
@@ -337,8 +356,10 @@ class Runner:
             del lfs
         # focal stack: Adam iterations to fill the budget
         pupil = default_pupil_m(meta, view_deg=a.view_deg)
-        truth = GroundTruth(loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
-        focus, views = cell_grid(scene, meta, view_deg=a.view_deg)
+        truth = ground_truth(a.truth, loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
+        own_planes = layer_planes + self.fs_planes(meta)  # where a method was fitted: never a scored plane
+        seeds = [int(v) for v in str(a.plane_seeds).split(",")]
+        focus, views = cell_grid(scene, meta, view_deg=a.view_deg, seed=seeds[0], avoid_m=own_planes)
         t_gt0 = time.perf_counter()
         gts = {(fn, vn): truth.channels(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=e)
                for fn, z in focus for vn, e in views}
@@ -407,10 +428,17 @@ class Runner:
             for label, fld in fields.items():
                 if label.endswith("(complex)") or (wanted and label.split(" (")[0] not in wanted):
                     continue
-                vs = viewer_score(fld, meta, truth, eye_grid=a.viewer_grid, seed=0, focus_z_m=[z for _fn, z in focus])
+                vs = viewer_score(fld, meta, truth, eye_grid=a.viewer_grid, seed=seeds[0],
+                                  focus_z_m=[z for _fn, z in focus])
                 d = vs.to_dict()
                 d.pop("cells")
                 d["mean_2_6_db"] = vs.mean_over([2.0, 3.0, 4.0, 6.0])
+                # the same score over other draws of the planes and the eye grid: how much the ranking rests on them
+                d["seeds"] = {seeds[0]: d["mean_2_6_db"]}
+                for sd in seeds[1:]:
+                    fz, _ = cell_grid(scene, meta, view_deg=a.view_deg, seed=sd, avoid_m=own_planes)
+                    d["seeds"][sd] = viewer_score(fld, meta, truth, eye_grid=a.viewer_grid, seed=sd,
+                                                  focus_z_m=[z for _fn, z in fz]).mean_over([2.0, 3.0, 4.0, 6.0])
                 out["viewer"]["methods"][label] = d
                 self.log(f"[{scene}] viewer score {label}: {d['mean_2_6_db']:.2f} dB over 2-6 mm pupils, "
                          f"brightness steps {max(p['brightness_max_over_min'] for p in d['pupils']):.2f}")
@@ -420,8 +448,8 @@ class Runner:
 
     # ---- Fig. 5 ------------------------------------------------------------------------------------------------
     def conv(self, scene: str) -> dict:
-        from holocore.evaluate.groundtruth import GroundTruth
         from holocore.evaluate.scoring import default_pupil_m, eye_view, focus_planes_m
+        from holocore.evaluate.truths import ground_truth
 
         a = self.args
         loaded = self.load(scene)
@@ -443,7 +471,7 @@ class Runner:
         ref, t_ref, meta = fields("balanced", a.ref_spp)
         pupil = default_pupil_m(meta, view_deg=a.view_deg)
         zs = focus_planes_m(meta, 3)
-        truth = GroundTruth(loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
+        truth = ground_truth(a.truth, loaded, meta, shape_hw=(self.H, self.W), spp=a.gt_spp, seed=1)
         gts = [truth.channels(focus_z_m=z, pupil_diameter_m=pupil) for z in zs]
         ms = [margin_px(meta, (self.H, self.W), focus_z_m=z, pupil_m=pupil, view=(0.0, 0.0)) for z in zs]
         ref_views = {F: [eye_view(ref[F], meta, focus_z_m=z, pupil_diameter_m=pupil) for z in zs] for F in FRAMES}
@@ -596,14 +624,14 @@ def image_grid(eq: dict, npz: Path, path: Path, *, zoom: int = 1) -> None:
     wl = eq["meta"]["wavelengths_m"]
     methods = [m for m in ("ours", "fast", "layers", "light-field", "light-field-sgd", "focal-stack")
                if any(k.startswith(m + "|") for k in imgs)] + ["ground truth"]
-    cols = [("near", "centre"), ("middle", "centre"), ("far", "centre"), ("image", "centre"), ("image", "left"),
-            ("image", "right")]
+    zname = {f["name"]: f["z_m"] for f in eq["focus"]}
+    cols = [(fn, vn) for fn, vn in [("near", "centre"), ("middle", "centre"), ("far", "centre"), ("image", "centre"),
+                                    ("image", "left"), ("image", "right")] if fn in zname]
     H, W = next(iter(imgs.values())).shape[-2:]
     tw, th = W * zoom, 2 * H * zoom + 2  # view above, close-up below
     left, top = 90, 30
     sheet = Image.new("RGB", (left + len(cols) * (tw + 4), top + len(methods) * (th + 6)), (0, 0, 0))
     draw = ImageDraw.Draw(sheet)
-    zname = {f["name"]: f["z_m"] for f in eq["focus"]}
     for j, (fn, vn) in enumerate(cols):
         x = left + j * (tw + 4)
         draw.text((x + 2, 2), f"{fn} focus, {vn} view", fill=(255, 255, 0))
@@ -844,6 +872,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                          "more than the budget's estimate, and overran ours' budget.")
     ap.add_argument("--enc-max-iterations", type=int, default=300)
     ap.add_argument("--gt-spp", type=int, default=128, help="Ground-truth samples per pixel.")
+    ap.add_argument("--truth", choices=("wave", "thinlens"), default="wave",
+                    help="The ground truth (holocore.evaluate.truths): wave-optical (default) or thin-lens.")
+    ap.add_argument("--filter", choices=("4f", "none"), default="4f",
+                    help="The display's filter: 4f (a Fourier filter passes each colour's recording cone) or none.")
+    ap.add_argument("--plane-seeds", default="0",
+                    help="Seeds of the scored focus planes and eye grid; more than one: the viewer score's spread.")
     ap.add_argument("--fs-gt-spp", type=int, default=64, help="Focal-stack target samples per pixel.")
     ap.add_argument("--layer-planes", type=int, default=8)
     ap.add_argument("--layer-spp", type=int, default=64)

@@ -142,6 +142,36 @@ def focus_planes_m(meta: MetaLike, n: int) -> list[float]:
     return [float(z) for z in np.linspace(near, far, n)]
 
 
+def fair_focus_planes_m(meta: MetaLike, n: int, *, seed: int, avoid_m: Sequence[float] = (),
+                        min_gap_m: float = 0.0) -> list[float]:
+    """n focus depths (m) for a fair comparison (docs/evaluation.md, "Focus planes"): one drawn (``seed``) in each
+    of n equal slices of the image volume (uniform in dioptres), and kept at least ``min_gap_m`` from every depth
+    in ``avoid_m`` (the methods' own planes: a focal stack's targets, the layers' planes) where its slice leaves
+    room, else as far from them as its slice allows. A plane is never scored twice (each slice holds one) and
+    does not sit on a plane a method was fitted to, where that method would be scored at its best.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_FOCUS_PLANES:
+        raise ValueError(f"focus planes must be an integer in 1..{MAX_FOCUS_PLANES}, got {n!r}")
+    ends = focus_planes_m(meta, 2)
+    far, near = min(ends), max(ends)
+    avoid = np.asarray([float(z) for z in avoid_m], dtype=np.float64)
+    gap = max(0.0, float(min_gap_m))
+    rng = np.random.default_rng([int(seed), 0x46414952])  # "FAIR": its own stream, not the eye grid's
+    out = []
+    for i in range(n):
+        lo = far + (near - far) * i / n
+        hi = far + (near - far) * (i + 1) / n
+        cand = lo + (hi - lo) * rng.random(64)
+        if avoid.size:
+            dist = np.min(np.abs(cand[:, None] - avoid[None, :]), axis=1)
+            ok = dist >= gap
+            z = float(cand[ok][0]) if ok.any() else float(cand[np.argmax(dist)])
+        else:
+            z = float(cand[0])
+        out.append(z)
+    return out
+
+
 def view_offsets_m(meta: MetaLike, n: int, view_deg: float) -> list[tuple[tuple[int, int], tuple[float, float]]]:
     """An n x n grid of eye offsets e (m) whose directions span +-view_deg: e = f sin(angle) per axis.
 

@@ -111,3 +111,23 @@ def test_phase_only_field(rep):
     assert u.dtype == np.complex64 and u.shape == (2, 3, 4, 5)
     np.testing.assert_allclose(np.abs(u[0, :, 0, 0]), [1.0, 0.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(np.angle(u[0, 0]), 0.5, atol=1e-6)
+
+
+def test_scored_planes_are_off_the_methods_planes_and_never_twice(rep, tiny):
+    from holocore.evaluate.wave_truth import layer_spacing_m
+
+    meta = tiny[1].meta
+    ana = meta["analysis"]
+    own = list(np.linspace(ana["z_far_holo_m"], ana["z_near_holo_m"], 5))  # a stack's planes, its ends included
+    gap = layer_spacing_m(pitch_m=meta["pitch_m"], wavelength_m=min(meta["wavelengths_m"]))
+    for seed in range(5):
+        focus, _ = rep.cell_grid("mirror", meta, view_deg=0.5, seed=seed, avoid_m=own)
+        zs = [z for _n, z in focus]
+        assert len(zs) >= 3 and min(abs(a - b) for i, a in enumerate(zs) for b in zs[i + 1:]) > 0
+        drawn = [z for n, z in focus if n != "image"]
+        thirds = np.linspace(ana["z_far_holo_m"], ana["z_near_holo_m"], 4)
+        assert all(any(lo <= z <= hi for lo, hi in zip(thirds, thirds[1:])) for z in drawn)
+        room = [z for z in drawn if min(abs(z - o) for o in own) >= gap]
+        assert len(room) >= 2  # most thirds leave room between the stack's planes at this size
+    assert rep.cell_grid("mirror", meta, view_deg=0.5, seed=1, avoid_m=own) != \
+        rep.cell_grid("mirror", meta, view_deg=0.5, seed=2, avoid_m=own)
