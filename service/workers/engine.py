@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -121,7 +122,15 @@ class LocalEngine:
     def launch(self, job_id: str, attempt: int, job_dir: Path, run_as: Optional[RunAs] = None) -> Handle:
         """Start the driver; with ``run_as`` as that user, HOME and TMPDIR in ``job_dir`` (which it owns), and
         /tmp, /var/tmp, /dev/shm of its own where the platform allows (service.workers.private_tmp)."""
-        log_fh = open(job_dir / "driver.log", "ab")
+        # the job's folder is the job's: its log is opened without following a link or waiting on a FIFO, and
+        # only a plain file of its own is handed to the driver (and, sandboxed, chowned to the slot's uid)
+        fd = os.open(job_dir / "driver.log", os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK
+                     | os.O_CLOEXEC, 0o600)
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+            os.close(fd)
+            raise OSError(f"{job_dir.name}/driver.log is not a plain file of the job's own")
+        log_fh = os.fdopen(fd, "ab")
         cmd = [sys.executable, "-m", "service.workers.driver", str(job_dir), "--parent-pid", str(os.getpid())]
         try:
             if run_as is not None:

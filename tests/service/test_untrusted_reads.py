@@ -144,3 +144,17 @@ def test_a_folder_swapped_for_a_link_is_refused(job, tmp_path):
     with pytest.raises(UntrustedFile):
         read_job_json(job, "../j1/job.json")
     assert read_job_json(job, "job.json") == {"evaluate": True}  # and a plain file of the job's reads
+
+
+@pytest.mark.parametrize("kind", ("fifo", "symlink", "hardlink"))
+def test_the_engine_never_hands_a_swapped_driver_log_to_the_driver(job, secret, kind):
+    """The engine (root) opens driver.log for the driver's output and, sandboxed, chowns it to the slot's uid:
+    through a link that would give the job another file; a FIFO would block the scheduler."""
+    from service.workers.engine import LocalEngine
+
+    _swap(job / "driver.log", kind, secret)
+    before = os.stat(secret)
+    with pytest.raises(OSError, match="not a plain file|Too many levels|symbolic link|No such device"):
+        _returns(lambda: LocalEngine().launch("j1", 1, job))
+    after = os.stat(secret)
+    assert (after.st_uid, after.st_size) == (before.st_uid, before.st_size)

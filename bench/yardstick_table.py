@@ -1,0 +1,46 @@
+"""The yardstick's table: from paper-report runs (bench/paper_report.py --stages equal) made with the display's
+filter and without, per scene and method the viewer-faithful PSNR at 2, 4 and 6 mm pupils, the mean over 2-6 mm
+for each seed of the scored planes and eye grid (and their spread), and the band share of each pupil.
+
+    python bench/yardstick_table.py bench/results/yardstick/4f bench/results/yardstick/none > TABLE.md
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+ORDER = ("ours", "fast", "direct", "layers", "light-field", "light-field-sgd", "focal-stack")
+
+
+def rows(folder: Path) -> list[str]:
+    out = []
+    for path in sorted(folder.glob("equal_*.json")):
+        eq = json.loads(path.read_text())
+        viewer = (eq.get("viewer") or {}).get("methods") or {}
+        planes = ", ".join(f"{f['name']} {f['z_m'] * 1e3:.3f}" for f in eq.get("focus", []))
+        out.append(f"\n**{eq['scene']}** ({folder.name}; budget {eq['budget_s']:g} s a method, {eq['frames']} frames, "
+                   f"{eq['shape_hw'][0]}x{eq['shape_hw'][1]} px; scored planes mm: {planes})\n")
+        out.append("| method | 2 mm | 4 mm | 6 mm | mean 2-6 mm by seed | spread | band share 2/4/6 mm |")
+        out.append("|---|---|---|---|---|---|---|")
+        for name in sorted(viewer, key=lambda m: ORDER.index(m) if m in ORDER else len(ORDER)):
+            d = viewer[name]
+            by = {round(p["pupil_mm"], 3): p for p in d["pupils"]}
+            cell = lambda mm: f"{by[mm]['mean_psnr_db']:.2f}" if mm in by else "-"  # noqa: E731
+            band = "/".join(f"{by[mm].get('band_share', float('nan')):.2f}" for mm in (2.0, 4.0, 6.0) if mm in by)
+            seeds = d.get("seeds") or {"0": d["mean_2_6_db"]}
+            vals = [float(v) for v in seeds.values()]
+            out.append(f"| {name} | {cell(2.0)} | {cell(4.0)} | {cell(6.0)} | "
+                       f"{' / '.join(f'{v:.2f}' for v in vals)} | {max(vals) - min(vals):.2f} | {band} |")
+    return out
+
+
+def main(argv: list[str]) -> int:
+    for folder in argv:
+        print("\n".join(rows(Path(folder))))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
