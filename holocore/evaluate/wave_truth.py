@@ -278,8 +278,10 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
               view_offset_m: tuple[float, float] = (0.0, 0.0), fourier_filter: bool = False,
               pad_factor: float = 2) -> np.ndarray:
     """What an eye sees of intensity layers ``layers`` [K, C, H, W] at hologram depths ``z_m`` [K], imaged
-    incoherently (module docstring, step 2): float64 [C, H, W], on ``eye_view``'s grid and scale (a layer's
-    light, spread over the full band by its random phase, passes the eye in the share of the band it accepts)."""
+    incoherently (module docstring, step 2): float64 [C, H, W] on ``eye_view``'s grid, in the layers' radiance
+    (each PSF sums to 1): the brightness an ideal display gives every pupil, as the scores take a ground truth
+    (``eye_view`` of an ideal full-band random-phase field is this times the share of the band the pupil takes,
+    which the viewer score divides out)."""
     from holocore.optics.viewing import pupil_mask
     from holocore.display.optics import theta_max_rad
 
@@ -308,7 +310,6 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
         if fourier_filter:  # the recording cone, as the viewer applies it
             cone_d = 2.0 * f * math.sin(theta_max_rad(lam, p))
             mask &= pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=cone_d * (1.0 + 1e-9))
-        share = float(mask.sum()) / (hp * wp)  # of a full-band random-phase field, the light the eye accepts
         acc = torch.zeros((hp, wp // 2 + 1), dtype=torch.complex64)
         for k, z in enumerate(zs):
             img = torch.from_numpy(np.ascontiguousarray(a[k, c]))
@@ -321,7 +322,7 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
             if total <= 0.0:
                 continue
             acc += torch.fft.rfft2(img, s=(hp, wp)) * torch.fft.rfft2(psf / total)
-        view = torch.fft.irfft2(acc * ramp, s=(hp, wp))[:H, :W].to(torch.float64) * share
+        view = torch.fft.irfft2(acc * ramp, s=(hp, wp))[:H, :W].to(torch.float64)
         out[c] = view.numpy().clip(min=0.0)
     return out
 
