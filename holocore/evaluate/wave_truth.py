@@ -57,7 +57,7 @@ __all__ = ["DepthLayers", "depth_layers", "layer_spacing_m", "wave_view", "band_
 
 MAX_LAYERS = 64
 MAX_DELTA_BOUNCES = 8  # mirrors and smooth glass followed before the chain counts as lost
-_PASS_SAMPLES = 1 << 21  # samples traced at once (Dr.Jit holds a few hundred bytes of state for each)
+_PASS_SAMPLES = 1 << 19  # samples traced at once: Dr.Jit holds some 400 bytes of chain and path state for each
 
 
 @dataclass(frozen=True)
@@ -116,8 +116,9 @@ def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: flo
         z, rgb, pix, n_lost = _trace_pass(mi, dr, scene, sensor, integrator, H=H, W=W, n=n, p=p, f=f, zi=zi,
                                           seed=int(seed) * 7919 + first)
         lost += n_lost
-        if out is None:  # the layers span z_inf to the nearest image the first pass saw (later ones clamp)
-            near = float(np.max(z)) if z.size else zi
+        if out is None:  # the layers span z_inf to the nearest image the first pass saw (later ones clamp, and
+            # so does the nearest 0.05 % of its samples: a grazing pencil's stray depth must not stretch the layers)
+            near = float(np.quantile(z, 0.9995)) if z.size else zi
             if z_max_m is not None:
                 near = min(near, float(z_max_m))
             k = int(math.floor((near - zi) / dz + 1e-9)) + 2
@@ -219,30 +220,41 @@ def _trace_pass(mi, dr, scene, sensor, integrator, *, H: int, W: int, n: int, p:
     li, _, _ = integrator.sample(scene, sampler, mi.RayDifferential3f(last), None, ended)
     rgb = dr.select(ended, throughput * li, 0.0)
 
-    # the pencil: two origin steps and two direction steps across the first ray
-    e1, e2 = mi.coordinate_system(ray.d)
-    q1, q2 = mi.coordinate_system(last.d)  # across the last ray
-    first_t = dr.maximum(scene.ray_intersect(ray, ended & ~sky).t, 1e-6)
-    delta = _STEP * dr.select(dr.isfinite(first_t), first_t, 1.0)
-    probe = ended & ~sky
-    cols = []
-    for shift in (e1, e2):
-        moved = mi.Ray3f(ray.o + shift * delta, ray.d)
-        turned = mi.Ray3f(ray.o, dr.normalize(ray.d + shift * _STEP))
-        for r, step in ((moved, delta), (turned, mi.Float(_STEP))):
-            _, end_k, shape_k, bounces_k, ended_k, sky_k, _, _ = _chain(mi, dr, scene, r, probe, key)
-            probe &= ended_k & ~sky_k & (shape_k == shape) & (bounces_k == bounces)
-            dv = (end_k - end) / step
-            cols.append((dr.dot(dv, q1), dr.dot(dv, q2)))
-    (o1x, o1y), (d1x, d1y), (o2x, o2y), (d2x, d2y) = cols
-    # J_o = [[o1x, o2x], [o1y, o2y]], J_d likewise; trace(J_d^-1 J_o) / 2
-    det = d1x * d2y - d2x * d1y
-    tr = (d2y * o1x - d2x * o1y - d1y * o2x + d1x * o2y) / det
-    vergence = 0.5 * tr
-    pencil = probe & dr.isfinite(vergence)
-    # a pencil converging at the eye (vergence <= 0) images beyond optical infinity: as near it as can be, z_inf
-    far = sky | (pencil & (vergence <= 0.0))
-    zc = dr.select(pencil, to_axis / dr.maximum(vergence, 1e-30), apparent * to_axis)
+    # the pencil, for the samples that met a delta surface (the others' image is the point they hit, at the
+    # distance they travelled), gathered together so that the four extra chains trace only those: two origin
+    # steps and two direction steps across the first ray
+    bent = ended & ~sky & (bounces > 0)
+    zc = apparent * to_axis
+    far = mi.Bool(sky)
+    sel = dr.compress(bent)
+    if dr.width(sel) > 0:
+        g = lambda v: dr.gather(type(v), v, sel)  # noqa: E731
+        ray_s = mi.Ray3f(g(ray.o), g(ray.d))
+        last_d, end_s, shape_s, bounces_s, key_s = g(last.d), g(end), g(shape), g(bounces), g(key)
+        e1, e2 = mi.coordinate_system(ray_s.d)
+        q1, q2 = mi.coordinate_system(last_d)  # across the last ray
+        probe = dr.full(mi.Bool, True, dr.width(sel))
+        first_t = dr.maximum(scene.ray_intersect(ray_s, probe).t, 1e-6)
+        delta = _STEP * dr.select(dr.isfinite(first_t), first_t, 1.0)
+        cols = []
+        for shift in (e1, e2):
+            moved = mi.Ray3f(ray_s.o + shift * delta, ray_s.d)
+            turned = mi.Ray3f(ray_s.o, dr.normalize(ray_s.d + shift * _STEP))
+            for r, step in ((moved, delta), (turned, mi.Float(_STEP))):
+                _, end_k, shape_k, bounces_k, ended_k, sky_k, _, _ = _chain(mi, dr, scene, r, probe, key_s)
+                probe &= ended_k & ~sky_k & (shape_k == shape_s) & (bounces_k == bounces_s)
+                dv = (end_k - end_s) / step
+                cols.append((dr.dot(dv, q1), dr.dot(dv, q2)))
+        (o1x, o1y), (d1x, d1y), (o2x, o2y), (d2x, d2y) = cols
+        # J_o = [[o1x, o2x], [o1y, o2y]], J_d likewise; trace(J_d^-1 J_o) / 2
+        det = d1x * d2y - d2x * d1y
+        vergence = 0.5 * (d2y * o1x - d2x * o1y - d1y * o2x + d1x * o2y) / det
+        pencil = probe & dr.isfinite(vergence)
+        zc_s = dr.select(pencil, g(to_axis) / dr.maximum(vergence, 1e-30), g(zc))
+        # a pencil converging at the eye (vergence <= 0) images beyond optical infinity: as near it as can be
+        far_s = pencil & (vergence <= 0.0)
+        dr.scatter(zc, zc_s, sel)
+        dr.scatter(far, far_s, sel)
     zi_o, f2 = dr.opaque(mi.Float, zi), dr.opaque(mi.Float, f * f)
     z = dr.select(far | (zc <= 0.0), zi_o, zi_o + f2 / dr.maximum(zc, 1e-30))
     dr.eval(rgb, z)

@@ -112,10 +112,10 @@ def test_the_scores_of_a_depth_are_those_of_its_pictures(server, evaluated, demo
     views the served stack there itself; the reported PSNR and SSIM are theirs, and the served PNGs are those two
     images (one white level, gamma 2.2). A ground truth or view of another depth (a sweep read near to far, an
     index off by one) fails: neighbouring depths' ground truths differ by far more than a grey level."""
-    from holocore.evaluate.groundtruth import GroundTruth
     from holocore.evaluate.preview import to_png8
     from holocore.evaluate.scoring import compare, eye_view, to_rgb
     from holocore.io import load_stack
+    from holocore.evaluate.truths import DEFAULT_TRUTH, ground_truth
     from holocore.scene.load import load_scene
     from service.workers.evaluation import GT_SPP
 
@@ -129,7 +129,8 @@ def test_the_scores_of_a_depth_are_those_of_its_pictures(server, evaluated, demo
     phase, _, meta = load_stack(stack)
     field = np.exp(1j * phase.astype(np.float32)).astype(np.complex64)
     field *= np.sqrt(np.asarray(meta["encoder"]["illumination"], dtype=np.float32))[..., None, None]
-    truth = GroundTruth(load_scene(demo["dir"]), meta, shape_hw=phase.shape[-2:], spp=GT_SPP)
+    # the truth `holo evaluate` takes by default, as the service runs it
+    truth = ground_truth(DEFAULT_TRUTH, load_scene(demo["dir"]), meta, shape_hw=tuple(phase.shape[-2:]), spp=GT_SPP)
     lams = meta["wavelengths_m"]
     pupil = idx["pupil_mm"] * 1e-3
     white, gamma = idx["white"], idx["gamma"]
