@@ -103,23 +103,26 @@ def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> in
     return int(math.ceil(depth_m * t / pitch_m - 1e-9))
 
 
-# The evaluate step (service/workers/evaluation.py: `holo evaluate`, a Mitsuba thin-lens ground truth at GT_SPP
-# samples and a simulated eye view per cell, each cell's reconstruction and truth kept as float64 [C, H, W] until
-# its PNG pair is written; then, for more than one frame, the viewer score in a process of its own) grows with the
-# SLM's pixels, well beyond the other stages: a fixed cost, a cost per pixel (the ground truth's wavefront of
-# H W GT_SPP samples, its film, the pupil's diffraction), one per sample H W C F (the view of every frame) and one
-# per cell, pixel and colour (the kept images, 16 bytes, and the view's transients), for the most cells either
-# process scores (EVAL_MAX_CELLS: the sweep's 9 depths and 8 more views at its middle one, 17; the viewer's 2
-# pupils x 3 x 3 eyes, 18). Measured with GNU time on the demo scene (bench/bench_evaluation_memory.py,
-# bench/results/evaluation_memory.md, 2026-12-06): the constants per pixel and per cell are the exact fit to three
-# 1-frame runs (352x480 with 2 cells 681 MB, 540x960 with 9 cells 1437 MB, 720x1280 with 17 cells 2735 MB), the
-# one per sample the viewer run's growth from 2 to 8 frames at 352x480 (747 to 921 MB); EVAL_MARGIN keeps the
-# model above the runs' noise (the fit has no spare point to absorb it).
+# The evaluate step (service/workers/evaluation.py: `holo evaluate`, the wave-optical ground truth at GT_SPP
+# samples, whose depth layers and their binning grow with the pixels, and a simulated eye view per cell, each
+# cell's reconstruction and truth kept as float64 [C, H, W] until its PNG pair is written; then, for more than one
+# frame, the viewer score in a process of its own) grows with the SLM's pixels, well beyond the other stages: a
+# fixed cost, a cost per pixel (the layers, up to 64 x 3 float32, and their float64 binning; the truth's pass of
+# Dr.Jit state is bounded), one per sample H W C F (the view of every frame) and one per cell, pixel and colour
+# (the kept images, 16 bytes, and the view's transients), for the most cells either process scores
+# (EVAL_MAX_CELLS: the sweep's 9 depths and 8 more views at its middle one, 17; the viewer's 2 pupils x 3 x 3
+# eyes, 18). Measured with GNU time on the demo scene (bench/bench_evaluation_memory.py,
+# bench/results/evaluation_memory.md, 2026-12-06): the fixed and per-pixel constants are the line through two
+# 1-frame runs (352x480 with 2 cells 1111 MB, 540x960 with 9 cells 2309 MB), less the per-sample and per-cell
+# terms; the per-cell and per-sample constants are from the thin-lens truth's runs (23.6 bytes from 2 to 17 cells
+# at 540-720 px, 57 bytes from the viewer run's growth from 2 to 8 frames at 352x480); EVAL_MARGIN keeps the model
+# above the runs' noise (the fit has no spare point to absorb it).
 EVAL_MAX_CELLS = 18
-EVAL_FIXED_BYTES = 440 * _MB
+EVAL_FIXED_BYTES = 532 * _MB
 EVAL_BYTES_PER_SAMPLE = 57.0
-EVAL_BYTES_PER_PIXEL = 1285.0 - 3 * EVAL_BYTES_PER_SAMPLE  # the 1-frame, 3-colour fit less its one frame's samples
 EVAL_BYTES_PER_CELL_SAMPLE = 23.6
+# the measured slope, 3429 bytes a pixel, less one frame's samples and the cells' share of 3 colours
+EVAL_BYTES_PER_PIXEL = 3429.0 - 3 * EVAL_BYTES_PER_SAMPLE - 3 * EVAL_MAX_CELLS * EVAL_BYTES_PER_CELL_SAMPLE
 EVAL_MARGIN = 1.15
 
 
