@@ -74,6 +74,7 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
     ],
     "tests/service/test_sandbox.py": [
         "test_a_job_that_lies_about_its_stack_hash_fails",
+        "test_a_job_that_swaps_its_files_for_fifos_and_links_leaves_the_scheduler_running",
         "test_an_artifact_swapped_for_a_link_to_the_database_is_dropped",
         "test_job_runs_as_its_slot_uid_and_its_dir_is_taken_back", "test_plan_runs_as_the_planner_uid",
         "test_sandbox_on_refuses_to_start_when_not_possible",
@@ -241,6 +242,8 @@ FULL_TIER_ONLY_MODULES: dict[str, str] = {
     "tests/service/test_web_list.py": "headless Chromium on four jobs; tests/service/test_scene_picture.py and "
                                       "test_queue_status.py hold the API it shows",
     "tests/service/test_schemathesis.py": "API fuzzing; test_hostile*.py send bad input by hand",
+    "tests/service/test_send_display.py": "two finished jobs and a display agent; tests/service/test_web_phase.py "
+                                          "sends a job to a display in the quick tier",
     "tests/trace/test_wavekernel.py": "millions of rays against the reference chain; tests/trace/test_sphere_pole.py "
                                        "runs both on few rays",
 }
