@@ -146,6 +146,14 @@ class FocalStackFit:
         self.seconds = seconds
         self.iterations = iterations  # Adam steps taken per colour (fewer than asked under a time limit)
 
+    @classmethod
+    def of_run(cls, phase: np.ndarray, scale: np.ndarray, loss_total: np.ndarray, steps: list[int],
+               t0: float) -> "FocalStackFit":
+        """The fit an Adam run ended with: its loss history cut where the longest colour stopped, its time since
+        ``t0`` (``time.perf_counter``)."""
+        return cls(phase=phase, scale=scale, loss=[float(v) for v in loss_total[:max(steps) + 1]],
+                   seconds=time.perf_counter() - t0, iterations=steps)
+
     @property
     def illumination(self) -> np.ndarray:
         """Relative laser power per colour [C], the brightest 1: (s_c / max s)^2."""
@@ -271,9 +279,7 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
         with torch.no_grad():
             phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
         scales[c] = s
-    loss_total = loss_total[:max(steps) + 1]
-    return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - budget.t0, iterations=steps)
+    return FocalStackFit.of_run(phase_out, scales, loss_total, steps, budget.t0)
 
 
 def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequence[tuple[float, tuple[float, float]]],
@@ -379,9 +385,7 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
         with torch.no_grad():
             phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
         scales[c] = s
-    loss_total = loss_total[:max(steps) + 1]
-    return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - budget.t0, iterations=steps)
+    return FocalStackFit.of_run(phase_out, scales, loss_total, steps, budget.t0)
 
 
 def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[int] = None,

@@ -21,7 +21,6 @@ s_c the least-squares scale of the previous step (no gradient through it), Adam 
 from __future__ import annotations
 
 import math
-import time
 from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
@@ -139,6 +138,4 @@ def optimise_light_field(targets: np.ndarray, *, shape_hw: tuple[int, int], hoge
         with torch.no_grad():
             phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
         scales[c] = s
-    loss_total = loss_total[:max(steps) + 1]
-    return FocalStackFit(phase=phase_out, scale=scales, loss=[float(v) for v in loss_total],
-                         seconds=time.perf_counter() - budget.t0, iterations=steps)
+    return FocalStackFit.of_run(phase_out, scales, loss_total, steps, budget.t0)
