@@ -162,6 +162,22 @@ class FocalStackFit:
         return (s / top) ** 2
 
 
+def _fit_inputs(T: np.ndarray, plane_z_m: Sequence[float], wavelengths_m: Sequence[float], pitch_m: float,
+                focal_length_m: float) -> tuple[list[float], list[float], float, float]:
+    """(plane depths, wavelengths, pitch, f) of a fit, checked against targets T [..., K, C, H, W]."""
+    if not np.all(np.isfinite(T)) or T.min() < 0:
+        raise ValueError("targets must be finite intensities >= 0")
+    K, C = T.shape[-4:-2]
+    zs = [float(z) for z in plane_z_m]
+    if len(zs) != K or not all(math.isfinite(z) for z in zs):
+        raise ValueError(f"plane_z_m must be {K} finite depths (one per target plane), got {plane_z_m!r}")
+    lams = [validate.positive("wavelengths_m", v, unit="") for v in wavelengths_m]
+    if len(lams) != C:
+        raise ValueError(f"{len(lams)} wavelengths for {C} target channels")
+    return (zs, lams, validate.positive("pitch_m", pitch_m, unit=""),
+            validate.positive("focal_length_m", focal_length_m, unit=""))
+
+
 def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wavelengths_m: Sequence[float],
                          pitch_m: float, focal_length_m: float, pupil_diameter_m: Optional[float], frames: int,
                          iterations: int = 200, lr: float = 0.05, seed: int = 0, device: str = "cpu",
@@ -203,17 +219,8 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
         raise ValueError("the centred fit needs pupil_diameter_m")
     if T.ndim != 4:
         raise ValueError(f"targets must be [K, C, H, W], got shape {T.shape}")
-    if not np.all(np.isfinite(T)) or T.min() < 0:
-        raise ValueError("targets must be finite intensities >= 0")
     K, C, H, W = T.shape
-    zs = [float(z) for z in plane_z_m]
-    if len(zs) != K or not all(math.isfinite(z) for z in zs):
-        raise ValueError(f"plane_z_m must be {K} finite depths (one per target plane), got {plane_z_m!r}")
-    lams = [validate.positive("wavelengths_m", v, unit="") for v in wavelengths_m]
-    if len(lams) != C:
-        raise ValueError(f"{len(lams)} wavelengths for {C} target channels")
-    p = validate.positive("pitch_m", pitch_m, unit="")
-    f = validate.positive("focal_length_m", focal_length_m, unit="")
+    zs, lams, p, f = _fit_inputs(T, plane_z_m, wavelengths_m, pitch_m, focal_length_m)
     D = validate.positive("pupil_diameter_m", pupil_diameter_m, unit="")
     opts = AdamOptions.check(frames=frames, iterations=iterations, lr=lr, time_limit_s=time_limit_s)
     frames, iterations, lr = opts.frames, opts.iterations, opts.lr
@@ -297,20 +304,11 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
 
     if T.ndim != 5:
         raise ValueError(f"pupil-aware targets must be [V, K, C, H, W], got shape {T.shape}")
-    if not np.all(np.isfinite(T)) or T.min() < 0:
-        raise ValueError("targets must be finite intensities >= 0")
     V, K, C, H, W = T.shape
+    zs, lams, p, f = _fit_inputs(T, plane_z_m, wavelengths_m, pitch_m, focal_length_m)
     bank = [(validate.positive("pupil_diameter_m", D, unit=""), (float(e[0]), float(e[1]))) for D, e in views]
     if len(bank) != V or V < 1:
         raise ValueError(f"{len(bank)} views for {V} target views")
-    zs = [float(z) for z in plane_z_m]
-    if len(zs) != K or not all(math.isfinite(z) for z in zs):
-        raise ValueError(f"plane_z_m must be {K} finite depths (one per target plane), got {plane_z_m!r}")
-    lams = [validate.positive("wavelengths_m", v, unit="") for v in wavelengths_m]
-    if len(lams) != C:
-        raise ValueError(f"{len(lams)} wavelengths for {C} target channels")
-    p = validate.positive("pitch_m", pitch_m, unit="")
-    f = validate.positive("focal_length_m", focal_length_m, unit="")
     if z_inf_m is None:
         raise ValueError("the pupil-aware fit needs z_inf_m (the eye's view shift grows with z - z_inf)")
     zi = validate.positive("z_inf_m", z_inf_m, unit="")

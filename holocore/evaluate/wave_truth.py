@@ -47,8 +47,10 @@ import torch
 
 from holocore import validate
 from holocore.evaluate.groundtruth import MAX_GT_SPP, channels_for_wavelengths
+from holocore.evaluate.scoring import view_shift_px
 from holocore.formats.meta import MetaLike, parse_view_meta
 from holocore.optics.propagation import ifft2, padded_shape, transfer_function
+from holocore.optics.viewing import eye_mask
 from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import reference_integrator
 
@@ -294,9 +296,6 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
     (each PSF sums to 1): the brightness an ideal display gives every pupil, as the scores take a ground truth
     (``eye_view`` of an ideal full-band random-phase field is this times the share of the band the pupil takes,
     which the viewer score divides out)."""
-    from holocore.optics.viewing import pupil_mask
-    from holocore.display.optics import theta_max_rad
-
     a = np.asarray(layers, dtype=np.float32)
     zs = [validate.real("z_m", z) for z in z_m]
     lams = [validate.positive("wavelengths_m", v) for v in wavelengths_m]
@@ -307,9 +306,10 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
     f = validate.positive("focal_length_m", focal_length_m)
     z_f = validate.real("focus_z_m", focus_z_m)
     ex, ey = (validate.real("view_offset_m", v) for v in view_offset_m)
+    D = validate.positive("pupil_diameter_m", pupil_diameter_m)
     _, C, H, W = a.shape
-    dzf = z_f - validate.positive("z_inf_m", z_inf_m)
-    a_col, a_row = ex * dzf / f / p, -ey * dzf / f / p  # eye_view's shift: content at z_inf stays put
+    a_row, a_col = view_shift_px({"focal_length_m": f, "z_inf_m": validate.positive("z_inf_m", z_inf_m),
+                                  "pitch_m": p, "wavelengths_m": lams}, focus_z_m=z_f, view_offset_m=(ex, ey))
     hp, wp = padded_shape((H, W), pad_factor)
     ky = torch.fft.fftfreq(hp, dtype=torch.float64)
     kx = torch.fft.rfftfreq(wp, dtype=torch.float64)
@@ -317,11 +317,8 @@ def wave_view(layers: np.ndarray, z_m: Sequence[float], *, wavelengths_m: Sequen
                        2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)).to(torch.complex64)
     out = np.empty((C, H, W), dtype=np.float64)
     for c, lam in enumerate(lams):
-        mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=validate.positive(
-            "pupil_diameter_m", pupil_diameter_m), view_offset_m=(ex, ey))
-        if fourier_filter:  # the recording cone, as the viewer applies it
-            cone_d = 2.0 * f * math.sin(theta_max_rad(lam, p))
-            mask &= pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=cone_d * (1.0 + 1e-9))
+        mask = eye_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, view_offset_m=(ex, ey),
+                        fourier_filter=fourier_filter)
         acc = torch.zeros((hp, wp // 2 + 1), dtype=torch.complex64)
         for k, z in enumerate(zs):
             img = torch.from_numpy(np.ascontiguousarray(a[k, c]))
@@ -360,6 +357,7 @@ class WaveGroundTruth:
         self.fourier_filter = m.fourier_filter if fourier_filter is None else bool(fourier_filter)
         self.seconds = 0.0
         self._layers: Optional[DepthLayers] = None
+        self._per_colour: Optional[np.ndarray] = None  # the layers' channel of each laser line, [K, C, H, W]
         self._cache: dict[tuple, np.ndarray] = {}
 
     @property
@@ -382,9 +380,10 @@ class WaveGroundTruth:
         if key not in self._cache:
             lay = self.layers
             t0 = time.perf_counter()
-            per_colour = np.stack([channels_for_wavelengths(lay.rgb[k], self.wavelengths_m)
-                                   for k in range(lay.rgb.shape[0])])
-            self._cache[key] = wave_view(per_colour, lay.z_m, wavelengths_m=self.wavelengths_m,
+            if self._per_colour is None:
+                self._per_colour = np.stack([channels_for_wavelengths(lay.rgb[k], self.wavelengths_m)
+                                             for k in range(lay.rgb.shape[0])])
+            self._cache[key] = wave_view(self._per_colour, lay.z_m, wavelengths_m=self.wavelengths_m,
                                          pitch_m=self.pitch_m, focal_length_m=self.focal_length_m,
                                          z_inf_m=self.z_inf_m, focus_z_m=focus_z_m,
                                          pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,

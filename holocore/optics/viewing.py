@@ -40,7 +40,7 @@ from holocore.optics.propagation import (
 )
 from holocore.display.optics import theta_max_rad
 
-__all__ = ["simulate_view", "view_intensities", "pupil_mask", "stack_to_field", "depth_of_field_m"]
+__all__ = ["simulate_view", "view_intensities", "pupil_mask", "eye_mask", "stack_to_field", "depth_of_field_m"]
 
 _CHUNK_BYTES = 256 << 20  # padded spectra processed at once, per channel
 
@@ -86,6 +86,20 @@ def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: P
     sy = -lam * torch.fft.fftfreq(hp, d=py, dtype=torch.float64, device=device)  # rows run down: f_y = -f_row
     na = d / (2.0 * f)
     return ((sx[None, :] - ex / f) ** 2 + (sy[:, None] - ey / f) ** 2) <= na * na
+
+
+def eye_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, focal_length_m: float,
+             pupil_diameter_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0), fourier_filter: bool = False,
+             device: Union[str, torch.device] = "cpu") -> torch.Tensor:
+    """Boolean [Hp, Wp] mask of the plane waves an eye takes: its pupil (:func:`pupil_mask`) and, where the
+    display has a Fourier filter, each colour's recording cone, a centred disc of sine lambda / 2p (edge kept)."""
+    mask = pupil_mask(shape_hw_padded, wavelength_m, pitch_m, focal_length_m=focal_length_m,
+                      pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, device=device)
+    if fourier_filter:
+        cone_d = 2.0 * focal_length_m * math.sin(theta_max_rad(wavelength_m, max(validate.pitch_pair(pitch_m))))
+        mask &= pupil_mask(shape_hw_padded, wavelength_m, pitch_m, focal_length_m=focal_length_m,
+                           pupil_diameter_m=cone_d * (1.0 + 1e-9), device=device)
+    return mask
 
 
 class _TensorSource:
@@ -161,13 +175,9 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     u0 = ifft2(torch.fft.fft2(big) * ramp)
                     del big
                 if filt is None:
-                    mask = pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
-                                      pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
-                                      device=u0.device)
-                    if fourier_filter:  # the recording cone: a centred disc of sine lambda / 2p (edge kept)
-                        cone_d = 2.0 * focal_length_m * math.sin(theta_max_rad(lam, max(validate.pitch_pair(pitch_m))))
-                        mask &= pupil_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
-                                           pupil_diameter_m=cone_d * (1.0 + 1e-9), device=u0.device)
+                    mask = eye_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
+                                    pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                                    fourier_filter=fourier_filter, device=u0.device)
                     filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
                         if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
                     filt.mul_(mask.to(filt.real.dtype))
