@@ -1,4 +1,4 @@
-"""Bounded memory (issue 14 item 1): render, view and evaluate in chunks of frames and colors, streamed to and
+"""Bounded memory: render, view and evaluate in chunks of frames and colors, streamed to and
 from the files, equal to the unchunked path; the budget that sizes the chunks; the streaming file format."""
 
 from __future__ import annotations

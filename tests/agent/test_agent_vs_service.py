@@ -22,7 +22,7 @@ def _have_service() -> bool:
                for m in ("holo.cmd_serve", "holo.cmd_token", "holo.cmd_submit", "service.server", "mitsuba"))
 
 
-@pytest.mark.skipif(not _have_service(), reason="holo serve / token / submit (issue 5) or Mitsuba not installed")
+@pytest.mark.skipif(not _have_service(), reason="holo serve / token / submit or Mitsuba not installed")
 def test_agent_shows_what_the_service_rendered(tmp_path, scene_bundle):
     scene = scene_bundle("cbox-mirror-glass")  # ../shared's, else the project's own box
     data = tmp_path / "svc"

@@ -1,4 +1,4 @@
-"""The focal-stack baseline (holocore.baselines.focal_stack; issue 13 item 3): phase-only frames optimised on the
+"""The focal-stack baseline (holocore.baselines.focal_stack): phase-only frames optimised on the
 frame-averaged amplitude of a focal stack reconstruct each plane sharp at its own focus and blurred at the
 other's, the loss falls, and the RESULT (and STACK) go through `holo view` and `holo evaluate`'s code paths."""
 

@@ -1,4 +1,4 @@
-"""The light-field baseline (holocore.baselines.light_field; issue 13 item 3): a holographic stereogram on a
+"""The light-field baseline (holocore.baselines.light_field): a holographic stereogram on a
 ray-sampling plane. Its rays are the hologram's straight rays mapped to the world, each hogel's field is the plane
 waves of its directions with the traced radiance, and a card on the RS plane comes back sharp and with the right
 parallax, while a card far from it cannot be brought to focus."""

@@ -50,7 +50,7 @@ def test_render_writes_a_numpy_readable_result(demo, tmp_path):
     stages = [json.loads(line)["stage"] for line in progress.read_text().splitlines()]
     assert "trace" in stages and "propagate" in stages
     from service.jobfiles import (
-        RENDER_STAGES,  # the stages the service's progress expects (issue 12)
+        RENDER_STAGES,  # the stages the service's progress expects
     )
 
     assert set(stages) <= set(RENDER_STAGES), stages

@@ -1,6 +1,6 @@
-"""Display profiles (issue 13 item 1, DESIGN.md §3): the eyepiece f is the display's, the paper's display is the
+"""Display profiles (DESIGN.md §3): the eyepiece f is the display's, the paper's display is the
 default, user profiles load from JSON or TOML with one-line errors, explicit options override the profile, and
-`holo plan` takes exactly the optics options of `holo render` (issue 11 item 5)."""
+`holo plan` takes exactly the optics options of `holo render`."""
 
 from __future__ import annotations
 

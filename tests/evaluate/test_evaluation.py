@@ -1,4 +1,4 @@
-"""Ground truth, evaluation, the layer baseline and the cost estimate (issue 4, items 3-6).
+"""Ground truth, evaluation, the layer baseline and the cost estimate.
 
 The physics checked here: the thin-lens ground truth and the simulated eye agree on where a point lands (no
 flip, no offset) and on how it moves when the eye moves; a view focused near shows the near card sharp and a

@@ -1,4 +1,4 @@
-"""Scene-bundle safety beyond confinement (issue 5 item 6): declared mesh and image sizes read from headers,
+"""Scene-bundle safety beyond confinement: declared mesh and image sizes read from headers,
 include cycles, unknown elements, non-regular files, references hidden in other attributes."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Scene bundles: every file stays inside the bundle, checked before Mitsuba parses anything (issue 3)."""
+"""Scene bundles: every file stays inside the bundle, checked before Mitsuba parses anything."""
 
 from __future__ import annotations
 

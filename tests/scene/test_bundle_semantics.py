@@ -1,4 +1,4 @@
-"""The bundle check sees what Mitsuba does (issue 10 item 2): defaults, substitution, includes and paths follow
+"""The bundle check sees what Mitsuba does: defaults, substitution, includes and paths follow
 Mitsuba's own rules; files are judged by content; the content id is unambiguous; and, traced with strace, a
 process that checks and loads many generated tricky bundles never opens a file outside them."""
 

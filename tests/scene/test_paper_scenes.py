@@ -1,4 +1,4 @@
-"""The paper scenes with depth (holocore.scene.paper; issue 13 item 2) at the paper display (f = 50 mm, 8 µm,
+"""The paper scenes with depth (holocore.scene.paper) at the paper display (f = 50 mm, 8 µm,
 z_inf 80 mm): their depths land where T says, the mirror image lies at the reflected object's apparent depth,
 the glass ball images its card at the paraxial thick-lens position, the glossy highlight moves with the view,
 and each renders finite and lit. Physics, not shapes: expectations are computed here from the geometry."""

@@ -1,5 +1,5 @@
 """Every plugin the bundle allow-list admits either renders a finite, lit hologram or is refused in one clear
-line (issue 11 item 1). One generated scene per plugin (a sphere, its light and its camera, plus the files the
+line. One generated scene per plugin (a sphere, its light and its camera, plus the files the
 plugin reads, all written here), through the public path a user takes: the bundle check, Mitsuba, the plan and a
 32x32 render (two scenes at a time, in worker processes). The refused set is pinned, so a plugin that starts or
 stops working fails the test."""

@@ -241,7 +241,7 @@ def test_odd_paths_and_methods(hostile):
     assert httpx.get(f"{srv.url}/readyz").status_code == 200
 
 
-# ---- issue 10: code, leaks, integrity, tenancy, malformed input, connections --------------------------------
+# ---- code, leaks, integrity, tenancy, malformed input, connections --------------------------------
 
 SECRET_LINE = "root:x:0:0"  # the first line of /etc/passwd: it must never appear anywhere
 

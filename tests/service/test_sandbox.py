@@ -1,4 +1,4 @@
-"""Privilege separation (issue 10 item 1) against a real `holo serve --sandbox on`, as root: scene planning runs
+"""Privilege separation against a real `holo serve --sandbox on`, as root: scene planning runs
 as the planner uid, a job's driver as its slot uid, neither can read the database, the lock or another job's
 files, and what the service records and serves comes from its own hashing (status.json is the worker's word:
 a job that lies about its stack's hash fails; a job that swaps an artifact for a symlink to the database gets

@@ -1,4 +1,4 @@
-"""Every emitter kind Mitsuba ships lights the hologram as it lights Mitsuba's own render (issue 11).
+"""Every emitter kind Mitsuba ships lights the hologram as it lights Mitsuba's own render.
 
 Each scene is written by the test (XML and images in tmp_path, no third-party assets): a white diffuse wall
 1 m in front of the eye, lit by one emitter of one kind whose light has only some of the three colors. The

@@ -1,4 +1,4 @@
-"""Several wave recording planes (issue 14 item 3, holocore.plan.wrp_planes): placement, the slabs, and the physics
+"""Several wave recording planes (holocore.plan.wrp_planes): placement, the slabs, and the physics
 (the same field as one plane, with Monte Carlo noise that falls as the squared distance to the plane)."""
 
 from __future__ import annotations
