@@ -1,9 +1,14 @@
 """The paper display in full (1080x1920, 3 colours, 24 frames): a paper scene rendered, encoded phase-only and
-seen by an eye focused on the near and on the far content, beside Mitsuba thin-lens ground truth through the
-same pupil; and the encoder's error against its iterations at this size (fixed counts and the default stop
-rule), scored as the eye sees it. Meant for a GPU machine; ``--resolution 96x128 --frames 2`` runs it on a CPU.
+seen by an eye focused on the near and on the far content, beside the ground truth through the same pupil
+(``--truth``: the wave-optical one by default, or Mitsuba's thin-lens render); and the encoder's error against
+its iterations at this size (fixed counts and the default stop rule), scored as the eye sees it. ``--filter``:
+the display's 4f filter (each colour's recording cone) or none (the paper's prototype: the eye's pupil only,
+which then also takes the SLM pixels' diffraction orders it reaches). Meant for a GPU machine;
+``--resolution 96x128 --frames 2`` runs it on a CPU.
 
     python bench/full_display.py --device cuda --out bench/results/full_display
+    python bench/full_display.py --device cpu --filter none --render-s 300 --ladder 50 --default-rule 0 \
+        --out bench/results/full_display/no_filter
 
 Writes ``full_display_<scene>.jpg`` (rows: hologram / ground truth; columns: near focus / far focus, each
 tile the whole display with a close-up of its middle below), ``full_display_<scene>.json`` (times, rays,
@@ -99,6 +104,9 @@ def main() -> int:
     ap.add_argument("--ladder", default="25,50,100,200", help="fixed SGD iteration counts to score")
     ap.add_argument("--default-rule", type=int, default=1, help="1: also the default encode (stop rule, 500 max)")
     ap.add_argument("--gt-spp", type=int, default=256)
+    ap.add_argument("--truth", choices=("wave", "thinlens"), default="wave", help="ground truth (docs/evaluation.md)")
+    ap.add_argument("--filter", choices=("4f", "none"), default="4f", help="the display's Fourier filter")
+    ap.add_argument("--preset", default="balanced", help="the render's preset")
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--budget-s", type=float, default=1e9, help="start no further encode after this many seconds")
     ap.add_argument("--tile-w", type=int, default=960, help="width of each tile in the figure (px)")
@@ -110,7 +118,7 @@ def main() -> int:
     t_start = time.perf_counter()
     doc: dict = {"scene": args.scene, "size": [H, W, 3, args.frames], "device": args.device,
                  "machine": platform.platform(), "date": time.strftime("%Y-%m-%d %H:%M"), "pupil_mm": args.pupil_mm,
-                 "z_inf_mm": args.z_inf_mm}
+                 "z_inf_mm": args.z_inf_mm, "truth": args.truth, "filter": args.filter}
     jpath = args.out / f"full_display_{args.scene}.json"
 
     def save():
@@ -120,7 +128,7 @@ def main() -> int:
 
     from holocore.display.profiles import PAPER
     from holocore.encode.encoder import encode_sgd
-    from holocore.evaluate.groundtruth import GroundTruth
+    from holocore.evaluate.truths import ground_truth
     from holocore.evaluate.scoring import eye_view
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.load import load_scene
@@ -133,11 +141,12 @@ def main() -> int:
             torch.cuda.synchronize()
 
     loaded = load_scene(write_paper_scene(args.scene, Path("/tmp/full_display") / args.scene))
-    optics = PAPER.optics(resolution_hw=(H, W), frames=args.frames, z_inf_mm=args.z_inf_mm)
+    display = PAPER.model_copy(update={"fourier_filter": args.filter == "4f"})
+    optics = display.optics(resolution_hw=(H, W), frames=args.frames, z_inf_mm=args.z_inf_mm)
     t0 = time.perf_counter()
-    opts = RenderOptions(preset="balanced", spp=args.spp) if args.spp else \
-        RenderOptions(preset="balanced", time_limit_s=args.render_s)
-    res = render_loaded(loaded, optics, opts, display=PAPER)
+    opts = RenderOptions(preset=args.preset, spp=args.spp) if args.spp else \
+        RenderOptions(preset=args.preset, time_limit_s=args.render_s)
+    res = render_loaded(loaded, optics, opts, display=display)
     meta = res.meta
     doc["render"] = {"seconds": time.perf_counter() - t0, "rays": meta["stats"].get("rays"),
                      "sampling": meta.get("sampling"), "variant": meta["versions"]["variant"],
@@ -149,7 +158,7 @@ def main() -> int:
     planes = focus_planes(args.scene, meta)
     pupil = args.pupil_mm * 1e-3
     t0 = time.perf_counter()
-    gt = GroundTruth(loaded, meta, shape_hw=(H, W), spp=args.gt_spp)
+    gt = ground_truth(args.truth, loaded, meta, shape_hw=(H, W), spp=args.gt_spp)
     truth = {name: gt.channels(focus_z_m=z, pupil_diameter_m=pupil) for name, z in planes}
     doc["ground_truth_s"] = time.perf_counter() - t0
     margins = {name: margin_px(meta, (H, W), focus_z_m=z, pupil_m=pupil, view=(0.0, 0.0)) for name, z in planes}
@@ -180,7 +189,8 @@ def main() -> int:
             sync()
             t0 = time.perf_counter()
             enc = encode_sgd(res.wrp_field, z_wrp_m=meta["z_wrp_m"], wavelengths_m=meta["wavelengths_m"],
-                             pitch_m=meta["pitch_m"], fourier_filter=True, device=dev, **kw)
+                             pitch_m=meta["pitch_m"], fourier_filter=display.fourier_filter, device=dev,
+                             **kw)
             sync()
             secs = time.perf_counter() - t0
             seen = views(phase_only_field(enc))
@@ -210,7 +220,8 @@ def main() -> int:
     save()
     lines = [f"# Encoder iterations at {H}x{W} x 3 colours x {args.frames} frames ({args.scene} scene)", "",
              f"{doc['date']}, {args.device} ({doc['machine']}); render {doc['render']['seconds']:.0f} s, "
-             f"pupil {args.pupil_mm:g} mm, PSNR / SSIM of the eye's view against thin-lens ground truth.", "",
+             f"pupil {args.pupil_mm:g} mm, filter {args.filter}, PSNR / SSIM of the eye's view against the "
+             f"{args.truth} ground truth.", "",
              "| encode | iterations (mean per frame and colour) | seconds | loss E | "
              + " | ".join(f"{n} PSNR dB / SSIM" for n, _ in planes) + " |",
              "|---|---|---|---|" + "---|" * len(planes)]

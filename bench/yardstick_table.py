@@ -1,6 +1,8 @@
 """The yardstick's table: from paper-report runs (bench/paper_report.py --stages equal) made with the display's
 filter and without, per scene and method the viewer-faithful PSNR at 2, 4 and 6 mm pupils, the mean over 2-6 mm
-for each seed of the scored planes and eye grid (and their spread), and the band share of each pupil.
+for each seed of the scored planes and eye grid (and their spread), the brightness steps over the eye grid (the
+largest max / min of any pupil), and the band share of each pupil; under each scene, which method leads at each
+pupil.
 
     python bench/yardstick_table.py bench/results/yardstick/4f bench/results/yardstick/none > TABLE.md
 """
@@ -22,8 +24,10 @@ def rows(folder: Path) -> list[str]:
         planes = ", ".join(f"{f['name']} {f['z_m'] * 1e3:.3f}" for f in eq.get("focus", []))
         out.append(f"\n**{eq['scene']}** ({folder.name}; budget {eq['budget_s']:g} s a method, {eq['frames']} frames, "
                    f"{eq['shape_hw'][0]}x{eq['shape_hw'][1]} px; scored planes mm: {planes})\n")
-        out.append("| method | 2 mm | 4 mm | 6 mm | mean 2-6 mm by seed | spread | band share 2/4/6 mm |")
-        out.append("|---|---|---|---|---|---|---|")
+        out.append("| method | 2 mm | 4 mm | 6 mm | mean 2-6 mm by seed | spread | brightness steps | "
+                   "band share 2/4/6 mm |")
+        out.append("|---|---|---|---|---|---|---|---|")
+        best: dict[float, tuple[float, str]] = {}
         for name in sorted(viewer, key=lambda m: ORDER.index(m) if m in ORDER else len(ORDER)):
             d = viewer[name]
             by = {round(p["pupil_mm"], 3): p for p in d["pupils"]}
@@ -31,8 +35,14 @@ def rows(folder: Path) -> list[str]:
             band = "/".join(f"{by[mm].get('band_share', float('nan')):.2f}" for mm in (2.0, 4.0, 6.0) if mm in by)
             seeds = d.get("seeds") or {"0": d["mean_2_6_db"]}
             vals = [float(v) for v in seeds.values()]
+            steps = max(float(p.get("brightness_max_over_min", float("nan"))) for p in d["pupils"])
             out.append(f"| {name} | {cell(2.0)} | {cell(4.0)} | {cell(6.0)} | "
-                       f"{' / '.join(f'{v:.2f}' for v in vals)} | {max(vals) - min(vals):.2f} | {band} |")
+                       f"{' / '.join(f'{v:.2f}' for v in vals)} | {max(vals) - min(vals):.2f} | {steps:.2f} | {band} |")
+            for mm, p in by.items():
+                if p["mean_psnr_db"] > best.get(mm, (-1e9, ""))[0]:
+                    best[mm] = (float(p["mean_psnr_db"]), name)
+        lead = "; ".join(f"{mm:g} mm: {n} ({v:.2f})" for mm, (v, n) in sorted(best.items()))
+        out.append(f"\nLeads: {lead}.")
     return out
 
 

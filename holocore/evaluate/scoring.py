@@ -235,7 +235,7 @@ def view_shift_px(meta: MetaLike, *, focus_z_m: float, view_offset_m: tuple[floa
 
 def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: float,
              view_offset_m: tuple[float, float] = (0.0, 0.0), memory_budget_bytes: Optional[int] = None,
-             device=None, fourier_filter: Optional[bool] = None) -> np.ndarray:
+             device=None, fourier_filter: Optional[bool] = None, pixel_orders: Optional[bool] = None) -> np.ndarray:
     """Frame-averaged intensity float64 [C, H, W] the eye sees, on the ground truth's pixel grid.
 
     ``field_slm`` complex [F, C, H, W] on the SLM (z = 0), in memory or a chunked source
@@ -243,6 +243,8 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
     ``memory_budget_bytes``); focus at hologram depth ``focus_z_m`` (m); pupil ``pupil_diameter_m`` (m); eye
     offset ``view_offset_m`` (m). See the module docstring for the shift. ``fourier_filter``: whether the display
     passes only each colour's recording cone (holocore.optics.viewing); None: as the meta's display profile says.
+    Without the filter the eye also takes the SLM pixels' diffraction orders its pupil reaches (``pixel_orders``;
+    None: exactly then; False: an ideal SLM of point-like pixels, as the ground truth assumes).
     """
     meta = parse_view_meta(meta)
     from holocore.optics.fieldsource import SlmFieldSource
@@ -261,10 +263,11 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
         raise ValueError(f"focus_z_m must be finite, got {focus_z_m!r}")
     ex, ey = (float(v) for v in view_offset_m)
     a_row, a_col = view_shift_px(meta, focus_z_m=z_f, view_offset_m=(ex, ey))
+    ff = meta.fourier_filter if fourier_filter is None else bool(fourier_filter)
     out = view_intensities(src, wavelengths_m=list(meta.wavelengths_m), pitch_m=p, focal_length_m=f,
                            pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
                            shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes,
-                           fourier_filter=meta.fourier_filter if fourier_filter is None else bool(fourier_filter))[0]
+                           fourier_filter=ff, pixel_orders=(not ff) if pixel_orders is None else bool(pixel_orders))[0]
     out = out.cpu().numpy().astype(np.float64)
     return np.ascontiguousarray(out.clip(min=0.0))
 

@@ -12,6 +12,17 @@ inside both the pupil and that disc. Without it a phase-only hologram's light ou
 parks what a phase-only SLM cannot help sending) reaches any pupil wider than the cone as a haze, and more of
 blue's and green's than of red's, whose cone is the widest: a cast the real display does not have.
 
+An SLM's pixels are squares of side p with no gap (fill factor 1), not points (``pixel_orders``): its field is the
+sampled field convolved with that square, so its spectrum is the sampled field's, periodic in 1/p (the
+diffraction orders), times the square's sinc(p f_x) sinc(p f_y). Without a Fourier filter an eye whose pupil
+reaches past the band |sine| <= lambda / 2p takes light from the neighbouring orders: ghosts of the image, moved
+by z lambda / p at depth z. Each order's filter (the sinc, the pupil, the propagation, the content shift) is
+built on a grid refined k times (:func:`orders_factor`: k spans the pupil's reach) and brought back onto the
+SLM's grid, where order n's frequency f + n/p holds the same spectrum as f; each order the pupil takes is
+viewed there and the orders' intensities add. Where two orders share the pupil they also interfere, in fringes
+of period p or finer: a pixel's mean holds none of that, so the sum is each pixel's mean intensity, and the
+view costs one inverse FFT per order the pupil takes.
+
 Sign of the row frequency: rows run down while y runs up (y = ((H-1)/2 - i) p), so a wave exp(i 2 pi f_y y)
 travelling upwards (f_y > 0) has DFT frequency -f_y along the row axis. The pupil therefore sits at
 row frequency -e_y / (f lambda).
@@ -40,7 +51,8 @@ from holocore.optics.propagation import (
 )
 from holocore.display.optics import theta_max_rad
 
-__all__ = ["simulate_view", "view_intensities", "pupil_mask", "eye_mask", "stack_to_field", "depth_of_field_m"]
+__all__ = ["simulate_view", "view_intensities", "pupil_mask", "eye_mask", "stack_to_field", "depth_of_field_m",
+           "orders_factor"]
 
 _CHUNK_BYTES = 256 << 20  # padded spectra processed at once, per channel
 
@@ -102,6 +114,65 @@ def eye_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: Pit
     return mask
 
 
+def orders_factor(wavelength_m: float, pitch_m: PitchLike, *, focal_length_m: float, pupil_diameter_m: float,
+                  view_offset_m: tuple[float, float] = (0.0, 0.0), fourier_filter: bool = False) -> int:
+    """The odd refinement k (1, 3, 5, ...) whose grid, with sines up to k lambda / 2p per axis, spans the pupil's
+    reach |e| / f + D / 2f: 1 where the pupil stays inside the SLM's band or a Fourier filter cuts the orders."""
+    if fourier_filter:
+        return 1
+    lam = validate.positive("wavelength_m", wavelength_m)
+    f = validate.positive("focal_length_m", focal_length_m)
+    na = validate.positive("pupil_diameter_m", pupil_diameter_m) / (2.0 * f)
+    k = 1
+    for e, p in zip((abs(float(view_offset_m[1])), abs(float(view_offset_m[0]))), validate.pitch_pair(pitch_m)):
+        reach = e / f + na
+        k = max(k, 2 * math.ceil((reach * 2.0 * p / lam - 1.0) / 2.0 - 1e-9) + 1)
+    return k
+
+
+def _order_of_cells(n: int, k: int, device: torch.device) -> torch.Tensor:
+    """[k, n]: the diffraction order of each cell of a grid refined k times, by its coarse bin (cell a n + m):
+    its signed frequency less that of coarse bin m, in units of 1/p."""
+    fine = torch.fft.fftfreq(k * n, device=device, dtype=torch.float64) * (k * n)
+    coarse = (torch.fft.fftfreq(n, device=device, dtype=torch.float64) * n).repeat(k)
+    return torch.round((fine - coarse) / n).to(torch.int64).reshape(k, n)
+
+
+def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float, pitch_m: PitchLike, *,
+                   distance_m: float, focal_length_m: float, pupil_diameter_m: float,
+                   view_offset_m: tuple[float, float], shift_px: tuple[float, float], fourier_filter: bool,
+                   device: torch.device) -> list[torch.Tensor]:
+    """One [Hp, Wp] filter (unshifted order) per diffraction order the pupil takes: built on the grid refined k
+    times (the pixel's sinc, the eye's mask, a Fourier filter's cone only at k = 1 (:func:`orders_factor`), the
+    propagation by ``distance_m``, the content shift), then order n's frequencies f + n/p brought back onto f,
+    where the sampled field's spectrum is the same."""
+    hp0, wp0 = (int(v) for v in shape_hw_padded)
+    hp, wp = k * hp0, k * wp0
+    py, px = validate.pitch_pair(pitch_m)
+    fine = (py / k, px / k)
+    mask = eye_mask((hp, wp), wavelength_m, fine, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
+                    view_offset_m=view_offset_m, fourier_filter=fourier_filter and k == 1, device=device)
+    fy = torch.fft.fftfreq(hp, d=fine[0], dtype=torch.float64, device=device)
+    fx = torch.fft.fftfreq(wp, d=fine[1], dtype=torch.float64, device=device)
+    a_row, a_col = (float(v) * k for v in shift_px)
+    ky = torch.fft.fftfreq(hp, dtype=torch.float64, device=device)
+    kx = torch.fft.fftfreq(wp, dtype=torch.float64, device=device)
+    amp = torch.sinc(fy * py)[:, None] * torch.sinc(fx * px)[None, :] * mask
+    filt = torch.polar(amp, 2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col))
+    if distance_m != 0.0:
+        filt.mul_(transfer_function((hp, wp), distance_m, wavelength_m, fine, device=device, dtype=torch.complex128))
+    f4 = filt.reshape(k, hp0, k, wp0)
+    oy, ox = _order_of_cells(hp0, k, device), _order_of_cells(wp0, k, device)
+    out = []
+    for ny in range(-(k // 2), k // 2 + 1):
+        for nx in range(-(k // 2), k // 2 + 1):
+            sel = (oy == ny)[:, :, None, None] & (ox == nx)[None, None, :, :]
+            g = (f4 * sel).sum(dim=(0, 2))
+            if bool((g.abs() > 0).any()):
+                out.append(g.to(torch.complex64))
+    return out
+
+
 class _TensorSource:
     def __init__(self, field: torch.Tensor) -> None:
         self.shape = tuple(field.shape)
@@ -118,7 +189,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                      pupil_diameter_m: float, distances_m: Sequence[float],
                      view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
                      pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
-                     memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False) -> torch.Tensor:
+                     memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
+                     pixel_orders: bool = False) -> torch.Tensor:
     """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (DESIGN §7).
 
     ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
@@ -126,6 +198,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     that many pixels (U'[i, j] = U[i + a_row, j + a_col], exactly, on the spectrum of a grid padded by the
     shift; evaluate's off-axis eye). ``device``: where the FFTs run (default: the chunks' device).
     ``fourier_filter``: the display's filter passes only each colour's recording cone (module docstring).
+    ``pixel_orders``: the SLM's square pixels, their sinc and the diffraction orders the pupil reaches (module
+    docstring; each colour's grid is refined by :func:`orders_factor`).
     """
     from holocore.runtime.membudget import frames_per_chunk
     from holocore.runtime.membudget import memory_budget_bytes as _budget
@@ -140,15 +214,19 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
     hs, ws = h + 2 * m, w + 2 * m
     hp, wp = padded_shape((hs, ws), pad_factor)
+    ks = [orders_factor(lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
+                        view_offset_m=view_offset_m, fourier_filter=fourier_filter) if pixel_orders else 1
+          for lam in lams]
     cap = max(1, _CHUNK_BYTES // (hp * wp * 8))  # bound the padded working set
-    per_frame = 8 * (3 * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
-    fixed = _VIEW_FIXED_BYTES + len(zs) * C * h * w * 4 + 16 * h * w + 16 * hp * wp
+    per_frame = 8 * ((4 if pixel_orders else 3) * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
+    fixed = _VIEW_FIXED_BYTES + len(zs) * C * h * w * 4 + 16 * h * w + 16 * hp * wp + 48 * max(ks) ** 2 * hp * wp
     chunk = frames_per_chunk(F, per_frame_bytes=per_frame, fixed_bytes=fixed,
                              budget_bytes=_budget(memory_budget_bytes), cap=cap)
     dev = None if device is None else torch.device(device)
     out = None
     ramp = None
     for c, lam in enumerate(lams):
+        k = ks[c]
         for di, z in enumerate(zs):
             acc = None
             filt = None
@@ -163,7 +241,12 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     u0 = u0.to(torch.complex64)
                 if out is None:
                     out = torch.empty((len(zs), C, h, w), dtype=torch.float32, device=u0.device)
-                if m:
+                if m and pixel_orders:  # the shift goes into the refined grid's filter
+                    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
+                    big[..., m:m + h, m:m + w] = u0
+                    u0 = big
+                    del big
+                elif m:
                     if ramp is None:
                         ky = torch.fft.fftfreq(hs, dtype=torch.float64)
                         kx = torch.fft.fftfreq(ws, dtype=torch.float64)
@@ -174,7 +257,13 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     big[..., m:m + h, m:m + w] = u0
                     u0 = ifft2(torch.fft.fft2(big) * ramp)
                     del big
-                if filt is None:
+                if filt is None and pixel_orders:
+                    filt = _order_filters((hp, wp), k, lam, pitch_m, distance_m=z, focal_length_m=focal_length_m,
+                                          pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                                          shift_px=(a_row, a_col), fourier_filter=fourier_filter,
+                                          device=u0.device)
+                    acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
+                elif filt is None:
                     mask = eye_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
                                     pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
                                     fourier_filter=fourier_filter, device=u0.device)
@@ -184,11 +273,16 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
                 spec = torch.fft.fft2(u0, s=(hp, wp))
                 del u0
-                spec.mul_(filt)
-                u = ifft2(spec)[..., :hs, :ws]
+                for g in (filt if pixel_orders else ()):
+                    u = ifft2(spec * g)[..., :hs, :ws]
+                    acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
+                    del u
+                if not pixel_orders:
+                    spec.mul_(filt)
+                    u = ifft2(spec)[..., :hs, :ws]
+                    acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
+                    del u
                 del spec
-                acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
-                del u
             out[di, c] = (acc / F).to(torch.float32)[m:m + h, m:m + w]
     return out
 
@@ -196,14 +290,16 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
 def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
                   pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
                   shift_px: tuple[float, float] = (0.0, 0.0), pad_factor: float = 2,
-                  memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False) -> torch.Tensor:
+                  memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
+                  pixel_orders: bool = False) -> torch.Tensor:
     """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
     the focus plane z_f (negative: focus behind it); pupil of ``pupil_diameter_m`` behind an eyepiece of
     ``focal_length_m``, centred at ``view_offset_m`` = (e_x, e_y) (m). One wavelength per channel.
     ``shift_px``: the off-axis eye's shift of the focus plane's content (:func:`view_intensities`).
-    ``fourier_filter``: the display passes only each colour's recording cone (module docstring). Differentiable
+    ``fourier_filter``: the display passes only each colour's recording cone (module docstring). ``pixel_orders``:
+    the SLM's square pixels and the diffraction orders the pupil reaches (module docstring). Differentiable
     in ``field`` (the focal stack's pupil-aware fit back-propagates through it).
     """
     if not isinstance(field, torch.Tensor) or not field.is_complex():
@@ -219,4 +315,4 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     return view_intensities(_TensorSource(field), wavelengths_m=lams, pitch_m=pitch_m, focal_length_m=focal_length_m,
                             pupil_diameter_m=pupil_diameter_m, distances_m=[z], view_offset_m=view_offset_m,
                             shift_px=shift_px, pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes,
-                            fourier_filter=fourier_filter)[0]
+                            fourier_filter=fourier_filter, pixel_orders=pixel_orders)[0]

@@ -6,7 +6,9 @@ frames. The ground truth of that card must be what that eye sees, at every pupil
 included) and defocus (0 and +-0.4 D), for a centred and an off-centre eye: within +-0.02 of checker contrast,
 and pixel by pixel within the frames' speckle. The geometric ground truth it replaces (the pupil's defocus disc
 convolved with the in-focus Airy pattern) over-blurs there by far more; that is checked too, so that the test
-shows the difference the wave-optical truth makes.
+shows the difference the wave-optical truth makes. The SLM here is an ideal one of point-like pixels: the
+ground truth is what the display should show, and a real SLM's square pixels add their diffraction orders'
+ghosts on top (tests/optics/test_view_pixel_orders.py), an error of the display, not of the truth.
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ def slm_field() -> np.ndarray:
 def test_the_card_is_imaged_as_its_exact_field_is_seen(slm_field, pupil_mm, defocus_m):
     card = _checker()
     z_f, D = Z_CARD + defocus_m, pupil_mm * 1e-3
-    seen = eye_view(slm_field, META, focus_z_m=z_f, pupil_diameter_m=D, fourier_filter=False)[0]
+    seen = eye_view(slm_field, META, focus_z_m=z_f, pupil_diameter_m=D, fourier_filter=False, pixel_orders=False)[0]
     truth = wave_view(card[None, None], [Z_CARD], wavelengths_m=[LAM], pitch_m=P, focal_length_m=F_EYE,
                       z_inf_m=Z_INF, focus_z_m=z_f, pupil_diameter_m=D)[0]
     assert _contrast(truth, card) == pytest.approx(_contrast(seen, card), abs=0.02)
@@ -81,7 +83,7 @@ def test_an_off_centre_eye_sees_each_depth_shifted_as_the_viewer_shifts_it(slm_f
     for eye in ((0.8e-3, 0.0), (0.0, -0.6e-3), (0.5e-3, 0.5e-3)):
         z_f = Z_CARD + 1e-3
         seen = eye_view(slm_field, META, focus_z_m=z_f, pupil_diameter_m=2e-3, view_offset_m=eye,
-                        fourier_filter=False)[0]
+                        fourier_filter=False, pixel_orders=False)[0]
         truth = wave_view(card[None, None], [Z_CARD], wavelengths_m=[LAM], pitch_m=P, focal_length_m=F_EYE,
                           z_inf_m=Z_INF, focus_z_m=z_f, pupil_diameter_m=2e-3, view_offset_m=eye)[0]
         s = seen[MID, MID].ravel()
@@ -98,7 +100,7 @@ def test_the_geometric_truth_over_blurs_near_focus(slm_field):
     keeps."""
     card = _checker()
     z_f, D = Z_CARD + 1e-3, 3e-3
-    seen = eye_view(slm_field, META, focus_z_m=z_f, pupil_diameter_m=D, fourier_filter=False)[0]
+    seen = eye_view(slm_field, META, focus_z_m=z_f, pupil_diameter_m=D, fourier_filter=False, pixel_orders=False)[0]
     r = 1e-3 * D / (2 * F_EYE) / P
     yy, xx = np.mgrid[-8:9, -8:9]
     disc = ((xx ** 2 + yy ** 2) <= r * r).astype(np.float64)
