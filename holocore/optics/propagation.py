@@ -28,7 +28,7 @@ import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector ma
 from holocore import validate
 from holocore.validate import PitchLike
 
-__all__ = ["asm", "ifft2", "transfer_function", "padded_shape", "clear_cache", "PitchLike"]
+__all__ = ["asm", "ifft2", "transfer_function", "transfer_at", "padded_shape", "clear_cache", "PitchLike"]
 
 
 _TF_CACHE_MAX_ENTRIES = 16
@@ -82,9 +82,19 @@ def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float
               device: torch.device, dtype: torch.dtype, cone_sine: float | None = None) -> torch.Tensor:
     """H(f_x, f_y; z) in float64 on the unshifted DFT grid, phase wrapped, then cast to ``dtype``."""
     ph, pw = shape
-    f64 = torch.float64
-    fx = torch.fft.fftfreq(pw, d=px, dtype=f64, device=device)  # cycles / m, unshifted FFT order
-    fy = torch.fft.fftfreq(ph, d=py, dtype=f64, device=device)
+    fx = torch.fft.fftfreq(pw, d=px, dtype=torch.float64, device=device)  # cycles / m, unshifted FFT order
+    fy = torch.fft.fftfreq(ph, d=py, dtype=torch.float64, device=device)
+    return transfer_at(fy, fx, z, lam, extent_m=(ph * py, pw * px), band_limit=band_limit,
+                       cone_sine=cone_sine).to(dtype)
+
+
+def transfer_at(fy: torch.Tensor, fx: torch.Tensor, distance_m: float, wavelength_m: float, *,
+                extent_m: tuple[float, float], band_limit: bool = True,
+                cone_sine: float | None = None) -> torch.Tensor:
+    """complex128 H [len(fy), len(fx)] of the ASM at the row / column frequencies ``fy``, ``fx`` (cycles / m,
+    float64; any frequencies, such as those of an SLM's higher diffraction orders): evanescent part zero, phase
+    wrapped in float64, and the Matsushima-Shimobaba band limit of a padded grid of ``extent_m`` (rows, cols)."""
+    z, lam = float(distance_m), float(wavelength_m)
     fx2 = (fx * fx)[None, :]
     fy2 = (fy * fy)[:, None]
     arg = (1.0 / (lam * lam)) - fx2 - fy2  # w^2 = 1/lambda^2 - f_x^2 - f_y^2
@@ -94,16 +104,13 @@ def _build_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float
     phase = torch.remainder(phase + math.pi, 2.0 * math.pi).sub_(math.pi)  # wrap to [-pi, pi) in float64
     if band_limit:
         # Matsushima & Shimobaba 2009, Eq. 13, per axis with the padded grid's frequency step.
-        dfx, dfy = 1.0 / (pw * px), 1.0 / (ph * py)
+        dfy, dfx = 1.0 / float(extent_m[0]), 1.0 / float(extent_m[1])
         lim_x = 1.0 / (lam * math.sqrt((2.0 * dfx * z) ** 2 + 1.0))
         lim_y = 1.0 / (lam * math.sqrt((2.0 * dfy * z) ** 2 + 1.0))
         keep &= (fx.abs() <= lim_x)[None, :] & (fy.abs() <= lim_y)[:, None]
     if cone_sine is not None:  # the directions of sine <= cone_sine only (the common eyebox)
         keep &= (fx2 + fy2) * (lam * lam) <= cone_sine * cone_sine * (1.0 + 1e-12)
-    real_dtype = torch.float64 if dtype == torch.complex128 else torch.float32
-    phase_c = phase.to(real_dtype)
-    tf = torch.polar(keep.to(real_dtype), phase_c)
-    return tf.to(dtype)
+    return torch.polar(keep.to(torch.float64), phase)
 
 
 def _cached_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
