@@ -1,5 +1,5 @@
 """Accuracy versus time: the renderer's methods and the layer baseline, scored against Mitsuba thin-lens ground
-truth (DESIGN.md §7) and against a high-spp reference field, with the predicted time next to each measurement.
+truth (docs/design.md §7) and against a high-spp reference field, with the predicted time next to each measurement.
 
 For each scene the sweep varies rays per pixel (spp), frames (1, 3, 8, 24), the method (two-stage "wrp",
 "direct", "fast" = two-stage with the ambient cache, and the RGB-D "layers" baseline) and the phase-only

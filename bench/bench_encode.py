@@ -7,7 +7,7 @@ against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x
 
 floor: the same run times (a) one iteration of the encoder's optimiser on a block of ``frames`` frames of one
 color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
-padded grid, (c) the same on the 2x grid of DESIGN §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
+padded grid, (c) the same on the 2x grid of docs/design.md §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
 (row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
 ``encoding_op.heap_reuse`` and (b) again under it; interleaved, best of ``repeats``.
 error: E (and the field SNR 10 log10((1-E)/E)) every 10 iterations with no stop rule, where the 0.05 dB rule

@@ -5,7 +5,7 @@ bench/results/cpu_fullscale.json (only where the size is the same). Run through 
 sets up the environment; ``--dry-run`` is the same sequence at 96x128, 2 frames, on the CPU.
 
 Convergence: the plan states the Monte Carlo noise-to-signal power r at the farthest image point for its rays
-per pixel N (noise ~ 1/N, DESIGN §4); a signal share s = 1 / (1 + r) of ``--convergence`` needs
+per pixel N (noise ~ 1/N, docs/design.md §4); a signal share s = 1 / (1 + r) of ``--convergence`` needs
 N' = N r / (1/s - 1) rays per pixel (80%: r = 0.25).
 """
 

@@ -18,7 +18,7 @@ Stages (each writes a JSON under --out, the report is rebuilt from all JSONs pre
 * ``conv``: convergence map (Fig. 5): two-stage, fast and direct at several spp, rendered with 3, 8 and 24
   frames (coded frame phases depend on the frame count, so a prefix of a 24-frame render is not an F-frame
   render; checked by tests/bench/test_paper_report.py; F = 1 is the 24-frame render's first frame, one random-phase
-  frame, whereas a 1-frame render skips the random phase, DESIGN §8), centre view, 3 focus planes. Convergence =
+  frame, whereas a 1-frame render skips the random phase, docs/design.md §8), centre view, 3 focus planes. Convergence =
   PSNR(vs ground truth) / PSNR(converged reference vs ground truth), the reference a two-stage render at
   ``--ref-spp`` with 24 frames; the 80 % contour is drawn. PSNR against the reference's first F frames (Monte
   Carlo error alone) is kept too.

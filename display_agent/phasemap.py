@@ -1,4 +1,4 @@
-"""Phase -> SLM gray level, per colour (DESIGN.md §2).
+"""Phase -> SLM gray level, per colour (docs/design.md §2).
 
 The service stores the phase before any table. The default level is ``round(phase / 2pi * 256) mod 256``
 (``holocore.formats.phase_to_u8``; the levels and the table files are read by ``holocore.formats``). Two

@@ -1,6 +1,6 @@
 """Entry point of `holo`. Every module `holo/cmd_*.py` defines `register(app)`; they are found here, so
 adding a subcommand touches only its own file. Modules import torch, Mitsuba or Dr.Jit inside the command
-functions only, so `holo agent` and `holo serve` start fast where those are absent (DESIGN.md §1)."""
+functions only, so `holo agent` and `holo serve` start fast where those are absent (docs/design.md §1)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """`holo agent`: the display agent daemon, plus `holo agent capture` / `holo agent play` on a local stack.
 
-Light imports only (numpy, httpx, pyserial, pygame lazily): no torch, Mitsuba or Dr.Jit (DESIGN.md §1).
+Light imports only (numpy, httpx, pyserial, pygame lazily): no torch, Mitsuba or Dr.Jit (docs/design.md §1).
 Settings: defaults < --config FILE (TOML/JSON) < HOLO_AGENT_* environment < options (docs/display_agent.md).
 """
 

@@ -1,4 +1,4 @@
-"""`holo encode`: a render (RESULT.npz) to a phase-only SLM stack (STACK.npz), DESIGN.md §6."""
+"""`holo encode`: a render (RESULT.npz) to a phase-only SLM stack (STACK.npz), docs/design.md §6."""
 
 from __future__ import annotations
 

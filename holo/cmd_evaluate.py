@@ -1,5 +1,5 @@
 """`holo evaluate`: score a hologram (RESULT.npz or STACK.npz) against ground truth (by default the wave-optical
-one, docs/evaluation.md) over a grid of focus planes x views (DESIGN.md §7), print PSNR / SSIM per cell and write
+one, docs/evaluation.md) over a grid of focus planes x views (docs/design.md §7), print PSNR / SSIM per cell and write
 side-by-side images."""
 
 from __future__ import annotations

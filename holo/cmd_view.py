@@ -1,8 +1,8 @@
-"""`holo view`: what an eye sees through the display (DESIGN.md §7), from a phase stack or a render.
+"""`holo view`: what an eye sees through the display (docs/design.md §7), from a phase stack or a render.
 
 A STACK.npz is shown as the phase-only SLM field exp(i phase); a RESULT.npz as its complex SLM field. The eye
 (pupil D, lateral offset e) sits behind the eyepiece and focuses at hologram depth z (metres from the SLM):
-z = z_inf is optical infinity, z = z_inf + f^2 / d a scene distance d (DESIGN §3).
+z = z_inf is optical infinity, z = z_inf + f^2 / d a scene distance d (docs/design.md §3).
 """
 
 from __future__ import annotations

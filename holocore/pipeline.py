@@ -1,4 +1,4 @@
-"""From a scene and the optics to the WRP and SLM fields (DESIGN.md §1): load -> plan -> analyse -> trace ->
+"""From a scene and the optics to the WRP and SLM fields (docs/design.md §1): load -> plan -> analyse -> trace ->
 propagate. This is what `holo render` and the service's workers call.
 
 Memory is bounded by a budget (:mod:`holocore.runtime.membudget`: keyword, HOLO_MEMORY_BUDGET_MB, default 8 GiB) that

@@ -1,4 +1,4 @@
-"""A render's passes (DESIGN.md §1): the frames' phase banks, the trace of every recording plane in passes over
+"""A render's passes (docs/design.md §1): the frames' phase banks, the trace of every recording plane in passes over
 chunks of frames (a time-limited render: passes of rays until its budget is spent), and the propagation of the
 traced field to the other plane, every colour first cut to the common eyebox when the optics ask for one. Each
 step reads the :class:`holocore.render_setup.RenderSetup` and writes into the render's sink

@@ -1,4 +1,4 @@
-"""What a render decides before its first ray (DESIGN.md §1): the options, the scene's plan, the lit colours, how
+"""What a render decides before its first ray (docs/design.md §1): the options, the scene's plan, the lit colours, how
 many frames one trace pass and one propagation chunk hold in the memory budget, the cone equalisers, the trace
 settings, the ray schedule of a time-limited render and the frame-phase mode, in one frozen :class:`RenderSetup`
 that :func:`prepare_render` makes and :mod:`holocore.render_passes` and :mod:`holocore.pipeline` read.

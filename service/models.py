@@ -1,6 +1,6 @@
 """Request and response bodies of the HTTP API (pydantic; these make the OpenAPI schema at /docs).
 
-Only light imports here: ``holocore.display.optics`` is pydantic and math, nothing heavy (DESIGN.md §1).
+Only light imports here: ``holocore.display.optics`` is pydantic and math, nothing heavy (docs/design.md §1).
 """
 
 from __future__ import annotations

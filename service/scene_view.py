@@ -1,5 +1,5 @@
 """Where the hologram's view lies in the scene's picture (the planner's ``holo plan --picture``): the rectangle
-the hologram covers, as fractions of the camera's image, for given optics (DESIGN.md §3: the hologram shows
+the hologram covers, as fractions of the camera's image, for given optics (docs/design.md §3: the hologram shows
 2 atan(W p / 2f) around the camera's axis). The one formula is holocore.display.profiles.field_of_view_box;
 this module reads the camera's numbers from a scene's stored plan and words the answer. Light imports only
 (pydantic and math): the API answers with it."""

@@ -11,7 +11,7 @@ holography): phase-only SGD of F frames on the amplitude of a focal stack.
    line the channel
    that holds it; all targets share one white level (their ``white_percentile``; emitters above it clip).
 2. Model: frame m's SLM field exp(i phi_m), propagated from the SLM (z = 0) to z_k with the band-limited ASM
-   (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, DESIGN §5) through the same pupil disc
+   (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, docs/design.md §5) through the same pupil disc
    (:func:`holocore.optics.viewing.pupil_mask`; the centre view), |.|^2 averaged over the F frames: exactly the
    centre view `holo view` and `holo evaluate` simulate.
 3. Loss (per colour c, all planes): sum_k || s_c sqrt(mean_m I_{m,k}) - sqrt(T_k) ||^2 / (K H W), Adam on the

@@ -45,7 +45,7 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
          max_depth: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB float32 [3, H, W], eye-camera depth zc float64 [H, W] in m, 0 where nothing is hit).
 
-    A pinhole camera at the eye with the hologram's pixel grid (x = f tan, DESIGN §3), box filter,
+    A pinhole camera at the eye with the hologram's pixel grid (x = f tan, docs/design.md §3), box filter,
     ``spp`` samples per pixel, Mitsuba's ``path`` integrator with ``max_depth`` inside ``aov``.
     """
     from holocore.runtime.mitsuba_env import mitsuba

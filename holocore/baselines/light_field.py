@@ -8,7 +8,7 @@ ray-sampling plane (Wakunami and Yamaguchi 2011) inside the image volume.
    grid is (k - (B-1)/2) / B p, symmetric about the axis for any B.
 2. Light field from Mitsuba. The plane wave of frequency f leaves the hogel towards the eye with direction sine
    s = lambda f, hologram tan t = s / sqrt(1 - |s|^2). Straight hologram rays stay straight in the world (the
-   map T is projective, DESIGN §3), and every ray of tan t crosses the eye's plane zc = 0 at (f t_x, f t_y): so
+   map T is projective, docs/design.md §3), and every ray of tan t crosses the eye's plane zc = 0 at (f t_x, f t_y): so
    the radiance of that wave is what a pinhole at (f t_x, f t_y, 0) sees through the hogel's world image at
    zc = f^2 / (z_rs - z_inf). Each ray is jittered over its hogel (box in position) and its frequency bin (box
    in direction) and traced with the scene's integrator (else ``path``, 12 bounces), ``spp`` times.
@@ -129,7 +129,7 @@ def hogel_rays(shape_hw: tuple[int, int], *, hogel_px: int, pitch_m: float, wave
     sx, sy = lam * FX, lam * FY
     sz = np.sqrt(np.clip(1.0 - sx * sx - sy * sy, 1e-12, None))
     tx, ty = sx / sz, sy / sz
-    zc = f * f / (zr - zi)  # the RS plane's world depth (T^-1, DESIGN §3)
+    zc = f * f / (zr - zi)  # the RS plane's world depth (T^-1, docs/design.md §3)
     origin = np.stack([f * tx, f * ty, np.zeros_like(tx)], axis=-1)
     target = np.stack([X0 * zc / f, Y0 * zc / f, np.full_like(X0, zc)], axis=-1)
     d = target - origin

@@ -1,8 +1,8 @@
-"""Optics configuration: one validated model of the display (DESIGN.md §2, §3).
+"""Optics configuration: one validated model of the display (docs/design.md §2, §3).
 
 Public fields carry their unit in the name and are converted to SI once, by the ``*_m`` properties.
 Defaults follow the paper's display (Sec. 5): 640.0 / 516.5 / 455.4 nm, 8 µm pitch, virtual infinity at 80 mm and
-an eyepiece of f = 50 mm. f belongs to the display, not to the scene (DESIGN §3): deriving it from the scene camera's
+an eyepiece of f = 50 mm. f belongs to the display, not to the scene (docs/design.md §3): deriving it from the scene camera's
 field of view is the explicit choice ``fit_camera_fov=True`` (or a given ``fov_x_deg``), never the default. Named
 display profiles (:mod:`holocore.display.profiles`) build an OpticsConfig; this model stays the numerics contract.
 """
@@ -24,7 +24,7 @@ MAX_SIDE_PX = 16384
 MAX_FRAMES = 256
 """Largest number of time-multiplexed frames accepted."""
 DISPLAY_FOCAL_LENGTH_MM = 50.0
-"""The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm; DESIGN §3)."""
+"""The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm; docs/design.md §3)."""
 
 MAX_CONE_HALF_ANGLE_RAD = math.radians(89.0)
 """The recording cone's half-angle as the tracer and every estimate use it (rad): rays are kept off exactly grazing,
@@ -32,7 +32,7 @@ where cos theta = 0 gives an infinite ray weight r / cos theta (sub-wavelength p
 
 
 def theta_max_rad(wavelength_m: float, pitch_m: float) -> float:
-    """Half-angle of the recordable cone (rad), arcsin(lambda / 2p), pi/2 when lambda >= 2p (DESIGN §4; paper
+    """Half-angle of the recordable cone (rad), arcsin(lambda / 2p), pi/2 when lambda >= 2p (docs/design.md §4; paper
     Sec. 4.3). The one place this formula lives."""
     s = float(wavelength_m) / (2.0 * float(pitch_m))
     return math.pi / 2 if s >= 1.0 else math.asin(s)
@@ -50,7 +50,7 @@ def common_cone_sine(wavelengths_m, pitch_m: float) -> float:
 
 
 def channel_of(wavelength_m: float) -> int:
-    """RGB channel of the scene that a laser line shows (DESIGN §4): R from 590 nm, G 490-590 nm, B below."""
+    """RGB channel of the scene that a laser line shows (docs/design.md §4): R from 590 nm, G 490-590 nm, B below."""
     nm = float(wavelength_m) * 1e9
     return 0 if nm >= 590.0 else (1 if nm >= 490.0 else 2)
 
@@ -83,13 +83,13 @@ class OpticsConfig(BaseModel):
     )
     focal_length_mm: Optional[float] = Field(
         default=DISPLAY_FOCAL_LENGTH_MM, gt=0.0, le=10_000.0, allow_inf_nan=False,
-        description="Eyepiece focal length f in mm, the display's (default: the paper's 50 mm; DESIGN §3). None "
+        description="Eyepiece focal length f in mm, the display's (default: the paper's 50 mm; docs/design.md §3). None "
                     "only with fit_camera_fov or fov_x_deg, which then determine f.",
     )
     fit_camera_fov: bool = Field(
         default=False,
         description="Derive f from the scene camera's horizontal field of view filling the SLM width, "
-                    "f = (W p / 2) / tan(fov_x / 2) (DESIGN §3). Off by default: f is the display's.",
+                    "f = (W p / 2) / tan(fov_x / 2) (docs/design.md §3). Off by default: f is the display's.",
     )
     fov_x_deg: Optional[float] = Field(
         default=None, gt=0.0, lt=180.0, allow_inf_nan=False,
@@ -194,7 +194,7 @@ class OpticsConfig(BaseModel):
 
     def focal_length_m(self, scene_fov_x_deg: float | None = None) -> float:
         """Eyepiece focal length in m: the display's focal_length_mm; with fov_x_deg, or with fit_camera_fov the
-        scene camera's ``scene_fov_x_deg``, the f at which that view fills the SLM width (DESIGN §3)."""
+        scene camera's ``scene_fov_x_deg``, the f at which that view fills the SLM width (docs/design.md §3)."""
         if self.focal_length_mm is not None:
             return self.focal_length_mm * 1e-3
         fov = self.fov_x_deg if self.fov_x_deg is not None else scene_fov_x_deg
@@ -204,7 +204,7 @@ class OpticsConfig(BaseModel):
         return (self.width * self.pitch_m / 2.0) / math.tan(math.radians(fov) / 2.0)
 
     def field_of_view_x_deg(self, scene_fov_x_deg: float | None = None) -> float:
-        """Horizontal field of view the hologram shows, 2 atan(W p / 2f), in degrees (DESIGN §3)."""
+        """Horizontal field of view the hologram shows, 2 atan(W p / 2f), in degrees (docs/design.md §3)."""
         return math.degrees(2.0 * math.atan(self.width * self.pitch_m / (2.0 * self.focal_length_m(scene_fov_x_deg))))
 
     def eyebox_sine(self) -> float | None:
@@ -213,5 +213,5 @@ class OpticsConfig(BaseModel):
         return common_cone_sine(self.wavelengths_m, self.pitch_m) if self.eyebox == "common" else None
 
     def theta_max(self, wavelength_m: float) -> float:
-        """Half-angle of the recordable cone (rad): :func:`theta_max_rad` at this pitch (DESIGN §4)."""
+        """Half-angle of the recordable cone (rad): :func:`theta_max_rad` at this pitch (docs/design.md §4)."""
         return theta_max_rad(wavelength_m, self.pitch_m)

@@ -1,4 +1,4 @@
-"""Display profiles: a named, frozen description of a holographic display (DESIGN.md §3), and the OpticsConfig
+"""Display profiles: a named, frozen description of a holographic display (docs/design.md §3), and the OpticsConfig
 it builds.
 
 A profile is what a lab knows about its display: SLM size and pitch, laser lines, where the eyepiece's front
@@ -87,7 +87,7 @@ class DisplayProfile(BaseModel):
 
     def optics(self, **overrides: Any) -> OpticsConfig:
         """The OpticsConfig of this display, with ``overrides`` (OpticsConfig fields; None = keep the profile's).
-        ``fit_camera_fov=True`` or ``fov_x_deg`` replace the profile's f (DESIGN §3: an explicit choice)."""
+        ``fit_camera_fov=True`` or ``fov_x_deg`` replace the profile's f (docs/design.md §3: an explicit choice)."""
         return display_optics(self, overrides=overrides)
 
     def field_of_view_x_deg(self) -> float:
@@ -99,7 +99,7 @@ PAPER = DisplayProfile(
     name="paper", resolution_hw=(1080, 1920), pitch_um=8.0, wavelengths_nm=(640.0, 516.5, 455.4), z_inf_mm=80.0,
     focal_length_mm=DISPLAY_FOCAL_LENGTH_MM, frames=24, fourier_filter=True,
     description="The paper's display (Sec. 5): 1080x1920 px at 8 µm, 640.0/516.5/455.4 nm, virtual infinity at "
-                "80 mm; f = 50 mm puts 10 m, 0.9 m and 0.5 m at 80.25, 82.8 and 85 mm (DESIGN §3); 24 frames; a "
+                "80 mm; f = 50 mm puts 10 m, 0.9 m and 0.5 m at 80.25, 82.8 and 85 mm (docs/design.md §3); 24 frames; a "
                 "Fourier filter passes only the recording cone.",
 )
 BUILTIN_DISPLAYS: dict[str, DisplayProfile] = {PAPER.name: PAPER}
@@ -215,7 +215,7 @@ def display_meta(profile: DisplayProfile, optics: OpticsConfig) -> dict[str, Any
 
 def field_of_view_box(optics: OpticsConfig, camera_fov_x_deg: float,
                       camera_film_hw: tuple[int, int]) -> dict[str, Any]:
-    """Where the hologram's view lies in the scene camera's image (DESIGN §3): the hologram shows
+    """Where the hologram's view lies in the scene camera's image (docs/design.md §3): the hologram shows
     2 atan(W p / 2f) by 2 atan(H p / 2f) around the camera's axis, the camera tan(fov_x / 2) across half its
     width (square pixels: h / w of that across half its height). Lateral position is linear in the tangent of
     the view angle on both, so the box's edges are the ratios of the tangents: ``x0, y0, x1, y1`` are fractions
@@ -244,7 +244,7 @@ def field_of_view_box(optics: OpticsConfig, camera_fov_x_deg: float,
 
 def field_of_view_report(optics: OpticsConfig, camera_fov_x_deg: float,
                          camera_film_hw: Optional[tuple[int, int]] = None) -> dict[str, Any]:
-    """The hologram's horizontal field of view against the scene camera's (DESIGN §3): the hologram shows
+    """The hologram's horizontal field of view against the scene camera's (docs/design.md §3): the hologram shows
     2 atan(W p / 2f) around the camera's axis. ``differs`` when they differ by more than 0.1 % (or 0.01 deg);
     ``summary`` says so in one line. With the camera's film size, ``camera_film_hw_px`` and ``box``
     (:func:`field_of_view_box`: where the hologram's view lies in the camera's image) too."""

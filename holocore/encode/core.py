@@ -1,4 +1,4 @@
-"""Shared pieces of the phase-only encoder (DESIGN.md §6; see :mod:`holocore.encode.encoder` for the physics):
+"""Shared pieces of the phase-only encoder (docs/design.md §6; see :mod:`holocore.encode.encoder` for the physics):
 argument checks, the ASM and passband helpers, the complex-field error, the reach margin and phase wrapping.
 """
 
@@ -72,7 +72,7 @@ def propagate_to_wrp(slm_field: ArrayLike, *, z_wrp_m: float, wavelengths_m: Seq
 def _band_masks(shape_hw: tuple[int, int], lams: list[float], pitch_m: PitchLike,
                 device: torch.device) -> torch.Tensor:
     """Bool [C, H, W] passband of each color on the unshifted DFT grid: the recording cone, radius
-    sin(theta_max) / lambda = 1/(2p) (DESIGN §4, ``randomfield.passband_mask``). The spectrum's corners lie
+    sin(theta_max) / lambda = 1/(2p) (docs/design.md §4, ``randomfield.passband_mask``). The spectrum's corners lie
     outside every traced field; the encoder may put light there."""
     return torch.stack([torch.from_numpy(passband_mask(shape_hw, lam, pitch_m)) for lam in lams]).to(device)
 
@@ -95,7 +95,7 @@ def field_error(pred: ArrayLike, target: ArrayLike, *, margin_px: int = 0) -> np
     """Scale-free complex-field error E = 1 - rho^2 per (frame, color), float64 [F, C], in [0, 1].
 
     rho^2 = |<t, p>|^2 / (||t||^2 ||p||^2) over the interior that remains after cropping ``margin_px`` pixels
-    from each side; equal to ||p - s t||^2 / ||p||^2 with the best complex scale s (DESIGN §6). 1 where either
+    from each side; equal to ||p - s t||^2 / ||p||^2 with the best complex scale s (docs/design.md §6). 1 where either
     field is zero there.
     """
     if isinstance(margin_px, bool) or not isinstance(margin_px, (int, np.integer)) or margin_px < 0:
@@ -123,7 +123,7 @@ def field_error(pred: ArrayLike, target: ArrayLike, *, margin_px: int = 0) -> np
 def reach_margin_px(*, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike) -> int:
     """Width in pixels of the WRP border the SLM cannot fully reach: ceil(z_wrp tan(theta_max) / p).
 
-    theta_max = arcsin(lambda / 2p) (DESIGN §4) for the longest wavelength (the widest cone), p the larger
+    theta_max = arcsin(lambda / 2p) (docs/design.md §4) for the longest wavelength (the widest cone), p the larger
     pitch. A WRP pixel closer to the edge than this misses part of its cone of SLM pixels.
     """
     z = validate.bounded("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=True, unit="m")

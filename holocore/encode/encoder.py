@@ -1,4 +1,4 @@
-"""Phase-only encoding of a WRP field into an SLM phase stack (DESIGN.md §6, paper Sec. 5.3; docs/encoding.md).
+"""Phase-only encoding of a WRP field into an SLM phase stack (docs/design.md §6, paper Sec. 5.3; docs/encoding.md).
 
 Hologram space: SLM at z = 0, WRP at z = z_wrp > 0. The ideal (complex) SLM field is u0 = ASM(U_t, -z_wrp);
 a phase-only SLM shows exp(i phi), whose WRP field is U_p = ASM(exp(i phi), +z_wrp) (band-limited ASM, §5).
@@ -283,7 +283,7 @@ def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence
                chunk_frames: Optional[int] = None, device: Optional[Union[str, torch.device]] = None,
                progress: Optional[ProgressFn] = None) -> EncodeResult:
     """Optimise the SLM phase [F, C, H, W] so that ASM(exp(i phi), z_wrp) matches the target in amplitude and
-    phase up to one complex scale per (frame, color) (DESIGN §6; module docstring).
+    phase up to one complex scale per (frame, color) (docs/design.md §6; module docstring).
 
     ``target_wrp`` complex [F, C, H, W] on the WRP at ``z_wrp_m`` (m, > 0); ``wavelengths_m`` one per color;
     ``pitch_m`` (m). Adam with step ``lr`` (rad) for at most ``iterations`` steps; each (frame, color) stops

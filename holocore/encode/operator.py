@@ -1,6 +1,6 @@
 """The phase-only encoder's propagation operator A_z on one H x W window, with no conjugation pass and no ifft.
 
-Plain form (DESIGN.md §5). A_z u = C IFFT{ M . FFT{P u} }, P zero-pads u to the top-left of the padded grid
+Plain form (docs/design.md §5). A_z u = C IFFT{ M . FFT{P u} }, P zero-pads u to the top-left of the padded grid
 N = (Hp, Wp), C crops the top-left H x W window back, M = H_z . K is the band-limited ASM transfer function
 (``propagation.transfer_function``; Matsushima & Shimobaba 2009, Eq. 13) times K, the recording cone's disc
 (``cone=True``: a display with a Fourier filter) or 1. A_z is a circular convolution with k = IFFT(M); the

@@ -61,7 +61,7 @@ def load_lut(source: Union[str, Path, ArrayLike], *, wavelengths_m: Sequence[flo
 
 
 def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None) -> np.ndarray:
-    """8-bit SLM frames uint8 [F, C, H, W]: round(phase / 2pi * 256) mod 256 (DESIGN §2, ``io.phase_to_u8``),
+    """8-bit SLM frames uint8 [F, C, H, W]: round(phase / 2pi * 256) mod 256 (docs/design.md §2, ``io.phase_to_u8``),
     then, if given, each color's row of ``lut`` (uint8 [C, 256] from :func:`load_lut`)."""
     ph = phase.detach().cpu().numpy() if isinstance(phase, torch.Tensor) else np.asarray(phase)
     if ph.ndim != 4:

@@ -1,4 +1,4 @@
-"""The phase-only encoder's optimiser, for one color and a block of frames (DESIGN.md §6).
+"""The phase-only encoder's optimiser, for one color and a block of frames (docs/design.md §6).
 
 The operator A_z (band-limited ASM on the encoder's padded grid, its adjoint, and why less than 2x padding is
 exact) is :mod:`holocore.encode.operator`; ``Operator``, ``encoder_grid`` and ``spread_px`` are re-exported here.

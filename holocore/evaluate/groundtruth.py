@@ -1,10 +1,10 @@
-"""Ground truth for simulated viewing: Mitsuba thin-lens renders of what the eye sees (DESIGN.md §7).
+"""Ground truth for simulated viewing: Mitsuba thin-lens renders of what the eye sees (docs/design.md §7).
 
-The eye sits at the eyepiece's back focal point, so the scene camera *is* the eye (DESIGN §3): an eye of
+The eye sits at the eyepiece's back focal point, so the scene camera *is* the eye (docs/design.md §3): an eye of
 pupil diameter D at lateral offset e = (e_x, e_y) (m, x right, y up), focused at hologram depth z_f, sees the
 scene as a Mitsuba ``thinlens`` camera with
 
-* the scene sensor's pose translated by e in the eye-camera frame (xc = -x_camera, DESIGN §3),
+* the scene sensor's pose translated by e in the eye-camera frame (xc = -x_camera, docs/design.md §3),
 * aperture radius D / 2 (world metres: the world is in metres, and the pupil is the camera's aperture),
 * focus distance f^2 / (z_f - z_inf) (the inverse of z = z_inf + f^2 / zc),
 * horizontal field of view 2 atan(W p / (2 f)) on an H x W film with square pixels, box pixel filter,
@@ -46,7 +46,7 @@ _FAR_FOCUS_M = 1e7  # "focused at infinity": Mitsuba needs a finite focus distan
 
 
 def focus_distance_m(focus_z_m: float, *, focal_length_m: float, z_inf_m: float) -> float:
-    """World focus distance (m) of hologram depth z_f: f^2 / (z_f - z_inf) (DESIGN §3, §7).
+    """World focus distance (m) of hologram depth z_f: f^2 / (z_f - z_inf) (docs/design.md §3, §7).
 
     z_f = z_inf is optical infinity (returned as 1e7 m); z_f < z_inf lies beyond infinity (ValueError).
     """
@@ -105,7 +105,7 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
                         pitch_m: float, shape_hw: tuple[int, int], focus_z_m: float, pupil_diameter_m: float,
                         view_offset_m: tuple[float, float] = (0.0, 0.0), spp: int = 256, seed: int = 0,
                         integrator: Optional[Any] = None) -> np.ndarray:
-    """Linear RGB radiance float32 [3, H, W] an eye sees (DESIGN §7), rendered by Mitsuba.
+    """Linear RGB radiance float32 [3, H, W] an eye sees (docs/design.md §7), rendered by Mitsuba.
 
     ``scene``: a Mitsuba scene; ``sensor_to_world``: its perspective sensor's 4x4 to_world matrix (the eye's
     pose); ``focal_length_m``, ``z_inf_m``, ``pitch_m`` (m) and ``shape_hw`` describe the display (a render's
@@ -256,7 +256,7 @@ class GroundTruth:
 
     def channels(self, *, focus_z_m: float, pupil_diameter_m: float,
                  view_offset_m: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-        """[C, H, W]: the channel of each laser line (DESIGN §4 colors), diffraction-limited by the pupil
+        """[C, H, W]: the channel of each laser line (docs/design.md §4 colors), diffraction-limited by the pupil
         unless the instance was made with ``diffraction=False``."""
         img = channels_for_wavelengths(self.rgb(focus_z_m=focus_z_m, pupil_diameter_m=pupil_diameter_m,
                                                 view_offset_m=view_offset_m), self.wavelengths_m)

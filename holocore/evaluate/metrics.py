@@ -1,4 +1,4 @@
-"""Image quality metrics for reconstructions vs ground truth (DESIGN.md §7).
+"""Image quality metrics for reconstructions vs ground truth (docs/design.md §7).
 
 Images are 2D [H, W] or 3D with a colour axis, numpy or torch, real. The colour axis is the first one
 ([C, H, W], the project's layout) when it has <= 8 entries, else the last one ([H, W, C], e.g. an RGB preview);
@@ -114,7 +114,7 @@ def ssim(pred: ArrayLike, ref: ArrayLike, *, data_range: Optional[float] = None,
 
 
 def fit_brightness(pred: ArrayLike, ref: ArrayLike) -> tuple[ArrayLike, float]:
-    """One least-squares scale s = <pred, ref> / <pred, pred> (DESIGN §7); returns (s * pred, s).
+    """One least-squares scale s = <pred, ref> / <pred, pred> (docs/design.md §7); returns (s * pred, s).
 
     Any shape (pred and ref alike); ``scaled_pred`` has the input's type (numpy or torch). An all-zero ``pred``
     gives s = 1.

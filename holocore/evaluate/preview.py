@@ -1,4 +1,4 @@
-"""Pictures a person can look at: simulated views of an SLM field at chosen focus depths (DESIGN.md §7),
+"""Pictures a person can look at: simulated views of an SLM field at chosen focus depths (docs/design.md §7),
 composited to RGB and written as PNG contact sheets."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ __all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8", "depth_words"]
 
 
 def depth_words(z_m: float, meta: MetaLike) -> str:
-    """Where a hologram depth ``z_m`` (m from the SLM) lies in the scene: z = z_inf + f^2 / d (DESIGN §3)."""
+    """Where a hologram depth ``z_m`` (m from the SLM) lies in the scene: z = z_inf + f^2 / d (docs/design.md §3)."""
     meta = parse_view_meta(meta)
     dz = z_m - meta.z_inf_m
     if abs(dz) < 1e-12:

@@ -1,4 +1,4 @@
-"""Evaluation: simulated eye views of a hologram against Mitsuba thin-lens ground truth (DESIGN.md §7; paper
+"""Evaluation: simulated eye views of a hologram against Mitsuba thin-lens ground truth (docs/design.md §7; paper
 Sec. 5: focus planes across the image volume, a grid of views).
 
 For every cell (focus depth z_f, eye offset e) the reconstruction is what the eye sees: the SLM field
@@ -15,7 +15,7 @@ point x at depth z_f left the SLM (z = 0) within z_f (NA + |e| / f) of x (NA = D
 the SLM's edge the view is vignetted by the SLM's aperture, a property of the display's size, not an error of
 the hologram. That border (:func:`lit_margin_px`) is left out of the scores (the images keep it).
 
-Score of a cell (one least-squares brightness scale, DESIGN §7): with w the 99th percentile of the ground
+Score of a cell (one least-squares brightness scale, docs/design.md §7): with w the 99th percentile of the ground
 truth G (the display's white; emitters above it saturate), the scale s minimises ||s R - G||^2 over the pixels
 where G < w; both images are then clipped to [0, w] and divided by w, and PSNR / SSIM use data range 1. One
 scale serves all colors of a cell, so a wrong colour balance costs PSNR.

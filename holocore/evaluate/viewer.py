@@ -1,5 +1,5 @@
 """The viewer-faithful score: what a real eye sees of a hologram, over pupils, eye positions and focus planes, at
-one fixed brightness per colour (DESIGN.md §7; docs/evaluation.md, "The viewer-faithful score").
+one fixed brightness per colour (docs/design.md §7; docs/evaluation.md, "The viewer-faithful score").
 
 The per-cell score of :mod:`holocore.evaluate.scoring` fits a brightness scale to every (focus, view) cell, and
 its views sit where a method's layout may favour them (on the axis, on a beam). An eye does neither: its pupil

@@ -10,7 +10,7 @@ Here the scene is imaged as an ideal diffuse hologram would image it, through th
 uses (:func:`holocore.evaluate.scoring.eye_view`):
 
 1. **Depth layers** (:func:`depth_layers`, Mitsuba). From the centre of the eye a pinhole sees the scene on the
-   hologram's pixel grid (x = f tan, DESIGN §3: hologram space seen orthographically). Each sample follows its
+   hologram's pixel grid (x = f tan, docs/design.md §3: hologram space seen orthographically). Each sample follows its
    chain of delta surfaces (mirrors, smooth glass), sampling each surface's lobe, to the first surface that
    scatters (or to the sky); its *image distance* is the unfolded path length, each segment inside a medium of
    index n counted as d / n (the paraxial apparent depth); the radiance it brings is the reference path tracer's

@@ -1,4 +1,4 @@
-"""The project's files with numpy alone (no torch, Mitsuba or Dr.Jit; DESIGN.md §1): RESULT.npz and STACK.npz
+"""The project's files with numpy alone (no torch, Mitsuba or Dr.Jit; docs/design.md §1): RESULT.npz and STACK.npz
 (:mod:`.result`, :mod:`.stack`, streamed .npz members in :mod:`.npz`), phase -> 8-bit SLM levels
 (:mod:`.levels`), their typed metadata (:mod:`.meta`), SLM lookup-table files (:mod:`.lut`) and file hashes (:mod:`.hashing`). The display agent
 imports these; ``holocore.io`` re-exports the file functions for the core."""

@@ -1,4 +1,4 @@
-"""Phase -> 8-bit SLM levels (DESIGN.md §2): ``round(phase / 2pi * L) mod L``, L = 256 by default."""
+"""Phase -> 8-bit SLM levels (docs/design.md §2): ``round(phase / 2pi * L) mod L``, L = 256 by default."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ _TWO_PI = 2.0 * np.pi
 
 
 def phase_to_u8(phase: np.ndarray) -> np.ndarray:
-    """8-bit SLM levels: round(phase / 2pi * 256) mod 256 (DESIGN §2). Level 255 covers phases within half
+    """8-bit SLM levels: round(phase / 2pi * 256) mod 256 (docs/design.md §2). Level 255 covers phases within half
     a level of 2pi*255/256; phases closer to 2pi than that, and 2pi itself, are level 0 (the same phase)."""
     p = np.asarray(phase, dtype=np.float64)
     return (np.round(p / (2 * np.pi) * 256.0).astype(np.int64) % 256).astype(np.uint8)

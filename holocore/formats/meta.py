@@ -102,9 +102,9 @@ class _Meta(BaseModel, Mapping):
 
 
 class ViewMeta(_Meta):
-    """What an eye's view of a field needs (DESIGN.md §3, §7): f, virtual infinity and the pitch, in metres."""
+    """What an eye's view of a field needs (docs/design.md §3, §7): f, virtual infinity and the pitch, in metres."""
 
-    focal_length_m: float = Field(gt=0, description="eyepiece focal length f (DESIGN §3)")
+    focal_length_m: float = Field(gt=0, description="eyepiece focal length f (docs/design.md §3)")
     z_inf_m: float = Field(ge=0, description="virtual infinity: where a point at infinity images")
     pitch_m: Union[float, tuple[float, float]] = Field(description="SLM pixel pitch, or (pitch_y, pitch_x)")
     z_wrp_m: Optional[float] = Field(default=None, gt=0)
@@ -117,7 +117,7 @@ class ViewMeta(_Meta):
 
 
 class ResultMeta(ViewMeta):
-    """RESULT metadata (DESIGN.md §1-3): where the recorded field sits, in metres; every reader needs these."""
+    """RESULT metadata (docs/design.md §1-3): where the recorded field sits, in metres; every reader needs these."""
 
     z_wrp_m: float = Field(gt=0, description="the (first) wave recording plane, in front of the SLM")
 

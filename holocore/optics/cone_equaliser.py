@@ -1,5 +1,5 @@
 """The angular spectrum of what the ray estimator records from a lit surface near its recording plane, and the
-equaliser that gives it the band-limited points' flat spectrum (DESIGN.md §4, "Cone equaliser"; docs/physics.md).
+equaliser that gives it the band-limited points' flat spectrum (docs/design.md §4, "Cone equaliser"; docs/physics.md).
 
 The rays of an image point Q at distance d from its recording plane fill the cone of half-angle theta_c, so
 their expected field on the plane is the spherical wave cut at the cone's rim (:mod:`holocore.trace.tile`):

@@ -1,5 +1,5 @@
 """An SLM field [F, C, H, W] read in chunks of frames of one color, from memory or from a file, so that viewing and
-evaluation never hold a whole full-size field (DESIGN.md §7).
+evaluation never hold a whole full-size field (docs/design.md §7).
 
 From a STACK.npz the field is exp(i phase) lit with the encoder's relative laser power per frame and color
 (``meta["encoder"]["illumination"]``, the scene's colour balance) unless ``equal_power``; ``quantized`` shows
@@ -44,7 +44,7 @@ class SlmFieldSource:
             out = np.ascontiguousarray(raw, dtype=np.complex64)
         else:
             phase = raw
-            if self._quantized:  # the 8-bit SLM levels of DESIGN §2, without a lookup table
+            if self._quantized:  # the 8-bit SLM levels of docs/design.md §2, without a lookup table
                 from holocore.io import phase_to_u8
 
                 phase = phase_to_u8(phase).astype(np.float32) * np.float32(2 * np.pi / 256)

@@ -1,4 +1,4 @@
-"""Several recording planes chained to the WRP by the band-limited ASM (paper Sec. 6; DESIGN.md §5): one trace
+"""Several recording planes chained to the WRP by the band-limited ASM (paper Sec. 6; docs/design.md §5): one trace
 records every ray on the plane in front of its image point; each deeper plane, held in a scratch file on a grid
 wider than the WRP's by its border, is propagated to the plane in front of it, cropped and added, down to the
 WRP. Units: metres."""

@@ -1,4 +1,4 @@
-"""Band-limited angular spectrum propagation between parallel planes (DESIGN.md §5).
+"""Band-limited angular spectrum propagation between parallel planes (docs/design.md §5).
 
     U(x, y, z) = IFFT{ FFT{U(x, y, 0)} * H(f_x, f_y; z) },   H = exp(i 2 pi z sqrt(1/lambda^2 - f_x^2 - f_y^2))
 
@@ -11,7 +11,7 @@ Shimobaba (Opt. Express 17(22), 2009, Eq. 13) is applied per axis on the exact D
 which keeps the sampled transfer function free of aliasing. With ``cone_sine`` s the passband is also cut to the
 directions of sine <= s, f_x^2 + f_y^2 <= (s / lambda)^2: the common eyebox of a colour display (docs/physics.md,
 "One eyebox for every colour"), applied at z = 0 too. H is built in float64 with its phase wrapped to
-[-pi, pi) before the cast (DESIGN §2: 2 pi z / lambda is ~1.4e7 rad at 1 m), cached in a bounded LRU, and
+[-pi, pi) before the cast (docs/design.md §2: 2 pi z / lambda is ~1.4e7 rad at 1 m), cached in a bounded LRU, and
 applied in the input's dtype. Frequencies stay in unshifted FFT order (no fftshift copies).
 """
 
@@ -214,7 +214,7 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
     distance, 0 included: then a low-pass filter of the field).
 
     ``wavelength_m`` in m, ``pitch_m`` a float or ``(pitch_y, pitch_x)`` in m. Zero-pads to
-    :func:`padded_shape` (``pad_factor`` >= 1), applies the band-limited transfer function (DESIGN §5) and
+    :func:`padded_shape` (``pad_factor`` >= 1), applies the band-limited transfer function (docs/design.md §5) and
     crops back. Returns a new tensor of the input's shape, dtype and device. Differentiable.
     """
     field = _check_field(field)

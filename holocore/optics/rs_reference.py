@@ -11,7 +11,7 @@ function (evanescent part included), so this sum converges to the ASM result as 
 The midpoint rule is exact for integrands band-limited to |f| < 1/p; choose grids where field plus kernel
 frequencies (at most 1/lambda each way) stay below that.
 
-Grids follow DESIGN.md §3: pixel (i, j) at x = (j - (W-1)/2) p_x, y = ((H-1)/2 - i) p_y, both planes centred on
+Grids follow docs/design.md §3: pixel (i, j) at x = (j - (W-1)/2) p_x, y = ((H-1)/2 - i) p_y, both planes centred on
 the axis. Cost is O(N_in * N_out): small grids only (zeros of the input field are skipped).
 """
 
@@ -30,7 +30,7 @@ _CHUNK_ELEMENTS = 1 << 21  # kernel entries per chunk (~32 MiB of complex128 plu
 
 
 def grid_coordinates(shape_hw: tuple[int, int], pitch_m: Union[float, Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel-centre coordinates (x [W], y [H]) in m of a centred grid (DESIGN §3: y up, rows down)."""
+    """Pixel-centre coordinates (x [W], y [H]) in m of a centred grid (docs/design.md §3: y up, rows down)."""
     h, w = (int(s) for s in shape_hw)
     if h < 1 or w < 1:
         raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")

@@ -1,12 +1,12 @@
-"""Simulated viewing of a hologram through an eye pupil (DESIGN.md §7).
+"""Simulated viewing of a hologram through an eye pupil (docs/design.md §7).
 
 An eye of pupil diameter D behind an eyepiece of focal length f, looking from lateral offset e, accepts the
 plane waves whose direction sines (lambda f_x, lambda f_y) lie in the disc of centre e / f and radius
 NA = D / (2 f). We keep those in the angular spectrum of the field, propagate the rest by ``distance_m`` to the
-focus plane (band-limited ASM, DESIGN §5) in the same padded FFT pass, take |.|^2 and average over frames
+focus plane (band-limited ASM, docs/design.md §5) in the same padded FFT pass, take |.|^2 and average over frames
 (time multiplexing).
 
-A display with a Fourier filter (``fourier_filter``; DESIGN §6, the encoder's "cone" supervision) passes only
+A display with a Fourier filter (``fourier_filter``; docs/design.md §6, the encoder's "cone" supervision) passes only
 each colour's recording cone, the disc of direction sines <= lambda / 2p: the view then keeps the plane waves
 inside both the pupil and that disc. Without it a phase-only hologram's light outside the cone (where the encoder
 parks what a phase-only SLM cannot help sending) reaches any pupil wider than the cone as a haze, and more of
@@ -85,7 +85,7 @@ def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: P
     """Boolean [Hp, Wp] mask (unshifted DFT order) of the plane waves the pupil accepts.
 
     Keeps (lambda f_x - e_x / f)^2 + (lambda f_y - e_y / f)^2 <= (D / 2f)^2 with f_y = -(row frequency).
-    ``view_offset_m`` is (e_x, e_y) in m, x right and y up (DESIGN §3).
+    ``view_offset_m`` is (e_x, e_y) in m, x right and y up (docs/design.md §3).
     """
     hp, wp = (int(s) for s in shape_hw_padded)
     lam = validate.positive("wavelength_m", wavelength_m)
@@ -191,7 +191,7 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                      pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
                      memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
                      pixel_orders: bool = False) -> torch.Tensor:
-    """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (DESIGN §7).
+    """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (docs/design.md §7).
 
     ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
     plane; see :func:`simulate_view` for the optics. ``shift_px`` = (rows, cols): the view is first shifted by
@@ -292,7 +292,7 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
                   shift_px: tuple[float, float] = (0.0, 0.0), pad_factor: float = 2,
                   memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
                   pixel_orders: bool = False) -> torch.Tensor:
-    """What an eye sees: float32 intensity [C, H, W], frame-averaged (DESIGN §7).
+    """What an eye sees: float32 intensity [C, H, W], frame-averaged (docs/design.md §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
     the focus plane z_f (negative: focus behind it); pupil of ``pupil_diameter_m`` behind an eyepiece of

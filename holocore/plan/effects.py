@@ -1,4 +1,4 @@
-"""EffectPlan: simulate only what a scene calls for (DESIGN.md §8).
+"""EffectPlan: simulate only what a scene calls for (docs/design.md §8).
 
 From the scene's BSDFs, emitters and geometry the plan decides: whether the coherent delta loop runs and
 its depth cap, whether radiance is view-dependent (glossy), the global-illumination depth, whether the

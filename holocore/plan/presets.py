@@ -1,7 +1,7 @@
 """The named render choices a user picks: the quality preset (:data:`PresetName`, its settings :class:`Preset`
 in :data:`PRESETS`) and the recording method (:data:`RenderMethod`).
 
-Rays per WRP pixel are chosen from the scene depth (DESIGN §4 "Convergence"): the Monte Carlo noise power
+Rays per WRP pixel are chosen from the scene depth (docs/design.md §4 "Convergence"): the Monte Carlo noise power
 relative to the signal at an image point whose sub-hologram has radius rho pixels is about
 k(theta) rho^2 / N with k = 2 pi (1 - cos theta) / tan^2 theta (~ pi), so N = k rho^2 / noise, clamped
 (holocore.plan.effects.choose_spp).

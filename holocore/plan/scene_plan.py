@@ -21,7 +21,7 @@ __all__ = ["ScenePlan"]
 class ScenePlan:
     """A scene's plan for one display and one set of render options."""
 
-    hmap: HologramMap  # the map from the camera's sensor to hologram space (DESIGN §3)
+    hmap: HologramMap  # the map from the camera's sensor to hologram space (docs/design.md §3)
     inventory: SceneInventory  # what the scene holds (shapes, primitives, delta and glossy surfaces...)
     analysis: SceneAnalysis  # the sparse pre-pass: depth range, where the WRP goes, sub-hologram radius
     plan: EffectPlan  # what the render simulates, ``summary`` in words (the view and ignored files included)

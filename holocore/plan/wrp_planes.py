@@ -1,4 +1,4 @@
-"""Several wave recording planes (paper Sec. 6, future work; DESIGN.md §4 "Convergence").
+"""Several wave recording planes (paper Sec. 6, future work; docs/design.md §4 "Convergence").
 
 The Monte Carlo noise of an image point grows as the square of its distance to the plane that records it.
 With K planes through a deep scene, each ray's contribution is recorded on the plane just in front of its
@@ -68,7 +68,7 @@ class WrpPlanes:
 
     def noise_energy(self, depths_m: Sequence[float]) -> list[float]:
         """Per plane, sum of r^2 over the (luminance-quantile) depth samples it records, r their distance to
-        it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (DESIGN §4)."""
+        it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (docs/design.md §4)."""
         k, r = self._assign(depths_m)
         return [float(v) for v in np.bincount(k, np.maximum(r, self.margin_m) ** 2, minlength=self.count)]
 

@@ -111,7 +111,7 @@ def _sensor_fov_x_deg(sensor) -> float:
     if "x_fov" not in params:
         raise ValueError(
             f"the scene's sensor is a {sensor.class_name()}; wave path tracing needs a perspective sensor "
-            "(DESIGN.md §3 maps its eye-camera frame to hologram space)"
+            "(docs/design.md §3 maps its eye-camera frame to hologram space)"
         )
     fov = float(params["x_fov"][0]) if hasattr(params["x_fov"], "__len__") else float(params["x_fov"])
     if not (0.0 < fov < 180.0) or math.isnan(fov):

@@ -3,7 +3,7 @@ bundles with procedurally generated textures (no third-party assets).
 
 Every scene is seen by an eye at the world origin looking down -z (y up), through a perspective camera whose
 horizontal field of view is the paper display's, 2 atan(W p / 2f) = 17.46 degrees for 1920 px of 8 µm and
-f = 50 mm (DESIGN.md §3), so the whole scene is in view on that display and the plan reports no field-of-view
+f = 50 mm (docs/design.md §3), so the whole scene is in view on that display and the plan reports no field-of-view
 difference there. The objects that carry the focus cues lie inside the central half of that view (|tan| <=
 0.076 horizontally, 0.043 vertically): a 540 x 960 part of the SLM (the issue's figure size on a CPU) shows
 all of them; a 270 x 480 part shows the middle of each.

@@ -202,7 +202,7 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
                       bank_frames: int | None = None) -> Iterator[np.ndarray]:
     """The lateral part of (B1) on the cell lattice, k u_m . x (x the cell centre), float32 [H, W] in [0, 2 pi) per
     frame m = first_frame .. first_frame + frames - 1 of a bank of ``bank_frames`` (default: frames) directions.
-    u_m / lambda is rounded to the lattice's DFT grid, so the map is periodic on H x W (cells wrap, DESIGN §4)."""
+    u_m / lambda is rounded to the lattice's DFT grid, so the map is periodic on H x W (cells wrap, docs/design.md §4)."""
     F = int(bank_frames if bank_frames is not None else frames)
     if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
         raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} directions")

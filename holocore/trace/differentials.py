@@ -5,7 +5,7 @@ A coherent chain carries four differentials of its ray (two lateral shifts of th
 perturbations of the direction) and an orthonormal frame. At a mirror or a smooth dielectric they are carried
 through the vertex (Igehy's Eq. 10 for the transfer to the surface, Eq. 12 for the change of t there, then the
 reflection or refraction of the direction differentials); where the chain ends, at the image point P, the
-apparent distance d = 2 / tr(B^-1 A) is read from them (DESIGN.md §4, docs/physics.md). Units: metres,
+apparent distance d = 2 / tr(B^-1 A) is read from them (docs/design.md §4, docs/physics.md). Units: metres,
 unit direction vectors.
 """
 

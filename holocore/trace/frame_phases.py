@@ -5,7 +5,7 @@ One interface, :class:`FramePhases`, and a registry, as Mitsuba registers integr
 keys, the renderer (:mod:`holocore.pipeline`) and the baselines ask the mode object for what differs:
 
 * :meth:`FramePhases.lateral_phases`: the bank, one float32 [H, W] phase map per frame on the cell lattice (each
-  image point takes the value of its cell; DESIGN §4), with :meth:`FramePhases.gain` its amplitude per colour;
+  image point takes the value of its cell; docs/design.md §4), with :meth:`FramePhases.gain` its amplitude per colour;
 * :meth:`FramePhases.depth_terms`: a per-ray factor that depends on the ray's depth (directional frames' Eq. B1),
   None for phases that are the same at any depth;
 * what the cone equaliser may assume (:attr:`FramePhases.noise_aware`, :attr:`FramePhases.rim_ripple`) and which

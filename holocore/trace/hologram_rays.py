@@ -1,5 +1,5 @@
 """Wave path tracing on the hologram side: rays from a recording plane, Monte Carlo accumulation of the
-complex field for every frame and color (paper Sec. 4.2-4.4, Eq. 5; DESIGN.md §4).
+complex field for every frame and color (paper Sec. 4.2-4.4, Eq. 5; docs/design.md §4).
 
 For each pixel of the recording plane, N rays leave the pixel centre with directions uniform in solid
 angle in the widest color's cone; they are mapped to world rays through T^-1 and traced as wave paths
@@ -8,11 +8,11 @@ Ray generation, T, the wave paths and each ray's complex contribution run in one
 only the F-frame accumulation (a gather of random-phase rows, scaled and summed) runs in torch. With
 Q = T P' (float64), r = |Q - x| and theta the ray's angle to the axis,
 
-    U_m(x) = (Omega / N) sum_rays A (r / cos theta) exp(i (s k r + phi_m(Q)))          (DESIGN §4)
+    U_m(x) = (Omega / N) sum_rays A (r / cos theta) exp(i (s k r + phi_m(Q)))          (docs/design.md §4)
 
 with s = +1 on the WRP (waves diverging from Q towards the viewer) and s = -1 on the SLM plane for the
 direct method (waves converging to Q). A color only counts the rays inside its own cone (rays are shared
-between colors where the cones allow it, DESIGN §4). Every quantity but phi_m is shared by all frames.
+between colors where the cones allow it, docs/design.md §4). Every quantity but phi_m is shared by all frames.
 
 The field is sampled at pixel centres (the rays start there, not jittered within the pixel): the field of a
 pixel is the field at its centre, and a jittered start would blur it by the pixel aperture.
@@ -126,7 +126,7 @@ def _accumulate_frames(cells: torch.Tensor, idx: torch.Tensor, base: torch.Tenso
 
 @dataclass(frozen=True)
 class RecordingGrid:
-    """Where the rays are recorded (DESIGN §3-4), in metres.
+    """Where the rays are recorded (docs/design.md §3-4), in metres.
 
     ``plane_z_m == z_wrp_m``: the two-stage method's WRP; ``plane_z_m == 0``: the direct method on the SLM.
     ``planes``: several recording planes (:mod:`holocore.plan.wrp_planes`), (z_k, lo_k, hi_k, border_k) front to

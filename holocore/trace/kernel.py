@@ -1,5 +1,5 @@
 """Wave paths in one Dr.Jit loop: the delta chain and the incoherent radiance of its image point traced as
-one path (paper Sec. 4.2, DESIGN.md §4).
+one path (paper Sec. 4.2, docs/design.md §4).
 
 A wave path starts like any path of a path tracer. While its vertices are delta vertices (mirrors, smooth
 dielectrics) it is *coherent*: it carries the four float64 ray differentials of :mod:`holocore.trace.reference_chain`
@@ -22,7 +22,7 @@ One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in thi
    or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
 3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
 4. :func:`_coherent_step`: on a delta lobe, the float64 ray-differential transfer (Igehy 1999,
-   :func:`holocore.trace.differentials.igehy_transfer`); at P behind delta vertices, the apparent distance d (DESIGN §4, docs/physics.md);
+   :func:`holocore.trace.differentials.igehy_transfer`); at P behind delta vertices, the apparent distance d (docs/design.md §4, docs/physics.md);
 5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next ray, RR).
 
 Units: world metres (positions, distances, d), unit direction vectors, radiance in the scene's units.
@@ -175,7 +175,7 @@ def trace_wave_paths(
                   any_mixed=any_mixed, media=media, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
                   keep_surface=surface)
 
-    # The chain starts with A = I, B = 0 (DESIGN §4): two lateral shifts of O along e1, e2 (dP = e_i, dD = 0)
+    # The chain starts with A = I, B = 0 (docs/design.md §4): two lateral shifts of O along e1, e2 (dP = e_i, dD = 0)
     # and two angular perturbations of v along them (dP = 0, dD = e_i).
     helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
     e1 = dr.normalize(dr.cross(v64, helper))
@@ -211,7 +211,7 @@ def trace_wave_paths(
         if s.cache is not None:  # 2'. fast variant: P's radiance from the ambient cache (Sec. 4.2)
             Le, cached = _cached_radiance(scene, p, v, Le, s.cache)
         lobes = _sample_lobes(scene, p, v, sampler, s, cached)  # 3. emitter + BSDF sample; chain or P (Sec. 4.2)
-        go_on = _coherent_step(p, v, lobes, s)  # 4. Igehy transfer, or d at P (DESIGN §4)
+        go_on = _coherent_step(p, v, lobes, s)  # 4. Igehy transfer, or d at P (docs/design.md §4)
         _record_image_point(scene, p, v, lobes.at_p, s)
         _incoherent_step(p, v, lobes, Le, go_on, cached, sampler, s)  # 5. Eq. 1 from P on, Russian roulette
         return p, sampler
@@ -305,7 +305,7 @@ def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sample
 
 
 def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi.Bool:
-    """Step 4, the coherent part (Sec. 4.2, DESIGN §4 "Virtual image point"), float64 and only in the lanes
+    """Step 4, the coherent part (Sec. 4.2, docs/design.md §4 "Virtual image point"), float64 and only in the lanes
     that need it (a real branch per packet): through a delta vertex, the differentials and the frame are
     carried on (:func:`igehy_transfer`); at a P behind delta vertices, d = 2 / tr(B^-1 A) is read from them
     (docs/physics.md); at a P with no delta vertex before it (A = I, B = t I), d is the hit distance t (m).

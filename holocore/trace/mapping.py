@@ -1,9 +1,9 @@
-"""The world-to-hologram map T (paper Eq. 3, DESIGN.md §3), in float64.
+"""The world-to-hologram map T (paper Eq. 3, docs/design.md §3), in float64.
 
 Eye-camera coordinates (xc right, yc up, zc > 0 forward) come from the scene's perspective sensor; Mitsuba's
 camera frame has +x towards the image's left, so xc = -x_camera. A point maps to hologram space as
 
-    x = f xc / zc,   y = f yc / zc,   z = z_inf + f^2 / zc        (DESIGN §3)
+    x = f xc / zc,   y = f yc / zc,   z = z_inf + f^2 / zc        (docs/design.md §3)
 
 The map is projective, so straight rays stay straight: a hologram ray maps to a world ray through two points.
 
@@ -23,7 +23,7 @@ _FLIP_X = np.diag([-1.0, 1.0, 1.0])
 
 
 def camera_to_holo_xyz(xc, yc, zc, *, f, z_inf):
-    """T (DESIGN §3, paper Eq. 3): eye-camera (xc, yc, zc > 0) -> hologram (x, y, z), metres. Works on floats,
+    """T (docs/design.md §3, paper Eq. 3): eye-camera (xc, yc, zc > 0) -> hologram (x, y, z), metres. Works on floats,
     numpy arrays and Dr.Jit arrays alike (only +, *, /)."""
     return f * xc / zc, f * yc / zc, z_inf + f * f / zc
 
@@ -92,7 +92,7 @@ class HologramMap:
 
     # ---- T and its inverse ----------------------------------------------------------------------------
     def camera_to_holo(self, c: np.ndarray) -> np.ndarray:
-        """Eye-camera points (zc > 0) -> hologram points [..., 3] (DESIGN §3)."""
+        """Eye-camera points (zc > 0) -> hologram points [..., 3] (docs/design.md §3)."""
         c = np.asarray(c, dtype=np.float64)
         return np.stack(camera_to_holo_xyz(c[..., 0], c[..., 1], c[..., 2], f=self.focal_length_m, z_inf=self.z_inf_m),
                         axis=-1)

@@ -1,4 +1,4 @@
-"""Ambient radiance cache for the fast variant (paper Sec. 4.2 and S1.4; DESIGN.md §8).
+"""Ambient radiance cache for the fast variant (paper Sec. 4.2 and S1.4; docs/design.md §8).
 
 The paper bakes view-independent ambient radiance into textures; we keep it in world space. A pre-pass
 traces rays from the eye (through the delta chain, like the hologram rays) and estimates, with many

@@ -1,4 +1,4 @@
-"""Band-limited random fields for multi-frame holography (paper Sec. 4.3, Eq. 4; DESIGN.md §4).
+"""Band-limited random fields for multi-frame holography (paper Sec. 4.3, Eq. 4; docs/design.md §4).
 
 Frame m of a bank is
 

@@ -1,4 +1,4 @@
-"""The per-ray work of wave path tracing, vectorised in Dr.Jit (paper Sec. 4.2, DESIGN.md §4).
+"""The per-ray work of wave path tracing, vectorised in Dr.Jit (paper Sec. 4.2, docs/design.md §4).
 
 For a batch of world rays (eye-camera origins near the WRP, unit directions) this follows the delta chain
 (mirrors, smooth dielectrics) coherently, stops at the first non-delta vertex P (the real image point), and
@@ -13,7 +13,7 @@ returns per ray:
   A dx + B dtheta = 0, so they appear to diverge from distance d = 1 / (tr(B^-1 A) / 2) (mean vergence
   of the two principal sections). With no delta bounce, or through plane mirrors, A = I and d = |B| = t,
   the unfolded path length; through a slab it is t(1 - 1/n) shorter than that, and through curved mirrors
-  it is the mirror equation's image distance. (DESIGN.md §4 names B alone; B alone is right only where
+  it is the mirror equation's image distance. (docs/design.md §4 names B alone; B alone is right only where
   A = I, i.e. without curved surfaces: see docs/physics.md.)
 * ``radiance``: the RGB radiance reaching O along the ray: delta-chain throughput times the radiance leaving P
   towards the previous vertex, from incoherent path tracing (Mitsuba's own integrator, ``amp_spp`` samples).

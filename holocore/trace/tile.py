@@ -1,4 +1,4 @@
-"""One tile of recording-plane rays in one Dr.Jit kernel (paper Sec. 4.2-4.4, Eq. 5; DESIGN.md §3-4): the rays of
+"""One tile of recording-plane rays in one Dr.Jit kernel (paper Sec. 4.2-4.4, Eq. 5; docs/design.md §3-4): the rays of
 rows r0..r1 leave their pixels (stratified directions in the widest cone), go to the world through T^-1, are traced
 as wave paths (:func:`holocore.trace.kernel.trace_wave_paths`), and each returns its complex contribution
 A (r / cos theta) exp(i s k r) per color, its bank cell (for phi_m(Q)) and, with several recording planes, its
@@ -207,11 +207,11 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         s = s + V3d((F64(jit.x) - 0.5) * o.pitch, (F64(jit.y) - 0.5) * o.pitch, 0.0)
     if g.direct:
         # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
-        # WRP, back into the scene (DESIGN §4; paper Fig. 5's baseline).
+        # WRP, back into the scene (docs/design.md §4; paper Fig. 5's baseline).
         x = s - ((o.z_wrp - o.plane_z) / cos_t) * dirs
     else:
         x = s
-    # T^-1 of the hologram ray (DESIGN §3): through x and the point where it reaches z_mid.
+    # T^-1 of the hologram ray (docs/design.md §3): through x and the point where it reaches z_mid.
     c0 = _holo_to_camera(mi, o, x)
     c1 = _holo_to_camera(mi, o, x + ((o.z_mid - x.z) / dirs.z) * dirs)
     vc = dr.normalize(c1 - c0)
@@ -220,7 +220,7 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     wp = trace_wave_paths(scene, mi.Point3d(o_w), v_w, sampler, max_delta=settings.max_delta,
                           max_depth=settings.max_depth, amp_spp=settings.amp_spp, integrator=integrator,
                           radiance_cache=radiance_cache)
-    # Virtual image point and its hologram position, float64 (DESIGN §2: long lengths in float64).
+    # Virtual image point and its hologram position, float64 (docs/design.md §2: long lengths in float64).
     cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
     q = V3d(*camera_to_holo_xyz(cv.x, cv.y, cv.z, f=o.f, z_inf=o.z_inf))
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
@@ -290,7 +290,7 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         parts += [amp * cs, amp * sn]
     idx = None
     if want_cells:
-        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (DESIGN §4)
+        j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (docs/design.md §4)
         idx = mi.UInt32(i) * o.W + mi.UInt32(j)
     # Per-ray status in one word (evaluated with the rest, read once): bit 0 ok, 1 behind the plane, 2 escaped,
     # 3 capped, 4 sampled by path tracing, bits 8.. delta bounces.

@@ -1,5 +1,5 @@
 """The FastAPI application: ``create_app(settings)``. Requests only read and write the database and files;
-rendering happens in worker processes (DESIGN.md §1: no Mitsuba, Dr.Jit or torch on this path)."""
+rendering happens in worker processes (docs/design.md §1: no Mitsuba, Dr.Jit or torch on this path)."""
 
 from __future__ import annotations
 

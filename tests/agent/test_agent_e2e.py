@@ -33,7 +33,7 @@ TABLES = np.stack([255 - np.arange(256), (np.arange(256) * 7) % 256, (np.arange(
 
 
 def expected_levels(path) -> np.ndarray:
-    """What the SLM must show: the stored phase -> DESIGN §2 levels -> this display's table per colour."""
+    """What the SLM must show: the stored phase -> docs/design.md §2 levels -> this display's table per colour."""
     lv = phase_to_u8(load_stack(path)[0])
     return np.stack([TABLES[c][lv[:, c]] for c in range(lv.shape[1])], axis=1)
 

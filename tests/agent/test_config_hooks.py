@@ -94,7 +94,7 @@ def test_python_hook(monkeypatch):
 
 
 def test_agent_imports_nothing_heavy():
-    # DESIGN §1: the agent runs on a lab PC without torch, Mitsuba or Dr.Jit (and without holocore's numerics:
+    # docs/design.md §1: the agent runs on a lab PC without torch, Mitsuba or Dr.Jit (and without holocore's numerics:
     # of holocore it reads only the numpy-only file formats, holocore.formats)
     import subprocess
 

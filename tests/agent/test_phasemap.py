@@ -1,4 +1,4 @@
-"""Phase -> gray mapping: default = DESIGN §2 (holocore.io.phase_to_u8), lookup tables, scales."""
+"""Phase -> gray mapping: default = docs/design.md §2 (holocore.io.phase_to_u8), lookup tables, scales."""
 
 from __future__ import annotations
 

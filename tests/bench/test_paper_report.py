@@ -57,7 +57,7 @@ def tiny(tmp_path_factory):
 
 def test_frames_the_convergence_map_may_share(tiny):
     # The convergence map's F = 1 is the first frame of its 24-frame render: frame 0 is the same random-phase
-    # frame in every bank (a 1-frame render has no random-phase bank, DESIGN §8). Coded frame phases depend on the
+    # frame in every bank (a 1-frame render has no random-phase bank, docs/design.md §8). Coded frame phases depend on the
     # frame count beyond frame 0, so F = 3, 8 are rendered on their own; with independent phases a prefix would do.
     loaded, r3, r2 = tiny
     from holocore.pipeline import RenderOptions, render_loaded

@@ -29,7 +29,7 @@ runner = CliRunner()
 
 
 def _pixel(x: float, y: float) -> tuple[int, int]:
-    """(row, col) of a hologram-space point (DESIGN §3: x = (j - (W-1)/2) p, y = ((H-1)/2 - i) p)."""
+    """(row, col) of a hologram-space point (docs/design.md §3: x = (j - (W-1)/2) p, y = ((H-1)/2 - i) p)."""
     return round((H - 1) / 2 - y / P), round(x / P + (W - 1) / 2)
 
 

@@ -19,7 +19,7 @@ def test_paper_defaults_and_si_views():
 
 
 def test_focal_length_is_the_displays_unless_fitting_to_the_camera_is_asked_for():
-    assert OpticsConfig().focal_length_m(40.0) == pytest.approx(0.05)  # the paper display's f (DESIGN §3)
+    assert OpticsConfig().focal_length_m(40.0) == pytest.approx(0.05)  # the paper display's f (docs/design.md §3)
     c = OpticsConfig(resolution_hw=(1080, 1920), fit_camera_fov=True)
     f = c.focal_length_m(40.0)
     assert f == pytest.approx((1920 * 8e-6 / 2) / math.tan(math.radians(20.0)))

@@ -1,4 +1,4 @@
-"""Display profiles (DESIGN.md §3): the eyepiece f is the display's, the paper's display is the
+"""Display profiles (docs/design.md §3): the eyepiece f is the display's, the paper's display is the
 default, user profiles load from JSON or TOML with one-line errors, explicit options override the profile, and
 `holo plan` takes exactly the optics options of `holo render`."""
 

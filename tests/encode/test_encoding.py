@@ -1,4 +1,4 @@
-"""Phase-only encoding (DESIGN §6): complex-field error on a synthetic random-phase target and on a traced
+"""Phase-only encoding (docs/design.md §6): complex-field error on a synthetic random-phase target and on a traced
 scene, against the naive encoding, in the field and in what a viewer sees; scale invariance; black targets;
 8-bit wrap and lookup tables; clear errors."""
 
@@ -365,7 +365,7 @@ def test_stop_rule_in_decibels():
 
 
 def _plain_operator(shape_hw, z, lam, pitch, grid, cone):
-    """The plain padded ASM operator of DESIGN §5 in complex128 numpy: crop(IFFT(M FFT(pad u))) and its
+    """The plain padded ASM operator of docs/design.md §5 in complex128 numpy: crop(IFFT(M FFT(pad u))) and its
     adjoint crop(IFFT(conj(M) FFT(pad g))), M the band-limited transfer function (times the cone's disc)."""
     from holocore.optics.propagation import transfer_function
     from holocore.trace.randomfield import passband_mask

@@ -1,4 +1,4 @@
-"""holocore.formats and the display agent work where torch, Mitsuba and Dr.Jit are not installed (DESIGN.md §1):
+"""holocore.formats and the display agent work where torch, Mitsuba and Dr.Jit are not installed (docs/design.md §1):
 a subprocess whose sitecustomize makes importing any of them raise ImportError."""
 
 from __future__ import annotations

@@ -182,7 +182,7 @@ def _pupil_powers(wrp: np.ndarray) -> np.ndarray:
 def test_a_white_card_keeps_its_colour_in_every_view(planes):
     """A white card whose image lies one margin (4 pixel footprints) behind its recording plane, where the
     cone's hard cut made red about 15 % dimmer through the middle of the cone than through its side, and blue
-    10 % brighter (DESIGN §4). Each color's centre-to-side ratio is compared with the layer baseline's on the
+    10 % brighter (docs/design.md §4). Each color's centre-to-side ratio is compared with the layer baseline's on the
     same scene (an exact band-limited field on the same grid, which sees the same window: a card near the
     field's edge loses some of its oblique light there). Equalised, every color agrees within 5 % with one
     plane (8 % with two: a second card 5 mm of hologram depth behind, each plane equalised for its own card,

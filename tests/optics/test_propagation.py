@@ -1,6 +1,6 @@
 """Band-limited ASM (holocore.optics.propagation) against analytic Gaussian beams and direct Rayleigh-Sommerfeld sums.
 
-Accuracy targets: relative L2 error <= 1e-4 in complex64 wherever the sampling allows (DESIGN §5). Each
+Accuracy targets: relative L2 error <= 1e-4 in complex64 wherever the sampling allows (docs/design.md §5). Each
 geometry below states why its sampling allows it.
 """
 
@@ -36,7 +36,7 @@ def gaussian_beam(shape, pitch, wavelength, w0, z, *, x0=0.0, y0=0.0) -> np.ndar
 
 
 def tilted_gaussian(shape, pitch, w0, fx0=0.0, fy0=0.0) -> np.ndarray:
-    """exp(-rho^2/w0^2) exp(i 2 pi (fx0 x + fy0 y)), x right and y up (DESIGN §3)."""
+    """exp(-rho^2/w0^2) exp(i 2 pi (fx0 x + fy0 y)), x right and y up (docs/design.md §3)."""
     x, y = grid_coordinates(shape, pitch)
     X, Y = np.meshgrid(x, y)
     return np.exp(-(X**2 + Y**2) / w0**2 + 2j * np.pi * (fx0 * X + fy0 * Y))

@@ -1,4 +1,4 @@
-"""Simulated viewing (DESIGN §7): focus, defocus blur, frame averaging and view direction."""
+"""Simulated viewing (docs/design.md §7): focus, defocus blur, frame averaging and view direction."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def point_source(z0: float, *, xp: float = 0.0, yp: float = 0.0, converging: boo
     """Spherical wave exp(+-ikr)/r of a point at lateral (xp, yp), distance z0 from the plane; +: diverging from
     a point behind the plane, -: converging to a point in front. Sampled inside the band limit: the amplitude is
     flat for direction sines up to 0.045 and tapers (raised cosine) to zero at 0.058 < lambda/2p = 0.0625, so the
-    local frequency never aliases. The phase k(r - z0) is formed in float64 and wrapped (DESIGN §2)."""
+    local frequency never aliases. The phase k(r - z0) is formed in float64 and wrapped (docs/design.md §2)."""
     x, y = grid_coordinates((n, n), P)
     X, Y = np.meshgrid(x, y)
     rho2 = (X - xp) ** 2 + (Y - yp) ** 2

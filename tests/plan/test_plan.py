@@ -1,5 +1,5 @@
 """EffectPlan on the scene bundles (the project's stand-ins always, ../shared's third-party scenes when
-present), and planned vs forced renders (DESIGN.md §8)."""
+present), and planned vs forced renders (docs/design.md §8)."""
 
 from __future__ import annotations
 

@@ -78,7 +78,7 @@ def test_the_camera_sees_the_paper_display_view(loaded):
 
 
 def test_depth_scene_spans_the_paper_image_volume(loaded):
-    # 10 m, 0.9 m, 0.5 m at z_inf + 0.25, 2.78, 5 mm (DESIGN §3); the cards are planes facing the eye
+    # 10 m, 0.9 m, 0.5 m at z_inf + 0.25, 2.78, 5 mm (docs/design.md §3); the cards are planes facing the eye
     ana = _plan(loaded["depth"]).analysis
     assert ana.z_far_holo_m - Z_INF == pytest.approx(0.25e-3, abs=2e-6)
     assert ana.z_near_holo_m - Z_INF == pytest.approx(5.0e-3, abs=1e-5)

@@ -1,5 +1,5 @@
 """The scene's picture through its own camera (made by the planner with `holo plan --picture`), and where the
-hologram's field of view lies on it (DESIGN.md §3: 2 atan(W p / 2f) around the camera's axis) at the scene's
+hologram's field of view lies on it (docs/design.md §3: 2 atan(W p / 2f) around the camera's axis) at the scene's
 default optics, at an estimate's and at a job's; over HTTP against a real `holo serve`."""
 
 from __future__ import annotations

@@ -84,7 +84,7 @@ def plate_view_colours(tilt_deg: float, *, spp: int, frames: int = 8, views_deg=
                         display=PAPER)
     meta = res.meta
     f = meta["focal_length_m"]
-    z = meta["z_inf_m"] + f * f / 0.5  # the plate's centre in hologram space (DESIGN §3)
+    z = meta["z_inf_m"] + f * f / 0.5  # the plate's centre in hologram space (docs/design.md §3)
     pupil = default_pupil_m(meta, view_deg=0.5)
     out = {}
     for deg in views_deg:

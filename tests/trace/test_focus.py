@@ -1,4 +1,4 @@
-"""Focus and brightness: traced fields reconstruct where T says (DESIGN.md §3-4).
+"""Focus and brightness: traced fields reconstruct where T says (docs/design.md §3-4).
 
 Dot-textured emitting planes (each dot focuses like a point) with one frame and no random phase: the
 reconstruction is speckle-free and its sharpness (intensity concentration) peaks at the focus depth.

@@ -1,4 +1,4 @@
-"""Never NaN: the tracer's hard cases give finite fields (DESIGN.md §4)."""
+"""Never NaN: the tracer's hard cases give finite fields (docs/design.md §4)."""
 
 from __future__ import annotations
 

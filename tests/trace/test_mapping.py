@@ -1,4 +1,4 @@
-"""The world-to-hologram map T (DESIGN.md §3, paper Eq. 3; holocore.trace.mapping): the worked example of DESIGN §3,
+"""The world-to-hologram map T (docs/design.md §3, paper Eq. 3; holocore.trace.mapping): the worked example of docs/design.md §3,
 straight rays stay straight, T^-1 T = identity, Mitsuba's mirrored camera x, and the Dr.Jit kernel's use of the
 same formulas."""
 
@@ -29,7 +29,7 @@ def hmap() -> HologramMap:
 
 
 def test_design_worked_example_depths():
-    # f = 50 mm: 10 m at z_inf + 0.25 mm, 0.9 m at + 2.78 mm, 0.5 m at + 5 mm (DESIGN §3)
+    # f = 50 mm: 10 m at z_inf + 0.25 mm, 0.9 m at + 2.78 mm, 0.5 m at + 5 mm (docs/design.md §3)
     for zc, dz in ((10.0, 0.25e-3), (0.9, 2.0 / 0.9 * 1.25e-3), (0.5, 5e-3)):
         x, y, z = camera_to_holo_xyz(0.0, 0.0, zc, f=F, z_inf=Z_INF)
         assert (x, y) == (0.0, 0.0) and z == pytest.approx(Z_INF + dz, rel=1e-12)
@@ -66,7 +66,7 @@ def test_straight_rays_stay_straight(hmap):
 
 
 def test_camera_x_is_mirrored_from_mitsubas():
-    # Mitsuba's camera +x points to the image's left; xc (and hologram x) to its right (DESIGN §3)
+    # Mitsuba's camera +x points to the image's left; xc (and hologram x) to its right (docs/design.md §3)
     hm = HologramMap(cam_to_world=_look_at((0, 0, 0), (0, 0, -1)), focal_length_m=F, z_inf_m=Z_INF)
     right_of_view = np.array([[0.1, 0.0, -1.0]])  # world +x, seen from a camera looking down -z
     assert hm.world_to_holo(right_of_view)[0, 0] > 0

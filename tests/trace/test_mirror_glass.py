@@ -1,4 +1,4 @@
-"""Depth through mirrors and glass (DESIGN.md §4, docs/physics.md): images focus at the virtual
+"""Depth through mirrors and glass (docs/design.md §4, docs/physics.md): images focus at the virtual
 image depth, not at the delta surface, and not at the unfolded optical path."""
 
 from __future__ import annotations

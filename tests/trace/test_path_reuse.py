@@ -1,4 +1,4 @@
-"""Path reuse across frames (paper Sec. 4.3, DESIGN.md §4): frames share every traced quantity but the
+"""Path reuse across frames (paper Sec. 4.3, docs/design.md §4): frames share every traced quantity but the
 random phase, have equal mean intensity, uncorrelated random parts, and the same seed gives the same result."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Band-limited random fields and phase banks (paper Eq. 4, DESIGN §4)."""
+"""Band-limited random fields and phase banks (paper Eq. 4, docs/design.md §4)."""
 
 from __future__ import annotations
 

@@ -102,7 +102,7 @@ def _two_estimates(sc, planes: int, spp: int):
 
 
 def test_two_planes_estimate_the_same_field_with_far_less_noise(two_depths):
-    """Noise energy per ray grows as r^2 (DESIGN §4): recording the far card 1 mm instead of 6 mm from its
+    """Noise energy per ray grows as r^2 (docs/design.md §4): recording the far card 1 mm instead of 6 mm from its
     plane cuts its noise about 36x; the means of the one- and two-plane estimates are the same field."""
     (a1, b1), m1 = _two_estimates(two_depths, 1, 256)
     (a2, b2), m2 = _two_estimates(two_depths, 2, 256)
