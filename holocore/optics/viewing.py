@@ -14,7 +14,9 @@ blue's and green's than of red's, whose cone is the widest: a cast the real disp
 
 An SLM's pixels are squares of side p with no gap (fill factor 1), not points (``pixel_orders``): its field is the
 sampled field convolved with that square, so its spectrum is the sampled field's, periodic in 1/p (the
-diffraction orders), times the square's sinc(p f_x) sinc(p f_y). Without a Fourier filter an eye whose pupil
+diffraction orders), times the square's sinc(p f_x) sinc(p f_y). The view weighs each order relative to the
+zeroth, sinc(p (f + n/p)) / sinc(p f): the zeroth order's own roll-off towards the band's edge is the same for
+every method and for a display with a filter, and an encoder could undo it, so it is left out here as there. Without a Fourier filter an eye whose pupil
 reaches past the band |sine| <= lambda / 2p takes light from the neighbouring orders: ghosts of the image, moved
 by z lambda / p at depth z. On the SLM's grid, bin f also stands for order n's frequency f + n/p, where the
 sampled field's spectrum is the same; so each order the pupil takes (:func:`orders_factor` bounds the orders to
@@ -141,8 +143,8 @@ def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float
                    device: torch.device) -> list[torch.Tensor]:
     """One [Hp, Wp] filter (unshifted order) per diffraction order n = (n_y, n_x), |n| <= k // 2, that the pupil
     takes: on the SLM's grid, each bin f stands for order n's frequency f + n/p (where the sampled field's
-    spectrum is the same), and the filter is the pixel's sinc, the eye's mask (a Fourier filter's cone only at
-    k = 1, :func:`orders_factor`), the propagation by ``distance_m`` and the content shift, all at f + n/p.
+    spectrum is the same), and the filter is the pixel's sinc relative to the zeroth order's, the eye's mask (a
+    Fourier filter's cone only at k = 1, :func:`orders_factor`), the propagation by ``distance_m`` and the content shift, all at f + n/p.
     Orders that bring less than ``_ORDER_FLOOR`` of the light (for a flat spectrum) are left out."""
     hp, wp = (int(v) for v in shape_hw_padded)
     py, px = validate.pitch_pair(pitch_m)
@@ -163,7 +165,10 @@ def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float
                 mask &= (sx[None, :] ** 2 + sy[:, None] ** 2) <= (cone / (2.0 * f)) ** 2
             if not bool(mask.any()):
                 continue
-            amp = torch.sinc(fy * py)[:, None] * torch.sinc(fx * px)[None, :] * mask
+            # relative to the zeroth order: its own roll-off, the same for every method and for a display with a
+            # filter, is left out (module docstring); the ratio is bounded, |p f| <= 1/2 on the SLM's grid
+            amp = (torch.sinc(fy * py) / torch.sinc(fy0 * py))[:, None] * \
+                (torch.sinc(fx * px) / torch.sinc(fx0 * px))[None, :] * mask
             g = torch.polar(amp, 2 * math.pi * ((fy * py * a_row)[:, None] + (fx * px * a_col)[None, :]))
             if distance_m != 0.0:
                 g.mul_(transfer_at(fy, fx, distance_m, lam, extent_m=(hp * py, wp * px)))

@@ -1,6 +1,6 @@
 """An SLM's square pixels as the eye sees them without a Fourier filter (holocore.optics.viewing, pixel_orders):
-each diffraction order carries the sampled field's spectrum times the pixel's sinc, and a ghost of the image
-sits where that order's tilted light lands."""
+each diffraction order carries the sampled field's spectrum times the pixel's sinc (relative to the zeroth
+order's), and a ghost of the image sits where that order's tilted light lands."""
 
 from __future__ import annotations
 
@@ -37,6 +37,7 @@ def test_each_order_of_a_tilted_wave_carries_the_pixels_sinc(order_nu):
     ghost = _see(u, e_x_m=LAM * F * order_nu / P, pupil_m=1e-3)[8:-8, 16:-16].mean()
     want = (np.sinc(order_nu) / np.sinc(0.25)) ** 2
     assert ghost / base == pytest.approx(want, rel=0.05)
+    assert base == pytest.approx(1.0, rel=0.05)  # the zeroth order as with point-like pixels
     # a display with a filter (or a model of point-like pixels) shows none of it
     assert _see(u, e_x_m=LAM * F * order_nu / P, pupil_m=1e-3, pixel_orders=False).max() < 1e-6 * base
     assert _see(u, e_x_m=LAM * F * order_nu / P, pupil_m=1e-3, fourier_filter=True).max() < 1e-6 * base

@@ -222,7 +222,8 @@ def test_fourier_filter_removes_light_outside_the_cone_only(k, inside):
     else:
         assert filtered < 0.02
     # eye_view follows the display profile in the meta: a display with a filter, and one without a profile,
-    # whose square pixels then also send the wave's diffraction orders the pupil reaches (each sinc^2-weighted)
+    # whose square pixels then also send the wave's diffraction orders the pupil reaches (each weighted by the
+    # pixel's sinc^2 relative to the zeroth order's)
     meta = {"focal_length_m": F_EYE, "z_inf_m": 0.0, "pitch_m": P, "wavelengths_m": [LAM]}
     with_filter = eye_view(u.numpy(), {**meta, "display": {"fourier_filter": True}}, focus_z_m=0.0,
                            pupil_diameter_m=4e-3)[0, 64:-64, 64:-64].mean()
@@ -231,7 +232,8 @@ def test_fourier_filter_removes_light_outside_the_cone_only(k, inside):
     fr = [kk / 256 for kk in k]  # the wave's frequency, units of 1/p
     orders = [(nx, ny) for nx in (-1, 0, 1) for ny in (-1, 0, 1)
               if math.hypot(fr[0] + nx, fr[1] + ny) <= na_in_orders]
-    want = sum((np.sinc(fr[0] + nx) * np.sinc(fr[1] + ny)) ** 2 for nx, ny in orders)
-    assert without == pytest.approx(want, rel=0.01)
-    assert len(orders) > 1 and want < bare  # a ghost of another order, and the sinc's dimming
+    want = sum((np.sinc(fr[0] + nx) * np.sinc(fr[1] + ny) / (np.sinc(fr[0]) * np.sinc(fr[1]))) ** 2
+               for nx, ny in orders)
+    assert without == pytest.approx(want * bare, rel=0.01)
+    assert len(orders) > 1 and want > 1.05  # the ghosts of other orders add their light
     assert with_filter == pytest.approx(filtered, rel=1e-3, abs=1e-4)
