@@ -43,7 +43,26 @@ def rows(folder: Path) -> list[str]:
                     best[mm] = (float(p["mean_psnr_db"]), name)
         lead = "; ".join(f"{mm:g} mm: {n} ({v:.2f})" for mm, (v, n) in sorted(best.items()))
         out.append(f"\nLeads: {lead}.")
+        for ours, label in (("ours", "The default mode (coded)"), ("ours (directional)", "Directional frames")):
+            margins = []
+            for mm in sorted(best):
+                mine = _psnr(viewer.get(ours), mm)
+                rivals = [(_psnr(d, mm), n) for n, d in viewer.items()
+                          if not n.startswith(("ours", "fast", "direct"))]
+                rivals = [(v, n) for v, n in rivals if v is not None]
+                if mine is not None and rivals:
+                    v, n = max(rivals)
+                    margins.append(f"{mm:g} mm {mine - v:+.2f} ({n})")
+            if margins:
+                out.append(f"{label} against the best baseline, dB: {'; '.join(margins)}.")
     return out
+
+
+def _psnr(d: dict | None, mm: float) -> float | None:
+    for p in (d or {}).get("pupils", ()):
+        if round(p["pupil_mm"], 3) == mm:
+            return float(p["mean_psnr_db"])
+    return None
 
 
 def main(argv: list[str]) -> int:
