@@ -13,17 +13,17 @@ parks what a phase-only SLM cannot help sending) reaches any pupil wider than th
 blue's and green's than of red's, whose cone is the widest: a cast the real display does not have.
 
 An SLM's pixels are squares of side p with no gap (fill factor 1), not points (``pixel_orders``): its field is the
-sampled field convolved with that square, so its spectrum is the sampled field's, periodic in 1/p (the
-diffraction orders), times the square's sinc(p f_x) sinc(p f_y). The view weighs each order relative to the
-zeroth, sinc(p (f + n/p)) / sinc(p f): the zeroth order's own roll-off towards the band's edge is the same for
-every method and for a display with a filter, and an encoder could undo it, so it is left out here as there. Without a Fourier filter an eye whose pupil
-reaches past the band |sine| <= lambda / 2p takes light from the neighbouring orders: ghosts of the image, moved
-by z lambda / p at depth z. On the SLM's grid, bin f also stands for order n's frequency f + n/p, where the
-sampled field's spectrum is the same; so each order the pupil takes (:func:`orders_factor` bounds the orders to
-try) gets its own filter there (the sinc, the pupil, the propagation, the content shift, all at f + n/p), is
-viewed, and the orders' intensities add. Where two orders share the pupil they also interfere, in fringes
-of period p or finer: a pixel's mean holds none of that, so the sum is each pixel's mean intensity, and the
-view costs one inverse FFT per order the pupil takes.
+sampled field convolved with that square, so its spectrum is the sampled field's, periodic in 1/p (the diffraction
+orders), times the square's sinc(p f_x) sinc(p f_y). The view weighs each order relative to the zeroth, sinc(p (f +
+n/p)) / sinc(p f): the zeroth order's own roll-off towards the band's edge is the same for every method and for a
+display with a filter, and an encoder could undo it, so it is left out here as there. Without a Fourier filter an
+eye whose pupil reaches past the band |sine| <= lambda / 2p takes light from the neighbouring orders: ghosts of the
+image, moved by z lambda / p at depth z. On the SLM's grid, bin f also stands for order n's frequency f + n/p, where
+the sampled field's spectrum is the same; so each order the pupil takes (:func:`orders_factor` bounds the orders to
+try) gets its own filter there (the sinc, the pupil, the propagation, the content shift, all at f + n/p), is viewed,
+and the orders' intensities add. Where two orders share the pupil they also interfere, in fringes of period p or
+finer: a pixel's mean holds none of that, so the sum is each pixel's mean intensity, and the view costs one inverse
+FFT per order the pupil takes.
 
 Sign of the row frequency: rows run down while y runs up (y = ((H-1)/2 - i) p), so a wave exp(i 2 pi f_y y)
 travelling upwards (f_y > 0) has DFT frequency -f_y along the row axis. The pupil therefore sits at
@@ -119,8 +119,9 @@ def eye_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: Pit
 
 def orders_factor(wavelength_m: float, pitch_m: PitchLike, *, focal_length_m: float, pupil_diameter_m: float,
                   view_offset_m: tuple[float, float] = (0.0, 0.0), fourier_filter: bool = False) -> int:
-    """The odd refinement k (1, 3, 5, ...) whose grid, with sines up to k lambda / 2p per axis, spans the pupil's
-    reach |e| / f + D / 2f: 1 where the pupil stays inside the SLM's band or a Fourier filter cuts the orders."""
+    """k = 2 n + 1 for the highest order n (per axis) the pupil can reach: orders up to n span sines up to
+    k lambda / 2p, enough for the pupil's reach |e| / f + D / 2f. 1 where the pupil stays inside the SLM's band or
+    a Fourier filter cuts the other orders."""
     if fourier_filter:
         return 1
     lam = validate.positive("wavelength_m", wavelength_m)
@@ -133,8 +134,9 @@ def orders_factor(wavelength_m: float, pitch_m: PitchLike, *, focal_length_m: fl
     return k
 
 
-_ORDER_FLOOR = 1e-2  # an order bringing less of the pupil's light (for a flat spectrum) is left out: a ghost that faint
-# moves a score of 15-20 dB (an error of 1-3 % of the white, squared) by less than 0.05 dB
+# An order bringing less of the pupil's light than this (for a flat spectrum) is left out: a ghost that faint
+# moves a score of 15-20 dB (an error of 1-3 % of the white, squared) by less than 0.05 dB.
+_ORDER_FLOOR = 1e-2
 
 
 def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float, pitch_m: PitchLike, *,
@@ -144,8 +146,9 @@ def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float
     """One [Hp, Wp] filter (unshifted order) per diffraction order n = (n_y, n_x), |n| <= k // 2, that the pupil
     takes: on the SLM's grid, each bin f stands for order n's frequency f + n/p (where the sampled field's
     spectrum is the same), and the filter is the pixel's sinc relative to the zeroth order's, the eye's mask (a
-    Fourier filter's cone only at k = 1, :func:`orders_factor`), the propagation by ``distance_m`` and the content shift, all at f + n/p.
-    Orders that bring less than ``_ORDER_FLOOR`` of the light (for a flat spectrum) are left out."""
+    Fourier filter's cone only at k = 1, :func:`orders_factor`), the propagation by ``distance_m`` and the content
+    shift, all at f + n/p. Orders that bring less than ``_ORDER_FLOOR`` of the light (for a flat spectrum) are left
+    out."""
     hp, wp = (int(v) for v in shape_hw_padded)
     py, px = validate.pitch_pair(pitch_m)
     lam, f = float(wavelength_m), float(focal_length_m)
