@@ -340,7 +340,7 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
             u = torch.polar(torch.ones_like(phi), phi)[:, None]  # [F, 1, H, W]
             i = simulate_view(u, wavelengths_m=[lam], pitch_m=p, focal_length_m=f, pupil_diameter_m=D,
                               distance_m=zs[k], view_offset_m=e, shift_px=shift[v][k],
-                              fourier_filter=fourier_filter, pixel_orders=not fourier_filter)[0]
+                              fourier_filter=fourier_filter, pixel_orders=None)[0]
             return torch.sqrt(i.clamp(min=0.0) / share[v] + _EPS)
 
         order = draw.integers(0, V, size=iterations + 1)

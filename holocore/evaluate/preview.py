@@ -47,8 +47,7 @@ def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float =
                              focal_length_m=meta.focal_length_m, pupil_diameter_m=pupil_diameter_m,
                              distances_m=[float(z) for z in focus_z_m], view_offset_m=view_offset_m, device=device,
                              memory_budget_bytes=memory_budget_bytes,
-                             fourier_filter=meta.fourier_filter,
-                             pixel_orders=not meta.fourier_filter).cpu().numpy()
+                             fourier_filter=meta.fourier_filter, pixel_orders=None).cpu().numpy()
     out = []
     for one in inten:
         H, W = one.shape[-2:]

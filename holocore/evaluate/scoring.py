@@ -263,11 +263,11 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
         raise ValueError(f"focus_z_m must be finite, got {focus_z_m!r}")
     ex, ey = (float(v) for v in view_offset_m)
     a_row, a_col = view_shift_px(meta, focus_z_m=z_f, view_offset_m=(ex, ey))
-    ff = meta.fourier_filter if fourier_filter is None else bool(fourier_filter)
     out = view_intensities(src, wavelengths_m=list(meta.wavelengths_m), pitch_m=p, focal_length_m=f,
                            pupil_diameter_m=float(pupil_diameter_m), distances_m=[z_f], view_offset_m=(ex, ey),
                            shift_px=(a_row, a_col), device=device, memory_budget_bytes=memory_budget_bytes,
-                           fourier_filter=ff, pixel_orders=(not ff) if pixel_orders is None else bool(pixel_orders))[0]
+                           fourier_filter=meta.fourier_filter if fourier_filter is None else bool(fourier_filter),
+                           pixel_orders=pixel_orders)[0]
     out = out.cpu().numpy().astype(np.float64)
     return np.ascontiguousarray(out.clip(min=0.0))
 

@@ -99,8 +99,17 @@ def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: P
     ex, ey = validate.real("view_offset_m[0]", view_offset_m[0]), validate.real("view_offset_m[1]", view_offset_m[1])
     sx = lam * torch.fft.fftfreq(wp, d=px, dtype=torch.float64, device=device)  # direction sine along x
     sy = -lam * torch.fft.fftfreq(hp, d=py, dtype=torch.float64, device=device)  # rows run down: f_y = -f_row
-    na = d / (2.0 * f)
-    return ((sx[None, :] - ex / f) ** 2 + (sy[:, None] - ey / f) ** 2) <= na * na
+    return _in_disc(sx, sy, (ex / f, ey / f), d / (2.0 * f))
+
+
+def _in_disc(sx: torch.Tensor, sy: torch.Tensor, centre: tuple[float, float], radius: float) -> torch.Tensor:
+    """[len(sy), len(sx)]: whether the direction sines (sx, sy) lie in the disc of ``centre`` and ``radius``."""
+    return ((sx[None, :] - centre[0]) ** 2 + (sy[:, None] - centre[1]) ** 2) <= radius * radius
+
+
+def _cone_sine(wavelength_m: float, pitch_m: PitchLike) -> float:
+    """The sine a Fourier filter passes for this colour: its recording cone's, edge kept."""
+    return math.sin(theta_max_rad(wavelength_m, max(validate.pitch_pair(pitch_m)))) * (1.0 + 1e-9)
 
 
 def eye_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *, focal_length_m: float,
@@ -111,9 +120,8 @@ def eye_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: Pit
     mask = pupil_mask(shape_hw_padded, wavelength_m, pitch_m, focal_length_m=focal_length_m,
                       pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, device=device)
     if fourier_filter:
-        cone_d = 2.0 * focal_length_m * math.sin(theta_max_rad(wavelength_m, max(validate.pitch_pair(pitch_m))))
         mask &= pupil_mask(shape_hw_padded, wavelength_m, pitch_m, focal_length_m=focal_length_m,
-                           pupil_diameter_m=cone_d * (1.0 + 1e-9), device=device)
+                           pupil_diameter_m=2.0 * focal_length_m * _cone_sine(wavelength_m, pitch_m), device=device)
     return mask
 
 
@@ -157,15 +165,15 @@ def _order_filters(shape_hw_padded: tuple[int, int], k: int, wavelength_m: float
     fy0 = torch.fft.fftfreq(hp, d=py, dtype=torch.float64, device=device)  # row frequency, cycles / m
     fx0 = torch.fft.fftfreq(wp, d=px, dtype=torch.float64, device=device)
     a_row, a_col = (float(v) for v in shift_px)
-    cone = 2.0 * f * math.sin(theta_max_rad(lam, max(py, px))) * (1.0 + 1e-9) if fourier_filter and k == 1 else None
+    cone = _cone_sine(lam, pitch_m) if fourier_filter and k == 1 else None
     out, power = [], []
     for ny in range(-(k // 2), k // 2 + 1):
         for nx in range(-(k // 2), k // 2 + 1):
             fy, fx = fy0 + ny / py, fx0 + nx / px
             sx, sy = lam * fx, -lam * fy  # direction sines; rows run down (module docstring)
-            mask = ((sx[None, :] - ex / f) ** 2 + (sy[:, None] - ey / f) ** 2) <= na * na
+            mask = _in_disc(sx, sy, (ex / f, ey / f), na)
             if cone is not None:
-                mask &= (sx[None, :] ** 2 + sy[:, None] ** 2) <= (cone / (2.0 * f)) ** 2
+                mask &= _in_disc(sx, sy, (0.0, 0.0), cone)
             if not bool(mask.any()):
                 continue
             # relative to the zeroth order: its own roll-off, the same for every method and for a display with a
@@ -198,7 +206,7 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                      view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
                      pad_factor: float = 2, device: Optional[Union[str, torch.device]] = None,
                      memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
-                     pixel_orders: bool = False) -> torch.Tensor:
+                     pixel_orders: Optional[bool] = False) -> torch.Tensor:
     """What an eye sees at each of ``distances_m``: float32 [D, C, H, W], frame-averaged (docs/design.md §7).
 
     ``source``: ``shape`` (F, C, H, W) and ``chunk(f0, f1, c)`` -> complex [k, H, W] (numpy or torch) on the
@@ -207,7 +215,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     shift; evaluate's off-axis eye). ``device``: where the FFTs run (default: the chunks' device).
     ``fourier_filter``: the display's filter passes only each colour's recording cone (module docstring).
     ``pixel_orders``: the SLM's square pixels, their sinc and the diffraction orders the pupil reaches (module
-    docstring; :func:`orders_factor` bounds the orders tried).
+    docstring; :func:`orders_factor` bounds the orders tried); None: exactly where there is no Fourier filter,
+    the display the callers that follow a display profile model.
     """
     from holocore.runtime.membudget import frames_per_chunk
     from holocore.runtime.membudget import memory_budget_bytes as _budget
@@ -222,6 +231,8 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
     hs, ws = h + 2 * m, w + 2 * m
     hp, wp = padded_shape((hs, ws), pad_factor)
+    if pixel_orders is None:
+        pixel_orders = not fourier_filter
     ks = [orders_factor(lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
                         view_offset_m=view_offset_m, fourier_filter=fourier_filter) if pixel_orders else 1
           for lam in lams]
@@ -249,21 +260,19 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                     u0 = u0.to(torch.complex64)
                 if out is None:
                     out = torch.empty((len(zs), C, h, w), dtype=torch.float32, device=u0.device)
-                if m and pixel_orders:  # the shift goes into the refined grid's filter
+                if m:
                     big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
                     big[..., m:m + h, m:m + w] = u0
-                    u0 = big
-                    del big
-                elif m:
-                    if ramp is None:
-                        ky = torch.fft.fftfreq(hs, dtype=torch.float64)
-                        kx = torch.fft.fftfreq(ws, dtype=torch.float64)
-                        ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
-                                           2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
-                                           ).to(torch.complex64).to(u0.device)
-                    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
-                    big[..., m:m + h, m:m + w] = u0
-                    u0 = ifft2(torch.fft.fft2(big) * ramp)
+                    if pixel_orders:  # the shift goes into each order's filter
+                        u0 = big
+                    else:
+                        if ramp is None:
+                            ky = torch.fft.fftfreq(hs, dtype=torch.float64)
+                            kx = torch.fft.fftfreq(ws, dtype=torch.float64)
+                            ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
+                                               2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
+                                               ).to(torch.complex64).to(u0.device)
+                        u0 = ifft2(torch.fft.fft2(big) * ramp)
                     del big
                 if filt is None and pixel_orders:
                     filt = _order_filters((hp, wp), k, lam, pitch_m, distance_m=z, focal_length_m=focal_length_m,
@@ -277,17 +286,12 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
                                     fourier_filter=fourier_filter, device=u0.device)
                     filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
                         if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
-                    filt.mul_(mask.to(filt.real.dtype))
+                    filt = [filt.mul_(mask.to(filt.real.dtype))]
                     acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
                 spec = torch.fft.fft2(u0, s=(hp, wp))
                 del u0
-                for g in (filt if pixel_orders else ()):
-                    u = ifft2(spec * g)[..., :hs, :ws]
-                    acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
-                    del u
-                if not pixel_orders:
-                    spec.mul_(filt)
-                    u = ifft2(spec)[..., :hs, :ws]
+                for i, g in enumerate(filt):  # one per diffraction order taken; the last one in place
+                    u = ifft2(spec.mul_(g) if i == len(filt) - 1 else spec * g)[..., :hs, :ws]
                     acc += (u.real.square() + u.imag.square()).to(torch.float64).sum(dim=0)
                     del u
                 del spec
@@ -299,7 +303,7 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
                   pupil_diameter_m: float, distance_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
                   shift_px: tuple[float, float] = (0.0, 0.0), pad_factor: float = 2,
                   memory_budget_bytes: Optional[int] = None, fourier_filter: bool = False,
-                  pixel_orders: bool = False) -> torch.Tensor:
+                  pixel_orders: Optional[bool] = False) -> torch.Tensor:
     """What an eye sees: float32 intensity [C, H, W], frame-averaged (docs/design.md §7).
 
     ``field`` complex [F, C, H, W] (or [C, H, W], one frame) on a plane; ``distance_m`` (m) from that plane to
@@ -307,7 +311,8 @@ def simulate_view(field: torch.Tensor, *, wavelengths_m: Sequence[float], pitch_
     ``focal_length_m``, centred at ``view_offset_m`` = (e_x, e_y) (m). One wavelength per channel.
     ``shift_px``: the off-axis eye's shift of the focus plane's content (:func:`view_intensities`).
     ``fourier_filter``: the display passes only each colour's recording cone (module docstring). ``pixel_orders``:
-    the SLM's square pixels and the diffraction orders the pupil reaches (module docstring). Differentiable
+    the SLM's square pixels and the diffraction orders the pupil reaches (module docstring; None: where there is
+    no filter). Differentiable
     in ``field`` (the focal stack's pupil-aware fit back-propagates through it).
     """
     if not isinstance(field, torch.Tensor) or not field.is_complex():

@@ -6,7 +6,7 @@ The demo scene: a textured back wall, a table, a diffuse sphere, a mirror sphere
 The mirror-and-glass box (:func:`write_cbox_scene`): a Cornell-style room, 2 m on a side, its walls and its
 ceiling light OBJ quads in ``meshes/``, with a mirror sphere and a glass sphere, seen from 4 m. It is the
 project's own stand-in for the third-party ``cbox-mirror-glass`` bundle (same layout, shape ids and kinds of
-plugins), so that the tests and the service run on a fresh clone without ``../shared``."""
+plugins), so that the tests and the service run on a fresh clone, which has none of those bundles."""
 
 from __future__ import annotations
 
