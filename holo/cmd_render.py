@@ -35,7 +35,11 @@ def render(
     wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
                                                              "the scene depth; the plan says where)."),
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
-    estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and exit."),
+    estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and quality and exit."),
+    quality_db: Optional[float] = typer.Option(
+        None, "--quality-db", help="Aim at this viewer-faithful PSNR (dB, 5..40): the frames and rays per pixel "
+                                   "predicted to reach it soonest (holocore.plan.quality_choice); says the "
+                                   "`holo encode --iterations` that goes with them."),
     device: Optional[str] = typer.Option(None, "--device", help="auto (CUDA when available) | cpu | cuda; "
                                                                  "default: HOLO_DEVICE, else auto."),
     memory_budget_mb: Optional[int] = typer.Option(
@@ -76,6 +80,26 @@ def render(
         msg = str(exc).replace("time_limit_s", "--time-limit-s")
         fail("--max-spp" + msg[len("max_spp"):] if msg.startswith("max_spp") else msg.replace("spp must", "--spp must"))
     console = Console(stderr=True)
+    if quality_db is not None and not (5.0 <= quality_db <= 40.0):
+        fail(f"--quality-db must be in 5..40 dB, got {quality_db!r}")
+    if quality_db is not None and (spp is not None or time_limit_s is not None or optics.frames is not None):
+        fail("--quality-db chooses the frames and rays per pixel: give it without --frames, --spp and --time-limit-s")
+    loaded = None
+    if quality_db is not None:
+        from holocore.pipeline import plan_scene
+        from holocore.scene.load import load_scene
+
+        from holo.render_quality import choose_options, quality_context
+
+        try:
+            loaded = load_scene(scene)
+            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile)
+            optics_cfg, options, chosen = choose_options(ctx, optics_cfg, options, quality_db)
+        except (ValueError, FileNotFoundError) as exc:
+            fail(str(exc))
+        reach = "predicted to reach it" if chosen.psnr_db >= quality_db else "the best predicted; it falls short"
+        it = "" if chosen.iterations is None else f" --iterations {chosen.iterations}"
+        console.print(f"--quality-db {quality_db:g}: {chosen.words()} ({reach}); then `holo encode{it}`")
     if estimate and time_limit_s is not None:
         console.print(f"estimated time of `holo render`: {time_limit_s:.1f} s (the time limit: the render traces "
                       f"rays until it is spent)")
@@ -92,7 +116,7 @@ def render(
         from holocore.scene.load import load_scene
 
         try:  # the scene's depth sets the preset's rays per pixel; its size, the cost of a ray
-            loaded = load_scene(scene)
+            loaded = loaded or load_scene(scene)
             startup = process_age_s()
             pl = plan_scene(loaded, optics_cfg, options)
             probe = probe_scene(loaded, optics_cfg, options, startup_s=startup)
@@ -109,6 +133,11 @@ def render(
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
         console.print(f"estimated warm render time: {secs:.1f} s ({source})")
+        from holo.render_quality import estimate_lines, quality_context
+
+        qctx = quality_context(loaded, pl, profile, probe=probe, calibration=cal)
+        for line in estimate_lines(qctx, optics_cfg, options):
+            console.print(line)
         from holocore.plan.memory_estimate import estimate_memory
 
         mem = estimate_memory(height_px=optics_cfg.height, width_px=optics_cfg.width,
@@ -129,7 +158,7 @@ def render(
             write_progress(stage, done, total)
 
         try:
-            m = render_to_file(scene, out, optics_cfg, options, progress=progress, display=profile,
+            m = render_to_file(loaded or scene, out, optics_cfg, options, progress=progress, display=profile,
                                memory_budget_bytes=budget)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
@@ -164,16 +193,19 @@ def _write_picture(loaded, path: Path, *, width: int, spp: int) -> dict:
     from PIL import Image
 
     from holocore.evaluate.groundtruth import camera_picture
+    from holocore.evaluate.metrics import white_power
     from holocore.evaluate.preview import to_png8
 
     try:
         rgb = camera_picture(loaded, max_width_px=width, spp=spp)
+        q = white_power(rgb)
         # white at the 99th percentile: a small bright lamp saturates instead of darkening the whole scene
         u8 = to_png8(np.moveaxis(rgb, 0, -1), white=float(np.percentile(rgb, 99.0)) or 1.0)
         Image.fromarray(u8).save(path, format="PNG")
     except (ValueError, RuntimeError, OSError) as exc:
         return {"error": f"no picture: {str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__}"}
-    return {"file": path.name, "width_px": int(u8.shape[1]), "height_px": int(u8.shape[0]), "spp": int(spp)}
+    return {"file": path.name, "width_px": int(u8.shape[1]), "height_px": int(u8.shape[0]), "spp": int(spp),
+            "image_q": round(q, 5)}
 
 
 def _probe(loaded, optics_cfg, options, *, startup_s: float) -> dict:

@@ -41,6 +41,9 @@ def submit(
     evaluate: bool = typer.Option(False, "--evaluate", help="Also score the hologram against Mitsuba thin-lens "
                                                           "ground truth on the service (GET "
                                                           "/v1/jobs/{id}/evaluation)."),
+    quality_db: Optional[float] = typer.Option(None, "--quality-db", help="Aim at this viewer-faithful PSNR (dB, "
+                                               "5..40): the service chooses frames, spp and iterations to reach it "
+                                               "soonest (give it without them)."),
     idempotency_key: Optional[str] = typer.Option(None, "--idempotency-key", help="Repeat a submit safely."),
     no_wait: bool = typer.Option(False, "--no-wait", help="Print the job id and return at once."),
     *,
@@ -57,7 +60,7 @@ def submit(
     body = {"optics": cfg.model_dump(mode="json"), "preset": preset, "frames": optics.frames, "spp": spp,
             "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method,
             "wrp_planes": parse_wrp_planes(wrp_planes), "display": to_display, "name": name,
-            "evaluate": evaluate or None}
+            "evaluate": evaluate or None, "quality_db": quality_db}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console
@@ -77,6 +80,20 @@ def submit(
                           f"files, sha256 {sc['sha256'][:12]}..)")
             for w in sc["report"].get("warnings", []):
                 console.print(f"  warning: {w}")
+            ahead = client.estimate({"scene_id": sc["id"], **body})  # what the options buy, before they run
+            q = ahead["estimate"].get("quality") or {}
+            if q:
+                console.print(f"predicted quality: {q['words']}")
+            if ahead.get("options"):
+                o = ahead["options"]
+                rays = o["spp"] or "the preset's"
+                its = o["iterations"] or "the stop rule's"
+                console.print(f"  for {quality_db:g} dB the service chose {o['frames']} frames, {rays} rays per "
+                              f"pixel, {its} encoder iterations")
+            for w in ahead.get("warnings") or []:
+                console.print(f"  warning: {w}")
+            for line in q.get("instead") or []:
+                console.print(f"  instead: {line}")
             job = client.submit({"scene_id": sc["id"], **body}, idempotency_key=idempotency_key)
             est = (job.get("estimate") or {}).get("seconds")
             console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est:.0f} s" if est else "")

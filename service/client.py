@@ -100,6 +100,10 @@ class ServiceClient:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
         return self._check(self.http.post("/v1/jobs", json=body, headers=headers), "submit").json()
 
+    def estimate(self, body: dict[str, Any]) -> dict:
+        """What submitting ``body`` would predict (POST /v1/jobs/estimate: time, memory, quality, warnings)."""
+        return self._check(self.http.post("/v1/jobs/estimate", json=body), "estimate").json()
+
     def job(self, job_id: str) -> dict:
         return self._check(self.http.get(f"/v1/jobs/{job_id}"), "status").json()
 

@@ -48,6 +48,10 @@ class JobFields(BaseModel):
         "until the time is spent (spp is then the most rays per pixel; default the service's max_spp).")
     encoder: Encoder = "sgd"
     iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
+    quality_db: Optional[float] = Field(
+        default=None, ge=5, le=40, allow_inf_nan=False, description="Aim at this viewer-faithful PSNR (dB): the "
+        "service chooses frames, spp and iterations predicted to reach it soonest (holocore.plan.quality_choice); "
+        "give it without them and without render_time_limit_s.")
     method: Method = "wrp"
     wrp_planes: WrpPlanes = Field(
         default="auto", description=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or 'auto' (chosen from the scene "
@@ -56,6 +60,13 @@ class JobFields(BaseModel):
         default=False, description="Also score the hologram against Mitsuba thin-lens ground truth (holo evaluate) at "
         "the focal sweep's depths and a 3 x 3 grid of views, and, for more than one frame, the viewer-faithful score; "
         "GET /v1/jobs/{id}/evaluation. A failed evaluation is a warning, not a failed job.")
+
+    @model_validator(mode="after")
+    def _target_alone(self):
+        given = [k for k in ("frames", "spp", "iterations", "render_time_limit_s") if getattr(self, k) is not None]
+        if self.quality_db is not None and given:
+            raise ValueError(f"quality_db chooses frames, spp and iterations: give it without {', '.join(given)}")
+        return self
 
     @model_validator(mode="after")
     def _planes_need_wrp(self):

@@ -236,10 +236,17 @@ def _spp(req: JobRequest) -> int:
 
 
 def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
-                  plane_border: Optional[int] = 0) -> dict[str, Any]:
+                  plane_border: Optional[int] = 0, target_db: Optional[float] = None) -> dict[str, Any]:
     """Predicted seconds of a job, shown at submit time: :func:`_hologram_cost`, plus the evaluation against
-    ground truth when the job asks for it (``evaluate_s``, service/workers/evaluation.py's model)."""
+    ground truth when the job asks for it (``evaluate_s``, service/workers/evaluation.py's model), and the
+    quality its options buy (``quality``, service/quality.py; ``target_db``: the quality target the options
+    were chosen for)."""
+    from service.quality import job_quality
+
     out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
+    out["quality"] = job_quality(req, scene_plan=scene_plan, max_spp=max_spp, seconds=out["seconds"],
+                                 seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp),
+                                 target_db=target_db)
     if req.evaluate:
         from service.workers.evaluation import evaluation_seconds
 
@@ -248,6 +255,11 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
         out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
                "model": out["model"] + " + evaluation"}
     return out
+
+
+def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None) -> float:
+    """Predicted seconds of a job's hologram alone (:func:`_hologram_cost`'s)."""
+    return float(_hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp)["seconds"])
 
 
 def _scene_probe(scene_plan: Optional[dict]):

@@ -28,6 +28,7 @@ from service.models import (
     cache_key,
     effective_optics,
     estimate_cost,
+    hologram_seconds,
     job_limit_errors,
     memory_admission_error,
     optics_sanity_errors,
@@ -36,7 +37,7 @@ from service.models import (
 )
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY",
+__all__ = ["admit_job", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY",
            "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
@@ -72,6 +73,28 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
     if too_big:
         raise ApiError(422, too_big)
     return scene
+
+
+def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -> tuple[JobRequest, Optional[float]]:
+    """(the request with its ``quality_db`` resolved into frames, spp and iterations within the service's limits
+    (service/quality.py), the target); the request itself and None without a target. The scene's plan informs
+    the choice where the principal may read it; admission then checks the resolved request as any other."""
+    if req.quality_db is None:
+        return req, None
+    from service.quality import resolve_quality_target
+
+    scene = ctx.db.get_scene(req.scene_id)
+    mine = scene is not None and (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner))
+    plan = scene["plan"] if mine and scene["plan_state"] == "ready" else None
+    limits = ctx.settings.job_limits
+
+    def allowed(r: JobRequest) -> bool:
+        return not job_limit_errors(r, limits) and memory_admission_error(r, ctx.settings.worker_memory_bytes) is None
+
+    max_spp = binding_max_spp(req, limits)
+    resolved = resolve_quality_target(req, scene_plan=plan, max_spp=max_spp, allowed=allowed,
+                                      seconds_of=lambda r: hologram_seconds(r, scene_plan=plan, max_spp=max_spp))
+    return resolved, req.quality_db
 
 
 def scene_plane_border(ctx: ServiceContext, req: JobRequest, scene: dict) -> Optional[int]:
@@ -227,12 +250,13 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     (``replayed``); with another body, ApiError 422. Admission failures are :func:`admit_job`'s."""
     if idempotency_key is not None and not IDEMPOTENCY_KEY.match(idempotency_key):
         raise ApiError(422, "Idempotency-Key must be 1-200 visible ASCII characters")
+    body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
+    req, target_db = resolve_target(ctx, req, principal)
     scene = admit_job(ctx, req, principal)
     cap = ctx.settings.max_queued_jobs_per_owner
     if ctx.db.count_owner_jobs(principal.owner, ("queued", "running")) >= cap:
         raise ApiError(429, f"this owner has {cap} jobs queued or running, the most it may; submit more when "
                             "some have finished", headers={"Retry-After": "30"})
-    body_hash = hashlib.sha256(req.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         prior = ctx.db.get_idempotency(principal.token_id, idempotency_key)
         if prior is not None:
@@ -245,7 +269,7 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
            "spec": job_spec(req, ctx.settings.job_limits).model_dump(mode="json"), "cache_key": key, "created_at": now,
            "estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
-                                     plane_border=scene_plane_border(ctx, req, scene)),
+                                     plane_border=scene_plane_border(ctx, req, scene), target_db=target_db),
            "token_id": principal.token_id,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),

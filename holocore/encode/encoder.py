@@ -249,19 +249,29 @@ def small_ops_on_one_thread(method: str, dev, elements: int):
 
 def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init, sgd, progress, total,
                    n_blocks, phase, acc) -> None:
+    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
+
+    # The progress counts the iterations expected to run: with a stop rule, where it typically ends (not the cap
+    # of 500, which made a 3-colour encode count to 1500 and jump); a block that runs longer raises the total.
+    stops = bool(sgd.get("stop_db")) or bool(sgd.get("tol"))
+    expect = min(total, TYPICAL_STOP_ITERATIONS) if stops else total
+    ran = 0  # iterations of the blocks done
+    k = 0
     for c, lam in enumerate(lams):
         for f0 in range(0, F, chunk_frames):
             f1 = min(F, f0 + chunk_frames)
             cb = None
             if progress is not None and method == "sgd":
-                k = c * math.ceil(F / chunk_frames) + f0 // chunk_frames
-
-                def cb(it, _k=k):  # noqa: E306
-                    progress("encode", _k * total + it, n_blocks * total)
+                def cb(it, _ran=ran, _left=n_blocks - k - 1):  # noqa: E306
+                    progress("encode", _ran + it, _ran + max(expect, it) + _left * expect)
             blk = encode_block(method, _block(t, f0, f1, c, dev), z_m=z, wavelength_m=lam, pitch_m=pitch_m,
                                supervision=sup, init=None if init is None else phi_init[f0:f1, c], progress=cb, **sgd)
             phase[f0:f1, c] = wrap_phase(blk.phase)
             acc.add(f0, c, blk)
+            ran += int(np.max(blk.iterations)) if np.size(blk.iterations) else 0
+            k += 1
+    if progress is not None and method == "sgd" and ran:
+        progress("encode", ran, ran)
 
 
 def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:

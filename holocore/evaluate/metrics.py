@@ -14,7 +14,7 @@ from typing import Optional, Union
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-__all__ = ["psnr", "ssim", "fit_brightness", "speckle_contrast"]
+__all__ = ["psnr", "ssim", "fit_brightness", "speckle_contrast", "white_power"]
 
 ArrayLike = Union[np.ndarray, "torch.Tensor"]  # noqa: F821 (torch is optional here)
 _MAX_CHANNELS = 8
@@ -152,3 +152,17 @@ def speckle_contrast(intensity: ArrayLike, *, mask: Optional[ArrayLike] = None) 
     if mean <= 0:
         raise ValueError("intensity is zero everywhere: speckle contrast undefined")
     return float(a.std() / mean)
+
+
+def white_power(image: ArrayLike, *, white_percentile: float = 99.0) -> float:
+    """mean(min(I / w, 1)^2) of a linear image, w its ``white_percentile`` (the score's white, docs/design.md
+    §7): the error power of speckle or noise that scales with the local intensity, in the score's units, per
+    unit of relative error. A black image gives 0. The quality model (holocore.plan.quality) reads it as the
+    scene's ``image_q``."""
+    if hasattr(image, "detach") and hasattr(image, "cpu"):
+        image = image.detach().cpu().numpy()
+    a = np.asarray(image, dtype=np.float64)
+    if a.size == 0 or not np.all(np.isfinite(a)) or a.min() < 0:
+        raise ValueError("image must be a non-empty finite array of intensities >= 0")
+    w = float(np.percentile(a, white_percentile))
+    return float(np.mean(np.clip(a / w, 0.0, 1.0) ** 2)) if w > 0 else 0.0

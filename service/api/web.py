@@ -47,7 +47,7 @@ from service.models import (
     estimate_cost,
 )
 from service.scene_view import scene_field_of_view_box
-from service.submission import admit_job, reusable_job, scene_plane_border
+from service.submission import admit_job, resolve_target, reusable_job, scene_plane_border
 from service.untrusted import open_job_file, read_job_json
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
@@ -164,20 +164,22 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
     """What ``POST /v1/jobs`` with this body would predict, after the same checks (limits, the scene and display
     being this owner's, sane optics, memory); nothing is created. ``reuses`` names the earlier job whose result
     an identical submit would reuse at once."""
+    req, target_db = resolve_target(ctx, req, principal)
     scene = admit_job(ctx, req, principal)
     optics = effective_optics(req)
     max_spp = binding_max_spp(req, ctx.settings.job_limits)
     key = cache_key(req, scene_sha256=scene["sha256"], entry=scene["entry"], code_version=ctx.code_version,
                     max_spp=max_spp)
     prev = reusable_job(ctx, key, principal.owner)
-    return {"estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
-                                      plane_border=scene_plane_border(ctx, req, scene)),
+    est = estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
+                        plane_border=scene_plane_border(ctx, req, scene), target_db=target_db)
+    return {"estimate": est, "options": req.fields() if target_db is not None else None,
             "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"),
             "reuses": prev["id"] if prev is not None else None,
             "worker_memory_bytes": ctx.settings.worker_memory_bytes,
             "plan": plan_at_options(req, scene, max_spp=max_spp),
             "field_of_view_box": scene_field_of_view_box(scene, optics),
-            "warnings": _estimate_warnings(req, scene, optics)}
+            "warnings": _estimate_warnings(req, scene, optics) + est["quality"]["warnings"]}
 
 
 def _estimate_warnings(req: JobRequest, scene: dict, optics) -> list[str]:

@@ -29,6 +29,15 @@ function viewerLine(v) {
     + `the cells' own best scales spread ${num(v.scale_spread, 2)}x). ${pupils}.`;
 }
 
+// The quality the estimate predicted before the job ran, beside what was measured.
+function predictedLine(job, v) {
+  const q = (job.estimate || {}).quality;
+  if (!q || typeof q.psnr_db !== "number") return "";
+  const off = typeof v.mean_psnr_db === "number" ? ` (measured ${(v.mean_psnr_db - q.psnr_db >= 0 ? "+" : "")}`
+    + `${(v.mean_psnr_db - q.psnr_db).toFixed(1)} dB from it)` : "";
+  return ` Predicted before the job ran: ${q.psnr_db.toFixed(1)} dB ±${q.uncertainty_db}${off}.`;
+}
+
 export async function showEvaluation(job, page) {
   if (!(job.options || {}).evaluate) return;
   show("evaluation", true);
@@ -54,7 +63,7 @@ export async function showEvaluation(job, page) {
     + `at one white level; the border the SLM's aperture vignettes is left out of the score. Mean over the cells: `
     + `PSNR ${db(idx.mean_psnr_db)}, SSIM ${num(idx.mean_ssim, 3)}.`
     + (idx.notes.length ? ` ${idx.notes.join("; ")}.` : ""));
-  setText($("eval-viewer"), idx.viewer ? viewerLine(idx.viewer)
+  setText($("eval-viewer"), idx.viewer ? viewerLine(idx.viewer) + predictedLine(job, idx.viewer)
     : idx.viewer_error ? `No viewer-faithful score: ${idx.viewer_error}` : "");
 
   const slider = $("focus");

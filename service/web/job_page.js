@@ -46,6 +46,11 @@ function renderJob(job) {
     + (o.evaluate ? ", evaluated against ground truth" : ""));
   fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
+  const q = est.quality;
+  if (q && typeof q.psnr_db === "number") fact(dl, "Quality", el("span", { id: "job-quality" },
+    `predicted ${Math.round(q.psnr_db)} dB ±${q.uncertainty_db} viewer-faithful PSNR`
+    + (typeof q.target_db === "number" ? ` (options chosen for a target of ${q.target_db} dB)` : "")
+    + ((q.warnings || []).length ? ` · ${q.warnings.join(" · ")}` : "")));
   fact(dl, "Memory", `estimated peak ${fmtBytes((est.memory || {}).peak_bytes)} (${(est.memory || {}).peak_stage || "–"}), `
     + `measured peak ${fmtBytes(t.peak_rss_bytes)}`);
   if (typeof t.engine === "string") fact(dl, "Ran on", `the ${t.engine} engine${job.attempts > 1 ? `, attempt ${job.attempts}` : ""}`);

@@ -46,6 +46,10 @@ function jobBody() {
   if ($("display").value.trim()) body.display = $("display").value.trim();
   if ($("job-name").value.trim()) body.name = $("job-name").value.trim();
   body.evaluate = $("evaluate").checked;
+  if ($("quality-db").value) {  // the service chooses frames, rays and iterations for the target
+    body.quality_db = Number($("quality-db").value);
+    for (const k of ["frames", "spp", "iterations", "render_time_limit_s"]) delete body[k];
+  }
   return body;
 }
 
@@ -57,7 +61,7 @@ export function forgetScene() {
   estimateSeq++; clearTimeout(estimateTimer);
   show("job-form", false); show("rerun-note", false); show("form-plan-box", false);
   $("submit-button").disabled = true;
-  setText($("estimate"), ""); setText($("submit-error"), "");
+  setText($("estimate"), ""); setText($("quality"), ""); setText($("submit-error"), "");
   const sel = $("profile");
   for (const o of [...sel.options]) if (o.value.startsWith("job:")) o.remove();
   if (!sel.value && state.profiles) { sel.value = state.profiles.default; applyProfile(); }
@@ -170,6 +174,7 @@ async function estimate() {
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     for (const w of e.warnings || []) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
+    showQuality(e.estimate.quality, e.options);
     showFormPlan(e.plan);
     showFormPicture(state.scene, e.field_of_view_box);
     if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },
@@ -181,6 +186,23 @@ async function estimate() {
     out.classList.add("error");
     showFormPlan(null);
   }
+}
+
+// What the options buy: the predicted viewer-faithful PSNR, what costs the most, the options a quality target
+// chose, and other mixes worth knowing (service/quality.py).
+function showQuality(q, chosen) {
+  const out = clear($("quality"));
+  if (!q) return;
+  const parts = Object.entries(q.parts_db || {}).sort((a, b) => b[1] - a[1])
+    .map(([k, v]) => `${k} ${v.toFixed(1)} dB`).join(", ");
+  out.append(el("span", { id: "quality-predicted" },
+    `Quality: expected about ${Math.round(q.psnr_db)} dB (±${q.uncertainty_db}) viewer-faithful PSNR; what each part costs: ${parts}`));
+  if (chosen) {
+    const it = chosen.iterations === null ? "the encoder's stop rule" : `${chosen.iterations} encoder iterations`;
+    out.append(el("span", { id: "quality-chosen" },
+      ` · for ${q.target_db} dB: ${chosen.frames} frames, ${chosen.spp === null ? "the preset's rays" : `${chosen.spp} rays per pixel`}, ${it}`));
+  }
+  for (const line of q.instead || []) out.append(el("span", { class: "muted quality-instead" }, ` · instead: ${line}`));
 }
 
 async function submit(ev) {
@@ -220,6 +242,7 @@ export async function prefillRerun(job) {
   $("time-limit").value = o.render_time_limit_s || "";
   $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
   $("iterations").value = o.iterations ?? "";
+  $("quality-db").value = "";  // a target was resolved into the options above when the job was made
   $("wrp-planes").value = String(o.wrp_planes || "auto");
   $("evaluate").checked = !!o.evaluate;
   $("display").value = job.display || "";

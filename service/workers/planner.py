@@ -124,8 +124,10 @@ def keep_picture(made: Path, scene_dir: Path, said: object) -> dict:
     tmp = scene_dir / f".{PICTURE_NAME}.tmp"
     tmp.write_bytes(data)
     os.replace(tmp, scene_dir / PICTURE_NAME)
+    q = said.get("image_q")  # the picture's image statistic, for the quality estimate: a number in [0, 1] or none
+    q = float(q) if isinstance(q, (int, float)) and not isinstance(q, bool) and 0.0 <= q <= 1.0 else None
     return {"width_px": w, "height_px": h, "spp": said.get("spp"), "bytes": len(data),
-            "sha256": hashlib.sha256(data).hexdigest()}
+            "sha256": hashlib.sha256(data).hexdigest(), "image_q": q}
 
 
 def _cpu_seconds(pid: int) -> float:

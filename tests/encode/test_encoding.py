@@ -214,6 +214,13 @@ def test_progress_and_tolerance():
     assert len(full.history) == 5 and full.history[-1] < full.history[0]
     early = enc.encode_sgd(target, iterations=2000, tol=0.05, **kw)
     assert early.converged and early.iterations < 2000
+    # with a stop rule the count is of the iterations expected to run, not of the cap: it ends where the
+    # blocks ended, and never goes back
+    calls.clear()
+    ruled = enc.encode_sgd(target, iterations=2000, progress=lambda *a: calls.append(a), **kw)
+    assert calls[0][2] <= 2 * 160 + 10 and calls[-1] == ("encode", calls[-1][1], calls[-1][1])
+    assert calls[-1][1] == sum(int(v) for v in np.max(ruled.iterations_per_target, axis=0))
+    assert [c[1] for c in calls] == sorted(c[1] for c in calls)
 
 
 @pytest.mark.parametrize("kwargs, message", [

@@ -204,6 +204,37 @@ def test_the_forms_plan_follows_the_options(page, files, scene):
                and "ambient radiance cache" not in page.text("form-plan"))
 
 
+def test_the_forms_predicted_quality_follows_frames_and_rays_and_warns(page, files):
+    """The quality the options buy is shown beside the time (service/quality.py): more frames and more rays
+    predict more dB; one frame at 16 rays per pixel predicts an unrecognisable hologram and says so before
+    submit; a quality target has the service choose the options and shows them."""
+    import re
+
+    def predicted() -> float:
+        m = re.search(r"expected about (\d+) dB", page.text("quality"))
+        return float(m.group(1)) if m else float("nan")
+
+    page.upload(files["demo"])
+    page.until(lambda: page.enabled("submit-button"))
+    page.choose("preset", "balanced")
+    for field, value in (("frames", "1"), ("res-h", "135"), ("res-w", "240"), ("spp", "16"), ("iterations", "")):
+        page.set(field, value)
+    page.until(lambda: "1 frame(s)" in page.text("form-plan") and predicted() == predicted(),
+               what="the prediction at 1 frame")
+    one = predicted()
+    page.until(lambda: "below 12 dB" in page.text("estimate"), what="the warning of a 1-frame, 16-ray job")
+    page.set("frames", "24")
+    page.until(lambda: "24 frame(s)" in page.text("form-plan") and predicted() > one + 3,
+               what="a higher prediction at 24 frames")
+    at24 = predicted()
+    assert "below 12 dB" not in page.text("estimate")
+    page.set("spp", "256")
+    page.until(lambda: predicted() > at24 - 1e-9 and "256 rays" in page.text("estimate"), what="more rays")
+    page.set("quality-db", "14")
+    page.until(lambda: "for 14 dB:" in page.text("quality"), what="the options chosen for a 14 dB target")
+    assert predicted() >= 14 - 0.5
+
+
 def test_the_servers_refusals_are_shown(page, files):
     page.upload(files["demo"])
     page.until(lambda: page.enabled("submit-button"))

@@ -1,0 +1,79 @@
+"""The quality side of `holo render`: what `--estimate` predicts, and the options `--quality-db` chooses.
+
+Both read the scene's plan (its farthest sub-hologram radius sets the rays' noise), a small picture through its
+camera (its image statistic, holocore.evaluate.metrics.white_power) and the time model, and assume the phase-only
+encoding `holo encode` gives next (SGD).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional
+
+__all__ = ["QualityContext", "quality_context", "estimate_lines", "choose_options"]
+
+
+@dataclass(frozen=True)
+class QualityContext:
+    radius_px: float
+    image_q: Optional[float]
+    fourier_filter: bool
+    seconds: Any  # (optics, options, iterations) -> predicted seconds of render plus encode
+
+
+def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> QualityContext:
+    """What the predictions need of a loaded scene and its plan ``pl`` (holocore.pipeline.plan_scene)."""
+    from holocore.evaluate.groundtruth import camera_picture
+    from holocore.evaluate.metrics import white_power
+    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, estimate_breakdown
+    from holocore.plan.estimate_probe import estimate_with_probe
+
+    try:
+        q = white_power(camera_picture(loaded, max_width_px=64, spp=16)) or None
+    except (ValueError, RuntimeError):
+        q = None  # no picture: a typical scene's statistic
+    radius = float(pl.analysis.subhologram_radius_px)
+    prims = pl.inventory.primitives
+
+    def seconds(o, opt, it) -> float:
+        stages = estimate_breakdown(o, opt, scene_primitives=prims, subhologram_radius_px=radius,
+                                    encode_iterations=TYPICAL_STOP_ITERATIONS if it is None else int(it),
+                                    calibration=calibration)
+        if probe is None:
+            return stages["total"]
+        render = estimate_with_probe(o, opt, probe, scene_primitives=prims, subhologram_radius_px=radius,
+                                     calibration=calibration)
+        return render["total"] + stages.get("encode", 0.0)
+
+    return QualityContext(radius_px=radius, image_q=q, fourier_filter=bool(profile.fourier_filter), seconds=seconds)
+
+
+def estimate_lines(ctx: QualityContext, optics, options) -> list[str]:
+    """What `holo render --estimate` says of quality: the prediction, its parts, warnings and two alternatives."""
+    from holocore.plan.quality import predict_for
+    from holocore.plan.quality_choice import alternatives_words, candidates
+
+    pred = predict_for(optics, options, subhologram_radius_px=ctx.radius_px, image_q=ctx.image_q,
+                       fourier_filter=ctx.fourier_filter)
+    now_s = ctx.seconds(optics, options, None)
+    lines = [f"predicted quality (with `holo encode`'s default SGD): {pred.words()}; render and encode about "
+             f"{now_s:.0f} s"]
+    lines += [f"warning: {w}" for w in pred.warnings]
+    cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
+                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter)
+    lines += [f"instead: {w}" for w in alternatives_words(pred, now_s, cands)]
+    return lines
+
+
+def choose_options(ctx: QualityContext, optics, options, target_db: float):
+    """(optics, options, the chosen candidate) that reach ``target_db`` in the least predicted time: frames,
+    rays per pixel and the encoder's iterations (the rest as given)."""
+    from holocore.plan.quality_choice import candidates, choose_for_quality
+
+    cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
+                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter)
+    best = choose_for_quality(cands, target_db)
+    import dataclasses
+
+    return (optics.model_copy(update={"frames": best.frames}),
+            dataclasses.replace(options, spp=best.spp_asked), best)

@@ -1,0 +1,163 @@
+"""Predicting a hologram's quality before it runs: the viewer-faithful PSNR a job's options buy.
+
+The score predicted is the one ``holocore.evaluate.viewer.viewer_score`` measures (docs/evaluation.md): the eye's
+views through pupils of 2-6 mm from a jittered grid of eye positions, one brightness per colour, against the wave
+ground truth, on a display with a Fourier filter. Its error power, in units of the score's white squared, is a
+sum of parts, each from what a job's options and the scene's plan say before anything is traced:
+
+    speckle   q s_m / F^a_m           F frames of independent random phase average the eye's speckle; s_m and a_m
+                                      per frame-phase mode (coded frames average close to 1/F; one frame has no
+                                      random phase, and its own error s_1: coherent defocus blur and ringing)
+    noise     q c_mc nsr / F^b        Monte Carlo noise: nsr = k(theta) rho^2 / N, the plan's noise-to-signal of
+                                      N rays per pixel at the farthest image point (sub-hologram radius rho px,
+                                      holocore.plan.effects.noise_factor); frames re-phase the same rays, which
+                                      decorrelates part of their noise (b)
+    encoder   q e(method, it) / F^a   the phase-only encoder's error: SGD e_sgd (1 + i_half / it) after it
+                                      iterations (its stop rule: ``TYPICAL_STOP_ITERATIONS``), averaging over
+                                      frames as speckle does (a = a_m); DPAC e_dpac / F^a_dpac: its checkerboard
+                                      puts the light the amplitude does not need back into the recording cone
+                                      wherever that cone fills the SLM's band, much the same in every frame
+    floor     f                       what remains with endless rays, frames and iterations: the recording planes'
+                                      approximations and the ground truth's own Monte Carlo noise
+
+q is the scene's image statistic mean(min(I / w, 1)^2), w its 99th percentile (the score's white): speckle,
+encoder error and noise all scale with the local intensity, so a dark scene with small bright objects scores
+higher for the same hologram. The PSNR is -10 log10 of the sum. The coefficients are fitted by
+``bench/quality_fit.py`` to measured jobs on the paper's display (``bench/results/quality/``) and stored in
+``data/quality_model.json`` with the fit's cross-validated residual, which is the ± of every prediction.
+
+Pure Python, like the time model (``holocore.plan.estimate``): the service's API process predicts with it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Optional
+
+__all__ = ["QualityPrediction", "predict_quality", "predict_for", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
+           "DEFAULT_IMAGE_Q", "PARTS"]
+
+MODEL_PATH = Path(__file__).resolve().parent / "data" / "quality_model.json"
+# Below this viewer-faithful PSNR a hologram is speckle and bands, not the scene (the threshold a warning names).
+UNRECOGNISABLE_DB = 12.0
+# The image statistic q of a typical scene (the median of the fitted scenes') when the scene's own is unknown.
+DEFAULT_IMAGE_Q = 0.2
+PARTS = ("speckle", "noise", "encoder", "floor")
+
+
+@lru_cache(maxsize=4)
+def _load(path: str) -> dict:
+    return json.loads(Path(path).read_text())
+
+
+def quality_model(path: Optional[str | Path] = None) -> dict:
+    """The fitted coefficients (``data/quality_model.json`` unless ``path``)."""
+    doc = _load(str(path or MODEL_PATH))
+    if not isinstance(doc.get("coefficients"), dict):
+        raise ValueError(f"{path or MODEL_PATH} is not a quality model (needs 'coefficients')")
+    return doc
+
+
+@dataclass(frozen=True)
+class QualityPrediction:
+    """A predicted viewer-faithful PSNR (dB), its ± (the model's cross-validated residual), and what each part
+    costs: ``parts_db[p]`` is how many dB the prediction would gain without part p."""
+
+    psnr_db: float
+    uncertainty_db: float
+    parts_db: dict[str, float]
+    error_power: dict[str, float]
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def largest_part(self) -> str:
+        return max(self.error_power, key=self.error_power.get)
+
+    def as_dict(self) -> dict:
+        return {"psnr_db": round(self.psnr_db, 1), "uncertainty_db": round(self.uncertainty_db, 1),
+                "parts_db": {k: round(v, 1) for k, v in self.parts_db.items()},
+                "largest_part": self.largest_part, "warnings": list(self.warnings)}
+
+    def words(self) -> str:
+        parts = ", ".join(f"{k} {v:.1f} dB" for k, v in sorted(self.parts_db.items(), key=lambda kv: -kv[1]))
+        return (f"expected about {self.psnr_db:.0f} dB viewer-faithful PSNR, ±{self.uncertainty_db:.1f} "
+                f"(what each part costs: {parts})")
+
+
+def _check_count(name: str, v, low: int = 1) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    return v
+
+
+def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, encoder: str,
+                    iterations: Optional[int] = None, image_q: Optional[float] = None,
+                    fourier_filter: bool = True, model: Optional[dict] = None) -> QualityPrediction:
+    """Predicted viewer-faithful PSNR of a job (module docstring). ``noise_to_signal``: the plan's Monte Carlo
+    noise-to-signal power of its rays per pixel (:func:`holocore.plan.effects.noise_factor` rho^2 / N);
+    ``iterations``: the SGD encoder's (None: its stop rule); ``image_q``: the scene's image statistic (None: a
+    typical scene's)."""
+    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
+
+    F = _check_count("frames", frames)
+    if not (isinstance(noise_to_signal, (int, float)) and math.isfinite(noise_to_signal) and noise_to_signal >= 0):
+        raise ValueError(f"noise_to_signal must be finite and >= 0, got {noise_to_signal!r}")
+    if encoder not in ("sgd", "dpac", "naive"):
+        raise ValueError(f"encoder must be sgd, dpac or naive, got {encoder!r}")
+    it = TYPICAL_STOP_ITERATIONS if iterations is None else _check_count("iterations", iterations, 0)
+    q = DEFAULT_IMAGE_Q if image_q is None else float(image_q)
+    if not (math.isfinite(q) and 0 < q <= 1):
+        raise ValueError(f"image_q must be in (0, 1], got {image_q!r}")
+    doc = model if model is not None else quality_model()
+    c = doc["coefficients"]
+    mode = frame_phases if f"s_{frame_phases}" in c else "coded"
+    a = c[f"a_{mode}"]
+    per_frame = 1.0 if F == 1 else F ** -a
+    speckle = q * (c["s_one"] if F == 1 else c[f"s_{mode}"] * per_frame)
+    noise = q * c["c_mc"] * float(noise_to_signal) * F ** -c["b_mc"]
+    if encoder == "sgd":
+        enc = c["e_sgd"] * (1.0 + c["i_half"] / max(it, 1)) if it > 0 else c["e_naive"]
+    else:
+        enc = c[f"e_{encoder}"]
+    # SGD's residual differs frame to frame like speckle; DPAC's checkerboard error is much the same in every frame
+    encoder_err = q * enc * (F ** -c[f"a_{encoder}"] if f"a_{encoder}" in c else per_frame)
+    floor = c["floor"]
+    power = {"speckle": speckle, "noise": noise, "encoder": encoder_err, "floor": floor}
+    total = sum(power.values())
+    psnr = -10.0 * math.log10(total)
+    parts = {k: 10.0 * math.log10(total / max(total - v, 1e-30)) for k, v in power.items() if k != "floor"}
+    warnings = []
+    if psnr < UNRECOGNISABLE_DB:
+        warnings.append(f"expected about {psnr:.0f} dB: below {UNRECOGNISABLE_DB:.0f} dB a hologram shows speckle and "
+                        f"bands more than the scene ({max(parts, key=parts.get)} costs the most)")
+    if F > 1 and parts["speckle"] >= 3.0:
+        warnings.append(f"the eye's speckle dominates at {F} frames (it costs {parts['speckle']:.1f} dB); "
+                        "more frames average it")
+    if not fourier_filter:
+        warnings.append("predicted for a display with a Fourier filter; without one the pixels' diffraction "
+                        "orders and the encoder's out-of-cone light cost more")
+    return QualityPrediction(psnr_db=psnr, uncertainty_db=float(doc.get("uncertainty_db", 1.5)), parts_db=parts,
+                             error_power=power, warnings=warnings)
+
+
+def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[int] = None,
+                subhologram_radius_px: Optional[float] = None, image_q: Optional[float] = None,
+                fourier_filter: bool = True, model: Optional[dict] = None) -> QualityPrediction:
+    """:func:`predict_quality` for a render's optics and options (``holocore.render_setup.RenderOptions`` or
+    anything with ``preset``, ``spp``, ``max_spp``): the rays per pixel the preset picks for the scene's depth
+    (its farthest sub-hologram radius, px; unknown: a shallow scene's, as the time estimate assumes) and their
+    noise-to-signal, the optics' frames and frame-phase mode."""
+    from holocore.plan.effects import noise_factor
+    from holocore.plan.estimate import features
+
+    x = features(optics, options, subhologram_radius_px=subhologram_radius_px)
+    radius = optics.wrp_margin_px + 2.0 if subhologram_radius_px is None else float(subhologram_radius_px)
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    nsr = noise_factor(theta) * radius ** 2 / max(1, int(x["spp"]))
+    return predict_quality(frames=optics.frames, frame_phases=optics.frame_phases, noise_to_signal=nsr,
+                           encoder=encoder, iterations=iterations, image_q=image_q,
+                           fourier_filter=fourier_filter, model=model)

@@ -1,0 +1,92 @@
+"""A job's predicted quality, shown with every estimate and stored with the job, and a quality target resolved
+into the options that reach it (``quality_db``).
+
+The prediction is holocore.plan.quality's, from what the scene's plan says (its farthest sub-hologram radius
+sets the noise of the preset's rays; its picture's image statistic the weight of speckle and noise); the times
+beside it are the job estimate's own (:func:`service.models.hologram_seconds`), so "24 frames would give about
+20 dB in 3 min" and the estimate above it never disagree.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Optional
+
+from holocore.plan.quality import predict_for
+from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality
+
+__all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
+
+CANDIDATE_SPP = (None, 8, 16, 32, 64, 128, 256)
+CANDIDATE_ITERATIONS = (None, 20, 40, 80)
+
+
+def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[float]]:
+    """(the farthest sub-hologram radius in px, the picture's image statistic) from a scene's plan, None where
+    the plan lacks them."""
+    plan = scene_plan or {}
+    radius = (plan.get("analysis") or {}).get("subhologram_radius_px")
+    q = (plan.get("picture") or {}).get("image_q")
+    radius = float(radius) if isinstance(radius, (int, float)) and radius >= 0 else None
+    q = float(q) if isinstance(q, (int, float)) and 0 < q <= 1 else None
+    return radius, q
+
+
+def _options(req, max_spp: Optional[int]):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
+
+
+def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds_of) -> list:
+    from service.models import effective_optics
+
+    radius, q = _scene_facts(scene_plan)
+
+    def seconds(o, opt, it) -> float:
+        return seconds_of(req.model_copy(update={"frames": o.frames, "spp": opt.spp, "iterations": it}))
+
+    return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, seconds=seconds,
+                      subhologram_radius_px=radius, image_q=q, spp=CANDIDATE_SPP,
+                      iterations=CANDIDATE_ITERATIONS)
+
+
+def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds: float, seconds_of,
+                target_db: Optional[float] = None) -> dict[str, Any]:
+    """The estimate's ``quality``: the predicted viewer-faithful PSNR, its ±, what each part costs, warnings,
+    and at most two other mixes of frames, rays and encoder iterations worth knowing (``seconds_of(req)``:
+    the estimate's seconds of a request)."""
+    from service.models import effective_optics
+
+    radius, q = _scene_facts(scene_plan)
+    pred = predict_for(effective_optics(req), _options(req, max_spp), encoder=req.encoder,
+                       iterations=req.iterations, subhologram_radius_px=radius, image_q=q)
+    out = pred.as_dict()
+    out["words"] = pred.words()
+    out["scene_facts"] = "the scene's plan" if radius is not None else "a shallow, typical scene (its plan is pending)"
+    if target_db is not None:
+        out["target_db"] = float(target_db)
+        if pred.psnr_db < target_db:
+            out["warnings"].append(f"the target of {target_db:g} dB is beyond what the service's limits predict "
+                                   f"({pred.psnr_db:.1f} dB at best)")
+    if req.render_time_limit_s is None:
+        out["instead"] = alternatives_words(pred, seconds, _candidates(req, scene_plan=scene_plan, max_spp=max_spp,
+                                                                        seconds_of=seconds_of))
+    return out
+
+
+def resolve_quality_target(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds_of, allowed):
+    """``req`` with the frames, rays per pixel and encoder iterations predicted to reach its ``quality_db``
+    soonest among those ``allowed(req)`` admits (the service's limits), else the best of those, and
+    ``quality_db`` cleared (the estimate keeps the target); ``req`` itself without a target."""
+    if req.quality_db is None:
+        return req
+    cands = _candidates(req, scene_plan=scene_plan, max_spp=max_spp, seconds_of=seconds_of)
+
+    def as_req(c):
+        return req.model_copy(update={"frames": c.frames, "spp": c.spp_asked, "iterations": c.iterations,
+                                      "quality_db": None})
+
+    ok = [c for c in cands if allowed(as_req(c))]
+    if not ok:
+        return req.model_copy(update={"quality_db": None})
+    return as_req(choose_for_quality(ok, req.quality_db))
