@@ -29,7 +29,8 @@ def render(
                                                                   "preset may choose (a cap below its own)."),
     time_limit_s: Optional[float] = typer.Option(
         None, "--time-limit-s", help="Render for about this many seconds of wall time (setup, tracing and "
-                                     "propagation; not the file writing): passes of rays until the time is spent."),
+                                     "propagation; not the file writing): passes of rays until the time is spent; "
+                                     "without --frames, the frame count (up to the display's) predicted best in it."),
     method: str = typer.Option("wrp", help="wrp (two-stage) | direct (rays from the SLM plane)."),
     force_all_effects: bool = typer.Option(False, "--force-all-effects", help="Simulate every effect."),
     wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
@@ -37,9 +38,9 @@ def render(
     progress_jsonl: Optional[Path] = typer.Option(None, "--progress-jsonl", help="Append progress as JSON lines."),
     estimate: bool = typer.Option(False, "--estimate", help="Print the predicted time and quality and exit."),
     quality_db: Optional[float] = typer.Option(
-        None, "--quality-db", help="Aim at this viewer-faithful PSNR (dB, 5..40): the frames and rays per pixel "
-                                   "predicted to reach it soonest (holocore.plan.quality_choice); says the "
-                                   "`holo encode --iterations` that goes with them."),
+        None, "--quality-db", help="Aim at this viewer-faithful PSNR (dB, 5..40): the frames (up to --frames, else "
+                                   "the display's) and rays per pixel predicted to reach it soonest "
+                                   "(holocore.plan.quality_choice); says the `holo encode --iterations` to run."),
     device: Optional[str] = typer.Option(None, "--device", help="auto (CUDA when available) | cpu | cuda; "
                                                                  "default: HOLO_DEVICE, else auto."),
     memory_budget_mb: Optional[int] = typer.Option(
@@ -82,8 +83,9 @@ def render(
     console = Console(stderr=True)
     if quality_db is not None and not (5.0 <= quality_db <= 40.0):
         fail(f"--quality-db must be in 5..40 dB, got {quality_db!r}")
-    if quality_db is not None and (spp is not None or time_limit_s is not None or optics.frames is not None):
-        fail("--quality-db chooses the frames and rays per pixel: give it without --frames, --spp and --time-limit-s")
+    if quality_db is not None and (spp is not None or time_limit_s is not None):
+        fail("--quality-db chooses the rays per pixel (and frames up to --frames, else the display's): give it "
+             "without --spp and --time-limit-s")
     loaded = None
     if quality_db is not None:
         from holocore.pipeline import plan_scene
@@ -100,6 +102,25 @@ def render(
         reach = "predicted to reach it" if chosen.psnr_db >= quality_db else "the best predicted; it falls short"
         it = "" if chosen.iterations is None else f" --iterations {chosen.iterations}"
         console.print(f"--quality-db {quality_db:g}: {chosen.words()} ({reach}); then `holo encode{it}`")
+    if time_limit_s is not None and optics.frames is None and optics.optics_json is None:
+        # the time buys frames as well as rays: the frame count (up to the display's) whose rays in that time
+        # predict the best score; frames given (--frames, or a job's --optics-json) are kept
+        from holocore.pipeline import plan_scene
+        from holocore.scene.load import load_scene
+
+        from holo.render_quality import frames_for_time, quality_context
+
+        try:
+            loaded = load_scene(scene)
+            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile)
+            pick = frames_for_time(ctx, optics_cfg, options, time_limit_s)
+        except (ValueError, FileNotFoundError) as exc:
+            fail(str(exc))
+        if pick is not None:
+            optics_cfg = optics_cfg.model_copy(update={"frames": pick[0]})
+            console.print(f"--time-limit-s {time_limit_s:g}: {pick[0]} frames, about {pick[2]} rays per pixel, "
+                          f"expected about {pick[1]:.0f} dB (the mix of frames and rays predicted best in that time; "
+                          "--frames fixes the frames)")
     if estimate and time_limit_s is not None:
         console.print(f"estimated time of `holo render`: {time_limit_s:.1f} s (the time limit: the render traces "
                       f"rays until it is spent)")
@@ -136,7 +157,7 @@ def render(
         from holo.render_quality import estimate_lines, quality_context
 
         qctx = quality_context(loaded, pl, profile, probe=probe, calibration=cal)
-        for line in estimate_lines(qctx, optics_cfg, options):
+        for line in estimate_lines(qctx, optics_cfg, options, most_frames=max(optics_cfg.frames, profile.frames)):
             console.print(line)
         from holocore.plan.memory_estimate import estimate_memory
 

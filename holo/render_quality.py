@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Optional
 
-__all__ = ["QualityContext", "quality_context", "estimate_lines", "choose_options"]
+__all__ = ["QualityContext", "quality_context", "estimate_lines", "choose_options", "frames_for_time"]
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,10 @@ def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> Qua
     radius = float(pl.analysis.subhologram_radius_px)
     prims = pl.inventory.primitives
 
-    def seconds(o, opt, it) -> float:
+    def seconds(o, opt, it, encode: bool = True) -> float:
+        iters = (TYPICAL_STOP_ITERATIONS if it is None else int(it)) if encode else 0
         stages = estimate_breakdown(o, opt, scene_primitives=prims, subhologram_radius_px=radius,
-                                    encode_iterations=TYPICAL_STOP_ITERATIONS if it is None else int(it),
-                                    calibration=calibration)
+                                    encode_iterations=iters, calibration=calibration)
         if probe is None:
             return stages["total"]
         render = estimate_with_probe(o, opt, probe, scene_primitives=prims, subhologram_radius_px=radius,
@@ -48,10 +48,11 @@ def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> Qua
     return QualityContext(radius_px=radius, image_q=q, fourier_filter=bool(profile.fourier_filter), seconds=seconds)
 
 
-def estimate_lines(ctx: QualityContext, optics, options) -> list[str]:
-    """What `holo render --estimate` says of quality: the prediction, its parts, warnings and two alternatives."""
+def estimate_lines(ctx: QualityContext, optics, options, *, most_frames: int) -> list[str]:
+    """What `holo render --estimate` says of quality: the prediction, its parts, warnings and two alternatives
+    (with up to ``most_frames`` frames, what the display shows)."""
     from holocore.plan.quality import predict_for
-    from holocore.plan.quality_choice import alternatives_words, candidates
+    from holocore.plan.quality_choice import alternatives_words, candidates, frames_upto
 
     pred = predict_for(optics, options, subhologram_radius_px=ctx.radius_px, image_q=ctx.image_q,
                        fourier_filter=ctx.fourier_filter)
@@ -60,20 +61,48 @@ def estimate_lines(ctx: QualityContext, optics, options) -> list[str]:
              f"{now_s:.0f} s"]
     lines += [f"warning: {w}" for w in pred.warnings]
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
-                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter)
+                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter, frames=frames_upto(most_frames))
     lines += [f"instead: {w}" for w in alternatives_words(pred, now_s, cands)]
     return lines
 
 
 def choose_options(ctx: QualityContext, optics, options, target_db: float):
-    """(optics, options, the chosen candidate) that reach ``target_db`` in the least predicted time: frames,
-    rays per pixel and the encoder's iterations (the rest as given)."""
-    from holocore.plan.quality_choice import candidates, choose_for_quality
+    """(optics, options, the chosen candidate) that reach ``target_db`` in the least predicted time: frames (up
+    to the optics' own), rays per pixel and the encoder's iterations (the rest as given)."""
+    from holocore.plan.quality_choice import candidates, choose_for_quality, frames_upto
 
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
-                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter)
+                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter, frames=frames_upto(optics.frames))
     best = choose_for_quality(cands, target_db)
     import dataclasses
 
     return (optics.model_copy(update={"frames": best.frames}),
             dataclasses.replace(options, spp=best.spp_asked), best)
+
+
+def frames_for_time(ctx: QualityContext, optics, options, limit_s: float):
+    """(frames, predicted dB, rays per pixel expected) of the mix a render of ``limit_s`` seconds does best with:
+    for each frame count up to the optics' own, the rays that fill the time (the time model, doubling rays from the preset's least)
+    and the quality they predict; the best. A time limit then buys frames as well as rays."""
+    import dataclasses
+
+    from holocore.plan.presets import PRESETS
+    from holocore.plan.quality import predict_for
+    from holocore.plan.quality_choice import frames_upto
+
+    best = None
+    for F in frames_upto(optics.frames):
+        o = optics.model_copy(update={"frames": F})
+        n, spp = None, max(1, PRESETS[options.preset].spp_min // 4)
+        while spp <= 1 << 16:
+            opt = dataclasses.replace(options, spp=spp, time_limit_s=None)
+            if ctx.seconds(o, opt, None, encode=False) > limit_s:
+                break
+            n, spp = spp, spp * 2
+        if n is None:
+            continue
+        q = predict_for(o, dataclasses.replace(options, spp=n, time_limit_s=None), subhologram_radius_px=ctx.radius_px,
+                        image_q=ctx.image_q, fourier_filter=ctx.fourier_filter).psnr_db
+        if best is None or q > best[1]:
+            best = (F, q, n)
+    return best

@@ -50,8 +50,8 @@ class JobFields(BaseModel):
     iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
     quality_db: Optional[float] = Field(
         default=None, ge=5, le=40, allow_inf_nan=False, description="Aim at this viewer-faithful PSNR (dB): the "
-        "service chooses frames, spp and iterations predicted to reach it soonest (holocore.plan.quality_choice); "
-        "give it without them and without render_time_limit_s.")
+        "service chooses frames (up to frames, else the optics' own), spp and iterations predicted to reach it "
+        "soonest (holocore.plan.quality_choice); give it without spp, iterations and render_time_limit_s.")
     method: Method = "wrp"
     wrp_planes: WrpPlanes = Field(
         default="auto", description=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or 'auto' (chosen from the scene "
@@ -63,9 +63,10 @@ class JobFields(BaseModel):
 
     @model_validator(mode="after")
     def _target_alone(self):
-        given = [k for k in ("frames", "spp", "iterations", "render_time_limit_s") if getattr(self, k) is not None]
+        given = [k for k in ("spp", "iterations", "render_time_limit_s") if getattr(self, k) is not None]
         if self.quality_db is not None and given:
-            raise ValueError(f"quality_db chooses frames, spp and iterations: give it without {', '.join(given)}")
+            raise ValueError(f"quality_db chooses spp and iterations (and frames, up to the frames given): give it "
+                             f"without {', '.join(given)}")
         return self
 
     @model_validator(mode="after")

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, Optional
 
 from holocore.plan.quality import predict_for
-from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality
+from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality, frames_upto
 
 __all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
@@ -45,8 +45,10 @@ def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     def seconds(o, opt, it) -> float:
         return seconds_of(req.model_copy(update={"frames": o.frames, "spp": opt.spp, "iterations": it}))
 
+    # the most frames a choice takes: those given with a target, else what the display's optics show
+    most = req.frames if req.quality_db is not None and req.frames is not None else req.optics.frames
     return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, seconds=seconds,
-                      subhologram_radius_px=radius, image_q=q, spp=CANDIDATE_SPP,
+                      subhologram_radius_px=radius, image_q=q, frames=frames_upto(most), spp=CANDIDATE_SPP,
                       iterations=CANDIDATE_ITERATIONS)
 
 

@@ -5,7 +5,8 @@ Each candidate is a mix of frames, rays per pixel and SGD encoder iterations (th
 and the recording planes stay the job's): its viewer-faithful PSNR from the quality model
 (:mod:`holocore.plan.quality`) and its seconds from the time model (:mod:`holocore.plan.estimate`, render plus
 encoder). The front is the candidates no other beats in both. A quality target takes the quickest candidate
-predicted to reach it; a time limit, the best candidate predicted to fit in it. Pure Python (the service's API
+predicted to reach it; a time limit, the best candidate predicted to fit in it. Frames are chosen up to the
+display's own count (:func:`frames_upto`): the SLM shows that many per image; a stack of fewer repeats. Pure Python (the service's API
 process calls it for every estimate).
 """
 
@@ -18,7 +19,7 @@ from typing import Any, Callable, Optional, Sequence
 
 from holocore.plan.quality import QualityPrediction, predict_for
 
-__all__ = ["Candidate", "candidates", "front", "choose_for_quality", "choose_for_time", "alternatives_words",
+__all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_quality", "choose_for_time", "alternatives_words",
            "FRAME_CHOICES", "SPP_CHOICES", "ITERATION_CHOICES"]
 
 FRAME_CHOICES = (1, 2, 4, 8, 12, 16, 24, 32, 48)
@@ -68,6 +69,12 @@ def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any,
                 out.append(Candidate(frames=int(F), spp=n_res, spp_asked=n, iterations=it, psnr_db=q.psnr_db,
                                      seconds=float(seconds(o, opt, it))))
     return out
+
+
+def frames_upto(most: int) -> tuple[int, ...]:
+    """The frame counts a choice may take on a display that shows ``most`` frames per image (its profile's
+    frames, or what the user gave): the usual counts below it, and it."""
+    return tuple(sorted({F for F in FRAME_CHOICES if F < most} | {int(most)}))
 
 
 def _with_spp(options, n: Optional[int]):

@@ -46,9 +46,9 @@ function jobBody() {
   if ($("display").value.trim()) body.display = $("display").value.trim();
   if ($("job-name").value.trim()) body.name = $("job-name").value.trim();
   body.evaluate = $("evaluate").checked;
-  if ($("quality-db").value) {  // the service chooses frames, rays and iterations for the target
+  if ($("quality-db").value) {  // the service chooses rays, iterations and frames (up to Frames) for the target
     body.quality_db = Number($("quality-db").value);
-    for (const k of ["frames", "spp", "iterations", "render_time_limit_s"]) delete body[k];
+    for (const k of ["spp", "iterations", "render_time_limit_s"]) delete body[k];
   }
   return body;
 }

@@ -36,12 +36,13 @@ def test_the_picture_of_a_brighter_scene_predicts_less():
     assert dim["psnr_db"] > bright["psnr_db"] + 3
 
 
-@pytest.mark.parametrize("given", [{"frames": 8}, {"spp": 16}, {"iterations": 40}, {"render_time_limit_s": 5.0}])
+@pytest.mark.parametrize("given", [{"spp": 16}, {"iterations": 40}, {"render_time_limit_s": 5.0}])
 def test_a_target_with_the_options_it_chooses_is_refused(given):
     with pytest.raises(ValidationError, match="quality_db chooses"):
         JobRequest(scene_id="s" * 12, quality_db=15.0, **given)
     with pytest.raises(ValidationError):
         JobRequest(scene_id="s" * 12, quality_db=80.0)
+    JobRequest(scene_id="s" * 12, quality_db=15.0, frames=8)  # frames: the most the choice may take
 
 
 def test_a_quality_target_over_the_api(server):
@@ -62,5 +63,8 @@ def test_a_quality_target_over_the_api(server):
         assert lo["estimate"]["quality"]["psnr_db"] >= 12.0 - 0.05, lo["estimate"]["quality"]
         # a higher target costs more predicted time, never less
         assert hi["estimate"]["seconds"] >= lo["estimate"]["seconds"]
-        refused = c.post("/v1/jobs/estimate", json={**body, "quality_db": 12.0, "frames": 4})
+        refused = c.post("/v1/jobs/estimate", json={**body, "quality_db": 12.0, "spp": 4})
         assert refused.status_code == 422 and "quality_db chooses" in refused.text
+        capped = c.post("/v1/jobs/estimate", json={**body, "quality_db": 40.0, "frames": 4})
+        assert capped.status_code == 200 and capped.json()["options"]["frames"] <= 4  # the display's frames
+        assert any("beyond" in w for w in capped.json()["warnings"])  # 40 dB is out of reach: it says so
