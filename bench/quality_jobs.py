@@ -116,6 +116,16 @@ def main(argv=None) -> int:
         keys = {(j["frames"], j["frame_phases"], j["spp_asked"], j["encoder"], j["iterations_asked"], j["preset"])
                 for j in done}
         record["jobs"] = done
+        if path.is_file():  # the scene's own measures of an earlier run are kept
+            record.update({k: v for k, v in json.loads(path.read_text()).items() if k not in record or k == "date"})
+        # what the quality model reads of the scene before a job: its picture's image statistic and the share of
+        # its light seen through glass (holocore.plan.quality)
+        from holocore.evaluate.groundtruth import camera_picture
+        from holocore.evaluate.metrics import white_power
+        from holocore.pipeline import plan_scene
+
+        record["picture_q"] = white_power(camera_picture(loaded, max_width_px=64, spp=16))
+        record["refracted_share"] = plan_scene(loaded, run.optics(24), RenderOptions()).analysis.refracted_share
         for F, mode, spp, encm, iters, preset in jobs:
             if (F, mode, spp, encm, iters, preset) in keys:
                 continue  # measured by an earlier run
@@ -131,10 +141,6 @@ def main(argv=None) -> int:
                 planes = [z for _n, z in focus]
                 centre = truth.channels(focus_z_m=planes[0], pupil_diameter_m=4e-3, view_offset_m=(0.0, 0.0))
                 record["truth_stats"] = image_stats(centre)
-                from holocore.evaluate.groundtruth import camera_picture
-                from holocore.evaluate.metrics import white_power
-
-                record["picture_q"] = white_power(camera_picture(loaded, max_width_px=64, spp=16))
             kw = {} if encm != "sgd" else ({"iterations": 500, "stop_db": 0.05} if iters is None
                                            else {"iterations": int(iters), "stop_db": 0.0})
             t1 = time.perf_counter()
@@ -164,6 +170,8 @@ def main(argv=None) -> int:
                 f"render {t_render:.1f} s, encode {t_enc:.1f} s")
             path.write_text(json.dumps(record, indent=1, default=float))
             del res, enc, fld
+        if record["jobs"]:
+            path.write_text(json.dumps(record, indent=1, default=float))
     return 0
 
 

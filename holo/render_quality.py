@@ -17,6 +17,7 @@ __all__ = ["QualityContext", "quality_context", "estimate_lines", "choose_option
 class QualityContext:
     radius_px: float
     image_q: Optional[float]
+    refracted_share: float
     fourier_filter: bool
     seconds: Any  # (optics, options, iterations) -> predicted seconds of render plus encode
 
@@ -45,7 +46,8 @@ def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> Qua
                                      calibration=calibration)
         return render["total"] + stages.get("encode", 0.0)
 
-    return QualityContext(radius_px=radius, image_q=q, fourier_filter=bool(profile.fourier_filter), seconds=seconds)
+    return QualityContext(radius_px=radius, image_q=q, refracted_share=float(pl.analysis.refracted_share),
+                          fourier_filter=bool(profile.fourier_filter), seconds=seconds)
 
 
 def estimate_lines(ctx: QualityContext, optics, options, *, most_frames: int) -> list[str]:
@@ -55,13 +57,14 @@ def estimate_lines(ctx: QualityContext, optics, options, *, most_frames: int) ->
     from holocore.plan.quality_choice import alternatives_words, candidates, frames_upto
 
     pred = predict_for(optics, options, subhologram_radius_px=ctx.radius_px, image_q=ctx.image_q,
-                       fourier_filter=ctx.fourier_filter)
+                       refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter)
     now_s = ctx.seconds(optics, options, None)
     lines = [f"predicted quality (with `holo encode`'s default SGD): {pred.words()}; render and encode about "
              f"{now_s:.0f} s"]
     lines += [f"warning: {w}" for w in pred.warnings]
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
-                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter, frames=frames_upto(most_frames))
+                       image_q=ctx.image_q, refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter,
+                       frames=frames_upto(most_frames))
     lines += [f"instead: {w}" for w in alternatives_words(pred, now_s, cands)]
     return lines
 
@@ -72,7 +75,8 @@ def choose_options(ctx: QualityContext, optics, options, target_db: float):
     from holocore.plan.quality_choice import candidates, choose_for_quality, frames_upto
 
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
-                       image_q=ctx.image_q, fourier_filter=ctx.fourier_filter, frames=frames_upto(optics.frames))
+                       image_q=ctx.image_q, refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter,
+                       frames=frames_upto(optics.frames))
     best = choose_for_quality(cands, target_db)
     import dataclasses
 
@@ -102,7 +106,8 @@ def frames_for_time(ctx: QualityContext, optics, options, limit_s: float):
         if n is None:
             continue
         q = predict_for(o, dataclasses.replace(options, spp=n, time_limit_s=None), subhologram_radius_px=ctx.radius_px,
-                        image_q=ctx.image_q, fourier_filter=ctx.fourier_filter).psnr_db
+                        image_q=ctx.image_q, refracted_share=ctx.refracted_share,
+                        fourier_filter=ctx.fourier_filter).psnr_db
         if best is None or q > best[1]:
             best = (F, q, n)
     return best

@@ -16,19 +16,21 @@ from holocore.plan.quality_choice import alternatives_words, candidates, choose_
 
 __all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
-CANDIDATE_SPP = (None, 8, 16, 32, 64, 128, 256)
+CANDIDATE_SPP = (None, 16, 32, 64, 128, 256, 512)
 CANDIDATE_ITERATIONS = (None, 20, 40, 80)
 
 
-def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[float]]:
-    """(the farthest sub-hologram radius in px, the picture's image statistic) from a scene's plan, None where
-    the plan lacks them."""
+def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[float], float]:
+    """(the farthest sub-hologram radius in px, the picture's image statistic, the share of light seen through
+    glass) from a scene's plan, None (0) where the plan lacks them."""
     plan = scene_plan or {}
+    r = (plan.get("analysis") or {}).get("refracted_share")
+    refracted = float(r) if isinstance(r, (int, float)) and 0 <= r <= 1 else 0.0
     radius = (plan.get("analysis") or {}).get("subhologram_radius_px")
     q = (plan.get("picture") or {}).get("image_q")
     radius = float(radius) if isinstance(radius, (int, float)) and radius >= 0 else None
     q = float(q) if isinstance(q, (int, float)) and 0 < q <= 1 else None
-    return radius, q
+    return radius, q, refracted
 
 
 def _options(req, max_spp: Optional[int]):
@@ -40,7 +42,7 @@ def _options(req, max_spp: Optional[int]):
 def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds_of) -> list:
     from service.models import effective_optics
 
-    radius, q = _scene_facts(scene_plan)
+    radius, q, diel = _scene_facts(scene_plan)
 
     def seconds(o, opt, it) -> float:
         return seconds_of(req.model_copy(update={"frames": o.frames, "spp": opt.spp, "iterations": it}))
@@ -48,7 +50,8 @@ def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     # the most frames a choice takes: those given with a target, else what the display's optics show
     most = req.frames if req.quality_db is not None and req.frames is not None else req.optics.frames
     return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, seconds=seconds,
-                      subhologram_radius_px=radius, image_q=q, frames=frames_upto(most), spp=CANDIDATE_SPP,
+                      subhologram_radius_px=radius, image_q=q, refracted_share=diel, frames=frames_upto(most),
+                      spp=CANDIDATE_SPP,
                       iterations=CANDIDATE_ITERATIONS)
 
 
@@ -59,9 +62,9 @@ def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     the estimate's seconds of a request)."""
     from service.models import effective_optics
 
-    radius, q = _scene_facts(scene_plan)
+    radius, q, diel = _scene_facts(scene_plan)
     pred = predict_for(effective_optics(req), _options(req, max_spp), encoder=req.encoder,
-                       iterations=req.iterations, subhologram_radius_px=radius, image_q=q)
+                       iterations=req.iterations, subhologram_radius_px=radius, image_q=q, refracted_share=diel)
     out = pred.as_dict()
     out["words"] = pred.words()
     out["scene_facts"] = "the scene's plan" if radius is not None else "a shallow, typical scene (its plan is pending)"

@@ -38,6 +38,10 @@ class SceneAnalysis(BaseModel):
     z_near_holo_m: Optional[float]  # hologram depth of the nearest surface or image point
     z_far_holo_m: Optional[float]  # ... of the farthest
     subhologram_radius_px: float  # of the farthest image point on the WRP, widest cone
+    # the light's share (luminance-weighted over the pre-pass rays with an image point) that reaches the eye
+    # through a refracting medium (its optical path differs from its apparent distance): each glass surface is a
+    # Fresnel choice between reflection and refraction, a Monte Carlo noise a mirror's one path does not have
+    refracted_share: float = 0.0
     margin_m: float
     # Hologram depths of the image points, luminance-weighted quantiles (front to back): where the light is,
     # for placing several recording planes (holocore.plan.wrp_planes).
@@ -200,6 +204,10 @@ def analyze(
             f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
         )
     depth_q = _weighted_quantiles(hmap.holo_depth_m(zc_img), res.radiance[good & (zc_img_all > 0)].sum(axis=1))
+    ok = good & (zc_img_all > 0)
+    w_lum = res.radiance[ok].sum(axis=1).astype(np.float64)
+    bent = np.abs(res.opl_m[ok] - res.d[ok]) > 1e-6 * np.maximum(np.abs(res.d[ok]), 1e-9)
+    refracted = float(w_lum[bent].sum() / w_lum.sum()) if w_lum.sum() > 0 else 0.0
     radius_px = 0.0 if z_far is None else (z_wrp - z_far) * math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD)) / pitch_m
     return SceneAnalysis(
         rays=R,
@@ -216,6 +224,7 @@ def analyze(
         z_near_holo_m=z_near,
         z_far_holo_m=z_far,
         subhologram_radius_px=float(radius_px),
+        refracted_share=refracted,
         margin_m=float(margin),
         image_depths_holo_m=depth_q,
     )

@@ -8,10 +8,13 @@ sum of parts, each from what a job's options and the scene's plan say before any
     speckle   q s_m / F^a_m           F frames of independent random phase average the eye's speckle; s_m and a_m
                                       per frame-phase mode (coded frames average close to 1/F; one frame has no
                                       random phase, and its own error s_1: coherent defocus blur and ringing)
-    noise     q c_mc nsr / F^b        Monte Carlo noise: nsr = k(theta) rho^2 / N, the plan's noise-to-signal of
+    noise     q c_mc nsr (1 + d r) / F^b  Monte Carlo noise: nsr = k(theta) rho^2 / N, the plan's noise-to-signal of
                                       N rays per pixel at the farthest image point (sub-hologram radius rho px,
                                       holocore.plan.effects.noise_factor); frames re-phase the same rays, which
-                                      decorrelates part of their noise (b)
+                                      decorrelates part of their noise (b). r: the share of the light that reaches
+                                      the eye through glass (the plan's ``refracted_share``): at each glass
+                                      surface a ray goes on by reflection or by refraction, drawn by their
+                                      Fresnel weights, a binary choice whose variance a mirror's one path lacks
     encoder   q e(method, it) / F^a   the phase-only encoder's error: SGD e_sgd (1 + i_half / it) after it
                                       iterations (its stop rule: ``TYPICAL_STOP_ITERATIONS``), averaging over
                                       frames as speckle does (a = a_m); DPAC e_dpac / F^a_dpac: its checkerboard
@@ -38,7 +41,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["QualityPrediction", "predict_quality", "predict_for", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
+__all__ = ["QualityPrediction", "predict_quality", "predict_for", "MIN_FITTED_SPP", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
            "DEFAULT_IMAGE_Q", "PARTS"]
 
 MODEL_PATH = Path(__file__).resolve().parent / "data" / "quality_model.json"
@@ -47,6 +50,11 @@ UNRECOGNISABLE_DB = 12.0
 # The image statistic q of a typical scene (the median of the fitted scenes') when the scene's own is unknown.
 DEFAULT_IMAGE_Q = 0.2
 PARTS = ("speckle", "noise", "encoder", "floor")
+# The fewest rays per pixel of the fitted jobs' range (the balanced preset's least): below it the cone equaliser
+# filters the signal with the noise, a loss the noise term does not model.
+MIN_FITTED_SPP = 16
+# The frame count a speckle warning compares with: the paper's display shows 24 frames per image.
+SPECKLE_FRAMES = 24
 
 
 @lru_cache(maxsize=4)
@@ -94,13 +102,36 @@ def _check_count(name: str, v, low: int = 1) -> int:
     return v
 
 
+def _error_power(c: dict, *, F: int, mode: str, nsr: float, encoder: str, it: int, q: float,
+                 refracted: float) -> dict[str, float]:
+    """The parts' error powers (module docstring) with coefficients ``c``."""
+    q_dpac = q ** c["k_dpac"]  # DPAC's checkerboard spreads its error over the picture, not with the light
+    q = q ** c["k_q"]
+    per_frame = 1.0 if F == 1 else F ** -c[f"a_{mode}"]
+    speckle = q * (c["s_one"] if F == 1 else c[f"s_{mode}"] * per_frame)
+    noise = q * c["c_mc"] * nsr * (1.0 + c["d_split"] * refracted) * F ** -c["b_mc"]
+    if encoder == "sgd":
+        enc = c["e_sgd"] * (1.0 + c["i_half"] / max(it, 1)) if it > 0 else c["e_naive"]
+    else:
+        enc = c[f"e_{encoder}"]
+    # SGD's residual differs frame to frame like speckle; DPAC's checkerboard error is much the same in every frame
+    enc_frames = F ** -c[f"a_{encoder}"] if f"a_{encoder}" in c else per_frame
+    return {"speckle": speckle, "noise": noise, "encoder": (q_dpac if encoder == "dpac" else q) * enc * enc_frames,
+            "floor": c["floor"]}
+
+
+def _psnr(power: dict[str, float]) -> float:
+    return -10.0 * math.log10(sum(power.values()))
+
+
 def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, encoder: str,
                     iterations: Optional[int] = None, image_q: Optional[float] = None,
-                    fourier_filter: bool = True, model: Optional[dict] = None) -> QualityPrediction:
+                    refracted_share: float = 0.0, fourier_filter: bool = True,
+                    model: Optional[dict] = None) -> QualityPrediction:
     """Predicted viewer-faithful PSNR of a job (module docstring). ``noise_to_signal``: the plan's Monte Carlo
     noise-to-signal power of its rays per pixel (:func:`holocore.plan.effects.noise_factor` rho^2 / N);
     ``iterations``: the SGD encoder's (None: its stop rule); ``image_q``: the scene's image statistic (None: a
-    typical scene's)."""
+    typical scene's); ``refracted_share``: the share of the light seen through glass (the plan's analysis)."""
     from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
 
     F = _check_count("frames", frames)
@@ -112,31 +143,26 @@ def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, e
     q = DEFAULT_IMAGE_Q if image_q is None else float(image_q)
     if not (math.isfinite(q) and 0 < q <= 1):
         raise ValueError(f"image_q must be in (0, 1], got {image_q!r}")
+    if not (isinstance(refracted_share, (int, float)) and 0.0 <= refracted_share <= 1.0):
+        raise ValueError(f"refracted_share must be in [0, 1], got {refracted_share!r}")
     doc = model if model is not None else quality_model()
     c = doc["coefficients"]
-    mode = frame_phases if f"s_{frame_phases}" in c else "coded"
-    a = c[f"a_{mode}"]
-    per_frame = 1.0 if F == 1 else F ** -a
-    speckle = q * (c["s_one"] if F == 1 else c[f"s_{mode}"] * per_frame)
-    noise = q * c["c_mc"] * float(noise_to_signal) * F ** -c["b_mc"]
-    if encoder == "sgd":
-        enc = c["e_sgd"] * (1.0 + c["i_half"] / max(it, 1)) if it > 0 else c["e_naive"]
-    else:
-        enc = c[f"e_{encoder}"]
-    # SGD's residual differs frame to frame like speckle; DPAC's checkerboard error is much the same in every frame
-    encoder_err = q * enc * (F ** -c[f"a_{encoder}"] if f"a_{encoder}" in c else per_frame)
-    floor = c["floor"]
-    power = {"speckle": speckle, "noise": noise, "encoder": encoder_err, "floor": floor}
-    total = sum(power.values())
-    psnr = -10.0 * math.log10(total)
+    kw = dict(mode=frame_phases if f"s_{frame_phases}" in c else "coded", nsr=float(noise_to_signal),
+              encoder=encoder, it=it, q=q, refracted=float(refracted_share))
+    power = _error_power(c, F=F, **kw)
+    total, psnr = sum(power.values()), _psnr(power)
     parts = {k: 10.0 * math.log10(total / max(total - v, 1e-30)) for k, v in power.items() if k != "floor"}
     warnings = []
     if psnr < UNRECOGNISABLE_DB:
         warnings.append(f"expected about {psnr:.0f} dB: below {UNRECOGNISABLE_DB:.0f} dB a hologram shows speckle and "
                         f"bands more than the scene ({max(parts, key=parts.get)} costs the most)")
-    if F > 1 and parts["speckle"] >= 3.0:
-        warnings.append(f"the eye's speckle dominates at {F} frames (it costs {parts['speckle']:.1f} dB); "
-                        "more frames average it")
+    more = _psnr(_error_power(c, F=SPECKLE_FRAMES, **kw)) - psnr
+    if F < SPECKLE_FRAMES and more >= 3.0:
+        warnings.append(f"the eye's speckle dominates at {F} frame(s): {SPECKLE_FRAMES} frames would give about "
+                        f"{more:.0f} dB more")
+    if encoder == "dpac":
+        warnings.append("DPAC on a display whose recording cone fills the SLM's band puts its checkerboard's light "
+                        "back into the cone (docs/quality.md): SGD does far better")
     if not fourier_filter:
         warnings.append("predicted for a display with a Fourier filter; without one the pixels' diffraction "
                         "orders and the encoder's out-of-cone light cost more")
@@ -146,7 +172,8 @@ def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, e
 
 def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[int] = None,
                 subhologram_radius_px: Optional[float] = None, image_q: Optional[float] = None,
-                fourier_filter: bool = True, model: Optional[dict] = None) -> QualityPrediction:
+                refracted_share: float = 0.0, fourier_filter: bool = True,
+                model: Optional[dict] = None) -> QualityPrediction:
     """:func:`predict_quality` for a render's optics and options (``holocore.render_setup.RenderOptions`` or
     anything with ``preset``, ``spp``, ``max_spp``): the rays per pixel the preset picks for the scene's depth
     (its farthest sub-hologram radius, px; unknown: a shallow scene's, as the time estimate assumes) and their
@@ -158,6 +185,10 @@ def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[i
     radius = optics.wrp_margin_px + 2.0 if subhologram_radius_px is None else float(subhologram_radius_px)
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
     nsr = noise_factor(theta) * radius ** 2 / max(1, int(x["spp"]))
-    return predict_quality(frames=optics.frames, frame_phases=optics.frame_phases, noise_to_signal=nsr,
-                           encoder=encoder, iterations=iterations, image_q=image_q,
+    pred = predict_quality(frames=optics.frames, frame_phases=optics.frame_phases, noise_to_signal=nsr,
+                           encoder=encoder, iterations=iterations, image_q=image_q, refracted_share=refracted_share,
                            fourier_filter=fourier_filter, model=model)
+    if int(x["spp"]) < MIN_FITTED_SPP:
+        pred.warnings.append(f"{int(x['spp'])} rays per pixel is below the {MIN_FITTED_SPP} the prediction was "
+                             "fitted from: expect less than predicted")
+    return pred

@@ -23,7 +23,8 @@ __all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_qualit
            "FRAME_CHOICES", "SPP_CHOICES", "ITERATION_CHOICES"]
 
 FRAME_CHOICES = (1, 2, 4, 8, 12, 16, 24, 32, 48)
-SPP_CHOICES = (None, 4, 8, 16, 32, 64, 128, 256, 512)  # None: the preset's choice from the scene's depth
+SPP_CHOICES = (None, 16, 32, 64, 128, 256, 512, 1024)  # None: the preset's choice from the scene's depth; from
+# MIN_FITTED_SPP up (holocore.plan.quality)
 ITERATION_CHOICES = (None, 20, 40, 80)  # None: the encoder's stop rule
 
 
@@ -48,7 +49,7 @@ def _fmt_s(s: float) -> str:
 
 def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any, Any, Optional[int]], float],
                subhologram_radius_px: Optional[float] = None, image_q: Optional[float] = None,
-               fourier_filter: bool = True, frames: Sequence[int] = FRAME_CHOICES,
+               refracted_share: float = 0.0, fourier_filter: bool = True, frames: Sequence[int] = FRAME_CHOICES,
                spp: Sequence[Optional[int]] = SPP_CHOICES,
                iterations: Sequence[Optional[int]] = ITERATION_CHOICES) -> list[Candidate]:
     """Every mix of ``frames`` x ``spp`` x ``iterations`` (iterations only for SGD) with its predicted PSNR and
@@ -65,7 +66,7 @@ def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any,
             n_res = int(features(o, opt, subhologram_radius_px=subhologram_radius_px)["spp"])
             for it in its:
                 q = predict_for(o, opt, encoder=encoder, iterations=it, subhologram_radius_px=subhologram_radius_px,
-                                image_q=image_q, fourier_filter=fourier_filter)
+                                image_q=image_q, refracted_share=refracted_share, fourier_filter=fourier_filter)
                 out.append(Candidate(frames=int(F), spp=n_res, spp_asked=n, iterations=it, psnr_db=q.psnr_db,
                                      seconds=float(seconds(o, opt, it))))
     return out
