@@ -154,6 +154,11 @@ def render(
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
         console.print(f"estimated warm render time: {secs:.1f} s ({source})")
+        import os
+
+        load, cores = os.getloadavg()[0], os.cpu_count() or 1
+        console.print(f"these times assume an otherwise idle machine; its load is {load:.1f} on {cores} cores now"
+                      + (f": expect about {(load + cores) / cores:.1f}x longer" if load > 0.5 * cores else ""))
         from holo.render_quality import estimate_lines, quality_context
 
         qctx = quality_context(loaded, pl, profile, probe=probe, calibration=cal)

@@ -249,8 +249,10 @@ def test_the_estimate_warns_when_the_slm_is_too_small_to_evaluate(server, scene)
         warned = c.post("/v1/jobs/estimate", json=small).json()["warnings"]
         quiet = c.post("/v1/jobs/estimate", json={"scene_id": scene["id"], **EVAL_JOB, "evaluate": True}).json()
         unasked = c.post("/v1/jobs/estimate", json={**small, "evaluate": False}).json()
+    # (the estimate's other warnings are of the quality the options buy: service/quality.py)
+    warned = [w for w in warned if "evaluation" in w]
     assert len(warned) == 1 and "no evaluation at 270x480 px" in warned[0], warned
-    assert quiet["warnings"] == [] and unasked["warnings"] == []
+    assert not [w for w in quiet["warnings"] + unasked["warnings"] if "evaluation" in w]
     need = int(re.search(r"at least (\d+) px", warned[0]).group(1))
     paper = load_display("paper")
     assert evaluation_too_small(paper.optics(resolution_hw=(need - 1, 2 * need))) is not None
