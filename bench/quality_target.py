@@ -31,7 +31,8 @@ HOLO = [sys.executable, "-m", "holo"]
 
 def run(args: list[str]) -> tuple[float, str]:
     t0 = time.perf_counter()
-    out = subprocess.run(HOLO + args, cwd=ROOT, capture_output=True, text=True)
+    env = {**os.environ, "COLUMNS": "400"}  # one line per message: the choice is read back from it
+    out = subprocess.run(HOLO + args, cwd=ROOT, capture_output=True, text=True, env=env)
     if out.returncode != 0:
         raise SystemExit(f"holo {' '.join(args[:2])} failed: {out.stderr[-1500:]}")
     return time.perf_counter() - t0, out.stderr + out.stdout
@@ -93,10 +94,11 @@ def main(argv=None) -> int:
              "| run | options | measured dB | time s | reached | quicker than the default |", "|---|---|---|---|---|---|"]
     for r in rows:
         t = r["target_db"]
-        lines.append(f"| {'default' if t is None else f'--quality-db {t:g}'} | {r['chosen']} | "
-                     f"{r['measured_db']:.2f} | {r['time_s']:.1f} | "
-                     f"{'–' if t is None else ('yes' if r['measured_db'] >= t else 'no')} | "
-                     f"{'–' if t is None else f'{r['time_s'] / base['time_s']:.0%} of its time'} |")
+        run_name = "default" if t is None else f"--quality-db {t:g}"
+        reached = "–" if t is None else ("yes" if r["measured_db"] >= t else "no")
+        share = "–" if t is None else f"{r['time_s'] / base['time_s']:.0%} of its time"
+        lines.append(f"| {run_name} | {r['chosen']} | {r['measured_db']:.2f} | {r['time_s']:.1f} | {reached} | "
+                     f"{share} |")
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
