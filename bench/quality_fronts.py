@@ -49,6 +49,35 @@ POINTS = [
 ]
 
 
+def predict_point(loaded, optics, knobs: dict, image_q: float) -> float:
+    """The quality model's prediction for one of ours' points, made from what the estimate reads before a job
+    (holo/render_quality.py): the plan's recording radius and refracted share, the picture's statistic."""
+    from holocore.pipeline import RenderOptions, plan_scene
+    from holocore.plan.quality import predict_for, recording_radius_px
+
+    pl = plan_scene(loaded, optics, RenderOptions(spp=knobs["spp"]))
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    radius = recording_radius_px(noise_to_signal=pl.plan.noise_to_signal, spp=pl.plan.spp, theta_max=theta)
+    return predict_for(optics, RenderOptions(spp=knobs["spp"]), encoder=knobs.get("encoder", "sgd"),
+                       iterations=knobs["iters"], subhologram_radius_px=radius, image_q=image_q,
+                       refracted_share=pl.analysis.refracted_share).psnr_db
+
+
+def repredict(out_dir: Path, run) -> None:
+    """Recompute ours' predictions in every JSON of ``out_dir`` with the model as it is now."""
+    from holocore.evaluate.groundtruth import camera_picture
+    from holocore.evaluate.metrics import white_power
+
+    for path in sorted(out_dir.glob("fronts_*.json")):
+        doc = json.loads(path.read_text())
+        loaded = run.load(doc["scene"])
+        q = white_power(camera_picture(loaded, max_width_px=64, spp=16))
+        for p in doc["points"]:
+            if p["predicted_db"] is not None:
+                p["predicted_db"] = predict_point(loaded, run.optics(p["knobs"]["frames"]), p["knobs"], q)
+        path.write_text(json.dumps(doc, indent=1, default=float))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", default="mirror,glass,depth,glossy,demo")
@@ -56,6 +85,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=24, help="frames of the baselines")
     ap.add_argument("--out", default="bench/results/quality/fronts_135x240")
     ap.add_argument("--work", default="/tmp/quality_fronts")
+    ap.add_argument("--repredict", action="store_true", help="only recompute ours' predictions in --out's JSON")
     a = ap.parse_args(argv)
     H, W = (int(v) for v in a.resolution.lower().split("x"))
     args = SimpleNamespace(shape_hw=(H, W), work=a.work, filter="4f", z_inf_mm=4.0, frame_phases="coded",
@@ -76,10 +106,12 @@ def main(argv=None) -> int:
     from holocore.evaluate.metrics import white_power
     from holocore.evaluate.truths import ground_truth
     from holocore.evaluate.viewer import viewer_score
-    from holocore.pipeline import RenderOptions, plan_scene, render_loaded
-    from holocore.plan.quality import predict_for
+    from holocore.pipeline import RenderOptions, render_loaded
 
     run = Runner(args, log)
+    if a.repredict:
+        repredict(out_dir, run)
+        return 0
     F = a.frames
     for scene in [s.strip() for s in a.scenes.split(",") if s.strip()]:
         loaded = run.load(scene)
@@ -106,9 +138,7 @@ def main(argv=None) -> int:
                              pitch_m=m["pitch_m"], fourier_filter=True, **kw)
                 t_e = time.perf_counter() - t1
                 fld = phase_only_field(enc)
-                radius = plan_scene(loaded, optics, RenderOptions()).analysis.subhologram_radius_px
-                predicted = predict_for(optics, RenderOptions(spp=knobs["spp"]), encoder=encm,
-                                        iterations=knobs["iters"], subhologram_radius_px=radius, image_q=q).psnr_db
+                predicted = predict_point(loaded, optics, knobs, q)
                 config = f"{knobs['frames']} frames, {m['sampling']['spp']} spp, {encm}" + (
                     "" if encm != "sgd" else f" {knobs['iters']} it" if knobs["iters"] else " stop rule")
             elif kind == "layers":

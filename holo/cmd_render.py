@@ -95,7 +95,7 @@ def render(
 
         try:
             loaded = load_scene(scene)
-            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile)
+            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile, optics_cfg)
             optics_cfg, options, chosen = choose_options(ctx, optics_cfg, options, quality_db)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
@@ -112,7 +112,7 @@ def render(
 
         try:
             loaded = load_scene(scene)
-            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile)
+            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile, optics_cfg)
             pick = frames_for_time(ctx, optics_cfg, options, time_limit_s)
         except (ValueError, FileNotFoundError) as exc:
             fail(str(exc))
@@ -161,7 +161,7 @@ def render(
                       + (f": expect about {(load + cores) / cores:.1f}x longer" if load > 0.5 * cores else ""))
         from holo.render_quality import estimate_lines, quality_context
 
-        qctx = quality_context(loaded, pl, profile, probe=probe, calibration=cal)
+        qctx = quality_context(loaded, pl, profile, optics_cfg, probe=probe, calibration=cal)
         for line in estimate_lines(qctx, optics_cfg, options, most_frames=max(optics_cfg.frames, profile.frames)):
             console.print(line)
         from holocore.plan.memory_estimate import estimate_memory

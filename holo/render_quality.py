@@ -22,8 +22,10 @@ class QualityContext:
     seconds: Any  # (optics, options, iterations) -> predicted seconds of render plus encode
 
 
-def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> QualityContext:
-    """What the predictions need of a loaded scene and its plan ``pl`` (holocore.pipeline.plan_scene)."""
+def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None) -> QualityContext:
+    """What the predictions need of a loaded scene and its plan ``pl`` (holocore.pipeline.plan_scene) at
+    ``optics``: the radius its noise target was set by (on the recording plane of its farthest image point,
+    from which the preset chooses its rays), the picture's image statistic, the light seen through glass."""
     from holocore.evaluate.groundtruth import camera_picture
     from holocore.evaluate.metrics import white_power
     from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, estimate_breakdown
@@ -33,7 +35,10 @@ def quality_context(loaded, pl, profile, *, probe=None, calibration=None) -> Qua
         q = white_power(camera_picture(loaded, max_width_px=64, spp=16)) or None
     except (ValueError, RuntimeError):
         q = None  # no picture: a typical scene's statistic
-    radius = float(pl.analysis.subhologram_radius_px)
+    from holocore.plan.quality import recording_radius_px
+
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    radius = recording_radius_px(noise_to_signal=pl.plan.noise_to_signal, spp=pl.plan.spp, theta_max=theta)
     prims = pl.inventory.primitives
 
     def seconds(o, opt, it, encode: bool = True) -> float:

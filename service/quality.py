@@ -26,11 +26,26 @@ def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[
     plan = scene_plan or {}
     r = (plan.get("analysis") or {}).get("refracted_share")
     refracted = float(r) if isinstance(r, (int, float)) and 0 <= r <= 1 else 0.0
-    radius = (plan.get("analysis") or {}).get("subhologram_radius_px")
+    radius = _recording_radius(plan)
     q = (plan.get("picture") or {}).get("image_q")
     radius = float(radius) if isinstance(radius, (int, float)) and radius >= 0 else None
     q = float(q) if isinstance(q, (int, float)) and 0 < q <= 1 else None
     return radius, q, refracted
+
+
+def _recording_radius(plan: dict) -> Optional[float]:
+    """The radius the plan's noise target was set by (holocore.plan.quality.recording_radius_px), from its
+    noise-to-signal and rays at the plan's optics; the analysis' farthest point where the plan lacks them."""
+    from holocore.display.optics import OpticsConfig
+    from holocore.plan.quality import recording_radius_px
+
+    ep = plan.get("plan") or {}
+    try:
+        o = OpticsConfig(**plan["optics"])
+        return recording_radius_px(noise_to_signal=float(ep["noise_to_signal"]), spp=int(ep["spp"]),
+                                   theta_max=max(o.theta_max(lam) for lam in o.wavelengths_m))
+    except (KeyError, TypeError, ValueError):
+        return (plan.get("analysis") or {}).get("subhologram_radius_px")
 
 
 def _options(req, max_spp: Optional[int]):

@@ -41,7 +41,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["QualityPrediction", "predict_quality", "predict_for", "MIN_FITTED_SPP", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
+__all__ = ["QualityPrediction", "predict_quality", "predict_for", "recording_radius_px", "MIN_FITTED_SPP", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
            "DEFAULT_IMAGE_Q", "PARTS"]
 
 MODEL_PATH = Path(__file__).resolve().parent / "data" / "quality_model.json"
@@ -168,6 +168,16 @@ def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, e
                         "orders and the encoder's out-of-cone light cost more")
     return QualityPrediction(psnr_db=psnr, uncertainty_db=float(doc.get("uncertainty_db", 1.5)), parts_db=parts,
                              error_power=power, warnings=warnings)
+
+
+def recording_radius_px(*, noise_to_signal: float, spp: int, theta_max: float) -> float:
+    """The sub-hologram radius (px) a plan's noise target was set by: that of the farthest image point on the
+    recording plane that records it (with several planes, smaller than the analysis' farthest point from the
+    WRP), from the plan's noise-to-signal at its spp (holocore.plan.effects.make_plan's nsr = k rho^2 / N).
+    Predictions read the noise as the jobs they were fitted on rendered it."""
+    from holocore.plan.effects import noise_factor
+
+    return math.sqrt(max(0.0, float(noise_to_signal)) * max(1, int(spp)) / noise_factor(theta_max))
 
 
 def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[int] = None,
