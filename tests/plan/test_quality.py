@@ -92,3 +92,21 @@ def test_choices_take_the_quickest_that_reaches_and_the_best_that_fits():
     assert choose_for_time(c, 1.0).seconds == 5.0  # none fits: the quickest
     f = front(c)
     assert [x.seconds for x in f] == [5.0, 12.0, 30.0, 40.0]  # the 60 s, 17 dB mix is beaten by 40 s, 18 dB
+
+
+def test_the_recording_radius_gives_back_the_plans_noise():
+    """Predictions read the noise as the plan set it: the radius recovered from a plan's noise-to-signal at its
+    rays gives that noise-to-signal again at those rays, and the preset's choice of rays from it."""
+    from holocore.plan.effects import choose_spp
+    from holocore.plan.quality import recording_radius_px
+
+    optics = PAPER.optics(resolution_hw=(135, 240), frames=8)
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    for rho, n in ((7.5, 16), (24.0, 100), (40.0, 512)):
+        nsr = noise_factor(theta) * rho ** 2 / n
+        assert recording_radius_px(noise_to_signal=nsr, spp=n, theta_max=theta) == pytest.approx(rho)
+    rho = 12.0
+    n = choose_spp("balanced", rho, theta)
+    q = predict_for(optics, RenderOptions(), subhologram_radius_px=rho)
+    assert q.psnr_db == pytest.approx(predict_quality(frames=8, frame_phases=optics.frame_phases, encoder="sgd",
+                                                      noise_to_signal=noise_factor(theta) * rho ** 2 / n).psnr_db)
