@@ -14,7 +14,10 @@ script: a checker card 0.5 m away on the left, on the right a 45-degree mirror s
 image lies 2.5 m away, so that near and far focus differ by about two depths of field at 96 x 128 pixels
 (the Cornell box spans 1e-3 depth of field there: see docs/evaluation.md).
 
-Outputs (committed): bench/results/accuracy.csv, accuracy.md, accuracy.png, accuracy_images.png.
+Outputs (committed): bench/results/accuracy_thinlens/ (accuracy.csv, accuracy.md, accuracy.png,
+accuracy_images.png): the presets' sweep against the thin-lens truth. What accuracy costs in time as an eye sees it
+(the viewer-faithful score against the wave truth, every method's front) is bench/results/accuracy.md, made by
+bench/quality_fronts.py and bench/quality_report.py.
 
     .venv/bin/python bench/accuracy_report.py            # or: holo bench accuracy
     .venv/bin/python bench/accuracy_report.py --scene path/to/scene --out /tmp/acc --quick
@@ -638,7 +641,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--scene", action="append", type=Path, help="A scene bundle (repeatable); default: the shared "
                                                                   "Cornell box and the mirror-cards scene.")
     ap.add_argument("--resolution", default="96x128", help="HxW (default 96x128).")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="Output folder (default bench/results).")
+    ap.add_argument("--out", type=Path, default=RESULTS / "accuracy_thinlens",
+                    help="Output folder (default bench/results/accuracy_thinlens).")
     ap.add_argument("--repeats", type=int, default=3, help="Timed runs per point (runs over 10 s: one); the "
                                                           "fastest counts.")
     ap.add_argument("--quick", action="store_true", help="A smaller sweep (a few minutes).")
