@@ -65,6 +65,10 @@ def main(argv=None) -> int:
         ax.scatter([p["time_s"] for p in pred], [p["predicted_db"] for p in pred], marker="x", s=22, color="C0",
                    label="ours predicted")
         ax.set_xscale("log")
+        from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_title(f"{doc['scene']} ({doc['shape_hw'][0]}x{doc['shape_hw'][1]})")
         ax.set_xlabel("wall time, s")
         ax.set_ylabel("viewer-faithful PSNR, dB")
