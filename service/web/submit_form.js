@@ -173,7 +173,11 @@ async function estimate() {
     setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}${ev}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
-    for (const w of e.warnings || []) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
+    // the quality's own warnings go with the quality line, below the button (it must not move as it is clicked)
+    const qw = new Set(((e.estimate.quality || {}).warnings) || []);
+    for (const w of e.warnings || []) {
+      if (!qw.has(w)) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
+    }
     showQuality(e.estimate.quality, e.options);
     showFormPlan(e.plan);
     showFormPicture(state.scene, e.field_of_view_box);
@@ -202,6 +206,7 @@ function showQuality(q, chosen) {
     out.append(el("span", { id: "quality-chosen" },
       ` · for ${q.target_db} dB: ${chosen.frames} frames, ${chosen.spp === null ? "the preset's rays" : `${chosen.spp} rays per pixel`}, ${it}`));
   }
+  for (const w of q.warnings || []) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
   for (const line of q.instead || []) out.append(el("span", { class: "muted quality-instead" }, ` · instead: ${line}`));
 }
 

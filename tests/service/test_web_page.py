@@ -222,13 +222,13 @@ def test_the_forms_predicted_quality_follows_frames_and_rays_and_warns(page, fil
     page.until(lambda: "1 frame(s)" in page.text("form-plan") and predicted() == predicted(),
                what="the prediction at 1 frame")
     one = predicted()
-    page.until(lambda: "below 12 dB" in page.text("estimate"), what="the warning of a 1-frame, 16-ray job")
+    page.until(lambda: "below 12 dB" in page.text("quality"), what="the warning of a 1-frame, 16-ray job")
     page.set("frames", "24")
     page.set("spp", "")  # the preset's rays
     page.until(lambda: "24 frame(s)" in page.text("form-plan") and predicted() > one + 3,
                what="a higher prediction at 24 frames and the preset's rays")
     at24 = predicted()
-    assert "below 12 dB" not in page.text("estimate")
+    assert "below 12 dB" not in page.text("quality")
     page.set("spp", "1024")
     page.until(lambda: predicted() >= at24 and "1024 rays" in page.text("estimate"), what="more rays")
     page.set("quality-db", "14")
