@@ -16,8 +16,10 @@ from holocore.plan.quality_choice import alternatives_words, candidates, choose_
 
 __all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
-CANDIDATE_SPP = (None, 16, 32, 64, 128, 256, 512)
-CANDIDATE_ITERATIONS = (None, 20, 40, 80)
+# Fewer than the CLI's (holocore.plan.quality_choice): every estimate of the page's form, one per keystroke, prices
+# each candidate with the job estimate's time model.
+CANDIDATE_SPP = (None, 32, 128, 512)
+CANDIDATE_ITERATIONS = (None, 40)
 
 
 def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[float], float]:
