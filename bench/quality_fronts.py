@@ -141,19 +141,17 @@ def main(argv=None) -> int:
                 predicted = predict_point(loaded, optics, knobs, q)
                 config = f"{knobs['frames']} frames, {m['sampling']['spp']} spp, {encm}" + (
                     "" if encm != "sgd" else f" {knobs['iters']} it" if knobs["iters"] else " stop rule")
-            elif kind == "layers":
-                res = render_layers(loaded, run.optics(F), planes=knobs["planes"], spp=32, display=run.display)
+            elif kind in ("layers", "light-field"):  # a complex field, then the same encoder as ours
+                if kind == "layers":
+                    res = render_layers(loaded, run.optics(F), planes=knobs["planes"], spp=32, display=run.display)
+                    config = f"{knobs['planes']} planes, {F} frames, SGD stop rule"
+                else:
+                    res = render_light_field(loaded, run.optics(F), hogel_px=knobs["hogel_px"], spp=knobs["spp"],
+                                             display=run.display)
+                    config = f"stereogram, {knobs['hogel_px']}-px hogels, {knobs['spp']} spp, {F} frames, SGD stop rule"
                 t_r = time.perf_counter() - t0
                 enc, t_e = run.encode(res)
                 fld, m = phase_only_field(enc), res.meta
-                config = f"{knobs['planes']} planes, {F} frames, SGD stop rule"
-            elif kind == "light-field":
-                res = render_light_field(loaded, run.optics(F), hogel_px=knobs["hogel_px"], spp=knobs["spp"],
-                                         display=run.display)
-                t_r = time.perf_counter() - t0
-                enc, t_e = run.encode(res)
-                fld, m = phase_only_field(enc), res.meta
-                config = f"stereogram, {knobs['hogel_px']}-px hogels, {knobs['spp']} spp, {F} frames, SGD stop rule"
             elif kind == "light-field-sgd":
                 res = render_light_field(loaded, run.optics(F), hogel_px=knobs["hogel_px"], spp=knobs["spp"],
                                          display=run.display, fit="sgd", iterations=knobs["iterations"], lr=0.1)

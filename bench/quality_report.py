@@ -73,7 +73,8 @@ def main(argv=None) -> int:
         ax.set_xlabel("wall time, s")
         ax.set_ylabel("viewer-faithful PSNR, dB")
         ax.grid(alpha=0.3)
-        lines += [f"### {doc['scene']}", "", "| method | configuration | time s | PSNR dB | predicted dB | on the front |",
+        lines += [f"### {doc['scene']}", "",
+                  "| method | configuration | time s | PSNR dB | predicted dB | on the front |",
                   "|---|---|---|---|---|---|"]
         for p in sorted(pts, key=lambda p: (p["method"], p["time_s"])):
             on = any(p is q for q in allf)

@@ -91,7 +91,8 @@ def main(argv=None) -> int:
              f"{os.getloadavg()[0]:.1f} at the end ({(time.time() - t0) / 60:.0f} min, the scoring included). "
              "Times: wall clock of `holo render` plus `holo encode` (start-up and compilation included); score: "
              "`holo evaluate --viewer --pupils-mm 2,4,6 --eye-grid 3 --focus-planes 3 --gt-spp 32`.", "",
-             "| run | options | measured dB | time s | reached | quicker than the default |", "|---|---|---|---|---|---|"]
+             "| run | options | measured dB | time s | reached | quicker than the default |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
         t = r["target_db"]
         run_name = "default" if t is None else f"--quality-db {t:g}"

@@ -88,34 +88,20 @@ def render(
              "without --spp and --time-limit-s")
     loaded = None
     if quality_db is not None:
-        from holocore.pipeline import plan_scene
-        from holocore.scene.load import load_scene
+        from holo.render_quality import choose_options
 
-        from holo.render_quality import choose_options, quality_context
-
-        try:
-            loaded = load_scene(scene)
-            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile, optics_cfg)
-            optics_cfg, options, chosen = choose_options(ctx, optics_cfg, options, quality_db)
-        except (ValueError, FileNotFoundError) as exc:
-            fail(str(exc))
+        loaded, ctx = _scene_quality(scene, optics_cfg, options, profile)
+        optics_cfg, options, chosen = choose_options(ctx, optics_cfg, options, quality_db)
         reach = "predicted to reach it" if chosen.psnr_db >= quality_db else "the best predicted; it falls short"
         it = "" if chosen.iterations is None else f" --iterations {chosen.iterations}"
         console.print(f"--quality-db {quality_db:g}: {chosen.words()} ({reach}); then `holo encode{it}`")
     if time_limit_s is not None and optics.frames is None and optics.optics_json is None:
         # the time buys frames as well as rays: the frame count (up to the display's) whose rays in that time
         # predict the best score; frames given (--frames, or a job's --optics-json) are kept
-        from holocore.pipeline import plan_scene
-        from holocore.scene.load import load_scene
+        from holo.render_quality import frames_for_time
 
-        from holo.render_quality import frames_for_time, quality_context
-
-        try:
-            loaded = load_scene(scene)
-            ctx = quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile, optics_cfg)
-            pick = frames_for_time(ctx, optics_cfg, options, time_limit_s)
-        except (ValueError, FileNotFoundError) as exc:
-            fail(str(exc))
+        loaded, ctx = _scene_quality(scene, optics_cfg, options, profile)
+        pick = frames_for_time(ctx, optics_cfg, options, time_limit_s)
         if pick is not None:
             optics_cfg = optics_cfg.model_copy(update={"frames": pick[0]})
             console.print(f"--time-limit-s {time_limit_s:g}: {pick[0]} frames, about {pick[2]} rays per pixel, "
@@ -210,6 +196,21 @@ def render(
                       f"MiB, more than the budget of {mem['budget_bytes'] / 2**20:.0f} MiB")
     for line in m["plan"]["summary"]:
         console.print(f"  - {line}")
+
+
+def _scene_quality(scene: Path, optics_cfg, options, profile):
+    """(the loaded scene, what the quality predictions read of it: holo.render_quality.quality_context) for
+    --quality-db and a time limit's frames; a scene that cannot be loaded or planned exits with one line."""
+    from holocore.pipeline import plan_scene
+    from holocore.scene.load import load_scene
+
+    from holo.render_quality import quality_context
+
+    try:
+        loaded = load_scene(scene)
+        return loaded, quality_context(loaded, plan_scene(loaded, optics_cfg, options), profile, optics_cfg)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
 
 
 def _write_picture(loaded, path: Path, *, width: int, spp: int) -> dict:

@@ -1,12 +1,13 @@
 """The quality side of `holo render`: what `--estimate` predicts, and the options `--quality-db` chooses.
 
-Both read the scene's plan (its farthest sub-hologram radius sets the rays' noise), a small picture through its
-camera (its image statistic, holocore.evaluate.metrics.white_power) and the time model, and assume the phase-only
-encoding `holo encode` gives next (SGD).
+Both read the scene's plan (the radius its noise target was set by gives the rays' noise), a small picture
+through its camera (its image statistic, holocore.evaluate.metrics.white_power) and the time model, and assume
+the phase-only encoding `holo encode` gives next (SGD).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -19,7 +20,7 @@ class QualityContext:
     image_q: Optional[float]
     refracted_share: float
     fourier_filter: bool
-    seconds: Any  # (optics, options, iterations) -> predicted seconds of render plus encode
+    seconds: Any  # (optics, options, iterations, encode=True) -> predicted seconds of render (plus encode)
 
 
 def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None) -> QualityContext:
@@ -83,18 +84,14 @@ def choose_options(ctx: QualityContext, optics, options, target_db: float):
                        image_q=ctx.image_q, refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter,
                        frames=frames_upto(optics.frames))
     best = choose_for_quality(cands, target_db)
-    import dataclasses
-
     return (optics.model_copy(update={"frames": best.frames}),
             dataclasses.replace(options, spp=best.spp_asked), best)
 
 
 def frames_for_time(ctx: QualityContext, optics, options, limit_s: float):
     """(frames, predicted dB, rays per pixel expected) of the mix a render of ``limit_s`` seconds does best with:
-    for each frame count up to the optics' own, the rays that fill the time (the time model, doubling rays from the preset's least)
-    and the quality they predict; the best. A time limit then buys frames as well as rays."""
-    import dataclasses
-
+    for each frame count up to the optics' own, the rays that fill the time (the time model, doubling rays from
+    the preset's least) and the quality they predict; the best. A time limit then buys frames as well as rays."""
     from holocore.plan.presets import PRESETS
     from holocore.plan.quality import predict_for
     from holocore.plan.quality_choice import frames_upto

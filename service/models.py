@@ -21,7 +21,7 @@ from service.settings import JobLimits
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "optics_sanity_errors", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
            "DisplayOut", "DisplayList", "Problem", "job_limit_errors", "job_memory", "memory_admission_error", "cache_key", "effective_optics",
-           "estimate_cost", "spp_cap", "preset_spp_cap", "binding_max_spp", "plane_border_px"]
+           "estimate_cost", "hologram_seconds", "calibration_or_none", "spp_cap", "preset_spp_cap", "binding_max_spp", "plane_border_px"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -244,8 +244,10 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
     from service.quality import job_quality
 
     out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
+    cal = calibration_or_none()  # read once for every candidate the quality prices
     out["quality"] = job_quality(req, scene_plan=scene_plan, max_spp=max_spp, seconds=out["seconds"],
-                                 seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp),
+                                 seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp,
+                                                                       calibration=cal),
                                  target_db=target_db)
     if req.evaluate:
         from service.workers.evaluation import evaluation_seconds
@@ -257,9 +259,21 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
     return out
 
 
-def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None) -> float:
-    """Predicted seconds of a job's hologram alone (:func:`_hologram_cost`'s)."""
-    return float(_hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp)["seconds"])
+def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                     calibration: Optional[dict] = None) -> float:
+    """Predicted seconds of a job's hologram alone (:func:`_hologram_time`'s), without its memory."""
+    return float(_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp, calibration=calibration)["seconds"])
+
+
+def calibration_or_none() -> Optional[dict]:
+    """The time model's rates, read once for many predictions; None where none is usable (each prediction then
+    falls back as :func:`_hologram_time` does)."""
+    from holocore.plan.estimate import load_calibration
+
+    try:
+        return load_calibration()
+    except (ValueError, OSError):
+        return None
 
 
 def _scene_probe(scene_plan: Optional[dict]):
@@ -279,6 +293,13 @@ def _scene_probe(scene_plan: Optional[dict]):
 
 def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
                    plane_border: Optional[int] = 0) -> dict[str, Any]:
+    """:func:`_hologram_time` and the job's predicted peak memory (``memory``)."""
+    memory = {**job_memory(req, plane_border=plane_border).as_dict(), "plane_border_px": plane_border}
+    return {**_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp), "memory": memory}
+
+
+def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                   calibration: Optional[dict] = None) -> dict[str, Any]:
     """Predicted seconds of a job's hologram (render, encode, package, pictures).
 
     The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
@@ -288,14 +309,14 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     preview (2e-7 s per pixel-color). When the scene's plan timed a probe render (``holo plan --probe``, run by
     the planner), the render's stages take the scene's own cost per ray and kernel compilation from it
     (``holocore.plan.estimate_probe``; the calibration alone, made on the demo scene, can be 5x low on
-    another). Without a usable calibration: a linear model fitted on a 2-core CPU."""
+    another). Without a usable calibration: a linear model fitted on a 2-core CPU. ``calibration``: the rates
+    (default: loaded here, :func:`holocore.plan.estimate.load_calibration`)."""
     from types import SimpleNamespace
 
     o = effective_optics(req)
     h, w = o.resolution_hw
     c = len(o.wavelengths_nm)
     f = o.frames
-    memory = {**job_memory(req, plane_border=plane_border).as_dict(), "plane_border_px": plane_border}
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
@@ -313,28 +334,27 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
         radius = ana.get("subhologram_radius_px")
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
-                                    encode_iterations=iters if req.encoder == "sgd" else 0)
+                                    encode_iterations=iters if req.encoder == "sgd" else 0, calibration=calibration)
         work = stages["total"]
         probe = _scene_probe(scene_plan)
         if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
             render = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
-                                         subhologram_radius_px=radius)
+                                         subhologram_radius_px=radius, calibration=calibration)
             work = render["total"] - render["startup"] + stages.get("encode", 0.0)  # start-up: in `fixed`
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
             work = req.render_time_limit_s + stages.get("encode", 0.0)
             return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
-                    "model": "render time limit + calibrated encoder", "memory": memory}
+                    "model": "render time limit + calibrated encoder"}
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
-                "model": "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""),
-                "memory": memory}
+                "model": "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else "")}
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
         if req.render_time_limit_s is not None:
             return {"seconds": round(fixed + req.render_time_limit_s + enc, 1), "rays": None, "spp_assumed": None,
-                    "model": "render time limit + cpu-linear-v1 encoder", "memory": memory}
+                    "model": "render time limit + cpu-linear-v1 encoder"}
         return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
-                "model": "cpu-linear-v1", "memory": memory}
+                "model": "cpu-linear-v1"}
 
 
 def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:

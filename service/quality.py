@@ -1,8 +1,8 @@
 """A job's predicted quality, shown with every estimate and stored with the job, and a quality target resolved
 into the options that reach it (``quality_db``).
 
-The prediction is holocore.plan.quality's, from what the scene's plan says (its farthest sub-hologram radius
-sets the noise of the preset's rays; its picture's image statistic the weight of speckle and noise); the times
+The prediction is holocore.plan.quality's, from what the scene's plan says (the radius its noise target was set
+by gives the noise of the rays; its picture's image statistic the weight of speckle and noise); the times
 beside it are the job estimate's own (:func:`service.models.hologram_seconds`), so "24 frames would give about
 20 dB in 3 min" and the estimate above it never disagree.
 """
@@ -23,8 +23,8 @@ CANDIDATE_ITERATIONS = (None, 40)
 
 
 def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[float], float]:
-    """(the farthest sub-hologram radius in px, the picture's image statistic, the share of light seen through
-    glass) from a scene's plan, None (0) where the plan lacks them."""
+    """(the radius the plan's noise target was set by in px, the picture's image statistic, the share of light
+    seen through glass) from a scene's plan, None (0) where the plan lacks them."""
     plan = scene_plan or {}
     r = (plan.get("analysis") or {}).get("refracted_share")
     refracted = float(r) if isinstance(r, (int, float)) and 0 <= r <= 1 else 0.0
@@ -56,10 +56,10 @@ def _options(req, max_spp: Optional[int]):
     return SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
 
 
-def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds_of) -> list:
+def _candidates(req, *, facts: tuple, max_spp: Optional[int], seconds_of) -> list:
     from service.models import effective_optics
 
-    radius, q, diel = _scene_facts(scene_plan)
+    radius, q, diel = facts
 
     def seconds(o, opt, it) -> float:
         return seconds_of(req.model_copy(update={"frames": o.frames, "spp": opt.spp, "iterations": it}))
@@ -68,8 +68,7 @@ def _candidates(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     most = req.frames if req.quality_db is not None and req.frames is not None else req.optics.frames
     return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, seconds=seconds,
                       subhologram_radius_px=radius, image_q=q, refracted_share=diel, frames=frames_upto(most),
-                      spp=CANDIDATE_SPP,
-                      iterations=CANDIDATE_ITERATIONS)
+                      spp=CANDIDATE_SPP, iterations=CANDIDATE_ITERATIONS)
 
 
 def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seconds: float, seconds_of,
@@ -79,7 +78,7 @@ def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     the estimate's seconds of a request)."""
     from service.models import effective_optics
 
-    radius, q, diel = _scene_facts(scene_plan)
+    facts = radius, q, diel = _scene_facts(scene_plan)
     pred = predict_for(effective_optics(req), _options(req, max_spp), encoder=req.encoder,
                        iterations=req.iterations, subhologram_radius_px=radius, image_q=q, refracted_share=diel)
     out = pred.as_dict()
@@ -91,7 +90,7 @@ def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
             out["warnings"].append(f"the target of {target_db:g} dB is beyond what the service's limits predict "
                                    f"({pred.psnr_db:.1f} dB at best)")
     if req.render_time_limit_s is None:
-        out["instead"] = alternatives_words(pred, seconds, _candidates(req, scene_plan=scene_plan, max_spp=max_spp,
+        out["instead"] = alternatives_words(pred, seconds, _candidates(req, facts=facts, max_spp=max_spp,
                                                                         seconds_of=seconds_of))
     return out
 
@@ -102,7 +101,7 @@ def resolve_quality_target(req, *, scene_plan: Optional[dict], max_spp: Optional
     ``quality_db`` cleared (the estimate keeps the target); ``req`` itself without a target."""
     if req.quality_db is None:
         return req
-    cands = _candidates(req, scene_plan=scene_plan, max_spp=max_spp, seconds_of=seconds_of)
+    cands = _candidates(req, facts=_scene_facts(scene_plan), max_spp=max_spp, seconds_of=seconds_of)
 
     def as_req(c):
         return req.model_copy(update={"frames": c.frames, "spp": c.spp_asked, "iterations": c.iterations,

@@ -26,6 +26,7 @@ from service.models import (
     JobRequest,
     binding_max_spp,
     cache_key,
+    calibration_or_none,
     effective_optics,
     estimate_cost,
     hologram_seconds,
@@ -37,8 +38,8 @@ from service.models import (
 )
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted", "IDEMPOTENCY_KEY",
-           "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
+__all__ = ["admit_job", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",
+           "IDEMPOTENCY_KEY", "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
 
@@ -92,8 +93,10 @@ def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -
         return not job_limit_errors(r, limits) and memory_admission_error(r, ctx.settings.worker_memory_bytes) is None
 
     max_spp = binding_max_spp(req, limits)
+    cal = calibration_or_none()  # read once for every candidate
     resolved = resolve_quality_target(req, scene_plan=plan, max_spp=max_spp, allowed=allowed,
-                                      seconds_of=lambda r: hologram_seconds(r, scene_plan=plan, max_spp=max_spp))
+                                      seconds_of=lambda r: hologram_seconds(r, scene_plan=plan, max_spp=max_spp,
+                                                                            calibration=cal))
     return resolved, req.quality_db
 
 

@@ -41,8 +41,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["QualityPrediction", "predict_quality", "predict_for", "recording_radius_px", "MIN_FITTED_SPP", "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB",
-           "DEFAULT_IMAGE_Q", "PARTS"]
+__all__ = ["QualityPrediction", "predict_quality", "predict_for", "recording_radius_px", "MIN_FITTED_SPP",
+           "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB", "DEFAULT_IMAGE_Q", "PARTS"]
 
 MODEL_PATH = Path(__file__).resolve().parent / "data" / "quality_model.json"
 # Below this viewer-faithful PSNR a hologram is speckle and bands, not the scene (the threshold a warning names).

@@ -6,8 +6,8 @@ and the recording planes stay the job's): its viewer-faithful PSNR from the qual
 (:mod:`holocore.plan.quality`) and its seconds from the time model (:mod:`holocore.plan.estimate`, render plus
 encoder). The front is the candidates no other beats in both. A quality target takes the quickest candidate
 predicted to reach it; a time limit, the best candidate predicted to fit in it. Frames are chosen up to the
-display's own count (:func:`frames_upto`): the SLM shows that many per image; a stack of fewer repeats. Pure Python (the service's API
-process calls it for every estimate).
+display's own count (:func:`frames_upto`): the SLM shows that many per image; a stack of fewer repeats.
+Pure Python (the service's API process calls it for every estimate).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Any, Callable, Optional, Sequence
 
 from holocore.plan.quality import QualityPrediction, predict_for
 
-__all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_quality", "choose_for_time", "alternatives_words",
-           "FRAME_CHOICES", "SPP_CHOICES", "ITERATION_CHOICES"]
+__all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_quality", "choose_for_time",
+           "alternatives_words", "FRAME_CHOICES", "SPP_CHOICES", "ITERATION_CHOICES"]
 
 FRAME_CHOICES = (1, 2, 4, 8, 12, 16, 24, 32, 48)
 SPP_CHOICES = (None, 16, 32, 64, 128, 256, 512, 1024)  # None: the preset's choice from the scene's depth; from
