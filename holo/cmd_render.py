@@ -140,11 +140,16 @@ def render(
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
         console.print(f"estimated warm render time: {secs:.1f} s ({source})")
-        import os
+        enc = _encode_estimate(optics_cfg, options, pl, cal)
+        if enc:
+            console.print(enc)
+        from holocore.plan.estimate import machine_load
 
-        load, cores = os.getloadavg()[0], os.cpu_count() or 1
-        console.print(f"these times assume an otherwise idle machine; its load is {load:.1f} on {cores} cores now"
-                      + (f": expect about {(load + cores) / cores:.1f}x longer" if load > 0.5 * cores else ""))
+        load = machine_load()
+        console.print(f"these times are for an otherwise idle machine; its load is {load['load_1min']:.1f} on "
+                      f"{load['cores']} cores now" + (f": at that load expect about {load['slowdown']:.1f}x longer "
+                                                      f"(the render about {full['total'] * load['slowdown']:.0f} s)"
+                                                      if load["slowdown"] >= 1.2 else ""))
         from holo.render_quality import estimate_lines, quality_context
 
         qctx = quality_context(loaded, pl, profile, optics_cfg, probe=probe, calibration=cal)
@@ -196,6 +201,19 @@ def render(
                       f"MiB, more than the budget of {mem['budget_bytes'] / 2**20:.0f} MiB")
     for line in m["plan"]["summary"]:
         console.print(f"  - {line}")
+
+
+def _encode_estimate(optics_cfg, options, pl, cal) -> str:
+    """The line on `holo encode`'s time (sgd, its stop rule): the median and 90th percentile of the iterations
+    that rule runs at this size, on the encoder's grid at this scene's WRP distance."""
+    from holocore.plan.estimate import encode_work, stop_iterations
+
+    if optics_cfg.frames < 1:
+        return ""
+    med, p90 = (stop_iterations(optics_cfg.height, optics_cfg.width, quantile=q) for q in ("median", "p90"))
+    per_it = cal["rates"]["enc"] * encode_work(optics_cfg, pl.analysis.z_wrp_m)
+    return (f"estimated `holo encode` time (sgd): {per_it * med:.1f} s ({med} iterations, its stop rule's median "
+            f"at this size; up to {per_it * p90:.1f} s at its 90th percentile, {p90})")
 
 
 def _scene_quality(scene: Path, optics_cfg, options, profile):

@@ -95,8 +95,14 @@ def submit(
             for line in q.get("instead") or []:
                 console.print(f"  instead: {line}")
             job = client.submit({"scene_id": sc["id"], **body}, idempotency_key=idempotency_key)
-            est = (job.get("estimate") or {}).get("seconds")
-            console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est:.0f} s" if est else "")
+            e = job.get("estimate") or {}
+            est, load = e.get("seconds"), e.get("load") or {}
+            if est and load.get("slowdown", 1.0) >= 1.2:  # the load the machine has now, not an idle one's time
+                est = f"{e['seconds_at_load']:.0f} s at the machine's present load ({load['others']:.1f} other " \
+                      f"threads on {load['cores']} cores), {est:.0f} s on an idle one"
+            elif est:
+                est = f"{est:.0f} s"
+            console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est}" if est else "")
                           + (f" (reused {job['reused_from']})" if job.get("reused_from") else ""))
             if no_wait:
                 print(job["id"])

@@ -29,7 +29,7 @@ def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None
     from which the preset chooses its rays), the picture's image statistic, the light seen through glass."""
     from holocore.evaluate.groundtruth import camera_picture
     from holocore.evaluate.metrics import white_power
-    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, estimate_breakdown
+    from holocore.plan.estimate import estimate_breakdown, stop_iterations
     from holocore.plan.estimate_probe import estimate_with_probe
 
     try:
@@ -43,9 +43,9 @@ def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None
     prims = pl.inventory.primitives
 
     def seconds(o, opt, it, encode: bool = True) -> float:
-        iters = (TYPICAL_STOP_ITERATIONS if it is None else int(it)) if encode else 0
+        iters = (stop_iterations(o.height, o.width) if it is None else int(it)) if encode else 0
         stages = estimate_breakdown(o, opt, scene_primitives=prims, subhologram_radius_px=radius,
-                                    encode_iterations=iters, calibration=calibration)
+                                    encode_iterations=iters, z_wrp_m=pl.analysis.z_wrp_m, calibration=calibration)
         if probe is None:
             return stages["total"]
         render = estimate_with_probe(o, opt, probe, scene_primitives=prims, subhologram_radius_px=radius,

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.estimate import CALIBRATION_VERSION, features
+from holocore.plan.estimate import CALIBRATION_VERSION, encode_work, features
 from holocore.plan.estimate_probe import PROBE_HW, Probe
 
 __all__ = ["calibrate", "probe_scene"]
@@ -85,7 +85,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         loaded = load_scene(scene)
         primitives = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
         runs = _RUNS[::2] if quick else _RUNS
-        total = len(runs) + 4
+        total = len(runs) + 5
         # Warm-up: compile every kernel once (the first render of a process pays for it).
         for preset, method in {(r[2], r[3]) for r in runs}:
             render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
@@ -105,18 +105,19 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
             if progress:
                 progress("calibrate", i + 1, total)
         enc_samples = []
-        for j, (H, W, F, it) in enumerate(((48, 64, 4, 20), (96, 128, 8, 20))):
+        lams = [640e-9, 516.5e-9, 455.4e-9]
+        # two sizes near the SLM (a grid barely wider than the SLM) and one far from it (the 2x grid)
+        for j, (H, W, F, it, z) in enumerate(((48, 64, 4, 20, 1e-3), (96, 128, 8, 20, 1e-3), (96, 128, 4, 20, 40e-3))):
             g = torch.Generator().manual_seed(j)
             tgt = torch.polar(torch.rand((F, 3, H, W), generator=g), 6.3 * torch.rand((F, 3, H, W), generator=g))
 
-            def enc() -> float:
+            def enc(tgt=tgt, it=it, z=z) -> float:
                 t0 = time.perf_counter()
-                encode_sgd(tgt, z_wrp_m=1e-3, wavelengths_m=[640e-9, 516.5e-9, 455.4e-9], pitch_m=8e-6,
-                           iterations=it, tol=0.0)
+                encode_sgd(tgt, z_wrp_m=z, wavelengths_m=lams, pitch_m=8e-6, iterations=it, tol=0.0)
                 return time.perf_counter() - t0
 
-            P = 4 * H * W
-            enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * F * 3 * P * math.log2(P)})
+            grid = OpticsConfig(resolution_hw=(H, W), frames=F, pitch_um=8.0, wavelengths_nm=[x * 1e9 for x in lams])
+            enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * encode_work(grid, z)})
             if progress:
                 progress("calibrate", len(runs) + j + 1, total)
         lay_samples = []  # RGB-D renders of 0.05 to 0.2 s: well above the timing noise
@@ -128,7 +129,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
             lay_samples.append({"t": res.meta["timings"], "pix_spp": H * W * spp,
                                 "fft": (planes + 1) * F * 3 * P * math.log2(P)})
             if progress:
-                progress("calibrate", len(runs) + 3 + j, total)  # after the two encodings
+                progress("calibrate", len(runs) + 4 + j, total)  # after the three encodings
 
     rates: dict[str, Any] = {}
     rates["analysis"] = float(np.median([s["timings"]["analysis_s"] for s in samples]))

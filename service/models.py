@@ -236,11 +236,15 @@ def _spp(req: JobRequest) -> int:
 
 
 def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
-                  plane_border: Optional[int] = 0, target_db: Optional[float] = None) -> dict[str, Any]:
+                  plane_border: Optional[int] = 0, target_db: Optional[float] = None,
+                  busy_threads: float = 0.0) -> dict[str, Any]:
     """Predicted seconds of a job, shown at submit time: :func:`_hologram_cost`, plus the evaluation against
     ground truth when the job asks for it (``evaluate_s``, service/workers/evaluation.py's model), and the
     quality its options buy (``quality``, service/quality.py; ``target_db``: the quality target the options
-    were chosen for)."""
+    were chosen for). ``seconds`` is for an idle machine; ``load`` is the machine's load now, less
+    ``busy_threads`` (the threads of this service's own running jobs, which a queued job does not run beside),
+    and ``seconds_at_load`` the time at that load (``holocore.plan.estimate.load_slowdown``)."""
+    from holocore.plan.estimate import machine_load
     from service.quality import job_quality
 
     out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
@@ -256,7 +260,8 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
         ev = evaluation_seconds(height=o.height, width=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
         out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
                "model": out["model"] + " + evaluation"}
-    return out
+    load = machine_load(own_threads=busy_threads)
+    return {**out, "load": load, "seconds_at_load": round(out["seconds"] * load["slowdown"], 1)}
 
 
 def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
@@ -320,10 +325,10 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
-    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
+    from holocore.plan.estimate import stop_iterations
 
     # without an asked count the encoder runs to at most 500 iterations, but its stop rule ends it far sooner
-    iters = req.iterations if req.iterations is not None else TYPICAL_STOP_ITERATIONS
+    iters = req.iterations if req.iterations is not None else stop_iterations(h, w)
     fixed = 14.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
@@ -334,7 +339,8 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
         radius = ana.get("subhologram_radius_px")
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
-                                    encode_iterations=iters if req.encoder == "sgd" else 0, calibration=calibration)
+                                    encode_iterations=iters if req.encoder == "sgd" else 0,
+                                    z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=calibration)
         work = stages["total"]
         probe = _scene_probe(scene_plan)
         if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
@@ -345,8 +351,9 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
             work = req.render_time_limit_s + stages.get("encode", 0.0)
             return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
-                    "model": "render time limit + calibrated encoder"}
+                    "encode_s": round(stages.get("encode", 0.0), 1), "model": "render time limit + calibrated encoder"}
         return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
+                "encode_s": round(stages.get("encode", 0.0), 1),
                 "model": "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else "")}
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
@@ -355,6 +362,21 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
                     "model": "render time limit + cpu-linear-v1 encoder"}
         return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
                 "model": "cpu-linear-v1"}
+
+
+def _wrp_distance_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
+    """The WRP's distance from the SLM with these optics (m), from the scene's plan (made at its own optics):
+    its depth beyond z_inf scales with (f / f_plan)^2 like every hologram depth. None (z_inf is then assumed)
+    when the plan does not say."""
+    try:
+        ana = scene_plan["analysis"]
+        f_plan = float(scene_plan["focal_length_m"])
+        beyond = float(ana["z_wrp_m"]) - float(scene_plan["optics"]["z_inf_mm"]) * 1e-3
+        f = o.focal_length_m((scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    z = o.z_inf_m + (f / f_plan) ** 2 * beyond
+    return z if math.isfinite(z) and z > 0 else None
 
 
 def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:

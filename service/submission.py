@@ -38,7 +38,7 @@ from service.models import (
 )
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",
+__all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",
            "IDEMPOTENCY_KEY", "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
@@ -74,6 +74,12 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
     if too_big:
         raise ApiError(422, too_big)
     return scene
+
+
+def busy_threads(ctx: ServiceContext) -> float:
+    """The machine's load that this service's own running jobs make (each job's steps keep every core busy):
+    a new job queues behind them rather than running beside them, so an estimate leaves it out."""
+    return float(len(ctx.db.running_jobs()) * (os.cpu_count() or 1))
 
 
 def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -> tuple[JobRequest, Optional[float]]:
@@ -272,7 +278,8 @@ def submit_job(ctx: ServiceContext, req: JobRequest, principal: Principal,
     row = {"id": job_id, "state": "queued", "display": req.display, "scene_id": req.scene_id,
            "spec": job_spec(req, ctx.settings.job_limits).model_dump(mode="json"), "cache_key": key, "created_at": now,
            "estimate": estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
-                                     plane_border=scene_plane_border(ctx, req, scene), target_db=target_db),
+                                     plane_border=scene_plane_border(ctx, req, scene), target_db=target_db,
+                                     busy_threads=busy_threads(ctx)),
            "token_id": principal.token_id,
            "owner": principal.owner, "artifact_dir": str(ctx.settings.jobs_dir / job_id),
            "plan": {"summary": (scene["plan"] or {}).get("summary", []),

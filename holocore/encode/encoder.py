@@ -249,12 +249,12 @@ def small_ops_on_one_thread(method: str, dev, elements: int):
 
 def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init, sgd, progress, total,
                    n_blocks, phase, acc) -> None:
-    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
+    from holocore.plan.estimate import stop_iterations
 
-    # The progress counts the iterations expected to run: with a stop rule, where it typically ends (not the cap
+    # The progress counts the iterations expected to run: with a stop rule, its median at this size (not the cap
     # of 500, which made a 3-colour encode count to 1500 and jump); a block that runs longer raises the total.
     stops = bool(sgd.get("stop_db")) or bool(sgd.get("tol"))
-    expect = min(total, TYPICAL_STOP_ITERATIONS) if stops else total
+    expect = min(total, stop_iterations(t.shape[-2], t.shape[-1])) if stops else total
     ran = 0  # iterations of the blocks done
     k = 0
     for c, lam in enumerate(lams):

@@ -51,34 +51,9 @@ from typing import Iterator, Optional
 
 import torch
 
-from holocore import validate
-from holocore.optics.propagation import (
-    PitchLike,
-    padded_shape,
-    smooth_at_least,
-    transfer_function,
-)
+from holocore.optics.grids import encoder_grid, spread_px  # noqa: F401  (re-exported: the encoder's grid)
+from holocore.optics.propagation import PitchLike, transfer_function
 from holocore.trace.randomfield import passband_mask
-
-
-def spread_px(z_m: float, wavelength_m: float, pitch_m: PitchLike) -> int:
-    """Sideways reach r (pixels) of the full-band ASM over |z|: ceil(|z| s / (p sqrt(1 - 2 s^2))), s = lambda/2p
-    (module docstring); -1 when the band contains evanescent corners (2 s^2 >= 1): no finite bound."""
-    py, px = validate.pitch_pair(pitch_m)
-    p = min(py, px)
-    s = wavelength_m / (2.0 * p)
-    if 2.0 * s * s >= 1.0:
-        return -1
-    return int(math.ceil(abs(z_m) * s / (p * math.sqrt(1.0 - 2.0 * s * s)) - 1e-9))
-
-
-def encoder_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike) -> tuple[int, int]:
-    """Padded FFT grid (rows, cols) of the encoder's ASM: the smallest 7-smooth n + r + 8 + n/64, at most 2x."""
-    full = padded_shape(shape_hw, 2)
-    r = spread_px(z_m, wavelength_m, pitch_m)
-    if r < 0:
-        return full
-    return tuple(min(smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore
 
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters (malloc.h)

@@ -26,6 +26,7 @@ import torch
 
 import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
 from holocore import validate
+from holocore.optics.grids import padded_shape, smooth_at_least  # noqa: F401  (re-exported: the ASM's grid)
 from holocore.validate import PitchLike
 
 __all__ = ["asm", "ifft2", "transfer_function", "transfer_at", "padded_shape", "clear_cache", "PitchLike"]
@@ -51,30 +52,6 @@ def _check_field(field: object) -> torch.Tensor:
     if field.shape[-1] < 1 or field.shape[-2] < 1:
         raise ValueError(f"field must have H, W >= 1, got shape {tuple(field.shape)}")
     return field
-
-
-def smooth_at_least(n: int) -> int:
-    """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
-    m = max(1, n)
-    while True:
-        k = m
-        for p in (2, 3, 5, 7):
-            while k % p == 0:
-                k //= p
-        if k == 1:
-            return m
-        m += 1
-
-
-def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int, int]:
-    """Padded FFT grid (rows, cols) that :func:`asm` uses: ceil(n * pad_factor), rounded up to a 7-smooth size."""
-    pf = validate.real("pad_factor", pad_factor)
-    if pf < 1.0:
-        raise ValueError(f"pad_factor must be >= 1, got {pf}")
-    h, w = (int(s) for s in shape_hw)
-    if h < 1 or w < 1:
-        raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")
-    return smooth_at_least(math.ceil(h * pf - 1e-9)), smooth_at_least(math.ceil(w * pf - 1e-9))
 
 
 # ---- transfer function -----------------------------------------------------------------------------------

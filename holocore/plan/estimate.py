@@ -11,8 +11,10 @@ tracer's split in ``meta["stats"]``); each stage follows a simple cost model wit
     propagate  a_fft F C P log2 P                              (ASM, P = padded pixels = 4 H W)
     overhead   a_overhead
 
-and for the extras the report times: phase-only encoding (``a_enc`` per iteration per F C P log2 P) and the
-layer baseline (RGB-D ``a_rgbd`` H W spp, then (planes + 1) F C ASMs). ``holo bench calibrate`` measures
+and for the extras the report times: phase-only encoding (``a_enc`` per iteration per F sum_c G_c log2 G_c, G_c
+the pixels of the encoder's padded grid for colour c, which grows with the WRP's distance from the SLM:
+``holocore.optics.grids.encoder_grid``; a job without an iteration count runs to its stop rule's median at
+that size, :func:`stop_iterations`) and the layer baseline (RGB-D ``a_rgbd`` H W spp, then (planes + 1) F C ASMs). ``holo bench calibrate`` measures
 small runs on a scene (default: the project's demo scene, which has a mirror and glass), fits every rate by
 non-negative least squares and stores them as JSON in the user's cache directory; without one, the committed
 default (``holocore/data/calibration_default.json``, measured on the development machine) is used.
@@ -37,18 +39,20 @@ from pathlib import Path
 from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
+from holocore.optics.grids import encoder_grid
 
-__all__ = ["TYPICAL_STOP_ITERATIONS", "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
+__all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_work", "load_slowdown", "machine_load", "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
            "user_calibration_path", "DEFAULT_CALIBRATION", "CALIBRATION_VERSION", "save_calibration", "features"]
 
-# Where the SGD encoder's default stop rule (holocore.encode.sgd) ends a full-size encode (1080x1920 x 3 x 24,
-# the paper display: 143 iterations on average and 160 at most, bench/results/full_display/
-# encode_ladder_mirror.md; 150 on one frame, bench/results/encode.md): what an estimate assumes when no
-# iteration count is asked for (the encoder's cap is 500).
+# Where the SGD encoder's default stop rule (holocore.encode.sgd) typically ends, whatever the size (the
+# encoder's cap is 500): what a prediction assumes when it knows no size; :func:`stop_iterations` has the
+# measured value by size.
 TYPICAL_STOP_ITERATIONS = 160
+STOP_RULE_DATA = Path(__file__).resolve().parent / "data" / "encode_stop_rule.json"
 
 DEFAULT_CALIBRATION = Path(__file__).resolve().parent / "data" / "calibration_default.json"
-CALIBRATION_VERSION = 1
+# 2: the encoder's rate is per iteration and per its real padded grid (1: per 4 H W, whatever the distance)
+CALIBRATION_VERSION = 2
 REFERENCE_PRIMITIVES = 1000  # primitives of a calibration that does not record its scene's (BVH depth ~ log2)
 
 RATE_KEYS = ("analysis", "bank", "cache", "tile", "acc", "acc_frame", "fft", "overhead", "enc", "rgbd",
@@ -110,6 +114,67 @@ def save_calibration(cal: dict, path: Optional[str | Path] = None) -> Path:
 
 
 # ---- the cost model ---------------------------------------------------------------------------------------
+_STOP_SIZES: list[tuple[float, float, float]] = []
+
+
+def stop_iterations(height: int, width: int, *, quantile: str = "median") -> int:
+    """Iterations the SGD encoder's stop rule runs per frame and colour at an H x W SLM (``quantile``:
+    "median" or "p90"): measured medians by size (``data/encode_stop_rule.json``), interpolated in log pixels
+    and held flat beyond the sizes measured."""
+    if quantile not in ("median", "p90"):
+        raise ValueError(f"quantile must be 'median' or 'p90', got {quantile!r}")
+    if not _STOP_SIZES:
+        doc = json.loads(STOP_RULE_DATA.read_text())
+        _STOP_SIZES.extend(sorted((float(r["pixels"]), float(r["median"]), float(r["p90"])) for r in doc["sizes"]))
+    col = 1 if quantile == "median" else 2
+    x = math.log(max(1, int(height) * int(width)))
+    pts = [(math.log(r[0]), r[col]) for r in _STOP_SIZES]
+    if x <= pts[0][0]:
+        return int(round(pts[0][1]))
+    for (x0, y0), (x1, y1) in zip(pts, pts[1:]):
+        if x <= x1:
+            return int(round(y0 + (y1 - y0) * (x - x0) / (x1 - x0)))
+    return int(round(pts[-1][1]))
+
+
+def load_slowdown(other_load: float, cores: int) -> float:
+    """How many times longer a run takes beside ``other_load`` runnable threads of other work on ``cores``
+    cores than on an idle machine: a run keeps every core busy (Dr.Jit and torch each use one thread a core),
+    and the scheduler shares the cores fairly among all runnable threads, so it gets cores / (others + cores)
+    of them."""
+    if not (math.isfinite(other_load) and other_load >= 0) or int(cores) < 1:
+        raise ValueError(f"other_load must be finite and >= 0 and cores >= 1, got {other_load!r}, {cores!r}")
+    return 1.0 + float(other_load) / int(cores)
+
+
+def machine_load(*, own_threads: float = 0.0) -> dict[str, float]:
+    """This machine's load now: ``load_1min`` (the kernel's one-minute average of runnable threads), ``cores``,
+    ``others`` (less ``own_threads``, the threads of runs the caller knows of and that the estimated run will
+    not share the machine with) and the ``slowdown`` (:func:`load_slowdown`) an estimate is multiplied by."""
+    try:
+        load = float(os.getloadavg()[0])
+    except OSError:  # no load average on this platform: assume an idle machine
+        load = 0.0
+    cores = os.cpu_count() or 1
+    others = max(0.0, load - max(0.0, float(own_threads)))
+    return {"load_1min": round(load, 2), "cores": cores, "others": round(others, 2),
+            "slowdown": round(load_slowdown(others, cores), 3)}
+
+
+def encode_work(optics: OpticsConfig, z_wrp_m: Optional[float] = None) -> float:
+    """One SGD iteration's FFT work over every frame and colour: F sum_c G_c log2 G_c, G_c the pixels of the
+    encoder's padded grid for colour c at the WRP's distance ``z_wrp_m`` from the SLM (default z_inf: the WRP
+    lies a few millimetres beyond it at most, docs/design.md §2)."""
+    z = optics.z_inf_m if z_wrp_m is None else float(z_wrp_m)
+    if not (math.isfinite(z) and z > 0):
+        raise ValueError(f"z_wrp_m must be finite and > 0, got {z_wrp_m!r}")
+    work = 0.0
+    for lam in optics.wavelengths_m:
+        hp, wp = encoder_grid(optics.resolution_hw, z, lam, optics.pitch_m)
+        work += hp * wp * math.log2(max(2, hp * wp))
+    return float(optics.frames * work)
+
+
 def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Optional[float]) -> dict:
     from holocore.plan.effects import choose_spp
     from holocore.plan.presets import PRESETS
@@ -173,8 +238,9 @@ def _ray_rate(rates: dict, key: str) -> float:
 
 def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
                        subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
-                       calibration: Optional[dict] = None) -> dict[str, float]:
-    """Predicted seconds per stage (see the module docstring) and ``total``."""
+                       z_wrp_m: Optional[float] = None, calibration: Optional[dict] = None) -> dict[str, float]:
+    """Predicted seconds per stage (see the module docstring) and ``total``; ``z_wrp_m``: the WRP's distance
+    from the SLM, which sizes the encoder's grid (:func:`encode_work`)."""
     if not isinstance(optics, OpticsConfig):
         raise ValueError(f"optics must be an OpticsConfig, got {type(optics).__name__}")
     if isinstance(encode_iterations, bool) or not isinstance(encode_iterations, numbers.Integral) \
@@ -194,19 +260,19 @@ def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: 
         "overhead": r["overhead"],
     }
     if encode_iterations:
-        out["encode"] = r["enc"] * encode_iterations * x["fft"]
+        out["encode"] = r["enc"] * encode_iterations * encode_work(optics, z_wrp_m)
     out["total"] = float(sum(out.values()))
     return {k: float(v) for k, v in out.items()}
 
 
 def estimate_seconds(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
                      subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
-                     calibration: Optional[dict] = None) -> float:
+                     z_wrp_m: Optional[float] = None, calibration: Optional[dict] = None) -> float:
     """Predicted wall time (s) of ``holocore.pipeline.render`` with these optics and options on this machine
     (warm), plus ``encode_iterations`` SGD steps of phase-only encoding if asked."""
     return estimate_breakdown(optics, options, scene_primitives=scene_primitives,
                               subhologram_radius_px=subhologram_radius_px, encode_iterations=encode_iterations,
-                              calibration=calibration)["total"]
+                              z_wrp_m=z_wrp_m, calibration=calibration)["total"]
 
 
 def estimate_layers_seconds(optics: OpticsConfig, *, planes: int = 8, spp: int = 64,

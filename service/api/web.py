@@ -47,7 +47,7 @@ from service.models import (
     estimate_cost,
 )
 from service.scene_view import scene_field_of_view_box
-from service.submission import admit_job, resolve_target, reusable_job, scene_plane_border
+from service.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
 from service.untrusted import open_job_file, read_job_json
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
@@ -172,7 +172,8 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
                     max_spp=max_spp)
     prev = reusable_job(ctx, key, principal.owner)
     est = estimate_cost(req, scene_plan=scene["plan"], max_spp=max_spp,
-                        plane_border=scene_plane_border(ctx, req, scene), target_db=target_db)
+                        plane_border=scene_plane_border(ctx, req, scene), target_db=target_db,
+                        busy_threads=busy_threads(ctx))
     return {"estimate": est, "options": req.fields() if target_db is not None else None,
             "plan_state": scene["plan_state"], "optics": optics.model_dump(mode="json"),
             "reuses": prev["id"] if prev is not None else None,

@@ -14,16 +14,33 @@ export function pct(job) {
   return p;
 }
 
-// What is left, from the estimate: its seconds less the time run so far, or (past the estimate) the time run so
-// far scaled by the fraction still to do.
+// The seconds an estimate expects at the machine's load when it was made (its idle-machine seconds when it
+// says no load).
+export function expectedSeconds(est) {
+  if (!est) return null;
+  if (typeof est.seconds_at_load === "number") return est.seconds_at_load;
+  return typeof est.seconds === "number" ? est.seconds : null;
+}
+
+// How the machine's load moved an estimate: "" on an idle machine.
+export function loadText(est) {
+  const l = est && est.load;
+  if (!l || typeof l.slowdown !== "number" || l.slowdown < 1.2) return "";
+  return `${fmtSeconds(est.seconds_at_load)} at the machine's present load (${l.others.toFixed(1)} other `
+    + `threads on ${l.cores} cores: ${l.slowdown.toFixed(1)}x), ${fmtSeconds(est.seconds)} on an idle one`;
+}
+
+// What is left: the estimate (at the load it was made at) less the time run so far, blended, as the run goes,
+// into the pace measured so far (which carries the load the run actually meets); past the estimate, the pace.
 export function eta(job) {
-  const est = job.estimate && typeof job.estimate.seconds === "number" ? job.estimate.seconds : null;
+  const est = expectedSeconds(job.estimate);
   if (job.state === "queued") return est === null ? "waiting for a worker" : `waiting for a worker; about ${fmtSeconds(est)} once it starts`;
   if (job.state !== "running" || est === null || !job.started_at) return "";
   const ran = Math.max(0, (Date.now() - Date.parse(job.started_at)) / 1000);
   const p = pct(job);
-  if (ran < est) return `about ${fmtSeconds(est - ran)} left`;
-  if (p > 0.05) return `about ${fmtSeconds(ran * (1 - p) / p)} left (past the estimate of ${fmtSeconds(est)})`;
+  const pace = p > 0.05 ? ran * (1 - p) / p : null;
+  if (ran < est) return `about ${fmtSeconds(pace === null ? est - ran : p * pace + (1 - p) * (est - ran))} left`;
+  if (pace !== null) return `about ${fmtSeconds(pace)} left (past the estimate of ${fmtSeconds(est)})`;
   return `past the estimate of ${fmtSeconds(est)}`;
 }
 

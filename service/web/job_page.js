@@ -6,7 +6,7 @@ import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
 import { offerCompare } from "./compare.js";
 import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
-import { actualSeconds, eta, jobName, pct } from "./job_facts.js";
+import { actualSeconds, eta, jobName, loadText, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
 import { showJobPicture } from "./scene_picture.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
@@ -44,7 +44,7 @@ function renderJob(job) {
     + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
     + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : "")
     + (o.evaluate ? ", evaluated against ground truth" : ""));
-  fact(dl, "Time", `estimated ${fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
+  fact(dl, "Time", `estimated ${loadText(est) || fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
   const q = est.quality;
   if (q && typeof q.psnr_db === "number") fact(dl, "Quality", el("span", { id: "job-quality" },

@@ -4,7 +4,7 @@
 
 import { ApiError, getJSON, postJSON, request } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
-import { jobName } from "./job_facts.js";
+import { jobName, loadText } from "./job_facts.js";
 import { plural, show, state } from "./state.js";
 import { clearFormPicture, showFormPicture } from "./scene_picture.js";
 
@@ -170,7 +170,8 @@ async function estimate() {
     const rays = e.estimate.spp_assumed === null ? "rays until the time limit"
       : `${e.estimate.spp_assumed} rays per pixel`;
     const ev = typeof e.estimate.evaluate_s === "number" ? `; the evaluation ${fmtSeconds(e.estimate.evaluate_s)} of that` : "";
-    setText(out, `Estimate: ${fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}${ev}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
+    const loaded = loadText(e.estimate);
+    setText(out, `Estimate: ${loaded || fmtSeconds(e.estimate.seconds)} (${e.estimate.model}; ${rays}${ev}), peak memory ${fmtBytes(m.peak_bytes)} in ${m.peak_stage || "–"} of ${fmtBytes(e.worker_memory_bytes)}`
       + (e.reuses ? `; the result of job ${e.reuses} would be reused at once` : ""));
     out.classList.remove("error");
     // the quality's own warnings go with the quality line, below the button (it must not move as it is clicked)

@@ -358,6 +358,7 @@ def test_a_phase_stack_is_lit_with_its_laser_powers(cbox, tmp_path):
 def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
     from holocore.pipeline import RenderOptions
     from holocore.plan.estimate import (
+        CALIBRATION_VERSION,
         estimate_breakdown,
         estimate_layers_seconds,
         estimate_seconds,
@@ -375,7 +376,7 @@ def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
     assert b["cache"] > 0 and b["total"] == pytest.approx(sum(v for k, v in b.items() if k != "total"))
     assert estimate_layers_seconds(o, planes=16, spp=64) > estimate_layers_seconds(o, planes=4, spp=64)
     broken = tmp_path / "cal.json"
-    broken.write_text(json.dumps({"version": 1, "rates": {"ray": {}}}))
+    broken.write_text(json.dumps({"version": CALIBRATION_VERSION, "rates": {"ray": {}}}))
     with pytest.raises(ValueError, match="rates"):
         load_calibration(broken)
     with pytest.raises(ValueError, match="encode_iterations"):

@@ -68,3 +68,24 @@ def test_a_quality_target_over_the_api(server):
         capped = c.post("/v1/jobs/estimate", json={**body, "quality_db": 40.0, "frames": 4})
         assert capped.status_code == 200 and capped.json()["options"]["frames"] <= 4  # the display's frames
         assert any("beyond" in w for w in capped.json()["warnings"])  # 40 dB is out of reach: it says so
+
+
+def test_the_estimate_says_the_load_it_assumes_and_sizes_the_encoder_by_the_wrp_distance(monkeypatch):
+    """``seconds`` is an idle machine's; ``seconds_at_load`` multiplies it by the slowdown of the load other work
+    makes (the service's own running jobs left out, a queued job runs after them); the encoder's share grows
+    with the WRP's distance from the SLM (its padded grid), which the scene's plan gives."""
+    import os
+
+    req = JobRequest(scene_id="s" * 12, optics=OPTICS, frames=8, spp=16)
+    monkeypatch.setattr(os, "getloadavg", lambda: (8.0, 8.0, 8.0))
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    busy = estimate_cost(req, scene_plan=PLAN)
+    assert busy["load"]["slowdown"] == pytest.approx(5.0)
+    assert busy["seconds_at_load"] == pytest.approx(5.0 * busy["seconds"], abs=0.1)
+    mine = estimate_cost(req, scene_plan=PLAN, busy_threads=4.0)  # two running jobs of this service, 2 cores
+    assert mine["load"]["others"] == pytest.approx(4.0) and mine["load"]["slowdown"] == pytest.approx(3.0)
+    plan = {**PLAN, "focal_length_m": 0.05, "optics": {"z_inf_mm": 4.0},
+            "analysis": {**PLAN["analysis"], "z_wrp_m": 4.5e-3}}
+    near, far = (estimate_cost(req.model_copy(update={"optics": req.optics.model_copy(update={"z_inf_mm": z})}),
+                               scene_plan=plan) for z in (4.0, 80.0))
+    assert far["encode_s"] > 2.5 * near["encode_s"] > 0

@@ -1,0 +1,59 @@
+"""The sizes of the padded FFT grids the propagations use, in plain math (no numpy or torch), so that the time
+model (``holocore.plan.estimate``) counts the very grids the encoder and the ASM transform.
+
+Why the encoder's grid may be smaller than 2x, and by how much, is :mod:`holocore.encode.operator`'s docstring
+("Padding"); :func:`padded_shape` is the plain ASM's 2x grid (docs/design.md §5)."""
+
+from __future__ import annotations
+
+import math
+
+from holocore import validate
+from holocore.validate import PitchLike
+
+__all__ = ["smooth_at_least", "padded_shape", "spread_px", "encoder_grid"]
+
+
+def smooth_at_least(n: int) -> int:
+    """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
+    m = max(1, n)
+    while True:
+        k = m
+        for p in (2, 3, 5, 7):
+            while k % p == 0:
+                k //= p
+        if k == 1:
+            return m
+        m += 1
+
+
+def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int, int]:
+    """Padded FFT grid (rows, cols) that ``propagation.asm`` uses: ceil(n * pad_factor), rounded up to a
+    7-smooth size."""
+    pf = validate.real("pad_factor", pad_factor)
+    if pf < 1.0:
+        raise ValueError(f"pad_factor must be >= 1, got {pf}")
+    h, w = (int(s) for s in shape_hw)
+    if h < 1 or w < 1:
+        raise ValueError(f"shape_hw must be two sizes >= 1, got {shape_hw}")
+    return smooth_at_least(math.ceil(h * pf - 1e-9)), smooth_at_least(math.ceil(w * pf - 1e-9))
+
+
+def spread_px(z_m: float, wavelength_m: float, pitch_m: PitchLike) -> int:
+    """Sideways reach r (pixels) of the full-band ASM over |z|: ceil(|z| s / (p sqrt(1 - 2 s^2))), s = lambda/2p
+    (``holocore.encode.operator``); -1 when the band contains evanescent corners (2 s^2 >= 1): no finite bound."""
+    py, px = validate.pitch_pair(pitch_m)
+    p = min(py, px)
+    s = wavelength_m / (2.0 * p)
+    if 2.0 * s * s >= 1.0:
+        return -1
+    return int(math.ceil(abs(z_m) * s / (p * math.sqrt(1.0 - 2.0 * s * s)) - 1e-9))
+
+
+def encoder_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike) -> tuple[int, int]:
+    """Padded FFT grid (rows, cols) of the encoder's ASM: the smallest 7-smooth n + r + 8 + n/64, at most 2x."""
+    full = padded_shape(shape_hw, 2)
+    r = spread_px(z_m, wavelength_m, pitch_m)
+    if r < 0:
+        return full
+    return tuple(min(smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore

@@ -1,0 +1,74 @@
+"""The encoder's and the load's terms of the time model (holocore.plan.estimate): the encoder's work is counted
+on the grid the encoder really transforms, its iterations are the stop rule's measured ones, and a loaded
+machine's slowdown follows from fair sharing of the cores."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from holocore.display.optics import OpticsConfig
+from holocore.encode.operator import Operator
+from holocore.plan.estimate import (
+    STOP_RULE_DATA,
+    encode_work,
+    estimate_breakdown,
+    load_slowdown,
+    machine_load,
+    stop_iterations,
+)
+from holocore.pipeline import RenderOptions
+
+
+def test_encode_work_counts_the_grids_the_encoder_transforms():
+    """One iteration transforms each colour's padded grid; the time model must count those very grids, which
+    grow with the WRP's distance (the ASM's reach, lambda z / 2p) up to twice the SLM's sides."""
+    o = OpticsConfig(resolution_hw=(135, 240), frames=3, pitch_um=8.0)
+    for z in (1e-3, 4.5e-3, 80e-3):
+        grids = [Operator(o.resolution_hw, z, lam, o.pitch_m, cone=True, device=torch.device("cpu"))
+                 for lam in o.wavelengths_m]
+        want = o.frames * sum(op.hp * op.wp * math.log2(op.hp * op.wp) for op in grids)
+        assert encode_work(o, z) == pytest.approx(want)
+    # 80 mm from an 8 um SLM the reach (~400 px at 640 nm) exceeds the sides: the 2x grid, 4x the pixels
+    near, far = encode_work(o, 1e-3), encode_work(o, 80e-3)
+    assert 3.5 < far / near < 5.0
+    # the estimate's encode stage follows the grid: z_inf is its default distance
+    opts = RenderOptions(preset="balanced", spp=16)
+    b4 = estimate_breakdown(o.model_copy(update={"z_inf_mm": 4.0}), opts, encode_iterations=100)
+    b80 = estimate_breakdown(o.model_copy(update={"z_inf_mm": 80.0}), opts, encode_iterations=100)
+    assert b80["encode"] / b4["encode"] == pytest.approx(encode_work(o, 80e-3) / encode_work(o, 4e-3))
+    with pytest.raises(ValueError, match="z_wrp_m"):
+        encode_work(o, 0.0)
+
+
+def test_stop_iterations_are_the_measured_ones_by_size():
+    doc = json.loads(STOP_RULE_DATA.read_text())
+    for row in doc["sizes"]:
+        h, w = row["shape_hw"]
+        assert h * w == row["pixels"]
+        assert stop_iterations(h, w) == row["median"] and stop_iterations(h, w, quantile="p90") == row["p90"]
+        assert row["p90"] >= row["median"]
+    # between two measured sizes: between their values; beyond them: held at the nearest
+    a, b = sorted(doc["sizes"], key=lambda r: r["pixels"])[:2]
+    mid = stop_iterations(190, 340)
+    assert min(a["median"], b["median"]) <= mid <= max(a["median"], b["median"])
+    assert stop_iterations(8, 8) == a["median"] and stop_iterations(4320, 7680) == doc["sizes"][-1]["median"]
+    with pytest.raises(ValueError, match="quantile"):
+        stop_iterations(10, 10, quantile="mean")
+
+
+def test_a_loaded_machine_slows_a_run_by_its_share_of_the_cores():
+    assert load_slowdown(0.0, 2) == 1.0
+    assert load_slowdown(8.0, 2) == pytest.approx(5.0)  # 2 of 10 runnable threads' worth of 2 cores
+    assert load_slowdown(2.0, 16) == pytest.approx(1.125)
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="other_load"):
+            load_slowdown(bad, 2)
+    now = machine_load()
+    assert set(now) == {"load_1min", "cores", "others", "slowdown"}
+    assert now["others"] <= now["load_1min"] + 1e-9 and now["slowdown"] >= 1.0
+    # the caller's own runs are left out: with all of the load its own, the machine counts as idle
+    assert machine_load(own_threads=1e6)["slowdown"] == 1.0
