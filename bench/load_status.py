@@ -15,18 +15,15 @@ import asyncio
 import io
 import os
 import platform
-import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 import zipfile
 from pathlib import Path
 
 import httpx
+from service_harness import start_server, wait_job
 
-REPO = Path(__file__).resolve().parents[1]
 SCENE = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="30"/>
     <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
@@ -34,12 +31,6 @@ SCENE = """<scene version="3.0.0">
   <emitter type="constant"/>
   <shape type="sphere"><bsdf type="diffuse"/></shape>
 </scene>"""
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def _client(http: httpx.AsyncClient, path: str, until: float, lat: list[float], errors: list[int]) -> None:
@@ -70,46 +61,12 @@ async def phase(url: str, token: str, job_id: str, clients: int, seconds: float)
             "p90_ms": q[89] * 1e3, "p99_ms": q[98] * 1e3, "max_ms": max(lat) * 1e3}
 
 
-def _start_server(data: Path) -> tuple[subprocess.Popen, str, str]:
-    sys.path.insert(0, str(REPO))
-    from service.auth import create_token
-    from service.db import Database
-
-    data.mkdir(parents=True, exist_ok=True)
-    token = create_token(Database(data / "service.db"), scopes=["admin"], name="bench")[1]
-    port = _port()
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen([sys.executable, "-m", "holo", "serve", "--data-dir", str(data), "--port", str(port),
-                             "--log-level", "warning"], env=env, cwd=REPO, stdout=subprocess.DEVNULL,
-                            stderr=open(data / "server.log", "wb"))
-    url = f"http://127.0.0.1:{port}"
-    for _ in range(300):
-        try:
-            if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                return proc, url, token
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.1)
-    proc.kill()
-    raise SystemExit("server did not start")
-
-
 def _submit(http: httpx.Client, scene_id: str, *, resolution: int, spp: int, seed: int) -> str:
     body = {"scene_id": scene_id, "optics": {"resolution_hw": [resolution, resolution], "seed": seed},
             "preset": "fast", "frames": 2, "spp": spp, "encoder": "dpac"}
     r = http.post("/v1/jobs", json=body)
     r.raise_for_status()
     return r.json()["id"]
-
-
-def _wait(http: httpx.Client, job_id: str, states: tuple[str, ...], timeout: float = 300) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = http.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in states:
-            return job
-        time.sleep(0.2)
-    raise SystemExit(f"job {job_id} never reached {states}")
 
 
 def main() -> None:
@@ -130,7 +87,7 @@ def main() -> None:
         results["given job"] = asyncio.run(phase(args.server, args.token, args.job_id, args.clients, args.seconds))
     else:
         with tempfile.TemporaryDirectory(prefix="holo-load-") as tmp:
-            proc, url, token = _start_server(Path(tmp) / "data")
+            proc, url, token = start_server(Path(tmp) / "data")
             try:
                 with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=60) as http:
                     buf = io.BytesIO()
@@ -138,11 +95,11 @@ def main() -> None:
                         zf.writestr("scene.xml", SCENE)
                     sid = http.post("/v1/scenes", files={"bundle": ("b.zip", buf.getvalue())}).json()["id"]
                     done = _submit(http, sid, resolution=32, spp=2, seed=1)
-                    _wait(http, done, ("succeeded", "failed"))
+                    wait_job(http, done, ("succeeded", "failed"), timeout=300)
                     results["idle server (finished job)"] = asyncio.run(
                         phase(url, token, done, args.clients, args.seconds))
                     busy = _submit(http, sid, resolution=384, spp=64, seed=2)
-                    _wait(http, busy, ("running",))
+                    wait_job(http, busy, ("running",), timeout=300)
                     time.sleep(3.0)  # let the render itself start
                     results["busy server (render running)"] = asyncio.run(
                         phase(url, token, busy, args.clients, args.seconds))

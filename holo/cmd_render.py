@@ -146,10 +146,11 @@ def render(
         from holocore.plan.estimate import machine_load
 
         load = machine_load()
-        console.print(f"these times are for an otherwise idle machine; its load is {load['load_1min']:.1f} on "
-                      f"{load['cores']} cores now" + (f": at that load expect about {load['slowdown']:.1f}x longer "
-                                                      f"(the render about {full['total'] * load['slowdown']:.0f} s)"
-                                                      if load["slowdown"] >= 1.2 else ""))
+        slower = (f": at that load expect about {load['slowdown']:.1f}x longer (the render about "
+                  f"{full['total'] * load['slowdown']:.0f} s)" if load["slowdown"] >= 1.2 else "")
+        console.print(f"these times are for an otherwise idle machine; {load['runnable']:.1f} threads are running or "
+                      f"ready on its {load['cores']} cores now (one-minute load average {load['load_1min']:.1f})"
+                      + slower)
         from holo.render_quality import estimate_lines, quality_context
 
         qctx = quality_context(loaded, pl, profile, optics_cfg, probe=probe, calibration=cal)

@@ -147,18 +147,46 @@ def load_slowdown(other_load: float, cores: int) -> float:
     return 1.0 + float(other_load) / int(cores)
 
 
+_SAMPLED: dict[str, float] = {}  # the last sample of the runnable threads: {"at": monotonic s, "value": threads}
+
+
+def _runnable_now(*, samples: int = 10, interval_s: float = 0.05, max_age_s: float = 5.0) -> Optional[float]:
+    """Runnable threads on the machine now, other than the one reading: the mean of ``samples`` readings of
+    /proc/loadavg's fourth field over ``samples x interval_s`` seconds (None where there is no such file). Kept
+    ``max_age_s`` seconds: a form that estimates on every keystroke samples once."""
+    import time
+
+    now = time.monotonic()
+    if _SAMPLED and now - _SAMPLED["at"] < max_age_s:
+        return _SAMPLED["value"]
+    vals = []
+    try:
+        for i in range(samples):
+            with open("/proc/loadavg") as fh:
+                vals.append(max(0, int(fh.read().split()[3].split("/")[0]) - 1))
+            if i + 1 < samples:
+                time.sleep(interval_s)
+    except (OSError, ValueError, IndexError):
+        return None
+    _SAMPLED.update(at=time.monotonic(), value=statistics.fmean(vals))
+    return _SAMPLED["value"]
+
+
 def machine_load(*, own_threads: float = 0.0) -> dict[str, float]:
-    """This machine's load now: ``load_1min`` (the kernel's one-minute average of runnable threads), ``cores``,
-    ``others`` (less ``own_threads``, the threads of runs the caller knows of and that the estimated run will
-    not share the machine with) and the ``slowdown`` (:func:`load_slowdown`) an estimate is multiplied by."""
+    """This machine's load now: ``runnable`` (threads running or ready to run, sampled over half a second),
+    ``load_1min`` (the kernel's one-minute average of the same, which lags: a run that ended a minute ago still
+    counts in it, so it is shown, not used, where the sample exists), ``cores``, ``others`` (the runnable threads
+    less ``own_threads``, the threads of runs the caller knows of and that the estimated run will not share the
+    machine with) and the ``slowdown`` (:func:`load_slowdown`) an estimate is multiplied by."""
     try:
         load = float(os.getloadavg()[0])
     except OSError:  # no load average on this platform: assume an idle machine
         load = 0.0
+    runnable = _runnable_now()
     cores = os.cpu_count() or 1
-    others = max(0.0, load - max(0.0, float(own_threads)))
-    return {"load_1min": round(load, 2), "cores": cores, "others": round(others, 2),
-            "slowdown": round(load_slowdown(others, cores), 3)}
+    others = max(0.0, (load if runnable is None else runnable) - max(0.0, float(own_threads)))
+    return {"load_1min": round(load, 2), "runnable": round(load if runnable is None else runnable, 2),
+            "cores": cores, "others": round(others, 2), "slowdown": round(load_slowdown(others, cores), 3)}
 
 
 def encode_work(optics: OpticsConfig, z_wrp_m: Optional[float] = None) -> float:

@@ -68,7 +68,26 @@ def test_a_loaded_machine_slows_a_run_by_its_share_of_the_cores():
         with pytest.raises(ValueError, match="other_load"):
             load_slowdown(bad, 2)
     now = machine_load()
-    assert set(now) == {"load_1min", "cores", "others", "slowdown"}
-    assert now["others"] <= now["load_1min"] + 1e-9 and now["slowdown"] >= 1.0
+    assert set(now) == {"load_1min", "runnable", "cores", "others", "slowdown"}
+    assert 0 <= now["others"] <= now["runnable"] and now["slowdown"] >= 1.0
     # the caller's own runs are left out: with all of the load its own, the machine counts as idle
     assert machine_load(own_threads=1e6)["slowdown"] == 1.0
+
+
+def test_the_load_is_the_runnable_threads_sampled_now_not_the_lagging_average(monkeypatch):
+    """The one-minute average still counts a run that ended a minute ago; the estimate uses a half-second
+    sample of the runnable threads, kept a few seconds (a form estimates on every keystroke)."""
+    import os
+    import time
+
+    from holocore.plan import estimate
+
+    monkeypatch.setattr(os, "getloadavg", lambda: (9.0, 9.0, 9.0))
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(estimate, "_SAMPLED", {"at": time.monotonic(), "value": 6.0})
+    got = machine_load(own_threads=2.0)
+    assert got["load_1min"] == 9.0 and got["runnable"] == 6.0 and got["others"] == 4.0
+    assert got["slowdown"] == pytest.approx(3.0)
+    monkeypatch.setattr(estimate, "_SAMPLED", {})
+    fresh = estimate._runnable_now(samples=3, interval_s=0.01)
+    assert fresh is None or fresh >= 0.0

@@ -75,9 +75,12 @@ def test_the_estimate_says_the_load_it_assumes_and_sizes_the_encoder_by_the_wrp_
     makes (the service's own running jobs left out, a queued job runs after them); the encoder's share grows
     with the WRP's distance from the SLM (its padded grid), which the scene's plan gives."""
     import os
+    import time
+
+    from holocore.plan import estimate
 
     req = JobRequest(scene_id="s" * 12, optics=OPTICS, frames=8, spp=16)
-    monkeypatch.setattr(os, "getloadavg", lambda: (8.0, 8.0, 8.0))
+    monkeypatch.setattr(estimate, "_SAMPLED", {"at": time.monotonic() + 3600, "value": 8.0})  # 8 runnable now
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
     busy = estimate_cost(req, scene_plan=PLAN)
     assert busy["load"]["slowdown"] == pytest.approx(5.0)
