@@ -446,3 +446,6 @@ def test_render_estimate_cli(tmp_path):
     err = " ".join(p.stderr.split())  # rich wraps long lines
     assert "estimated time of `holo render`" in err and "estimated warm render time" in err, err
     assert "estimated peak memory" in err and not (tmp_path / "never.npz").exists()
+    # the encode's time, from its stop rule's measured iterations at this size, and the load the times assume
+    assert "estimated `holo encode` time (sgd)" in err and "its stop rule's median at this size" in err, err
+    assert "threads are running or ready on its" in err, err
