@@ -130,6 +130,16 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
     "tests/plan/test_estimate_probe.py": [
         "test_a_real_probe_measures_positive_costs",
     ],
+    # a demo scene planned by a server for one quality target over the API: the quick tier keeps the quality
+    # model's own tests in the module and test_web_page.py's form choosing options for a target on the server
+    "tests/service/test_quality_estimate.py": [
+        "test_a_quality_target_over_the_api",
+    ],
+    # `holo plan --probe` on the demo scene: the service's planner runs the same command in
+    # test_the_services_estimate_uses_its_planners_probe, whose estimate takes the probe only when it is usable
+    "tests/service/test_estimate_probe.py": [
+        "test_holo_plan_probe_times_the_scene",
+    ],
     "tests/evaluate/test_evaluation.py": [
         "test_a_phase_stack_is_lit_with_its_laser_powers",
         "test_a_view_offset_moves_the_reconstruction_like_the_ground_truth[offset0]",

@@ -25,8 +25,30 @@ pytestmark = pytest.mark.scenes
 
 @pytest.fixture(scope="module")
 def rendered(server, scene_bundle, tmp_path_factory):
-    """The small job, run once through the service (and followed by SSE) and once through the CLIs."""
+    """The small job, run once through the service (and followed by SSE) and once through the CLIs; the CLIs run
+    in a thread meanwhile (the same seed gives the same arrays however busy the machine is)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     scene = scene_bundle("cbox-mirror-glass")
+    out = tmp_path_factory.mktemp("cli")
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    o = SMALL_JOB["optics"]
+
+    def cli() -> None:
+        subprocess.run([sys.executable, "-m", "holo", "render", str(scene), "--out", str(out / "r.npz"), "--preset",
+                        "fast", "--frames", "2", "--spp", "4", "--resolution", "x".join(map(str, o["resolution_hw"])),
+                        "--seed", str(o["seed"])], check=True, env=env, capture_output=True)
+        subprocess.run([sys.executable, "-m", "holo", "encode", str(out / "r.npz"), "--out", str(out / "s.npz"),
+                        "--method", "dpac"], check=True, env=env, capture_output=True)
+
+    with ThreadPoolExecutor(1) as pool:
+        cli_done = pool.submit(cli)
+        sc, job, events, final = _through_the_service(server, scene)
+        cli_done.result()
+    return {"scene": sc, "submitted": job.json(), "events": events, "job": final, "cli_stack": out / "s.npz"}
+
+
+def _through_the_service(server, scene):
     with server.client("submit") as c:
         up = upload(c, scene)
         assert up.status_code == 201, up.text
@@ -39,15 +61,7 @@ def rendered(server, scene_bundle, tmp_path_factory):
             assert resp.status_code == 200 and resp.headers["content-type"].startswith("text/event-stream")
             events = list(iter_sse(resp.iter_lines()))
         final = c.get(f"/v1/jobs/{job.json()['id']}").json()
-    out = tmp_path_factory.mktemp("cli")
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    o = SMALL_JOB["optics"]
-    subprocess.run([sys.executable, "-m", "holo", "render", str(scene), "--out", str(out / "r.npz"), "--preset", "fast",
-                    "--frames", "2", "--spp", "4", "--resolution", "x".join(map(str, o["resolution_hw"])),
-                    "--seed", str(o["seed"])], check=True, env=env, capture_output=True)
-    subprocess.run([sys.executable, "-m", "holo", "encode", str(out / "r.npz"), "--out", str(out / "s.npz"),
-                    "--method", "dpac"], check=True, env=env, capture_output=True)
-    return {"scene": sc, "submitted": job.json(), "events": events, "job": final, "cli_stack": out / "s.npz"}
+    return sc, job, events, final
 
 
 def test_upload_reports_the_bundle_and_plan_fills_in(server, rendered):

@@ -83,11 +83,15 @@ def test_a_camera_inside_an_absorbing_medium_sees_through_it():
 
 def test_the_transmitted_colour_is_mitsubas_volpath():
     # Mitsuba's volpath on the same scene and view: the mean colour of the image (light through the slab and
-    # beside it) agrees per colour within 1 % (measured 0.1 %); Mitsuba's path, which ignores media, does not.
+    # beside it) agrees per colour within 1 % (measured 0.3 % at this film, as at 320 x 240); Mitsuba's path,
+    # which ignores media, does not.
     from holocore.runtime.mitsuba_env import mitsuba
 
     mi = mitsuba()
-    sc = _mi_scene(slab=_slab(), plane=emitting_plane(-0.6, size=1.0))
+    # a 160 x 120 film (not the default 768 x 576): every pixel sees the emitter through the slab, and 1.2 M
+    # samples per render leave the mean colour's noise far under the 1 % it is held to
+    sensor = dict(camera(fov=10), film={"type": "hdrfilm", "width": 160, "height": 120})
+    sc = _mi_scene(sensor=sensor, slab=_slab(), plane=emitting_plane(-0.6, size=1.0))
     # the camera's 10 deg view is tan = 0.0875 half-width; the rays below cover it uniformly in tangent
     _v, valid, _nd, L = _trace(sc, n=40000, half_tan=np.tan(np.radians(5.0)))
     ours = L.mean(axis=0)
