@@ -259,7 +259,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
         o = effective_optics(req)
         ev = evaluation_seconds(height=o.height, width=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
         out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
-               "model": out["model"] + " + evaluation"}
+               "steps_s": {**out["steps_s"], "evaluate": round(ev, 2)}, "model": out["model"] + " + evaluation"}
     load = machine_load(own_threads=busy_threads)
     return {**out, "load": load, "seconds_at_load": round(out["seconds"] * load["slowdown"], 1)}
 
@@ -310,8 +310,9 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
     sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
-    14 s for starting the job's four processes, the DPAC encoder (1e-7 s per pixel-frame-color) and the
-    preview (2e-7 s per pixel-color). When the scene's plan timed a probe render (``holo plan --probe``, run by
+    3.5 s for starting each of the job's four processes (driver, render, encode, preview), the DPAC encoder (1e-7
+    s per pixel-frame-color) and the preview (2e-7 s per pixel-color); ``steps_s`` has each step's seconds (a
+    running job's progress is weighed by them, service/workers/runfiles.py). When the scene's plan timed a probe render (``holo plan --probe``, run by
     the planner), the render's stages take the scene's own cost per ray and kernel compilation from it
     (``holocore.plan.estimate_probe``; the calibration alone, made on the demo scene, can be 5x low on
     another). Without a usable calibration: a linear model fitted on a 2-core CPU. ``calibration``: the rates
@@ -329,9 +330,19 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
 
     # without an asked count the encoder runs to at most 500 iterations, but its stop rule ends it far sooner
     iters = req.iterations if req.iterations is not None else stop_iterations(h, w)
-    fixed = 14.0 + 2e-7 * h * w * c + (1e-7 * pix if req.encoder == "dpac" else 0.0)
+    # each of the job's four processes (driver, render, encode, preview) starts Python and its imports: 3.5 s
+    start = 3.5
+    encoder_fixed = 1e-7 * pix if req.encoder == "dpac" else 0.0
+    preview = start + 2e-7 * h * w * c
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
+
+    def out(render: float, encode: float, rays_counted: Optional[int], spp_assumed: Optional[int], model: str):
+        steps = {"render": 2 * start + render, "encode": start + encoder_fixed + encode, "package": 0.0,
+                 "preview": preview}
+        return {"seconds": round(sum(steps.values()), 1), "rays": rays_counted, "spp_assumed": spp_assumed,
+                "encode_s": round(encode, 1), "steps_s": {k: round(v, 2) for k, v in steps.items()}, "model": model}
+
     try:
         from holocore.plan.estimate import estimate_breakdown, features
         from holocore.plan.estimate_probe import estimate_with_probe
@@ -341,27 +352,23 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0,
                                     z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=calibration)
-        work = stages["total"]
+        encode = stages.get("encode", 0.0)
+        render = stages["total"] - encode
         probe = _scene_probe(scene_plan)
         if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
-            render = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
-                                         subhologram_radius_px=radius, calibration=calibration)
-            work = render["total"] - render["startup"] + stages.get("encode", 0.0)  # start-up: in `fixed`
+            est = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
+                                      subhologram_radius_px=radius, calibration=calibration)
+            render = est["total"] - est["startup"]  # start-up: the processes' own, above
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
-            work = req.render_time_limit_s + stages.get("encode", 0.0)
-            return {"seconds": round(fixed + work, 1), "rays": None, "spp_assumed": None,
-                    "encode_s": round(stages.get("encode", 0.0), 1), "model": "render time limit + calibrated encoder"}
-        return {"seconds": round(fixed + work, 1), "rays": h * w * c * spp, "spp_assumed": spp,
-                "encode_s": round(stages.get("encode", 0.0), 1),
-                "model": "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else "")}
+            return out(req.render_time_limit_s, encode, None, None, "render time limit + calibrated encoder")
+        return out(render, encode, h * w * c * spp, spp,
+                   "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""))
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
         if req.render_time_limit_s is not None:
-            return {"seconds": round(fixed + req.render_time_limit_s + enc, 1), "rays": None, "spp_assumed": None,
-                    "model": "render time limit + cpu-linear-v1 encoder"}
-        return {"seconds": round(fixed + 1.5e-6 * rays + 4e-7 * pix + enc, 1), "rays": rays, "spp_assumed": spp,
-                "model": "cpu-linear-v1"}
+            return out(req.render_time_limit_s, enc, None, None, "render time limit + cpu-linear-v1 encoder")
+        return out(1.5e-6 * rays + 4e-7 * pix, enc, rays, spp, "cpu-linear-v1")
 
 
 def _wrp_distance_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:

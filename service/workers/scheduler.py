@@ -278,7 +278,8 @@ class Scheduler:
             limits = job_limits(self.settings, sandboxed=run_as is not None,
                                 largest_file_bytes=admission.largest_file_bytes(row, spec))
             job_file = JobFile(**spec.options(), job_id=job_id, attempt=attempt, scene_path=str(scene_path),
-                               keep_result=self.settings.keep_result, limits=limits.model_dump(exclude_none=True))
+                               keep_result=self.settings.keep_result, limits=limits.model_dump(exclude_none=True),
+                               step_seconds=(row.get("estimate") or {}).get("steps_s"))
             write_json_atomic(job_dir / "job.json", job_file.model_dump(mode="json"))
             if run_as is not None:
                 give_tree(job_dir, run_as)

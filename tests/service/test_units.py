@@ -206,6 +206,24 @@ def test_progress_from_run_files(tmp_path):
     (tmp_path / "step.json").write_text(json.dumps({"step": "encode"}))
     (tmp_path / "progress-encode.jsonl").write_text('{"stage": "encode", "done": 50, "total": 100}\n')
     assert read_progress(tmp_path)["fraction"] == pytest.approx(0.75 + 0.15 * 0.5)
+    # with the estimate's seconds per step (an encode at 80 mm takes as long as the render), those weigh the run,
+    # so that its fraction grows with the time spent and the page's pace gives the time left
+    (tmp_path / "job.json").write_text(json.dumps(
+        {"step_seconds": {"render": 40.0, "encode": 40.0, "package": 0.0, "preview": 20.0}}))
+    assert read_progress(tmp_path)["fraction"] == pytest.approx(0.4 + 0.4 * 0.5)
+    for bad in ({"render": 40.0}, {"render": float("inf"), "encode": 1, "package": 0, "preview": 1}, [1, 2]):
+        (tmp_path / "job.json").write_text(json.dumps({"step_seconds": bad}))  # not every step: the fixed shares
+        assert read_progress(tmp_path)["fraction"] == pytest.approx(0.75 + 0.15 * 0.5)
+
+
+def test_the_estimate_gives_each_step_its_seconds():
+    req = JobRequest(scene_id="s" * 12, optics={"resolution_hw": [135, 240]}, frames=8, spp=16)
+    e = estimate_cost(req)
+    assert set(e["steps_s"]) == {"render", "encode", "package", "preview"}
+    assert sum(e["steps_s"].values()) == pytest.approx(e["seconds"], abs=0.1)
+    assert e["steps_s"]["encode"] > e["encode_s"] > 0  # the encode step starts a process first
+    evaluated = estimate_cost(req.model_copy(update={"evaluate": True}))
+    assert evaluated["steps_s"]["evaluate"] == pytest.approx(evaluated["evaluate_s"], abs=0.05) and evaluated["evaluate_s"] > 0
 
 def test_preview_focus_is_mid_volume():
     meta = {"z_inf_m": 0.08, "analysis": {"z_near_holo_m": 0.084, "z_far_holo_m": 0.080}}
