@@ -25,10 +25,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from holocore.plan.quality import DEFAULT_IMAGE_Q, MIN_FITTED_SPP, MODEL_PATH, predict_quality  # noqa: E402
 
-NAMES = ["s_one", "s_coded", "a_coded", "s_directional", "a_directional", "c_mc", "b_mc", "d_split", "e_sgd",
-         "i_half", "e_dpac", "a_dpac", "floor", "k_q", "k_dpac"]
-START = [0.5, 0.3, 0.8, 0.2, 0.8, 0.01, 0.1, 1.0, 0.01, 20.0, 0.3, 0.1, 0.005, 0.7, 0.3]
-FIXED = {"e_naive": 0.5}
+NAMES = ["s_one", "s_coded", "a_coded", "s_directional", "a_directional", "c_mc", "d_split", "e_sgd", "i_half",
+         "e_dpac", "k_q"]
+START = [0.5, 0.3, 0.8, 0.2, 0.8, 0.01, 1.0, 0.01, 20.0, 0.3, 0.7]
+# Held, not fitted: fitted freely on the 135x240 campaign these went to their bounds (no gain of the noise from
+# re-phasing, no floor, DPAC's error the same in every frame and at every image statistic), and four
+# coefficients fewer predict the scenes left out better (rms 1.07 against 1.11 dB).
+FIXED = {"e_naive": 0.5, "b_mc": 0.0, "floor": 0.0, "a_dpac": 0.0, "k_dpac": 0.0}
 
 
 def load_jobs(folders: list[str]) -> list[dict]:
@@ -63,7 +66,7 @@ def fit(rows: list[dict], *, use_q: bool = True) -> dict:
         coef = coefficients(np.exp(log_theta))
         return np.array([predict(r, coef, use_q=use_q) for r in rows]) - y
 
-    sol = least_squares(resid, np.log(START), method="trf", loss="soft_l1", f_scale=1.5, max_nfev=4000)
+    sol = least_squares(resid, np.log(START), method="trf", max_nfev=4000)
     return coefficients(np.exp(sol.x))
 
 
@@ -92,6 +95,8 @@ def main(argv=None) -> int:
     err = np.array([p - r["psnr_2_6_db"] for r, p, _ in out])
     within = float(np.mean(np.abs(err) <= 1.5))
     unc = float(np.percentile(np.abs(err), 90))
+    left = np.array([p - r["psnr_2_6_db"] for r, p, how in out if how == "scene left out"])
+    other = err[len(left):]
     rms = float(np.sqrt(np.mean(err ** 2)))
     print(f"{len(out)} jobs ({len(rows)} fitted on {len(scenes)} scenes, {len(checks)} at other optics): fitted rms "
           f"{np.sqrt(np.mean(err_in ** 2)):.2f} dB; predicted unseen: rms {rms:.2f} dB, within 1.5 dB {within:.0%}, "
@@ -105,8 +110,14 @@ def main(argv=None) -> int:
              "jittered 3 x 3 eye grid, mean PSNR). Predicted: `holocore/plan/quality.py`, never by a model that saw "
              "the job: each scene of the fitted set by the model fitted on the other scenes, the jobs at other "
              "optics (virtual infinity, SLM size) by the model fitted on all of the fitted set.", "",
-             f"**{len(out)} jobs: {within:.0%} within ±1.5 dB; rms error {rms:.2f} dB; 90 % of errors within "
-             f"{unc:.2f} dB** (fitted on all, in-sample: rms {np.sqrt(np.mean(err_in ** 2)):.2f} dB).", "",
+             f"**{len(left)} jobs on {len(scenes)} scenes, each predicted with its scene left out: "
+             f"{np.mean(np.abs(left) <= 1.5):.0%} within ±1.5 dB ({int(np.sum(np.abs(left) <= 1.5))} of {len(left)}), "
+             f"rms error {np.sqrt(np.mean(left ** 2)):.2f} dB.**"
+             + (f" At other optics: {int(np.sum(np.abs(other) <= 1.5))} of {len(other)} within ±1.5 dB." if len(other)
+                else "")
+             + f" All {len(out)}: {within:.0%} within ±1.5 dB, rms {rms:.2f} dB, 90 % of errors within {unc:.2f} dB "
+             f"(the ± each prediction carries; fitted on all, in-sample: rms {np.sqrt(np.mean(err_in ** 2)):.2f} dB).",
+             "",
              "| scene | size | z_inf mm | frames | phases | spp | encoder | measured dB | predicted dB | error dB | "
              "predicted by |", "|---|---|---|---|---|---|---|---|---|---|---|"]
 
