@@ -4,7 +4,7 @@ idle machine and beside other work.
 Each job runs in a `holo serve` of its own (bench/service_harness.py; one local worker, jobs one after
 another), so the time measured is what a user waits for: the job's ``timings.run_s`` (render, encode, package,
 pictures, each a process of its own). The estimate is the one stored with the job at submit
-(``service.models.estimate_cost``): ``seconds`` for an idle machine and ``seconds_at_load``, that time times
+(``service.cost.estimate_cost``): ``seconds`` for an idle machine and ``seconds_at_load``, that time times
 the slowdown of the load other work made at submit (``holocore.plan.estimate.load_slowdown``). ``--load N``
 runs N busy processes beside the jobs (started first, until the one-minute load average reaches them).
 

@@ -108,7 +108,7 @@ class JobFile(JobOptions):
     keep_result: bool = True
     # the kernel resource limits the driver lowers its own to first (service/workers/limits.py ProcessLimits)
     limits: Optional[dict[str, int]] = None
-    # each step's predicted seconds (the job's estimate, service.models): its progress is weighed by them
+    # each step's predicted seconds (the job's estimate, service.cost): its progress is weighed by them
     step_seconds: Optional[dict[str, float]] = None
 
 

@@ -3,7 +3,7 @@ into the options that reach it (``quality_db``).
 
 The prediction is holocore.plan.quality's, from what the scene's plan says (the radius its noise target was set
 by gives the noise of the rays; its picture's image statistic the weight of speckle and noise); the times
-beside it are the job estimate's own (:func:`service.models.hologram_seconds`), so "24 frames would give about
+beside it are the job estimate's own (:func:`service.cost.hologram_seconds`), so "24 frames would give about
 20 dB in 3 min" and the estimate above it never disagree.
 """
 
@@ -11,8 +11,10 @@ from __future__ import annotations
 
 from typing import Any, Optional
 
-from holocore.plan.quality import predict_for
+from holocore.display.optics import OpticsConfig
+from holocore.plan.quality import predict_for, recording_radius_px
 from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality, frames_upto
+from service.models import effective_optics
 
 __all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
@@ -38,8 +40,6 @@ def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[
 def _recording_radius(plan: dict) -> Optional[float]:
     """The radius the plan's noise target was set by (holocore.plan.quality.recording_radius_px), from its
     noise-to-signal and rays at the plan's optics; the analysis' farthest point where the plan lacks them."""
-    from holocore.display.optics import OpticsConfig
-    from holocore.plan.quality import recording_radius_px
 
     ep = plan.get("plan") or {}
     try:
@@ -57,7 +57,6 @@ def _options(req, max_spp: Optional[int]):
 
 
 def _candidates(req, *, facts: tuple, max_spp: Optional[int], seconds_of) -> list:
-    from service.models import effective_optics
 
     radius, q, diel = facts
 
@@ -76,7 +75,6 @@ def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
     """The estimate's ``quality``: the predicted viewer-faithful PSNR, its ±, what each part costs, warnings,
     and at most two other mixes of frames, rays and encoder iterations worth knowing (``seconds_of(req)``:
     the estimate's seconds of a request)."""
-    from service.models import effective_optics
 
     facts = radius, q, diel = _scene_facts(scene_plan)
     pred = predict_for(effective_optics(req), _options(req, max_spp), encoder=req.encoder,

@@ -22,20 +22,9 @@ from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from holocore.plan.presets import MAX_WRP_PLANES
 from service.jobfiles import JobSpec
-from service.models import (
-    JobRequest,
-    binding_max_spp,
-    cache_key,
-    calibration_or_none,
-    effective_optics,
-    estimate_cost,
-    hologram_seconds,
-    job_limit_errors,
-    memory_admission_error,
-    optics_sanity_errors,
-    plane_border_px,
-    spp_cap,
-)
+from service.cost import calibration_or_none, estimate_cost, hologram_seconds, memory_admission_error, plane_border_px
+from service.job_rules import binding_max_spp, job_limit_errors, optics_sanity_errors, spp_cap
+from service.models import JobRequest, cache_key, effective_optics
 from service.settings import JobLimits
 
 __all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",

@@ -150,7 +150,7 @@ def load_slowdown(other_load: float, cores: int) -> float:
 _SAMPLED: dict[str, float] = {}  # the last sample of the runnable threads: {"at": monotonic s, "value": threads}
 
 
-def _runnable_now(*, samples: int = 10, interval_s: float = 0.05, max_age_s: float = 5.0) -> Optional[float]:
+def _runnable_now(*, samples: int = 10, interval_s: float = 0.02, max_age_s: float = 5.0) -> Optional[float]:
     """Runnable threads on the machine now, other than the one reading: the mean of ``samples`` readings of
     /proc/loadavg's fourth field over ``samples x interval_s`` seconds (None where there is no such file). Kept
     ``max_age_s`` seconds: a form that estimates on every keystroke samples once."""
@@ -173,7 +173,7 @@ def _runnable_now(*, samples: int = 10, interval_s: float = 0.05, max_age_s: flo
 
 
 def machine_load(*, own_threads: float = 0.0) -> dict[str, float]:
-    """This machine's load now: ``runnable`` (threads running or ready to run, sampled over half a second),
+    """This machine's load now: ``runnable`` (threads running or ready to run, sampled over a fifth of a second),
     ``load_1min`` (the kernel's one-minute average of the same, which lags: a run that ended a minute ago still
     counts in it, so it is shown, not used, where the sample exists), ``cores``, ``others`` (the runnable threads
     less ``own_threads``, the threads of runs the caller knows of and that the estimated run will not share the

@@ -38,14 +38,9 @@ from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
-from service.models import (
-    ID_PATTERN,
-    JobRequest,
-    binding_max_spp,
-    cache_key,
-    effective_optics,
-    estimate_cost,
-)
+from service.cost import estimate_cost
+from service.job_rules import binding_max_spp
+from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics
 from service.scene_view import scene_field_of_view_box
 from service.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
 from service.untrusted import open_job_file, read_job_json

@@ -75,7 +75,7 @@ def test_a_loaded_machine_slows_a_run_by_its_share_of_the_cores():
 
 
 def test_the_load_is_the_runnable_threads_sampled_now_not_the_lagging_average(monkeypatch):
-    """The one-minute average still counts a run that ended a minute ago; the estimate uses a half-second
+    """The one-minute average still counts a run that ended a minute ago; the estimate uses a fifth-of-a-second
     sample of the runnable threads, kept a few seconds (a form estimates on every keystroke)."""
     import os
     import time

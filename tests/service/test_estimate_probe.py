@@ -11,7 +11,8 @@ import sys
 import pytest
 
 from holocore.plan.estimate import features
-from service.models import JobRequest, estimate_cost
+from service.cost import estimate_cost
+from service.models import JobRequest
 from tests.service.helpers import REPO, planned_scene, zip_dir
 
 PLAN = {"analysis": {"subhologram_radius_px": 6.0}, "inventory": {"primitives": 12}}

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
-from service.models import JobRequest, estimate_cost
+from service.cost import estimate_cost
+from service.models import JobRequest
 from tests.service.helpers import planned_scene, zip_dir
 
 PLAN = {"analysis": {"subhologram_radius_px": 10.0}, "inventory": {"primitives": 12}, "picture": {"image_q": 0.2}}

@@ -18,7 +18,9 @@ from holocore.display.optics import OpticsConfig
 from service.api.files import Unsatisfiable, parse_range
 from service.auth import allows, create_token, revoke_token, verify_token
 from service.db import Database
-from service.models import JobRequest, cache_key, estimate_cost, job_limit_errors
+from service.cost import estimate_cost
+from service.job_rules import job_limit_errors
+from service.models import JobRequest, cache_key
 from service.settings import JobLimits, UploadLimits
 from service.uploads import (
     UploadError,

@@ -1,0 +1,246 @@
+"""What a job costs before it runs: its seconds (render, encode, process starts, pictures, evaluation; at an idle
+machine and at the present load), its peak memory and what its deeper recording planes add to it, and the
+quality its options buy (service/quality.py). Shown at submit, stored with the job, and what admission checks.
+Light imports only: the API process estimates with it (holocore.plan's models need no numpy)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+from typing import Any, Optional
+
+from holocore.display.optics import OpticsConfig
+from holocore.plan.estimate import (
+    estimate_breakdown,
+    features,
+    load_calibration,
+    machine_load,
+    stop_iterations,
+)
+from holocore.plan.estimate_probe import Probe, estimate_with_probe
+from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
+from service.models import JobRequest, effective_optics
+from service.quality import job_quality
+from service.settings import JobLimits
+
+__all__ = ["estimate_cost", "hologram_seconds", "calibration_or_none", "plane_border_px", "job_memory",
+           "memory_admission_error"]
+
+# Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
+# between the preset's bounds; see holocore/plan/presets.py PRESETS).
+_TYPICAL_SPP = {"fast": 16, "balanced": 128, "reference": 1024}
+
+
+def _spp(req: JobRequest) -> int:
+    return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
+
+
+def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                  plane_border: Optional[int] = 0, target_db: Optional[float] = None,
+                  busy_threads: float = 0.0) -> dict[str, Any]:
+    """Predicted seconds of a job, shown at submit time: :func:`_hologram_cost`, plus the evaluation against
+    ground truth when the job asks for it (``evaluate_s``, service/workers/evaluation.py's model), and the
+    quality its options buy (``quality``, service/quality.py; ``target_db``: the quality target the options
+    were chosen for). ``seconds`` is for an idle machine; ``load`` is the machine's load now, less
+    ``busy_threads`` (the threads of this service's own running jobs, which a queued job does not run beside),
+    and ``seconds_at_load`` the time at that load (``holocore.plan.estimate.load_slowdown``)."""
+
+    out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
+    cal = calibration_or_none()  # read once for every candidate the quality prices
+    out["quality"] = job_quality(req, scene_plan=scene_plan, max_spp=max_spp, seconds=out["seconds"],
+                                 seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp,
+                                                                       calibration=cal),
+                                 target_db=target_db)
+    if req.evaluate:
+        from service.workers.evaluation import evaluation_seconds
+
+        o = effective_optics(req)
+        ev = evaluation_seconds(height=o.height, width=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
+        out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
+               "steps_s": {**out["steps_s"], "evaluate": round(ev, 2)}, "model": out["model"] + " + evaluation"}
+    load = machine_load(own_threads=busy_threads)
+    return {**out, "load": load, "seconds_at_load": round(out["seconds"] * load["slowdown"], 1)}
+
+
+def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                     calibration: Optional[dict] = None) -> float:
+    """Predicted seconds of a job's hologram alone (:func:`_hologram_time`'s), without its memory."""
+    return float(_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp, calibration=calibration)["seconds"])
+
+
+def calibration_or_none() -> Optional[dict]:
+    """The time model's rates, read once for many predictions; None where none is usable (each prediction then
+    falls back as :func:`_hologram_time` does)."""
+
+    try:
+        return load_calibration()
+    except (ValueError, OSError):
+        return None
+
+
+def _scene_probe(scene_plan: Optional[dict]):
+    """The probe render the scene's plan timed (``holo plan --probe``), or None when it has none (a plan made
+    before the probe, or a probe that failed)."""
+
+    doc = (scene_plan or {}).get("probe")
+    try:
+        probe = Probe(startup_s=float(doc["startup_s"]), compile_s=float(doc["compile_s"]),
+                      ray_color_s=float(doc["ray_color_s"]), probe_s=float(doc["probe_s"]))
+    except (TypeError, KeyError, ValueError):
+        return None
+    ok = all(math.isfinite(v) and v >= 0 for v in (probe.compile_s, probe.ray_color_s)) and probe.ray_color_s > 0
+    return probe if ok else None
+
+
+def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                   plane_border: Optional[int] = 0) -> dict[str, Any]:
+    """:func:`_hologram_time` and the job's predicted peak memory (``memory``)."""
+    memory = {**job_memory(req, plane_border=plane_border).as_dict(), "plane_border_px": plane_border}
+    return {**_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp), "memory": memory}
+
+
+def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
+                   calibration: Optional[dict] = None) -> dict[str, Any]:
+    """Predicted seconds of a job's hologram (render, encode, package, pictures).
+
+    The render and the SGD encoder come from ``holocore.plan.estimate`` (rates calibrated on this machine by
+    `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
+    sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
+    3.5 s for starting each of the job's four processes (driver, render, encode, preview), the DPAC encoder (1e-7
+    s per pixel-frame-color) and the preview (2e-7 s per pixel-color); ``steps_s`` has each step's seconds (a
+    running job's progress is weighed by them, service/workers/runfiles.py). When the scene's plan timed a
+    probe render (``holo plan --probe``, run by the planner), the render's stages take the scene's own cost per
+    ray and kernel compilation from it (``holocore.plan.estimate_probe``; the calibration alone, made on the demo
+    scene, can be 5x low on another). Without a usable calibration: a linear model fitted on a 2-core CPU.
+    ``calibration``: the rates (default: loaded here, :func:`holocore.plan.estimate.load_calibration`)."""
+    o = effective_optics(req)
+    h, w = o.resolution_hw
+    c = len(o.wavelengths_nm)
+    f = o.frames
+    spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
+    rays = h * w * c * spp
+    pix = h * w * c * f
+    # without an asked count the encoder runs to at most 500 iterations, but its stop rule ends it far sooner
+    iters = req.iterations if req.iterations is not None else stop_iterations(h, w)
+    # each of the job's four processes (driver, render, encode, preview) starts Python and its imports: 3.5 s
+    start = 3.5
+    encoder_fixed = 1e-7 * pix if req.encoder == "dpac" else 0.0
+    preview = start + 2e-7 * h * w * c
+    ana = (scene_plan or {}).get("analysis") or {}
+    inv = (scene_plan or {}).get("inventory") or {}
+
+    def out(render: float, encode: float, rays_counted: Optional[int], spp_assumed: Optional[int], model: str):
+        steps = {"render": 2 * start + render, "encode": start + encoder_fixed + encode, "package": 0.0,
+                 "preview": preview}
+        return {"seconds": round(sum(steps.values()), 1), "rays": rays_counted, "spp_assumed": spp_assumed,
+                "encode_s": round(encode, 1), "steps_s": {k: round(v, 2) for k, v in steps.items()}, "model": model}
+
+    try:
+        options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
+        radius = ana.get("subhologram_radius_px")
+        stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
+                                    encode_iterations=iters if req.encoder == "sgd" else 0,
+                                    z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=calibration)
+        encode = stages.get("encode", 0.0)
+        render = stages["total"] - encode
+        probe = _scene_probe(scene_plan)
+        if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
+            est = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
+                                      subhologram_radius_px=radius, calibration=calibration)
+            render = est["total"] - est["startup"]  # start-up: the processes' own, above
+        spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
+        if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
+            return out(req.render_time_limit_s, encode, None, None, "render time limit + calibrated encoder")
+        return out(render, encode, h * w * c * spp, spp,
+                   "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""))
+    except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
+        enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
+        if req.render_time_limit_s is not None:
+            return out(req.render_time_limit_s, enc, None, None, "render time limit + cpu-linear-v1 encoder")
+        return out(1.5e-6 * rays + 4e-7 * pix, enc, rays, spp, "cpu-linear-v1")
+
+
+def _wrp_distance_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
+    """The WRP's distance from the SLM with these optics (m), from the scene's plan (made at its own optics):
+    its depth beyond z_inf scales with (f / f_plan)^2 like every hologram depth. None (z_inf is then assumed)
+    when the plan does not say."""
+    try:
+        ana = scene_plan["analysis"]
+        f_plan = float(scene_plan["focal_length_m"])
+        beyond = float(ana["z_wrp_m"]) - float(scene_plan["optics"]["z_inf_mm"]) * 1e-3
+        f = o.focal_length_m((scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    z = o.z_inf_m + (f / f_plan) ** 2 * beyond
+    return z if math.isfinite(z) and z > 0 else None
+
+
+def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
+    """How far behind the WRP the scene's farthest image point lies with these optics (m), from the scene's
+    plan (made at its own optics): hologram depth is z_inf + f^2 / zc, so depths scale with (f / f_plan)^2,
+    and the WRP lies one margin in front of the nearest point. None when the plan does not say."""
+    try:
+        ana = scene_plan["analysis"]
+        near, far = ana["z_near_holo_m"], ana["z_far_holo_m"]
+        f_plan = float(scene_plan["focal_length_m"])
+        cam_fov = (scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg")
+        f = o.focal_length_m(cam_fov)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if near is None or far is None:  # nothing visible: one plane will do
+        return 0.0
+    scale = (f / f_plan) ** 2
+    theta_min = min(o.theta_max(lam) for lam in o.wavelengths_m)
+    margin = o.wrp_margin_px * o.pitch_m / math.tan(theta_min)
+    depth = scale * (float(near) - float(far)) + margin
+    return depth if math.isfinite(depth) and depth >= 0 else None
+
+
+def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: str = "ready",
+                    limits: Optional[JobLimits] = None) -> Optional[int]:
+    """The widest border (px) a deeper recording plane of the job can have: 0 with one plane; from the scene's
+    depth at the job's optics when its plan is ready, bounded by the plane distance limit
+    (optics.max_wrp_distance_mm, at most the service's), that bound alone when the plan failed; None while the
+    plan is pending (the scheduler asks again before the job runs) or when it does not say the depth."""
+    if req.method == "direct" or req.wrp_planes == 1:
+        return 0
+    o = effective_optics(req)
+    bound_m = o.max_wrp_distance_mm * 1e-3
+    if limits is not None:
+        bound_m = min(bound_m, limits.max_wrp_distance_mm * 1e-3)
+    if plan_state in ("pending", "running"):
+        return None
+    theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
+    if plan_state != "ready":  # the plan failed: nothing is known of the scene but the bound
+        return deepest_border_px(bound_m, pitch_m=o.pitch_m, theta_max=theta)
+    depth = _scene_depth_m(o, scene_plan)
+    if depth is None:  # a plan without the analysis (from before it was stored): not known
+        return None
+    return deepest_border_px(min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
+
+
+def job_memory(req: JobRequest, *, plane_border: Optional[int] = 0) -> MemoryEstimate:
+    """Predicted peak bytes of the job's render, encode and preview (holocore.plan.memory_estimate), with its
+    deeper recording planes' widest border (:func:`plane_border_px`; None, not known yet, counts as 0), and its
+    evaluation against ground truth when it asks for one."""
+    o = effective_optics(req)
+    return estimate_memory(height_px=o.height, width_px=o.width, colors=len(o.wavelengths_nm), frames=o.frames,
+                           plane_border_px=plane_border or 0, evaluate=bool(req.evaluate))
+
+
+def memory_admission_error(req: JobRequest, worker_memory_bytes: int, *,
+                           plane_border: Optional[int] = 0) -> Optional[str]:
+    """Why the workers cannot hold the job (None when they can)."""
+    m = job_memory(req, plane_border=plane_border)
+    if m.peak_bytes <= worker_memory_bytes:
+        return None
+    o = effective_optics(req)
+    planes = (f"; its deeper recording planes are {plane_border} px wider on each side than the SLM (their depth "
+              "grows with f^2): wrp_planes 1, a shorter f or a shallower scene needs less" if plane_border else "")
+    evaluation = ("; its evaluation against ground truth grows with the SLM's pixels: without evaluate it needs "
+                  f"{max(m.render_bytes, m.encode_bytes, m.view_bytes) / 1e9:.1f} GB"
+                  if m.peak_stage == "evaluate" else "")
+    return (f"the job needs about {m.peak_bytes / 1e9:.1f} GB at its peak ({m.peak_stage}; "
+            f"{o.height}x{o.width} px x {len(o.wavelengths_nm)} colors x {o.frames} frames), but the workers have "
+            f"{worker_memory_bytes / 1e9:.1f} GB: lower optics.resolution_hw, frames or the number of wavelengths "
+            f"(memory grows with their product){planes}{evaluation}")
