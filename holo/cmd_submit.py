@@ -64,7 +64,7 @@ def submit(
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from service.client import ClientError, ServiceClient
 
@@ -107,8 +107,10 @@ def submit(
             if no_wait:
                 print(job["id"])
                 return
+            # the fraction is weighed by the estimate's seconds per step, so the pace gives the time left (and
+            # carries the load the job meets)
             with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                          TimeElapsedColumn(), console=console, transient=True,
+                          TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
                           disable=not sys.stderr.isatty()) as bar:
                 task = bar.add_task(job["state"], total=1.0)
 
