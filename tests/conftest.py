@@ -130,6 +130,11 @@ FULL_TIER_ONLY: dict[str, list[str]] = {
     "tests/plan/test_estimate_probe.py": [
         "test_a_real_probe_measures_positive_costs",
     ],
+    # a job submitted from the page's form and watched to its end (25 s): test_re_run_with_changes submits from
+    # the form, the done job's tests show a finished job's page and list, test_web_journey.py follows progress
+    "tests/service/test_web_page.py": [
+        "test_a_job_named_after_its_file_whose_progress_only_moves_forward",
+    ],
     # a demo scene planned by a server for one quality target over the API: the quick tier keeps the quality
     # model's own tests in the module and test_web_page.py's form choosing options for a target on the server
     "tests/service/test_quality_estimate.py": [
