@@ -122,6 +122,8 @@ def run(load: int, subset: str) -> dict:
                     row = {**asdict(job), "estimate_s": est["seconds"], "estimate_at_load_s": est["seconds_at_load"],
                            "load_at_submit": est["load"], "encode_estimate_s": est.get("encode_s"),
                            "spp_assumed": est.get("spp_assumed"), "model": est["model"], "run_s": t["run_s"],
+                           "spp_run": ((done.get("plan") or {}).get("plan") or {}).get("spp"),
+                           "steps_estimate_s": est.get("steps_s"),
                            "steps_s": {k: t[k] for k in ("render_s", "encode_s", "package_s", "pictures_s") if k in t},
                            "load_after": os.getloadavg()[0]}
                     rows.append(row)
@@ -179,7 +181,8 @@ def report(out: Path) -> None:
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         for j in r["jobs"]:
             unseen = " (unseen)" if j["scene"] in UNSEEN else ""
-            rays = f"{j['preset']}, {j['spp'] or j['spp_assumed']}" + ("" if j["spp"] else " (preset's)")
+            rays = f"{j['preset']}, {j['spp'] or j.get('spp_run') or j['spp_assumed']}" + (
+                "" if j["spp"] else f" (preset's; {j['spp_assumed']} assumed)")
             enc = j["steps_s"].get("encode_s")
             parts.append(f"| {j['scene']}{unseen} | {j['shape_hw'][0]}x{j['shape_hw'][1]} | {j['frames']} | {rays} | "
                          f"{j['encoder']} | {j['load_at_submit']['load_1min']:.1f} ({j['load_at_submit']['others']:.1f}) | "

@@ -20,7 +20,7 @@ from holocore.plan.estimate import (
 from holocore.plan.estimate_probe import Probe, estimate_with_probe
 from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
 from service.models import JobRequest, effective_optics
-from service.quality import job_quality
+from service.quality import job_quality, recording_radius
 from service.settings import JobLimits
 
 __all__ = ["estimate_cost", "hologram_seconds", "calibration_or_none", "plane_border_px", "job_memory",
@@ -99,6 +99,11 @@ def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     return {**_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp), "memory": memory}
 
 
+# The pictures step's views of the hologram: the preview, a focal sweep of 9 and a 3 x 3 grid of eye positions
+# (service/workers/pictures.py), each of every frame and colour.
+PICTURE_VIEWS = 1 + 9 + 3 * 3
+
+
 def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
                    calibration: Optional[dict] = None) -> dict[str, Any]:
     """Predicted seconds of a job's hologram (render, encode, package, pictures).
@@ -107,7 +112,8 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     `holo bench calibrate`, else the committed default), with the scene's depth (its sub-hologram radius, which
     sets the preset's rays per pixel) and primitive count from its effect plan when the plan is ready; plus
     3.5 s for starting each of the job's four processes (driver, render, encode, preview), the DPAC encoder (1e-7
-    s per pixel-frame-color) and the preview (2e-7 s per pixel-color); ``steps_s`` has each step's seconds (a
+    s per pixel-frame-color) and the pictures (:data:`PICTURE_VIEWS` views, each an ASM of every frame and colour
+    at the calibration's rate); ``steps_s`` has each step's seconds (a
     running job's progress is weighed by them, service/workers/runfiles.py). When the scene's plan timed a
     probe render (``holo plan --probe``, run by the planner), the render's stages take the scene's own cost per
     ray and kernel compilation from it (``holocore.plan.estimate_probe``; the calibration alone, made on the demo
@@ -125,39 +131,44 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     # each of the job's four processes (driver, render, encode, preview) starts Python and its imports: 3.5 s
     start = 3.5
     encoder_fixed = 1e-7 * pix if req.encoder == "dpac" else 0.0
-    preview = start + 2e-7 * h * w * c
     ana = (scene_plan or {}).get("analysis") or {}
     inv = (scene_plan or {}).get("inventory") or {}
 
-    def out(render: float, encode: float, rays_counted: Optional[int], spp_assumed: Optional[int], model: str):
+    def out(render: float, encode: float, rays_counted: Optional[int], spp_assumed: Optional[int], model: str,
+            pictures: float):
         steps = {"render": 2 * start + render, "encode": start + encoder_fixed + encode, "package": 0.0,
-                 "preview": preview}
+                 "preview": start + pictures}
         return {"seconds": round(sum(steps.values()), 1), "rays": rays_counted, "spp_assumed": spp_assumed,
                 "encode_s": round(encode, 1), "steps_s": {k: round(v, 2) for k, v in steps.items()}, "model": model}
 
     try:
+        cal = calibration if calibration is not None else load_calibration()
+        # each picture is a view of every frame and colour through the ASM on its padded grid
+        pictures = cal["rates"]["fft"] * PICTURE_VIEWS * features(o, SimpleNamespace(
+            preset=req.preset, spp=1, method=req.method))["fft"]
         options = SimpleNamespace(preset=req.preset, spp=req.spp, method=req.method, max_spp=max_spp)
-        radius = ana.get("subhologram_radius_px")
+        radius = recording_radius(scene_plan) if scene_plan else None
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0,
-                                    z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=calibration)
+                                    z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=cal)
         encode = stages.get("encode", 0.0)
         render = stages["total"] - encode
         probe = _scene_probe(scene_plan)
         if probe is not None:  # the scene's own cost per ray (its plan's probe render) for the render's stages
             est = estimate_with_probe(o, options, probe, scene_primitives=inv.get("primitives"),
-                                      subhologram_radius_px=radius, calibration=calibration)
+                                      subhologram_radius_px=radius, calibration=cal)
             render = est["total"] - est["startup"]  # start-up: the processes' own, above
         spp = int(features(o, options, subhologram_radius_px=radius)["spp"])
         if req.render_time_limit_s is not None:  # the render takes its limit; the encoder what it takes
-            return out(req.render_time_limit_s, encode, None, None, "render time limit + calibrated encoder")
+            return out(req.render_time_limit_s, encode, None, None, "render time limit + calibrated encoder", pictures)
         return out(render, encode, h * w * c * spp, spp,
-                   "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""))
+                   "calibrated" + (" + scene probe" if probe is not None else " + scene plan" if ana else ""), pictures)
     except (ValueError, OSError, KeyError, TypeError):  # no usable calibration: the linear model
         enc = 0.0 if req.encoder == "dpac" else 2.5e-7 * pix * iters
         if req.render_time_limit_s is not None:
-            return out(req.render_time_limit_s, enc, None, None, "render time limit + cpu-linear-v1 encoder")
-        return out(1.5e-6 * rays + 4e-7 * pix, enc, rays, spp, "cpu-linear-v1")
+            return out(req.render_time_limit_s, enc, None, None, "render time limit + cpu-linear-v1 encoder",
+                       2e-7 * h * w * c)
+        return out(1.5e-6 * rays + 4e-7 * pix, enc, rays, spp, "cpu-linear-v1", 2e-7 * h * w * c)
 
 
 def _wrp_distance_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:

@@ -16,7 +16,7 @@ from holocore.plan.quality import predict_for, recording_radius_px
 from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality, frames_upto
 from service.models import effective_optics
 
-__all__ = ["job_quality", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
+__all__ = ["job_quality", "recording_radius", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
 # Fewer than the CLI's (holocore.plan.quality_choice): every estimate of the page's form, one per keystroke, prices
 # each candidate with the job estimate's time model.
@@ -30,17 +30,17 @@ def _scene_facts(scene_plan: Optional[dict]) -> tuple[Optional[float], Optional[
     plan = scene_plan or {}
     r = (plan.get("analysis") or {}).get("refracted_share")
     refracted = float(r) if isinstance(r, (int, float)) and 0 <= r <= 1 else 0.0
-    radius = _recording_radius(plan)
+    radius = recording_radius(plan)
     q = (plan.get("picture") or {}).get("image_q")
     radius = float(radius) if isinstance(radius, (int, float)) and radius >= 0 else None
     q = float(q) if isinstance(q, (int, float)) and 0 < q <= 1 else None
     return radius, q, refracted
 
 
-def _recording_radius(plan: dict) -> Optional[float]:
+def recording_radius(plan: dict) -> Optional[float]:
     """The radius the plan's noise target was set by (holocore.plan.quality.recording_radius_px), from its
-    noise-to-signal and rays at the plan's optics; the analysis' farthest point where the plan lacks them."""
-
+    noise-to-signal and rays at the plan's optics; the analysis' farthest point where the plan lacks them. It
+    sets the preset's rays per pixel: with several recording planes it is smaller than the farthest point's."""
     ep = plan.get("plan") or {}
     try:
         o = OpticsConfig(**plan["optics"])
