@@ -264,7 +264,7 @@ def _probe(loaded, optics_cfg, options, *, startup_s: float) -> dict:
     except (ValueError, RuntimeError, MemoryError) as exc:
         return {"error": f"no probe: {str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__}"}
     return {"startup_s": round(p.startup_s, 4), "compile_s": round(p.compile_s, 4),
-            "ray_color_s": p.ray_color_s, "probe_s": round(p.probe_s, 4)}
+            "ray_color_s": p.ray_color_s, "probe_s": round(p.probe_s, 4), "load_slowdown": round(p.load_slowdown, 3)}
 
 
 @with_optics_options

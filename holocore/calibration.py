@@ -178,9 +178,14 @@ def _work(result: Any) -> tuple[float, float]:
 
 def probe_scene(loaded: Any, optics: OpticsConfig, options: Any, *, startup_s: float) -> Probe:
     """Render ``loaded`` at ``PROBE_HW`` (cold, then warm) and at twice its sides (warm), one frame, with
-    ``options``; the warm pair's difference is the cost of the extra rays alone (no fixed costs)."""
+    ``options``; the warm pair's difference is the cost of the extra rays alone (no fixed costs). Its seconds
+    are an idle machine's: each is divided by the slowdown of the load other work made as the probe began
+    (``holocore.plan.estimate.load_slowdown``), so that a scene planned on a busy machine is not priced at its
+    load twice, once in its probe and again by the estimate's load."""
     from holocore.pipeline import render_loaded
+    from holocore.plan.estimate import machine_load
 
+    slow = machine_load()["slowdown"]
     small = optics.model_copy(update={"resolution_hw": PROBE_HW, "frames": 1})
     big = small.model_copy(update={"resolution_hw": (2 * PROBE_HW[0], 2 * PROBE_HW[1])})
     t0 = time.perf_counter()
@@ -193,5 +198,5 @@ def probe_scene(loaded: Any, optics: OpticsConfig, options: Any, *, startup_s: f
     (r1, w1), (r2, w2) = _work(warm_small), _work(warm_big)
     n_colors = len(optics.wavelengths_m)
     per_ray = (w2 - w1) / (r2 - r1) if r2 > r1 and w2 > w1 else w2 / r2
-    return Probe(startup_s=float(startup_s), compile_s=max(0.0, (t1 - t0) - (t2 - t1)),
-                 ray_color_s=per_ray / n_colors, probe_s=t3 - t0)
+    return Probe(startup_s=float(startup_s) / slow, compile_s=max(0.0, (t1 - t0) - (t2 - t1)) / slow,
+                 ray_color_s=per_ray / n_colors / slow, probe_s=t3 - t0, load_slowdown=slow)

@@ -34,12 +34,15 @@ PROBE_HW = (32, 64)  # small enough to take a second warm, wide enough for sever
 
 @dataclass(frozen=True)
 class Probe:
-    """What the probe measured: seconds of start-up and compilation, warm seconds per ray and color."""
+    """What the probe measured: seconds of start-up and compilation, warm seconds per ray and color (an idle
+    machine's: divided by ``load_slowdown``, the slowdown of the load other work made as it ran), and its own
+    wall time."""
 
     startup_s: float
     compile_s: float
     ray_color_s: float
     probe_s: float
+    load_slowdown: float = 1.0
 
 
 def process_age_s() -> float:

@@ -37,3 +37,17 @@ def test_a_real_probe_measures_positive_costs(tmp_path):
     probe = probe_scene(loaded, OpticsConfig(frames=4), RenderOptions(preset="fast", spp=4),
                         startup_s=process_age_s())
     assert probe.ray_color_s > 0 and probe.compile_s >= 0 and probe.startup_s > 0 and probe.probe_s > 0
+    # on a machine busy with other work the probe's seconds are brought back to an idle machine's: the estimate
+    # multiplies by the load once, at submit
+    import os
+    import time
+
+    from holocore.plan import estimate
+
+    try:
+        estimate._SAMPLED.update(at=time.monotonic() + 3600, value=4.0 * (os.cpu_count() or 1))  # 5x slower
+        loaded_probe = probe_scene(loaded, OpticsConfig(frames=4), RenderOptions(preset="fast", spp=4), startup_s=5.0)
+    finally:
+        estimate._SAMPLED.clear()
+    assert loaded_probe.load_slowdown == 5.0 and loaded_probe.startup_s == 1.0
+    assert 0 < loaded_probe.ray_color_s and loaded_probe.probe_s > 0
