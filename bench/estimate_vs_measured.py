@@ -157,6 +157,7 @@ def _factor(a: float, b: float) -> float:
 
 def report(out: Path) -> None:
     runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("load*.json"))]
+    repeat = RESULTS / "repeat_load0.json"  # an earlier idle run of the same jobs, kept by hand
     if not runs:
         raise SystemExit(f"no runs in {RESULTS}: run with --load first")
     files = ", ".join(f"load{r['load']}.json" for r in runs)
@@ -191,6 +192,21 @@ def report(out: Path) -> None:
                          f"{j['encode_estimate_s'] if j['encode_estimate_s'] is not None else '–'} / "
                          f"{f'{enc:.1f}' if enc is not None else '–'} |")
         parts.append("")
+    idle = next((r for r in runs if r["load"] == 0), None)
+    if repeat.is_file() and idle is not None:
+        doc = json.loads(repeat.read_text())
+        earlier = {(j["scene"], tuple(j["shape_hw"]), j["frames"]): j["run_s"] for j in doc["jobs"]}
+        pairs = [(j, earlier.get((j["scene"], tuple(j["shape_hw"]), j["frames"]))) for j in idle["jobs"]]
+        parts += ["## The machine's own spread", "", f"The same jobs in an earlier idle run ({doc['date']}; "
+                  "`repeat_load0.json`): the jobs' code was the same, and the machine was as idle, yet their times "
+                  "moved by the factors below. An estimate cannot be closer to one run than two runs are to "
+                  "each other.", "", "| scene | pixels | frames | earlier s | idle run above s | factor |",
+                  "|---|---|---|---|---|---|"]
+        parts += [f"| {j['scene']} | {j['shape_hw'][0]}x{j['shape_hw'][1]} | {j['frames']} | {t:.1f} | "
+                  f"{j['run_s']:.1f} | {_factor(t, j['run_s']):.2f} |" for j, t in pairs if t]
+        parts.append("")
+    parts += ["The *encode* column is the encoder's own work as the estimate prices it, beside the encode step's "
+              "time (which also starts a process, about 3.5 s idle).", ""]
     out.write_text("\n".join(parts))
     print(f"wrote {out}")
 
