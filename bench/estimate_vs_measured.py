@@ -185,8 +185,9 @@ def report(out: Path) -> None:
             rays = f"{j['preset']}, {j['spp'] or j.get('spp_run') or j['spp_assumed']}" + (
                 "" if j["spp"] else f" (preset's; {j['spp_assumed']} assumed)")
             enc = j["steps_s"].get("encode_s")
+            load = j["load_at_submit"]
             parts.append(f"| {j['scene']}{unseen} | {j['shape_hw'][0]}x{j['shape_hw'][1]} | {j['frames']} | {rays} | "
-                         f"{j['encoder']} | {j['load_at_submit']['load_1min']:.1f} ({j['load_at_submit']['others']:.1f}) | "
+                         f"{j['encoder']} | {load['load_1min']:.1f} ({load['others']:.1f}) | "
                          f"{j['estimate_s']:.1f} | {j['estimate_at_load_s']:.1f} | {j['run_s']:.1f} | "
                          f"{j['run_s'] / j['estimate_at_load_s']:.2f} | "
                          f"{j['encode_estimate_s'] if j['encode_estimate_s'] is not None else '–'} / "

@@ -14,10 +14,11 @@ tracer's split in ``meta["stats"]``); each stage follows a simple cost model wit
 and for the extras the report times: phase-only encoding (``a_enc`` per iteration per F sum_c G_c log2 G_c, G_c
 the pixels of the encoder's padded grid for colour c, which grows with the WRP's distance from the SLM:
 ``holocore.optics.grids.encoder_grid``; a job without an iteration count runs to its stop rule's median at
-that size, :func:`stop_iterations`) and the layer baseline (RGB-D ``a_rgbd`` H W spp, then (planes + 1) F C ASMs). ``holo bench calibrate`` measures
-small runs on a scene (default: the project's demo scene, which has a mirror and glass), fits every rate by
-non-negative least squares and stores them as JSON in the user's cache directory; without one, the committed
-default (``holocore/data/calibration_default.json``, measured on the development machine) is used.
+that size, :func:`stop_iterations`) and the layer baseline (RGB-D ``a_rgbd`` H W spp, then (planes + 1) F C
+ASMs). ``holo bench calibrate`` measures small runs on a scene (default: the project's demo scene, which has a
+mirror and glass), fits every rate by non-negative least squares and stores them as JSON in the user's cache
+directory; without one, the committed default (``holocore/plan/data/calibration_default.json``, measured on the
+development machine) is used.
 
 Times are for warm runs: the first Mitsuba render of a process also compiles its kernels (seconds).
 When ``options.spp`` is None the preset's rays per pixel depend on the scene's depth (its farthest image
@@ -41,7 +42,8 @@ from typing import Any, Optional
 from holocore.display.optics import OpticsConfig
 from holocore.optics.grids import encoder_grid
 
-__all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_work", "load_slowdown", "machine_load", "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
+__all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_work", "load_slowdown", "machine_load",
+           "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
            "user_calibration_path", "DEFAULT_CALIBRATION", "CALIBRATION_VERSION", "save_calibration", "features"]
 
 # Where the SGD encoder's default stop rule (holocore.encode.sgd) typically ends, whatever the size (the
