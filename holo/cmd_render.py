@@ -140,9 +140,7 @@ def render(
                       f"kernel compilation {full['compile']:.1f} s, tracing {full['trace']:.1f} s at this scene's "
                       f"cost per ray from a {probe.probe_s:.1f} s probe render)")
         console.print(f"estimated warm render time: {secs:.1f} s ({source})")
-        enc = _encode_estimate(optics_cfg, options, pl, cal)
-        if enc:
-            console.print(enc)
+        console.print(_encode_estimate(optics_cfg, options, pl, cal))
         from holocore.plan.estimate import machine_load
 
         load = machine_load()
@@ -209,8 +207,6 @@ def _encode_estimate(optics_cfg, options, pl, cal) -> str:
     that rule runs at this size, on the encoder's grid at this scene's WRP distance."""
     from holocore.plan.estimate import encode_work, stop_iterations
 
-    if optics_cfg.frames < 1:
-        return ""
     med, p90 = (stop_iterations(optics_cfg.height, optics_cfg.width, quantile=q) for q in ("median", "p90"))
     per_it = cal["rates"]["enc"] * encode_work(optics_cfg, pl.analysis.z_wrp_m)
     return (f"estimated `holo encode` time (sgd): {per_it * med:.1f} s ({med} iterations, its stop rule's median "

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.estimate import CALIBRATION_VERSION, encode_work, features
+from holocore.plan.estimate import CALIBRATION_VERSION, encode_work, features, machine_load
 from holocore.plan.estimate_probe import PROBE_HW, Probe
 
 __all__ = ["calibrate", "probe_scene"]
@@ -183,7 +183,6 @@ def probe_scene(loaded: Any, optics: OpticsConfig, options: Any, *, startup_s: f
     (``holocore.plan.estimate.load_slowdown``), so that a scene planned on a busy machine is not priced at its
     load twice, once in its probe and again by the estimate's load."""
     from holocore.pipeline import render_loaded
-    from holocore.plan.estimate import machine_load
 
     slow = machine_load()["slowdown"]
     small = optics.model_copy(update={"resolution_hw": PROBE_HW, "frames": 1})

@@ -44,9 +44,8 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
     were chosen for). ``seconds`` is for an idle machine; ``load`` is the machine's load now, less
     ``busy_threads`` (the threads of this service's own running jobs, which a queued job does not run beside),
     and ``seconds_at_load`` the time at that load (``holocore.plan.estimate.load_slowdown``)."""
-
-    out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border)
-    cal = calibration_or_none()  # read once for every candidate the quality prices
+    cal = calibration_or_none()  # read once for the job and every candidate the quality prices
+    out = _hologram_cost(req, scene_plan=scene_plan, max_spp=max_spp, plane_border=plane_border, calibration=cal)
     out["quality"] = job_quality(req, scene_plan=scene_plan, max_spp=max_spp, seconds=out["seconds"],
                                  seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp,
                                                                        calibration=cal),
@@ -71,7 +70,6 @@ def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_
 def calibration_or_none() -> Optional[dict]:
     """The time model's rates, read once for many predictions; None where none is usable (each prediction then
     falls back as :func:`_hologram_time` does)."""
-
     try:
         return load_calibration()
     except (ValueError, OSError):
@@ -81,7 +79,6 @@ def calibration_or_none() -> Optional[dict]:
 def _scene_probe(scene_plan: Optional[dict]):
     """The probe render the scene's plan timed (``holo plan --probe``), or None when it has none (a plan made
     before the probe, or a probe that failed)."""
-
     doc = (scene_plan or {}).get("probe")
     try:
         probe = Probe(startup_s=float(doc["startup_s"]), compile_s=float(doc["compile_s"]),
@@ -93,10 +90,11 @@ def _scene_probe(scene_plan: Optional[dict]):
 
 
 def _hologram_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
-                   plane_border: Optional[int] = 0) -> dict[str, Any]:
+                   plane_border: Optional[int] = 0, calibration: Optional[dict] = None) -> dict[str, Any]:
     """:func:`_hologram_time` and the job's predicted peak memory (``memory``)."""
     memory = {**job_memory(req, plane_border=plane_border).as_dict(), "plane_border_px": plane_border}
-    return {**_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp), "memory": memory}
+    return {**_hologram_time(req, scene_plan=scene_plan, max_spp=max_spp, calibration=calibration),
+            "memory": memory}
 
 
 # The pictures step's views of the hologram: the preview, a focal sweep of 9 and a 3 x 3 grid of eye positions

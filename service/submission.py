@@ -68,7 +68,7 @@ def admit_job(ctx: ServiceContext, req: JobRequest, principal: Principal) -> dic
 def busy_threads(ctx: ServiceContext) -> float:
     """The machine's load that this service's own running jobs make (each job's steps keep every core busy):
     a new job queues behind them rather than running beside them, so an estimate leaves it out."""
-    return float(len(ctx.db.running_jobs()) * (os.cpu_count() or 1))
+    return float(ctx.db.count_jobs()["running"] * (os.cpu_count() or 1))
 
 
 def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -> tuple[JobRequest, Optional[float]]:

@@ -36,6 +36,7 @@ import math
 import numbers
 import os
 import statistics
+import time
 from pathlib import Path
 from typing import Any, Optional
 
@@ -156,8 +157,6 @@ def _runnable_now(*, samples: int = 10, interval_s: float = 0.02, max_age_s: flo
     """Runnable threads on the machine now, other than the one reading: the mean of ``samples`` readings of
     /proc/loadavg's fourth field over ``samples x interval_s`` seconds (None where there is no such file). Kept
     ``max_age_s`` seconds: a form that estimates on every keystroke samples once."""
-    import time
-
     now = time.monotonic()
     if _SAMPLED and now - _SAMPLED["at"] < max_age_s:
         return _SAMPLED["value"]
