@@ -8,7 +8,9 @@ from typing import Optional
 
 import typer
 
-from holo.common import fail, progress_writer
+from holo.common import fail, hologram_options, progress_writer
+
+DEFAULT_MAX_ITERATIONS = 500  # the most SGD steps when neither the flag nor the options give them
 
 
 def register(app: typer.Typer) -> None:
@@ -18,9 +20,13 @@ def register(app: typer.Typer) -> None:
 def encode(
     result: Path = typer.Argument(..., help="RESULT.npz from `holo render`."),
     out: Path = typer.Option(..., "--out", help="Where to write STACK.npz."),
-    method: str = typer.Option("sgd", help="sgd (complex-supervised Adam) | dpac (double phase) | naive (arg of "
-                                           "the ideal SLM field)."),
-    iterations: int = typer.Option(500, help="Most Adam steps for sgd (0..1000000); stops earlier once converged."),
+    method: Optional[str] = typer.Option(None, help="sgd (complex-supervised Adam, default) | dpac (double phase) | "
+                                                    "naive (arg of the ideal SLM field, for tests)."),
+    iterations: Optional[int] = typer.Option(None, help="Most Adam steps for sgd (0..1000000; default "
+                                                        f"{DEFAULT_MAX_ITERATIONS}); stops earlier once converged."),
+    options_json: Optional[Path] = typer.Option(None, "--options-json", help="The hologram's options as one JSON "
+                                                "document (docs/options.md): its encoder and iterations; the flags "
+                                                "above override them."),
     lr: float = typer.Option(0.2, help="Adam step for sgd, rad (> 0)."),
     stop_db: float = typer.Option(0.05, "--stop-db", help="sgd stops a (frame, color) once its field SNR gained "
                                                          "less than this many dB over 30 steps (0: run every step)."),
@@ -46,10 +52,10 @@ def encode(
                                                              "encode stopped early, goes on from there."),
 ) -> None:
     """Encode a render's WRP field into a phase-only stack: phase [F, C, H, W] in [0, 2pi) and 8-bit frames."""
-    if method not in ("sgd", "dpac", "naive"):
-        fail(f"--method must be sgd, dpac or naive, got {method!r}")
-    if not 0 <= iterations <= 1_000_000:
-        fail(f"--iterations must be in 0..1000000, got {iterations}")
+    naive = method == "naive"  # a test encoder, outside the hologram's options
+    hopts = hologram_options(options_json, "encode", encoder=None if naive else method, iterations=iterations)
+    method = "naive" if naive else hopts.encoder
+    iterations = DEFAULT_MAX_ITERATIONS if hopts.iterations is None else hopts.iterations
     if not result.is_file():
         fail(f"result not found: {result}")
     if init is not None and not init.is_file():

@@ -10,7 +10,8 @@ from typing import Optional
 
 import typer
 
-from holo.common import OpticsOptions, fail, parse_wrp_planes, with_optics_options
+from holo.common import OpticsOptions, fail, hologram_options, with_optics_options
+from holocore.plan.presets import MAX_WRP_PLANES
 
 
 def register(app: typer.Typer) -> None:
@@ -24,16 +25,21 @@ def submit(
     token: Optional[str] = typer.Option(None, "--token", help="Bearer token (scopes submit); default $HOLO_TOKEN."),
     out: Optional[Path] = typer.Option(None, "--out", help="Where to write STACK.npz (omit: do not download)."),
     entry: Optional[str] = typer.Option(None, "--entry", help="Scene XML inside the bundle, when it holds several."),
-    preset: str = typer.Option("balanced", help="fast | balanced | reference"),
+    preset: Optional[str] = typer.Option(None, help="fast | balanced (default) | reference"),
     spp: Optional[int] = typer.Option(None, help="Rays per WRP pixel (default: from the preset; with "
                                                  "--time-limit-s, the most)."),
+    max_spp: Optional[int] = typer.Option(None, "--max-spp", help="Without --spp: the most rays per WRP pixel the "
+                                                                  "preset may choose (the service's cap still holds)."),
     time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="Render for about this many "
                                                  "seconds (rays until the time is spent)."),
-    encoder: str = typer.Option("sgd", help="sgd | dpac"),
+    encoder: Optional[str] = typer.Option(None, help="sgd (default) | dpac"),
     iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd)."),
-    method: str = typer.Option("wrp", help="wrp | direct"),
-    wrp_planes: str = typer.Option("auto", "--wrp-planes", help="Wave recording planes: 1..8, or auto (chosen from "
-                                                               "the scene depth)."),
+    method: Optional[str] = typer.Option(None, help="wrp (default) | direct"),
+    wrp_planes: Optional[str] = typer.Option(
+        None, "--wrp-planes", help=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or auto "
+                                   "(default: chosen from the scene depth)."),
+    options_json: Optional[Path] = typer.Option(None, "--options-json", help="The hologram's options as one JSON "
+                                                "document (docs/options.md); the flags above override it."),
     to_display: Optional[str] = typer.Option(None, "--to-display", help="The lab display the job is for (its "
                                                                         "agent picks the stack up)."),
     name: Optional[str] = typer.Option(None, "--name", help="A name for people (default: the service's, from the "
@@ -56,11 +62,12 @@ def submit(
         fail("give --token or set HOLO_TOKEN")
     if not scene.exists():
         fail(f"scene not found: {scene}")
+    hopts = hologram_options(options_json, "submit", preset=preset, frames=optics.frames, spp=spp, max_spp=max_spp,
+                             render_time_limit_s=time_limit_s, encoder=encoder, iterations=iterations,
+                             method=method, wrp_planes=wrp_planes, quality_db=quality_db)
     _, cfg = optics.resolve()
-    body = {"optics": cfg.model_dump(mode="json"), "preset": preset, "frames": optics.frames, "spp": spp,
-            "render_time_limit_s": time_limit_s, "encoder": encoder, "iterations": iterations, "method": method,
-            "wrp_planes": parse_wrp_planes(wrp_planes), "display": to_display, "name": name,
-            "evaluate": evaluate or None, "quality_db": quality_db}
+    body = {"optics": cfg.model_dump(mode="json"), **hopts.model_dump(mode="json"), "display": to_display,
+            "name": name, "evaluate": evaluate or None}
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console

@@ -16,9 +16,10 @@ import typer
 if TYPE_CHECKING:
     from holocore.display.optics import OpticsConfig
     from holocore.display.profiles import DisplayProfile
+    from holocore.options import HologramOptions
 
 __all__ = ["fail", "optics_from_options", "progress_writer", "parse_hw", "OpticsOptions", "with_optics_options",
-           "OPTICS_OPTIONS"]
+           "OPTICS_OPTIONS", "hologram_options"]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -90,14 +91,19 @@ def _parse_wavelengths(text: Optional[str]) -> Optional[list[float]]:
 
 
 def _read_optics_json(path: Optional[Path]) -> dict:
+    return _read_json_object(path, "--optics-json", "of OpticsConfig fields")
+
+
+def _read_json_object(path: Optional[Path], flag: str, what: str) -> dict:
+    """The JSON object in the file ``flag`` names ({} without one); anything else exits with one line."""
     if path is None:
         return {}
     try:
         data = json.loads(Path(path).read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        fail(f"cannot read --optics-json {path}: {exc}")
+        fail(f"cannot read {flag} {path}: {exc}")
     if not isinstance(data, dict):
-        fail("--optics-json must hold a JSON object of OpticsConfig fields")
+        fail(f"{flag} must hold a JSON object {what}")
     return data
 
 
@@ -163,18 +169,29 @@ def optics_from_options(*, optics_json: Optional[Path] = None, display: Optional
     return OpticsOptions(display=display, optics_json=optics_json, **overrides).resolve()[1]
 
 
-def parse_wrp_planes(text: str):
-    """--wrp-planes: an integer 1..8 or 'auto' (one-line error otherwise)."""
+def _wrp_planes_value(text: Optional[str]) -> Any:
+    """--wrp-planes as the options model reads it: an integer, or the word (checked there)."""
+    if text is None:
+        return None
     t = text.strip().lower()
-    if t == "auto":
-        return "auto"
+    return int(t) if t.isdigit() else t
+
+
+def hologram_options(options_json: Optional[Path], command: str, **given: Any) -> "HologramOptions":
+    """The hologram's options (holocore.options): those of ``--options-json`` (one JSON document, as a service's
+    job hands them over), then the flags given (None: not given), checked once there. Bad input exits with one
+    line naming the flags as ``command`` (render, encode, submit) spells them."""
+    from pydantic import ValidationError
+
+    from holocore.options import HologramOptions, explain
+
+    doc = _read_json_object(options_json, "--options-json", "of holocore.options.HologramOptions fields")
+    if "wrp_planes" in given:
+        given["wrp_planes"] = _wrp_planes_value(given["wrp_planes"])
     try:
-        n = int(t)
-    except ValueError:
-        fail(f"--wrp-planes must be an integer 1..8 or auto, got {text!r}")
-    if not 1 <= n <= 8:
-        fail(f"--wrp-planes must be in 1..8 or auto, got {n}")
-    return n
+        return HologramOptions.model_validate({**doc, **{k: v for k, v in given.items() if v is not None}})
+    except ValidationError as exc:
+        fail(explain(exc, command))
 
 
 def progress_writer(path: Optional[Path]) -> Callable[[str, int, int], None]:

@@ -13,7 +13,8 @@ from typing import Any, Literal, Optional, Union
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.optics.cone_equaliser import plane_equalisers
-from holocore.plan.presets import RENDER_METHODS, PresetName, RenderMethod
+from holocore.options import HologramOptions, check
+from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
 
@@ -39,22 +40,16 @@ class RenderOptions:
     # (holocore.plan.time_budget; ``spp`` is then the most rays per pixel); None: one pass of ``spp``
 
     def __post_init__(self) -> None:
-        from holocore.plan.wrp_planes import MAX_WRP_PLANES
+        # the user's options are checked by their one model (holocore.options); the kernel's own fields here
+        check(preset=self.preset, spp=self.spp, max_spp=self.max_spp, method=self.method,
+              wrp_planes=self.wrp_planes, render_time_limit_s=self.time_limit_s)
 
-        if self.method not in RENDER_METHODS:
-            raise ValueError(f"method must be 'wrp' or 'direct', got {self.method!r}")
-        if self.wrp_planes != "auto" and not (isinstance(self.wrp_planes, int)
-                                              and 1 <= self.wrp_planes <= MAX_WRP_PLANES):
-            raise ValueError(f"wrp_planes must be 1..{MAX_WRP_PLANES} or 'auto', got {self.wrp_planes!r}")
-        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
-            raise ValueError("several recording planes need method 'wrp' (the direct method records on the SLM)")
-        if self.spp is not None and not 1 <= self.spp <= 1_000_000:
-            raise ValueError(f"spp must be in 1..1000000, got {self.spp}")
-        if self.max_spp is not None and not 1 <= self.max_spp <= 1_000_000:
-            raise ValueError(f"max_spp must be in 1..1000000, got {self.max_spp}")
-        if self.time_limit_s is not None and not (isinstance(self.time_limit_s, (int, float))
-                                                  and 0 < self.time_limit_s < 1e7):
-            raise ValueError(f"time_limit_s must be in (0, 1e7) s, got {self.time_limit_s!r}")
+    @classmethod
+    def from_options(cls, options: HologramOptions, **kernel: Any) -> "RenderOptions":
+        """The render's part of a hologram's options (holocore.options), with the kernel's own fields
+        (``force_all_effects``, ``tile_rays``, ...) as given."""
+        return cls(preset=options.preset, spp=options.spp, max_spp=options.max_spp, method=options.method,
+                   wrp_planes=options.wrp_planes, time_limit_s=options.render_time_limit_s, **kernel)
 
 
 def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> ScenePlan:

@@ -82,8 +82,8 @@ def job_limit_errors(req: JobRequest, limits: JobLimits) -> list[str]:
 
 def preset_spp_cap(req: JobRequest, limits: JobLimits) -> int:
     """The most rays per pixel the job's preset may choose when spp is not given: its spp_max, clamped to the
-    service's max_spp (the render is told the clamp: JobOptions.max_spp)."""
-    return min(PRESETS[req.preset].spp_max, limits.max_spp)
+    service's max_spp and to the request's own max_spp (the render is told the clamp: JobOptions.max_spp)."""
+    return min(PRESETS[req.preset].spp_max, limits.max_spp, req.max_spp or limits.max_spp)
 
 
 def binding_max_spp(req: JobRequest, limits: JobLimits) -> Optional[int]:

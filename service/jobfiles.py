@@ -1,19 +1,21 @@
 """The files a job's run is made of, typed: the job's options as stored (``jobs.spec``), ``job.json`` (what the
 scheduler asks the driver to do), ``status.json`` (how the driver says the run ended) and the steps and render
 stages the progress files name. Shared by the API (which stores the spec), the scheduler and the driver; light
-imports only (pydantic, and holocore.plan.presets' names). Files written by earlier versions still read: fields added since have defaults."""
+imports only (pydantic, and holocore.options). Files written by earlier versions still read: fields added since
+have defaults."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal, Optional, TypedDict, Union, get_args
+from typing import Any, Literal, Optional, TypedDict, Union, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from holocore.plan.presets import MAX_WRP_PLANES, PresetName, RenderMethod
+from holocore.options import HologramOptions, WrpPlanes
 from service.untrusted import read_job_json
 
-__all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobFields", "JobOptions", "JobSpec", "JobFile", "ArtifactInfo",
+__all__ = ["Step", "STEPS", "RenderStage", "RENDER_STAGES", "JobFields", "JobOptions", "JobSpec", "JobFile",
+           "ArtifactInfo",
            "RunStatus", "Progress", "read_job_file", "read_run_status"]
 
 # "evaluate" runs only for a job that asks for it (JobFields.evaluate), after the preview and pictures it pairs
@@ -26,54 +28,17 @@ STEPS: tuple[Step, ...] = get_args(Step)
 RenderStage = Literal["analysis", "trace", "propagate"]
 RENDER_STAGES: tuple[RenderStage, ...] = get_args(RenderStage)
 
-Preset = PresetName
-Encoder = Literal["sgd", "dpac"]  # the encoders a job may ask for (holocore.encode also has "naive", for tests)
-Method = RenderMethod
-WrpPlanes = Union[Annotated[int, Field(ge=1, le=MAX_WRP_PLANES)], Literal["auto"]]
+class JobFields(HologramOptions):
+    """What a job renders and encodes besides its optics: holocore's options (``holocore.options.HologramOptions``:
+    units, limits and rules written there once) and the service's own ``evaluate``. The request
+    (``service.models.JobRequest``), the stored spec and ``job.json`` inherit it; the driver hands the options to
+    the CLIs as one JSON document (``service.workers.driver``), so a field added in holocore reaches every hop."""
 
-
-class JobFields(BaseModel):
-    """What a job renders and encodes besides its optics: the one field list of the job options, with their
-    limits, that the request (``service.models.JobRequest``), the stored spec and ``job.json`` inherit. A field
-    added here reaches the request, the spec, the job file and the result's content address
-    (``service.models.cache_key``); the driver's argv (``service.workers.driver``) is the one other place that
-    names it."""
-
-    preset: Preset = "balanced"
-    frames: Optional[int] = Field(default=None, ge=1, le=256, description="Frames; overrides optics.frames.")
-    spp: Optional[int] = Field(default=None, ge=1, le=1_000_000, description="Rays per WRP pixel (default: "
-                                                                             "chosen by the preset).")
-    render_time_limit_s: Optional[float] = Field(
-        default=None, gt=0, allow_inf_nan=False, description="Render for about this many seconds: passes of rays "
-        "until the time is spent (spp is then the most rays per pixel; default the service's max_spp).")
-    encoder: Encoder = "sgd"
-    iterations: Optional[int] = Field(default=None, ge=0, le=1_000_000, description="Encoder iterations (sgd).")
-    quality_db: Optional[float] = Field(
-        default=None, ge=5, le=40, allow_inf_nan=False, description="Aim at this viewer-faithful PSNR (dB): the "
-        "service chooses frames (up to frames, else the optics' own), spp and iterations predicted to reach it "
-        "soonest (holocore.plan.quality_choice); give it without spp, iterations and render_time_limit_s.")
-    method: Method = "wrp"
-    wrp_planes: WrpPlanes = Field(
-        default="auto", description=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or 'auto' (chosen from the scene "
-                                    "depth).")
+    model_config = ConfigDict(frozen=False, extra="ignore")
     evaluate: bool = Field(
         default=False, description="Also score the hologram against Mitsuba thin-lens ground truth (holo evaluate) at "
         "the focal sweep's depths and a 3 x 3 grid of views, and, for more than one frame, the viewer-faithful score; "
         "GET /v1/jobs/{id}/evaluation. A failed evaluation is a warning, not a failed job.")
-
-    @model_validator(mode="after")
-    def _target_alone(self):
-        given = [k for k in ("spp", "iterations", "render_time_limit_s") if getattr(self, k) is not None]
-        if self.quality_db is not None and given:
-            raise ValueError(f"quality_db chooses spp and iterations (and frames, up to the frames given): give it "
-                             f"without {', '.join(given)}")
-        return self
-
-    @model_validator(mode="after")
-    def _planes_need_wrp(self):
-        if self.method == "direct" and self.wrp_planes not in (1, "auto"):
-            raise ValueError("wrp_planes > 1 needs method 'wrp' (the direct method records on the SLM)")
-        return self
 
     def fields(self) -> dict[str, Any]:
         """The job fields alone (no optics, no run fields), as JSON."""
@@ -84,7 +49,6 @@ class JobOptions(JobFields):
     """The job fields as stored and handed to the driver (a checked ``JobRequest``'s, and the service's spp cap)."""
 
     model_config = ConfigDict(frozen=True, extra="ignore")
-    max_spp: Optional[int] = None  # without spp: the most rays per pixel the preset may choose (the service's cap)
     wrp_planes: WrpPlanes = 1  # jobs stored before the option rendered one plane
 
     def options(self) -> dict[str, Any]:

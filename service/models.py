@@ -139,9 +139,10 @@ def cache_key(req: JobRequest, *, scene_sha256: str, entry: str, code_version: s
               max_spp: Optional[int] = None) -> str:
     """Content address of a job's result: scene content + optics + options + code version (not the display).
     ``max_spp``: the clamp on the preset's choice of spp (:func:`binding_max_spp`), when there is one."""
-    # every job field (service.jobfiles.JobFields) but frames, which the effective optics hold: a field added
-    # there is part of the address without a line here, so no two jobs that differ in one share a result
-    fields = {k: v for k, v in req.fields().items() if k != "frames"}
+    # every job field (service.jobfiles.JobFields) but frames, which the effective optics hold, and the asked
+    # max_spp, whose effect is the binding clamp: a field added there is part of the address without a line
+    # here, so no two jobs that differ in one share a result
+    fields = {k: v for k, v in req.fields().items() if k not in ("frames", "max_spp")}
     doc = {"scene": scene_sha256, "entry": entry, "optics": effective_optics(req).model_dump(mode="json"),
            "fields": fields, "code": code_version, **({"max_spp": max_spp} if max_spp is not None else {})}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()

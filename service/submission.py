@@ -120,8 +120,8 @@ def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
     spp is clamped to max_spp: ``max_spp``)."""
     timed = req.render_time_limit_s is not None
     return JobSpec(optics=effective_optics(req).model_dump(mode="json"),
-                   **{**req.fields(), "spp": spp_cap(req, limits) if timed else req.spp},
-                   max_spp=binding_max_spp(req, limits))
+                   **{**req.fields(), "spp": spp_cap(req, limits) if timed else req.spp,
+                      "max_spp": binding_max_spp(req, limits)})
 
 
 # ---- what an owner stores -----------------------------------------------------------------------------------
@@ -132,7 +132,7 @@ _RESULT_PER_SAMPLE = 16
 _OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
 
 
-_MOST_PLANES = MAX_WRP_PLANES  # wrp_planes 1..8; auto chooses at most as many
+_MOST_PLANES = MAX_WRP_PLANES  # wrp_planes up to it; auto chooses at most as many
 
 
 # The evaluation's folder (service/workers/evaluation.py): per cell a PNG pair of the SLM's size, 8-bit RGB, which

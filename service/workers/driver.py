@@ -189,18 +189,18 @@ def _peak_rss_bytes() -> int:
     return int(kib) * 1024
 
 
+def write_options(spec: JobFile, job_dir: Path) -> None:
+    """``job_dir/options.json``: the job's hologram options as one document (holocore.options.HologramOptions),
+    which `holo render` and `holo encode` read whole (``--options-json``): no option is restated as a flag here."""
+    write_json_atomic(job_dir / "options.json", spec.hologram_options().model_dump(mode="json"))
+
+
 def render_args(spec: JobFile, progress_path: str, job_dir: Path = Path(".")) -> list[str]:
-    """The job's `holo render` command line (after ``holo``), its files in ``job_dir``."""
-    args = ["render", spec.scene_path, "--out", str(job_dir / "result.npz"), "--optics-json",
-            str(job_dir / "optics.json"),
-            "--preset", spec.preset, "--method", spec.method, "--progress-jsonl", progress_path]
-    if spec.spp is not None:
-        args += ["--spp", str(spec.spp)]
-    elif spec.max_spp is not None:  # the service's cap on what the preset may choose
-        args += ["--max-spp", str(spec.max_spp)]
-    if spec.render_time_limit_s is not None:
-        args += ["--time-limit-s", repr(float(spec.render_time_limit_s))]
-    return args + ["--wrp-planes", str(spec.wrp_planes)]  # jobs stored before the option: 1 (JobOptions)
+    """The job's `holo render` command line (after ``holo``), its files in ``job_dir`` (``options.json``:
+    :func:`write_options`)."""
+    return ["render", spec.scene_path, "--out", str(job_dir / "result.npz"), "--optics-json",
+            str(job_dir / "optics.json"), "--options-json", str(job_dir / "options.json"), "--progress-jsonl",
+            progress_path]
 
 
 def run_job(job_dir: Path) -> RunStatus:
@@ -208,11 +208,10 @@ def run_job(job_dir: Path) -> RunStatus:
     timings: dict[str, float] = {}
     warnings: list[str] = []
     prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
+    write_options(spec, job_dir)
     timings["render_s"] = _run("render", render_args(spec, prog["render"], job_dir), job_dir)
-    encode = ["encode", str(job_dir / "result.npz"), "--out", str(job_dir / "stack.npz"), "--method", spec.encoder,
-              "--progress-jsonl", prog["encode"]]
-    if spec.iterations is not None:
-        encode += ["--iterations", str(spec.iterations)]
+    encode = ["encode", str(job_dir / "result.npz"), "--out", str(job_dir / "stack.npz"), "--options-json",
+              str(job_dir / "options.json"), "--progress-jsonl", prog["encode"]]
     timings["encode_s"] = _run("encode", encode, job_dir)
 
     write_json_atomic(job_dir / "step.json", {"step": "package", "index": 2, "t": time.time()})

@@ -84,7 +84,6 @@ def test_a_preset_without_spp_is_admitted_by_its_most_rays_and_clamped_to_max_sp
     and the render could trace 8192 per pixel past max_spp 4096."""
     from holocore.plan.effects import choose_spp
     from service.jobfiles import JobFile
-    from service.workers.driver import render_args
 
     sid = svc.scene("default")
     with svc.client(svc.token("submit")) as c:
@@ -101,8 +100,7 @@ def test_a_preset_without_spp_is_admitted_by_its_most_rays_and_clamped_to_max_sp
     assert job["estimate"]["spp_assumed"] is None or job["estimate"]["spp_assumed"] <= 4096
     spec = JobFile(**{k: v for k, v in job["options"].items() if k != "optics"}, job_id=job["id"],
                    scene_path="/x/scene.xml")
-    args = render_args(spec, "p.jsonl")
-    assert args[args.index("--max-spp") + 1] == "4096" and "--spp" not in args
+    assert spec.hologram_options().max_spp == 4096 and spec.hologram_options().spp is None  # what the render reads
     # the renderer's choice for a deep scene: 8192 unclamped, 4096 with the service's cap
     assert choose_spp("reference", 1e4, 0.05) == 8192 and choose_spp("reference", 1e4, 0.05, 4096) == 4096
     from holocore.plan.effects import SceneInventory, make_plan
@@ -228,6 +226,7 @@ def _answer(s: socket.socket, timeout: float) -> bytes:
     return out
 
 
+@pytest.mark.slow
 def test_an_unauthenticated_body_is_refused_before_it_is_read(live):
     """A 100 MB multipart with no token was spooled to disk before the 401. Now the 401 comes from the headers
     alone, with the body unsent, and the connection is closed."""
@@ -269,6 +268,7 @@ def test_a_json_body_is_small_whatever_the_upload_limit(svc):
         assert r.status_code == 201, r.text
 
 
+@pytest.mark.slow
 def test_a_body_trickled_at_one_byte_a_second_times_out(live):
     """Bodies at 1 byte/s never timed out: a handful of clients could hold every request slot."""
     import threading
@@ -407,6 +407,7 @@ def test_a_display_of_another_owner_and_a_free_name_get_the_same_answer(svc):
         assert agent.get("/v1/jobs", params={"display": "alice-lab"}).json()["jobs"] == []
 
 
+@pytest.mark.slow
 def test_the_stack_names_its_scene_relative_to_the_bundle(tmp_path, scene_bundle):
     """STACK.npz meta.scene held the server's absolute path of the bundle."""
     import shutil
@@ -618,6 +619,7 @@ def test_docs_load_nothing_from_another_origin(svc):
         assert c.get("/openapi.json").status_code == 200
 
 
+@pytest.mark.slow
 def test_unsandboxed_server_keeps_its_files_private_and_says_so(server_factory):
     """--sandbox off as root logged nothing, /readyz never showed the sandbox state, and service.db and the
     artifacts were 0644 in 0755 folders."""

@@ -205,6 +205,7 @@ def test_job_steps_run_in_an_empty_folder(tmp_path):
     args = driver.render_args(JobFile(job_id="j", scene_path=str(job / "s.xml"), optics={}), "p", job)
     assert args[args.index("--out") + 1] == str(job / "result.npz")
     assert args[args.index("--optics-json") + 1] == str(job / "optics.json")
+    assert args[args.index("--options-json") + 1] == str(job / "options.json")
 
 
 def test_no_job_starts_before_its_scene_is_planned(tmp_path):

@@ -4,17 +4,20 @@ field is part of the result's content address, so two jobs that differ in one ne
 from __future__ import annotations
 
 from service.jobfiles import JobFields, JobFile, JobSpec
+from service.job_rules import binding_max_spp
 from service.models import JobRequest, cache_key
+from service.settings import JobLimits
 
 # a value other than the default for each field (frames lives in the effective optics, also in the address)
 OTHER = {"preset": "fast", "frames": 3, "spp": 7, "render_time_limit_s": 5.0, "encoder": "dpac", "iterations": 9,
-         "method": "direct", "wrp_planes": 1, "evaluate": True, "quality_db": 20.0}
+         "method": "direct", "wrp_planes": 1, "evaluate": True, "quality_db": 20.0, "max_spp": 7}
 # a quality target is resolved into frames, spp and iterations before a job is stored (service/quality.py)
 RESOLVED_AWAY = {"quality_db"}
 
 
 def _key(req: JobRequest) -> str:
-    return cache_key(req, scene_sha256="0" * 64, entry="scene.xml", code_version="test")
+    return cache_key(req, scene_sha256="0" * 64, entry="scene.xml", code_version="test",
+                     max_spp=binding_max_spp(req, JobLimits()))
 
 
 def test_every_job_field_changes_the_content_address():

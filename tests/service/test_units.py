@@ -146,10 +146,9 @@ def test_limits_and_estimate():
 
 def test_a_time_limited_job():
     # The render takes its limit, rays up to the cap (the job's spp, else the service's max_spp); the cap counts
-    # against the ray budget; the driver passes both to `holo render`.
+    # against the ray budget; the driver hands both to `holo render` in the job's options document.
     from service.jobfiles import JobFile
     from service.submission import job_spec
-    from service.workers.driver import render_args
 
     lim = JobLimits(max_spp=64, max_ray_budget=1e7, max_render_time_s=600)
     timed = JobRequest(scene_id="s", optics=OpticsConfig(resolution_hw=(128, 128)), frames=4, encoder="dpac",
@@ -158,9 +157,9 @@ def test_a_time_limited_job():
     spec = job_spec(timed, lim)
     assert spec.spp == 64 and spec.render_time_limit_s == 30.0
     assert job_spec(timed.model_copy(update={"spp": 8}), lim).spp == 8
-    args = render_args(JobFile(**spec.model_dump(), job_id="j1", scene_path="scene.xml"), "p.jsonl")
-    assert args[args.index("--time-limit-s") + 1] == "30.0" and args[args.index("--spp") + 1] == "64"
-    assert "--time-limit-s" not in render_args(JobFile(job_id="j", scene_path="s.xml", optics={}), "p.jsonl")
+    doc = JobFile(**spec.model_dump(), job_id="j1", scene_path="scene.xml").hologram_options()
+    assert doc.render_time_limit_s == 30.0 and doc.spp == 64
+    assert JobFile(job_id="j", scene_path="s.xml", optics={}).hologram_options().render_time_limit_s is None
     e = estimate_cost(timed)
     assert e["spp_assumed"] is None and e["rays"] is None
     assert 30.0 < e["seconds"] < estimate_cost(timed.model_copy(update={"render_time_limit_s": 90.0}))["seconds"]
@@ -241,6 +240,7 @@ def test_api_process_imports_no_heavy_modules(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
 
+@pytest.mark.slow
 def test_serve_and_token_cli_errors(tmp_path):
     r = subprocess.run([sys.executable, "-m", "holo", "token", "create", "--data-dir", str(tmp_path),
                         "--scope", "root"], capture_output=True, text=True, cwd=REPO, timeout=60)
@@ -263,6 +263,7 @@ def test_serve_and_token_cli_errors(tmp_path):
                             capture_output=True, text=True, cwd=REPO, timeout=60).stdout
     assert "agent,read" in listed and "lab" in listed and ok.stdout.strip() not in listed
 
+@pytest.mark.slow
 def test_second_server_on_the_same_data_dir_is_refused(server_factory):
     first = server_factory("busy").start()
     r = subprocess.run([sys.executable, "-m", "holo", "serve", "--data-dir", str(first.data_dir), "--port", "0"],
