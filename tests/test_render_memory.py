@@ -38,6 +38,7 @@ def demo(tmp_path_factory):
     return write_demo_scene(tmp_path_factory.mktemp("demo") / "scene").parent
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method, planes", [("wrp", 1), ("direct", 1), ("wrp", 3)])
 def test_streamed_chunked_render_equals_the_unchunked_one(demo, tmp_path, method, planes):
     from holocore.pipeline import RenderOptions, render, render_to_file
@@ -69,6 +70,7 @@ def test_streamed_chunked_render_equals_the_unchunked_one(demo, tmp_path, method
     assert np.array_equal(NpyMember(out, "wrp_field").read_fc(1, 3, 2), wrp[1:3, 2])
 
 
+@pytest.mark.slow
 def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monkeypatch):
     # The chunk planner sizes the WRP -> SLM propagation without the trace pass's phase bank (F x C complex64
     # frames: 1.2 GB at the paper's size). A closure that kept it alive put the full-size render 1 GB over
@@ -169,6 +171,7 @@ def _stack(tmp_path, F=5, C=3, H=40, W=48):
     return tmp_path / "STACK.npz", meta
 
 
+@pytest.mark.slow
 def test_chunked_views_equal_the_unchunked_ones(tmp_path):
     from holocore.evaluate.preview import views_rgb
     from holocore.evaluate.scoring import eye_view, load_slm_field

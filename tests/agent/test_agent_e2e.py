@@ -13,6 +13,7 @@ import subprocess
 import time
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from holocore.io import load_stack, phase_to_u8, save_stack
@@ -50,6 +51,7 @@ def assert_pngs_identical(slm_dir, job_id, levels):
             np.testing.assert_array_equal(got, levels[f, c], err_msg=f"{job_id} f={f} c={c}")
 
 
+@pytest.mark.slow
 def test_agent_follows_the_service_and_recovers(tmp_path):
     srv = StackServer(tmp_path / "srv", TOKEN).start()
     lut = tmp_path / "lut.json"  # listed out of colour order: matched by wavelength
@@ -137,6 +139,7 @@ def test_agent_follows_the_service_and_recovers(tmp_path):
     assert agent.returncode == 0
 
 
+@pytest.mark.slow
 def test_agent_cli_refuses_bad_settings(tmp_path):
     r = subprocess.run([*HOLO, "agent", "--slm", "null"], env=env(), capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and "needs --server" in r.stderr

@@ -44,6 +44,7 @@ def _settled_after(lines, t0):
     return min(t for t, d, l in lines if d == "TX" and " OK SETTLED " in l and t >= t0)
 
 
+@pytest.mark.slow
 def test_capture_moves_in_order_waits_for_settled_then_plays_and_triggers(tmp_path, stack):
     path, _ = stack
     sim_log = tmp_path / "sim.log"
@@ -89,6 +90,7 @@ def test_capture_moves_in_order_waits_for_settled_then_plays_and_triggers(tmp_pa
             np.testing.assert_array_equal(np.asarray(Image.open(slm_dir / f"cap_c{c}_f{f:03d}.png")), lv[f, c])
 
 
+@pytest.mark.slow
 def test_capture_survives_the_serial_line_vanishing(tmp_path, stack):
     path, _ = stack
     port = free_port()
@@ -125,6 +127,7 @@ def test_capture_survives_the_serial_line_vanishing(tmp_path, stack):
     assert plane2[0]["t"] >= _settled_after(lines, t_reissue)  # nothing played before the new SETTLED
 
 
+@pytest.mark.slow
 def test_capture_cli_refuses_bad_input(tmp_path, stack):
     path, _ = stack
     bad = tmp_path / "bad.npz"

@@ -60,6 +60,7 @@ def test_policy_once_plays_one_pass_then_blanks(server, tmp_path):
     assert [(s["f"], s["c"]) for s in shows] == [(f, c) for f in range(F) for c in range(C)]  # exactly one pass
 
 
+@pytest.mark.slow
 def test_policy_capture_runs_the_sequence_for_a_new_stack(server, tmp_path):
     port = free_port()
     sim_log = tmp_path / "sim.log"

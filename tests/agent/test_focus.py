@@ -46,6 +46,7 @@ def tcp_sim(tmp_path):
     stop_proc(p)
 
 
+@pytest.mark.slow
 def test_tcp_reset_on_open_move_ack_then_settled(tcp_sim):
     port, log, _ = tcp_sim
     c = FocusController(f"socket://127.0.0.1:{port}", ping_interval_s=0.1, ready_timeout_s=5)
@@ -95,6 +96,7 @@ def test_pty_serial_port(tmp_path):
     wait_for(lambda: not link.exists(), 5, "link removed at exit")
 
 
+@pytest.mark.slow
 def test_timeouts_and_unreachable():
     # loop:// echoes our own request: no reply with our id ever comes
     c = FocusController("loop://", reply_timeout_s=0.2, ready_timeout_s=0.5, ping_interval_s=0.1)
@@ -110,6 +112,7 @@ def test_timeouts_and_unreachable():
         c.goto(plane=1, pos=3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", ["tcp", "pty"])
 def test_line_vanishes_and_comes_back(tmp_path, transport, caplog):
     log = tmp_path / "sim.log"

@@ -76,11 +76,14 @@ def _check_all_baselines(scene_path: Path) -> None:
         assert _in_volume(np.asarray(results["layers"].meta["layers"]["plane_z_m"]), ana)
 
 
-@pytest.mark.parametrize("name", PROJECT_SCENES)
+# every scene but paper-depth is slow: paper-depth keeps the check in the quick tier
+@pytest.mark.parametrize("name", [n if n == "paper-depth" else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in PROJECT_SCENES])
 def test_every_baseline_runs_with_its_defaults_on_each_project_scene(name, tmp_path):
     _check_all_baselines(_write_scene(name, tmp_path / name))
 
 
+@pytest.mark.slow
 @pytest.mark.scenes
 @pytest.mark.parametrize("name", ["cbox-mirror-glass", "veach-bidir", "veach-mis"])
 def test_every_baseline_runs_with_its_defaults_on_the_shared_bundles(name, shared_scenes):

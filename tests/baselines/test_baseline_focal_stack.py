@@ -51,6 +51,7 @@ def test_plane_depths_follow_the_paper_and_stay_in_the_volume():
                                                   spacing_m=None), zi + np.array([1e-3, 2e-3, 3e-3]))
 
 
+@pytest.mark.slow
 def test_each_plane_is_sharp_at_its_own_focus_and_the_loss_falls():
     # Two textured planes side by side in hologram space: A (left half) at z_A, B (right half) at z_B. The
     # focal stack at z_A, z_B and halfway: each half blurred by the pupil's geometric defocus disc, radius
@@ -91,6 +92,7 @@ def test_each_plane_is_sharp_at_its_own_focus_and_the_loss_falls():
     assert a_own > a_other + 12 and b_own > b_other + 12, (a_own, a_other, b_own, b_other)
 
 
+@pytest.mark.slow
 def test_a_time_limit_stops_each_colour_early_and_otherwise_changes_nothing():
     """The equal-time report gives the stack a wall-time budget. Under a limit no step can meet (1 ms) every
     colour takes exactly one step (a step's duration is known only after one) and the fit is the one-step fit,
@@ -159,6 +161,7 @@ def fs_result(tmp_path_factory):
     return root, scene, res
 
 
+@pytest.mark.slow
 def test_render_focal_stack_puts_its_planes_at_the_cards(fs_result):
     _, _, res = fs_result
     m = res.meta
@@ -172,6 +175,7 @@ def test_render_focal_stack_puts_its_planes_at_the_cards(fs_result):
     assert np.all(np.isfinite(res.wrp_field))
 
 
+@pytest.mark.slow
 def test_the_result_and_its_stack_load_in_view_and_evaluate(fs_result, tmp_path):
     from holo.app import app
     from holocore.evaluate.groundtruth import GroundTruth
@@ -214,6 +218,7 @@ def test_the_result_and_its_stack_load_in_view_and_evaluate(fs_result, tmp_path)
     assert (tmp_path / "ev" / "metrics.json").is_file()
 
 
+@pytest.mark.slow
 def test_cli_writes_result_and_stack(tmp_path):
     from holo.app import app
     from holocore.io import load_result, load_stack

@@ -110,6 +110,7 @@ def _psnr(recon: np.ndarray, ref: np.ndarray) -> float:
     return 10 * math.log10(float(ref.max()) ** 2 / float(np.mean((s * recon - ref) ** 2)))
 
 
+@pytest.mark.slow
 def test_parallax_is_right_and_the_card_off_the_rs_plane_never_focuses(lf_result):
     from holocore.evaluate.groundtruth import GroundTruth
     from holocore.evaluate.scoring import eye_view, lit_margin_px
@@ -155,6 +156,7 @@ def test_parallax_is_right_and_the_card_off_the_rs_plane_never_focuses(lf_result
     assert _psnr(r[far], gt(z_near, 0.0)[far]) > _psnr(r[far], gt(z_far, 0.0)[far]) + blur
 
 
+@pytest.mark.slow
 def test_cli_light_field_writes_a_result_and_rejects_bad_input(lf_result, tmp_path):
     from holo.app import app
 
@@ -177,6 +179,7 @@ def test_cli_light_field_writes_a_result_and_rejects_bad_input(lf_result, tmp_pa
         assert not (tmp_path / "x.npz").exists()
 
 
+@pytest.mark.slow
 def test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite():
     """Never NaN: a scene with nothing lit gives a zero field; a glowing card seen almost edge-on (grazing hogel
     rays) and the sky behind it give finite radiance and a finite field."""
@@ -195,6 +198,7 @@ def test_a_black_scene_and_an_emitter_seen_edge_on_stay_finite():
     assert np.abs(res.slm_field).max() > 0  # the card is seen: a thin glowing line
 
 
+@pytest.mark.slow
 def test_the_fit_reads_a_stereogram_back_and_fits_phase_only_frames_to_a_light_field():
     """The SGD fit's light field (holocore.baselines.light_field_fit) is the exact analysis of the stereogram's
     synthesis: a complex stereogram taken to the SLM and back gives its own hogel powers. Phase-only frames fitted

@@ -55,6 +55,7 @@ def tiny(tmp_path_factory):
     return loaded, r3, r2
 
 
+@pytest.mark.slow
 def test_frames_the_convergence_map_may_share(tiny):
     # The convergence map's F = 1 is the first frame of its 24-frame render: frame 0 is the same random-phase
     # frame in every bank (a 1-frame render has no random-phase bank, docs/design.md §8). Coded frame phases depend on the
@@ -77,6 +78,7 @@ def _optics(frames: int, frame_phases: str):
         update={"frame_phases": frame_phases})
 
 
+@pytest.mark.slow
 def test_reference_against_itself_and_cue_depth(rep, tiny):
     from holocore.evaluate.scoring import default_pupil_m, eye_view
 

@@ -56,6 +56,7 @@ def test_render_writes_a_numpy_readable_result(demo, tmp_path):
     assert set(stages) <= set(RENDER_STAGES), stages
 
 
+@pytest.mark.slow
 def test_plan_json(demo):
     p = run("plan", demo, "--json", "--resolution", "24x32")
     assert p.returncode == 0, p.stderr
@@ -71,8 +72,8 @@ def test_plan_json(demo):
     (["--frames", "-3"], "frames"),
     (["--wavelengths-nm", "640,abc"], "wavelengths"),
     (["--preset", "turbo"], "preset"),
-    (["--time-limit-s", "0"], "--time-limit-s"),
-    (["--time-limit-s", "nan"], "--time-limit-s"),
+    pytest.param(["--time-limit-s", "0"], "--time-limit-s", marks=pytest.mark.slow),
+    pytest.param(["--time-limit-s", "nan"], "--time-limit-s", marks=pytest.mark.slow),
 ])
 def test_bad_options_are_refused_clearly(demo, tmp_path, args, message):
     p = run("render", demo, "--out", tmp_path / "x.npz", *args)

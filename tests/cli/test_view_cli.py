@@ -85,6 +85,7 @@ def _window_sum(img: np.ndarray, rc: tuple[int, int], r: int = 1) -> float:
     return float(img[i - r:i + r + 1, j - r:j + r + 1].astype(np.float64).sum())
 
 
+@pytest.mark.slow
 def test_encode_writes_a_numpy_readable_stack(stack_npz):
     with np.load(stack_npz, allow_pickle=False) as z:
         phase, u8, meta = z["phase"], z["frames_u8"], json.loads(str(z["meta"]))
@@ -112,7 +113,7 @@ def test_encode_baselines_with_a_lookup_table(result_npz, tmp_path, method):
     assert meta["encoder"]["method"] == method and meta["encoder"]["lut"]["source"] == "cal.json"
 
 
-@pytest.mark.parametrize("source", ["result", "stack"])
+@pytest.mark.parametrize("source", [pytest.param("result", marks=pytest.mark.slow), "stack"])
 def test_view_focuses_on_the_right_point(result_npz, stack_npz, tmp_path, source):
     src = result_npz if source == "result" else stack_npz
     near_px, far_px = _pixel(*POINTS[1][:2]), _pixel(*POINTS[0][:2])
@@ -214,6 +215,7 @@ def test_bad_input_exits_2_with_a_message(result_npz, tmp_path, args, message):
     assert message in r.output
 
 
+@pytest.mark.slow
 def test_service_preview_is_what_holo_view_writes_and_a_failed_preview_keeps_the_pictures(stack_npz, tmp_path,
                                                                                           capsys):
     # The job driver's preview step (service.workers.pictures --preview) makes the preview and the pictures in

@@ -197,6 +197,7 @@ def wide_scene(tmp_path_factory) -> Path:
     return write_demo_scene(tmp_path_factory.mktemp("wide") / "scene", fov_deg=70.0)
 
 
+@pytest.mark.slow
 def test_plan_of_a_wide_camera_uses_the_displays_f_and_says_the_view_differs(wide_scene):
     p = run("plan", wide_scene, "--json")
     assert p.returncode == 0, p.stderr
@@ -221,6 +222,7 @@ def test_plan_of_a_wide_camera_uses_the_displays_f_and_says_the_view_differs(wid
     assert fdoc["analysis"]["z_far_holo_m"] - zi == pytest.approx(f_fit ** 2 / 1.5, rel=0.02)  # 0.08 mm: no depth
 
 
+@pytest.mark.slow
 def test_plan_options_override_a_profile_file(wide_scene, tmp_path):
     prof = save_display(lab_profile(), tmp_path / "lab.toml")
     p = run("plan", wide_scene, "--json", "--display", prof, "--focal-length-mm", 30, "--frames", 3,

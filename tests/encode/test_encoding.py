@@ -58,6 +58,7 @@ def synthetic():
     return target, enc.encode_sgd(target, **kw), enc.encode_naive(target, **kw), enc.encode_dpac(target, **kw)
 
 
+@pytest.mark.slow
 def test_sgd_reaches_its_error_on_a_random_phase_target_and_beats_naive(synthetic):
     target, sgd, naive, dpac = synthetic
     e_sgd = _interior_error(sgd.phase, target, z=Z, lams=LAMS, pitch=P)
@@ -77,6 +78,7 @@ def test_sgd_reaches_its_error_on_a_random_phase_target_and_beats_naive(syntheti
         assert np.all((r.efficiency > 0) & (r.efficiency <= 1.0 + 1e-5))
 
 
+@pytest.mark.slow
 def test_sgd_looks_better_than_naive_to_a_viewer(synthetic):
     target, sgd, naive, _ = synthetic
     f = 20e-3
@@ -87,6 +89,7 @@ def test_sgd_looks_better_than_naive_to_a_viewer(synthetic):
         assert p_sgd > p_naive + 2.0, (focus, p_sgd, p_naive)
 
 
+@pytest.mark.slow
 def test_complex_scale_of_the_target_only_shifts_the_phase():
     h = w = 32
     target = np.stack([random_field(2, (h, w), lam, P, seed=3).numpy() for lam in LAMS], axis=1)
@@ -270,6 +273,7 @@ def traced(tmp_path_factory):
     return result, enc.encode_sgd(result.wrp_field, **kw), enc.encode_naive(result.wrp_field, **kw)
 
 
+@pytest.mark.slow
 def test_sgd_on_a_traced_scene(traced):
     result, sgd, naive = traced
     m = result.meta
@@ -299,6 +303,7 @@ def _small_target(frames=3, h=40, w=48, seed=11):
     return enc.passband_filter(t, wavelengths_m=LAMS, pitch_m=P).numpy()
 
 
+@pytest.mark.slow
 def test_blocks_of_frames_give_the_unchunked_stack():
     target = _small_target()
     kw = dict(z_wrp_m=Z, wavelengths_m=LAMS, pitch_m=P, iterations=150)
@@ -313,6 +318,7 @@ def test_blocks_of_frames_give_the_unchunked_stack():
     assert len(set(whole.iterations_per_target.ravel().tolist())) > 1
 
 
+@pytest.mark.slow
 def test_streamed_file_encoding_equals_the_in_memory_one(tmp_path):
     from holocore.encode.stream import encode_file
     from holocore.io import save_result
@@ -335,6 +341,7 @@ def test_streamed_file_encoding_equals_the_in_memory_one(tmp_path):
     assert m2["encoder"]["supervision"] == "cone" and m2["encoder"]["fourier_filter_source"] == "option"
 
 
+@pytest.mark.slow
 def test_without_a_fourier_filter_the_light_outside_the_cone_counts():
     """A display without a filter shows the whole field: full supervision keeps light in the cone (higher
     efficiency, lower whole-field error) where cone supervision parks it outside; a viewer whose pupil takes in
@@ -360,6 +367,7 @@ def test_without_a_fourier_filter_the_light_outside_the_cone_counts():
     assert _view_psnr(full, **v) > _view_psnr(cone, **v) + 1.0
 
 
+@pytest.mark.slow
 def test_stop_rule_in_decibels():
     target = _small_target(frames=1)
     kw = dict(z_wrp_m=Z, wavelengths_m=LAMS, pitch_m=P)
@@ -468,6 +476,7 @@ def test_written_out_gradient_is_autograds(cone, w):
     assert torch.allclose(step, -0.01 * torch.sign(ph.grad[big]), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_heap_reuse_changes_no_number(monkeypatch):
     """The optimiser's allocator setting (encoding_op.heap_reuse) is a speed matter only: the stack is the same
     bit for bit without it, and the context can be entered twice in a row."""

@@ -108,6 +108,7 @@ def test_focus_distance_inverts_the_hologram_depth():
         focus_distance_m(Z_INF - 1e-4, focal_length_m=F_M, z_inf_m=Z_INF)
 
 
+@pytest.mark.slow
 def test_ground_truth_puts_the_dot_where_x_equals_f_tan(dot):
     _, res, gt = dot
     z = Z_INF + F_M**2 / DOT[2]
@@ -119,6 +120,7 @@ def test_ground_truth_puts_the_dot_where_x_equals_f_tan(dot):
     assert centroid(moved)[1] - centroid(img)[1] == pytest.approx(-F_M * 0.5e-3 / DOT[2] / P, abs=0.3)
 
 
+@pytest.mark.slow
 def test_reconstruction_lands_on_the_ground_truth_pixel(dot):
     _, res, gt = dot
     z_dot = Z_INF + F_M**2 / DOT[2]
@@ -129,7 +131,8 @@ def test_reconstruction_lands_on_the_ground_truth_pixel(dot):
     assert compare(rec[None], truth[None]).ssim > 0.8
 
 
-@pytest.mark.parametrize("offset", [(0.0, 0.375e-3), (0.375e-3, 0.0), (0.0, -0.375e-3)])
+@pytest.mark.parametrize("offset", [pytest.param((0.0, 0.375e-3), marks=pytest.mark.slow),
+                                    pytest.param((0.375e-3, 0.0), marks=pytest.mark.slow), (0.0, -0.375e-3)])
 def test_a_view_offset_moves_the_reconstruction_like_the_ground_truth(point, offset):
     """Focused 1 mm in front of the dot (defocused), the eye moved by 0.375 mm: the dot moves by
     f e / (zc p) = 2.3 px against the eye's motion in both; a flipped row sign would move it 2x the other way."""
@@ -256,6 +259,7 @@ def cards(tmp_path_factory):
     return ours, layers, gt, (h, w)
 
 
+@pytest.mark.slow
 def test_near_and_far_focus_like_the_ground_truth_and_layers_misplace_the_mirror_image(cards):
     ours, layers, gt, (h, w) = cards
     m = ours.meta
@@ -295,6 +299,7 @@ def cbox(scene_bundle):
     return loaded, optics, res
 
 
+@pytest.mark.slow
 def test_cbox_frames_average_speckle_and_layers_keep_colour_balance(cbox):
     from holocore.baselines.layers import render_layers
 
@@ -315,6 +320,7 @@ def test_cbox_frames_average_speckle_and_layers_keep_colour_balance(cbox):
     assert np.isfinite(lay.slm_field).all() and lay.meta["method"] == "layers"
 
 
+@pytest.mark.slow
 def test_holo_evaluate_and_baseline_cli(cbox, tmp_path, scene_bundle):
     from holocore.io import save_result
 
@@ -341,6 +347,7 @@ def test_holo_evaluate_and_baseline_cli(cbox, tmp_path, scene_bundle):
     assert bad.returncode == 2 and "--views" in bad.stderr
 
 
+@pytest.mark.slow
 def test_a_phase_stack_is_lit_with_its_laser_powers(cbox, tmp_path):
     from holocore.encode.encoder import encode_sgd, save_encoded
 
@@ -387,6 +394,7 @@ def test_estimate_grows_with_the_work_and_reads_the_calibration(tmp_path):
         calibrate(optics={"z_inf_mm": -4.0})
 
 
+@pytest.mark.slow
 def test_the_estimate_counts_the_work_the_render_does(tmp_path):
     """The cost model multiplies rates by counts; the counts must be the render's own: its rays per pixel (given,
     or chosen by the preset from the scene's depth), the rays traced, and a term for every stage it times. Each
@@ -437,6 +445,7 @@ def test_the_estimate_counts_the_work_the_render_does(tmp_path):
     assert b4["total"] > b1["total"] and b3["total"] > b1["total"] and b2["total"] > b1["total"]
 
 
+@pytest.mark.slow
 def test_render_estimate_cli(tmp_path):
     from holocore.scene.demo import write_demo_scene
 

@@ -86,6 +86,7 @@ def _cone_field(kind: str, F: int = 24, shape=(48, 64)) -> np.ndarray:
     return out
 
 
+@pytest.mark.slow
 def test_one_scale_sees_brightness_that_steps_with_the_eye():
     # a display with a Fourier filter: without one, an eye at the eyebox's edge also takes the next diffraction
     # order's light (a real step, but of the display, not of the frames compared here)
@@ -102,6 +103,7 @@ def test_one_scale_sees_brightness_that_steps_with_the_eye():
     assert not any(math.isnan(c.psnr_db) for c in spread.cells + beams.cells)  # inf: a lone beam is exactly flat
 
 
+@pytest.mark.slow
 def test_one_share_for_every_colour_sees_a_red_cast_through_large_pupils():
     """Each colour in its own cone: through a 6 mm pupil (wider than every eyebox) the eye gathers all of each
     colour's light, (s_c / s_blue)^2 more of red than the common eyebox's share says: a red cast that the colour

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 _BLOCKER = '''
@@ -38,6 +39,7 @@ def test_blocker_blocks(tmp_path):
     assert r.returncode != 0 and "is blocked" in r.stderr
 
 
+@pytest.mark.slow
 def test_agent_and_formats_import_without_torch_mitsuba_drjit(tmp_path):
     r = _run_blocked(tmp_path, "import display_agent, holocore.formats")
     assert r.returncode == 0, r.stderr

@@ -178,6 +178,7 @@ def _pupil_powers(wrp: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planes", [1, 2])
 def test_a_white_card_keeps_its_colour_in_every_view(planes):
     """A white card whose image lies one margin (4 pixel footprints) behind its recording plane, where the
@@ -207,6 +208,7 @@ def test_a_white_card_keeps_its_colour_in_every_view(planes):
     assert off[True].max() < math.log(1.05 if planes == 1 else 1.08), off
 
 
+@pytest.mark.slow
 def test_a_white_card_looks_white_through_the_report_pupil():
     """The colour balance itself: a white card filling the view, seen in focus through the paper report's
     1.61 mm pupil (f = 50 mm) in the centre and 0.5 degrees off-axis, has equal red, green and blue within 3 %.
@@ -232,6 +234,7 @@ def test_a_white_card_looks_white_through_the_report_pupil():
         assert np.allclose(rgb / rgb[1], 1.0, atol=0.03), (e_m, rgb / rgb[1])
 
 
+@pytest.mark.slow
 def test_few_rays_do_not_tint_the_views():
     """Eq. C4: at 128 rays a white plate's recording is about 1/3 Monte Carlo noise, white over the band. An
     equaliser that flattens only the signal (C3) lifts that noise by G / S, most where S is weak, by a different

@@ -74,10 +74,10 @@ def test_gaussian_beam_matches_paraxial_analytic(shape, pitch, lam, w0, z):
     "shape,pitch,lam,w0,z,fx0,fy0",
     [
         # Moderately non-paraxial: w0 = 8 lambda, z = z_R; max angle sin = 0.3 -> 6e5 /m < 1/p = 1e6 /m.
-        ((64, 64), 1e-6, 0.5e-6, 4e-6, 100e-6, 0.0, 0.0),
+        pytest.param((64, 64), 1e-6, 0.5e-6, 4e-6, 100e-6, 0.0, 0.0, marks=pytest.mark.slow),
         # Sub-wavelength pitch (0.2 um at 455 nm): every propagating angle is sampled; w0 = 0.7 um puts the
         # evanescent part of the spectrum below exp(-23), so ASM (which drops it) and RS agree at z = 11 lambda.
-        ((64, 64), 0.2e-6, 455e-9, 0.7e-6, 5e-6, 0.0, 0.0),
+        pytest.param((64, 64), 0.2e-6, 455e-9, 0.7e-6, 5e-6, 0.0, 0.0, marks=pytest.mark.slow),
         # Non-square grid, different pitch per axis, tilt along x only: x/y swaps in the pitch or the grid move
         # or squash the beam and fail by ~100 %.
         ((40, 80), (1.0e-6, 0.8e-6), 0.5e-6, 3e-6, 150e-6, 1e5, 0.0),
@@ -183,6 +183,7 @@ def test_round_trip_returns_the_field():
         assert rel_l2(back, u) < 1e-5
 
 
+@pytest.mark.slow
 def test_long_distance_phase_precision_complex64():
     """1 m at 455.4 nm: k z ~ 1.4e7 rad. The complex64 result must match a complex128 computation, which needs
     the transfer function's phase formed and wrapped in float64 (in float32 it would be off by ~1 rad)."""
@@ -215,6 +216,7 @@ def test_subwavelength_pitch_has_no_nan_and_no_gain():
 
 
 # ---- production sizes ------------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [(1024, 1024), (1080, 1920)])
 def test_production_sizes_against_analytic_and_complex128(shape):
     """Full-size grids padded 2x (2048^2, 2160 x 3840): an off-centre Gaussian beam (so x/y mix-ups show)
@@ -311,6 +313,7 @@ def test_invalid_inputs_raise_clear_errors(kwargs, match):
         asm(args.pop("field"), args.pop("distance_m"), args.pop("wavelength_m"), args.pop("pitch_m"), **args)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [(2048, 2048), (2160, 3840), (1, 2, 2048, 2048)])
 def test_inverse_fft_is_right_at_padded_production_sizes(shape):
     """The inverse DFT every module uses (propagation.ifft2) against numpy in float64, on the padded grids of
@@ -325,6 +328,7 @@ def test_inverse_fft_is_right_at_padded_production_sizes(shape):
     assert rel_l2(ifft2(torch.from_numpy(x.astype(np.complex128))).numpy(), ref) <= 1e-12
 
 
+@pytest.mark.slow
 def test_sqrt_is_accurate_and_the_same_in_every_fresh_process():
     """torch's CPU sqrt runs on MKL's vector math over two threads; when its first call raced, about one process
     in three computed the worker thread's half in a low-accuracy mode (2e5 ulp in float64), so one seed gave a

@@ -51,6 +51,7 @@ def test_depth_of_field_formula():
         depth_of_field_m(LAM, F_EYE, 0.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("converging", [False, True])
 def test_point_source_focuses_at_its_depth(converging):
     """A point z0 = 5 mm behind the plane (diverging wave) is in focus at distance -z0 (back-propagation to the
@@ -86,6 +87,7 @@ def _blur_diameter(I: np.ndarray) -> float:
     return 2 * math.sqrt(2) * rr[order][np.searchsorted(cum, 0.5)]
 
 
+@pytest.mark.slow
 def test_defocus_blur_grows_with_pupil_as_geometry_predicts():
     """Defocus dz in hologram space through a pupil of NA = D/(2f): the cone of half-angle NA gives a blur disc
     of diameter 2 NA |dz| (geometric optics, valid when the Fresnel number (NA dz)^2/(lambda dz) >> 1: 4.5 and
@@ -105,6 +107,7 @@ def test_defocus_blur_grows_with_pupil_as_geometry_predicts():
     assert _blur_diameter(view(u, -z0, 2 * F_EYE * 0.03)) < 0.2 * measured[(0.03, 10e-3)]
 
 
+@pytest.mark.slow
 def test_frame_averaging_reduces_speckle_like_inverse_sqrt_frames():
     """A uniform diffuse patch (random phases of the bank) seen through a pupil is fully developed speckle;
     F independent frames average it down to contrast 1/sqrt(F)."""

@@ -28,6 +28,7 @@ def test_prediction_adds_start_up_compile_and_the_scenes_own_ray_cost():
     assert double["trace"] > 1.9 * slow["trace"] - 1.0  # twice the rays (up to the per-tile term)
 
 
+@pytest.mark.slow
 def test_a_real_probe_measures_positive_costs(tmp_path):
     from holocore.scene.demo import write_demo_scene
     from holocore.scene.load import load_scene

@@ -24,6 +24,7 @@ def plans(request, bundles_by_source):
     return out
 
 
+@pytest.mark.slow
 def test_cbox_plan_has_mirror_and_glass(plans):
     pl = plans["cbox"]
     inv, plan, ana = pl.inventory, pl.plan, pl.analysis
@@ -36,6 +37,7 @@ def test_cbox_plan_has_mirror_and_glass(plans):
     assert ana.z_wrp_m > ana.z_near_holo_m > ana.z_far_holo_m > OPT.z_inf_m
 
 
+@pytest.mark.slow
 def test_veach_bidir_plan_is_glossy_with_glass(plans):
     pl = plans["bidir"]
     assert pl.inventory.dielectrics == ["Glass"]
@@ -43,6 +45,7 @@ def test_veach_bidir_plan_is_glossy_with_glass(plans):
     assert any("glossy" in s for s in pl.plan.summary)
 
 
+@pytest.mark.slow
 def test_veach_mis_plan_has_no_coherent_loop(plans):
     plan = plans["mis"].plan
     assert not plan.coherent_delta and plan.max_delta == 0
@@ -67,6 +70,7 @@ def _diffuse_room():
     return scene(sensor=camera(fov=20), wall=wall, light=light)
 
 
+@pytest.mark.slow
 def test_diffuse_scene_planned_equals_forced_and_traces_less():
     optics = OpticsConfig(resolution_hw=(48, 48), wavelengths_nm=(640.0,), focal_length_mm=20.0, frames=4)
     planned = render_loaded(_diffuse_room(), optics, RenderOptions(preset="fast", spp=16))

@@ -90,6 +90,7 @@ def _forced(monkeypatch, spps):
     monkeypatch.setattr(SppSchedule, "next_spp", next_spp)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("streamed, planes", [(False, 1), (True, 1), (False, 3)])
 def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, streamed, planes):
     # A pass is an unbiased estimate of the same field from its own rays (seed ray_seed + 7919 k, the same
@@ -129,6 +130,7 @@ def test_the_passes_make_the_spp_weighted_mean(demo, tmp_path, monkeypatch, stre
     assert meta["stats"]["rays"] == sum(m.meta["stats"]["rays"] for m in one)
 
 
+@pytest.mark.slow
 def test_holo_render_with_a_time_limit(demo, tmp_path):
     out, progress = tmp_path / "RESULT.npz", tmp_path / "progress.jsonl"
     p = subprocess.run([sys.executable, "-m", "holo", "render", str(demo), "--out", str(out), "--preset", "fast",

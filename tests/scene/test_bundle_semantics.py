@@ -189,6 +189,7 @@ for b in sys.argv[3:]:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed (scripts/setup.sh installs it)")
 def test_traced_loads_never_open_a_file_outside_their_bundle(tmp_path):
     outside = tmp_path / "outside"
@@ -223,6 +224,7 @@ def test_traced_loads_never_open_a_file_outside_their_bundle(tmp_path):
     assert not stray, stray[:10]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is needed to build the planted plugin")
 def test_preloaded_plugins_never_resolve_through_a_scene_folder(tmp_path):
     """Defence in depth: even a folder loaded without the bundle check (``check_bundle=False``, trusted folders

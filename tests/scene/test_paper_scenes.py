@@ -67,6 +67,7 @@ def _chain(ld, tans, seed=3):
     return trace_chain(ld.scene, o, v, max_delta=8, amp_spp=1, integrator=integ, seed=seed), d_cam
 
 
+@pytest.mark.slow
 def test_the_camera_sees_the_paper_display_view(loaded):
     fov = 2 * math.degrees(math.atan(1920 * 8e-6 / (2 * F_M)))
     assert abs(paper_fov_x_deg() - fov) < 1e-9 and abs(fov - 17.46) < 0.01
@@ -77,6 +78,7 @@ def test_the_camera_sees_the_paper_display_view(loaded):
         assert not pl.field_of_view["differs"], (name, pl.field_of_view["summary"])
 
 
+@pytest.mark.slow
 def test_depth_scene_spans_the_paper_image_volume(loaded):
     # 10 m, 0.9 m, 0.5 m at z_inf + 0.25, 2.78, 5 mm (docs/design.md §3); the cards are planes facing the eye
     ana = _plan(loaded["depth"]).analysis
@@ -94,6 +96,7 @@ def test_depth_scene_spans_the_paper_image_volume(loaded):
     np.testing.assert_allclose(z_holo(zc) - Z_INF, F_M ** 2 / 0.9, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_mirror_image_lies_at_the_apparent_depth_of_the_reflected_object(loaded):
     facts = scene_facts("mirror")
     # Directions across the mirror (half-size 25 x 17.5 mm at 0.5 m: |tan| < 0.05, 0.035)
@@ -124,6 +127,7 @@ def test_mirror_image_lies_at_the_apparent_depth_of_the_reflected_object(loaded)
     assert np.all(gap > 3.5e-3) and np.all(gap > 7 * dof)
 
 
+@pytest.mark.slow
 def test_glass_ball_images_the_card_at_the_paraxial_thick_lens_position(loaded):
     facts = scene_facts("glass")
     n, R, c, zo = facts["ior"], facts["sphere_radius_m"], facts["sphere_center_zc_m"], facts["card_zc_m"]
@@ -164,6 +168,7 @@ def _highlight_column(img: np.ndarray) -> float:
     return float((w.sum(axis=0) * cols).sum() / w.sum())
 
 
+@pytest.mark.slow
 def test_glossy_highlight_moves_with_the_view(loaded):
     from holocore.evaluate.groundtruth import render_ground_truth
 
@@ -189,6 +194,7 @@ def test_glossy_highlight_moves_with_the_view(loaded):
     assert abs(shift - texture) > 10.0, (shift, texture)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PAPER_SCENES)
 def test_small_render_is_finite_and_lit(loaded, name):
     from holocore.pipeline import RenderOptions, render_loaded
@@ -202,6 +208,7 @@ def test_small_render_is_finite_and_lit(loaded, name):
     assert res.meta["display_profile"] == "paper" and res.meta["focal_length_m"] == pytest.approx(F_M)
 
 
+@pytest.mark.slow
 def test_demo_renders_a_paper_scene(tmp_path):
     runner = CliRunner()
     out = tmp_path / "demo"
@@ -218,6 +225,7 @@ def test_demo_renders_a_paper_scene(tmp_path):
     assert bad.exit_code == 2 and "must be one of" in bad.output
 
 
+@pytest.mark.slow
 def test_fast_preset_keeps_the_glossy_highlight(loaded):
     # The ambient cache holds view-independent radiance per unit diffuse albedo; a glossy plate's highlight is
     # neither, so the fast preset path traces glossy image points. Without that its highlight vanished (the plate

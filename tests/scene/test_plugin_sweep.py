@@ -230,6 +230,7 @@ def renders(request, tmp_path_factory):
             f.cancel()
 
 
+@pytest.mark.slow  # one render per admitted plugin; tests/trace/test_emitters.py and test_hard_cases.py render the kinds
 @pytest.mark.parametrize("key", sorted(BODIES), ids=lambda k: f"{k[0]}-{k[1]}")
 def test_every_admitted_plugin_renders_or_is_refused_clearly(renders, key):
     from holocore.scene.bundle import validate_bundle

@@ -64,6 +64,7 @@ def _through_the_service(server, scene):
     return sc, job, events, final
 
 
+@pytest.mark.slow
 def test_upload_reports_the_bundle_and_plan_fills_in(server, rendered):
     sc = rendered["scene"]
     assert sc["entry"] == "cbox.xml" and sc["sha256"] and len(sc["sha256"]) == 64
@@ -88,6 +89,7 @@ def wait_state_scene(c, scene_id, timeout=60.0):
     raise AssertionError("plan never finished")
 
 
+@pytest.mark.slow
 def test_events_show_progress_then_the_final_state(rendered):
     ev = rendered["events"]
     kinds = [e for e, _ in ev]
@@ -218,6 +220,7 @@ def test_health_metrics_and_openapi(server, rendered):
     assert httpx.get(f"{server.url}/docs").status_code == 200
 
 
+@pytest.mark.slow
 def test_holo_submit_cli_uploads_follows_and_downloads(server, rendered, scene_bundle, tmp_path):
     """`holo submit` of the same job: the service reuses the result; the downloaded stack is byte-identical."""
     out = tmp_path / "stack.npz"
@@ -245,6 +248,7 @@ def test_files_upload_gives_the_same_content_address(server, rendered, scene_bun
     assert r.json()["id"] == rendered["scene"]["id"] and r.json()["sha256"] == rendered["scene"]["sha256"]
 
 
+@pytest.mark.slow
 def test_a_time_limited_job_renders_until_its_limit(server, rendered, tmp_path):
     """A job with render_time_limit_s: the worker's `holo render` traces passes of rays until the limit (at most
     the job's spp); the stack's meta says how many."""

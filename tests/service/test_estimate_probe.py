@@ -48,6 +48,7 @@ def test_a_plan_without_a_usable_probe_keeps_the_calibration(probe):
     assert _est(plan)["seconds"] == _est(PLAN)["seconds"]
 
 
+@pytest.mark.slow  # `holo plan --probe` on the demo scene; test_the_services_estimate_uses_its_planners_probe runs the same command
 def test_holo_plan_probe_times_the_scene(tmp_path):
     from holocore.scene.demo import write_demo_scene
 

@@ -71,6 +71,7 @@ def _png(server, url: str) -> np.ndarray:
         return np.asarray(Image.open(io.BytesIO(r.content)).convert("RGB"))
 
 
+@pytest.mark.slow
 def test_an_evaluated_job_scores_every_depth_of_its_sweep(server, evaluated):
     job = evaluated["job"]
     early = evaluated["early"]
@@ -107,6 +108,7 @@ def test_an_evaluated_job_scores_every_depth_of_its_sweep(server, evaluated):
     assert v["focus_mm"] == [mid["z_mm"]] and math.isfinite(v["mean_psnr_db"]) and v["scale_spread"] >= 1
 
 
+@pytest.mark.slow
 def test_the_scores_of_a_depth_are_those_of_its_pictures(server, evaluated, demo):
     """For the sweep's far end, middle and near end: the test renders the ground truth at the entry's depth and
     views the served stack there itself; the reported PSNR and SSIM are theirs, and the served PNGs are those two
@@ -168,6 +170,7 @@ def test_the_scores_of_a_depth_are_those_of_its_pictures(server, evaluated, demo
     assert sharpness(reported[0][1]) > 1.3 * sharpness(reported[8][1])
 
 
+@pytest.mark.slow
 def test_a_job_without_an_evaluation_answers_404_and_the_files_are_checked(server, scene, evaluated):
     from service.auth import create_token
     from service.db import Database
@@ -204,6 +207,7 @@ def test_a_job_without_an_evaluation_answers_404_and_the_files_are_checked(serve
         path.write_bytes(data)
 
 
+@pytest.mark.slow
 def test_the_estimate_counts_the_evaluation(server, scene):
     with server.client("submit") as c:
         without = c.post("/v1/jobs/estimate", json={"scene_id": scene["id"], **EVAL_JOB})

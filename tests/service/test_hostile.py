@@ -132,6 +132,7 @@ def uploads(root: Path) -> list[tuple[str, dict, int, str]]:
     ]
 
 
+@pytest.mark.slow
 def test_hostile_uploads_are_refused_and_nothing_is_stored(hostile):
     srv, root = hostile
     with srv.client("submit", timeout=20.0) as c:
@@ -150,6 +151,7 @@ def raw_job(c: httpx.Client, text: str) -> httpx.Response:
     return c.post("/v1/jobs", content=text.encode(), headers={"content-type": "application/json"})
 
 
+@pytest.mark.slow
 def test_hostile_jobs_are_refused(hostile, scene_bundle):
     srv, _ = hostile
     with srv.client("submit") as c:
@@ -269,6 +271,7 @@ def _everything_stored(srv: Server) -> str:
     return "".join(chunks)
 
 
+@pytest.mark.slow
 def test_uploaded_code_never_runs_and_no_outside_byte_leaks(hostile, tmp_path):
     srv, root = hostile
     marker = tmp_path / "MARKER"
@@ -311,6 +314,7 @@ def test_uploaded_code_never_runs_and_no_outside_byte_leaks(hostile, tmp_path):
     assert SECRET_LINE not in _everything_stored(srv)
 
 
+@pytest.mark.slow
 def test_plan_errors_name_the_users_file_not_the_server(hostile):
     srv, _ = hostile
     with srv.client("submit") as c:
@@ -334,6 +338,7 @@ def _small_job(c: httpx.Client, folder: Path, **over) -> dict:
     return r.json()
 
 
+@pytest.mark.slow
 def test_stored_artifacts_are_checked_before_serving_or_reuse(hostile, scene_bundle):
     from tests.service.helpers import wait_state
 
@@ -439,6 +444,7 @@ def test_malformed_input_answers_4xx_and_keeps_serving(hostile):
         assert c.get("/v1/jobs").status_code == 200
 
 
+@pytest.mark.slow
 def test_slow_and_idle_connections_are_closed(server_factory):
     import socket
     import time
@@ -473,6 +479,7 @@ def test_slow_and_idle_connections_are_closed(server_factory):
     assert httpx.get(f"{srv.url}/livez").status_code == 200
 
 
+@pytest.mark.slow
 def test_token_expiry_rate_limit_and_metrics(server_factory):
     import time
 
@@ -500,6 +507,7 @@ def test_token_expiry_rate_limit_and_metrics(server_factory):
     assert r.status_code == 200  # failures are turned away, a valid token never is
 
 
+@pytest.mark.slow
 def test_a_job_too_big_for_the_workers_is_refused_at_submit(server_factory, scene_bundle):
     from tests.service.helpers import SMALL_JOB, upload
 

@@ -228,6 +228,7 @@ def test_one_huge_attribute_is_parsed_and_substituted_in_linear_time(tmp_path, m
     assert replaced[0] == 1  # one replacement for the one distinct segment, 2.4 million times reused
 
 
+@pytest.mark.slow
 def test_substitution_and_includes_cannot_blow_the_xml_up(tmp_path, monkeypatch):
     big = "1 " * 30000
     root = bundle(tmp_path, f'<default name="v" value="{big}"/>'
@@ -472,6 +473,7 @@ def server(tmp_path_factory):
     srv.stop()
 
 
+@pytest.mark.slow
 def test_hostile_bundles_get_one_line_4xx_and_the_server_keeps_serving(server):
     decoy = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n+Y 1 +X 1\n\n-Y  9000  +X 9000\n" + os.urandom(256)
     cases = [
@@ -504,6 +506,7 @@ def test_hostile_bundles_get_one_line_4xx_and_the_server_keeps_serving(server):
     assert scenes == []
 
 
+@pytest.mark.slow
 def test_no_job_on_a_scene_whose_plan_failed(server):
     with server.client("submit", timeout=30.0) as c:
         data = scene_zip('<shape type="sphere"><float name="radius" value="abc"/></shape>')

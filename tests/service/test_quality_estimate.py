@@ -46,6 +46,7 @@ def test_a_target_with_the_options_it_chooses_is_refused(given):
     JobRequest(scene_id="s" * 12, quality_db=15.0, frames=8)  # frames: the most the choice may take
 
 
+@pytest.mark.slow  # a demo scene planned by a server for one quality target over the API; the module's other tests hold the quality model
 def test_a_quality_target_over_the_api(server):
     from holocore.scene.demo import write_demo_scene
 

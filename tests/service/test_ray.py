@@ -31,7 +31,7 @@ from service.workers.engine import group_alive  # noqa: E402
 from tests.service.helpers import REPO, SMALL_JOB, Server, upload, wait_for, wait_state  # noqa: E402
 from tests.service.test_robustness import SLOW, group_members  # noqa: E402
 
-pytestmark = [pytest.mark.scenes, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.scenes, pytest.mark.timeout(240)]  # slow: a Ray cluster per test; tests/service/test_units.py covers the engine choice
 
 _MARK = "HOLO_TEST_RAY_CLUSTER"  # in the environment of the jobs' drivers and CLIs (own sessions: see _cluster_pids)
 # Ray on loopback only: with this, Ray takes 127.0.0.1 as the node address instead of probing for a routable one

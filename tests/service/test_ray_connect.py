@@ -7,6 +7,8 @@ import pytest
 
 from service.workers import ray_engine
 
+pytestmark = pytest.mark.slow  # Ray Client start-up
+
 
 class FakeRay:
     """ray.init fails ``failures`` times with Ray's own error text, then connects."""

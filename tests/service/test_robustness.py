@@ -65,6 +65,7 @@ SLOW = {"optics": {"resolution_hw": [256, 256], "seed": 1}, "preset": "balanced"
         "encoder": "sgd", "iterations": 300}
 
 
+@pytest.mark.slow
 def test_cancel_running_and_queued_jobs(server_factory, scene_bundle):
     srv = server_factory("cancel", workers=1).start()
     with srv.client("submit") as c:
@@ -95,6 +96,7 @@ def test_cancel_running_and_queued_jobs(server_factory, scene_bundle):
     assert not (srv.data_dir / "jobs" / slow["id"] / "stack.npz").exists()
 
 
+@pytest.mark.slow
 def test_kill_9_of_a_worker_requeues_until_it_succeeds(server_factory, scene_bundle):
     srv = server_factory("kill", workers=1, extra=("--max-attempts", "3")).start()
     with srv.client("submit") as c:
@@ -113,6 +115,7 @@ def test_kill_9_of_a_worker_requeues_until_it_succeeds(server_factory, scene_bun
     assert "requeued" in srv.log()
 
 
+@pytest.mark.slow
 def test_a_job_that_keeps_dying_fails_with_a_reason(server_factory, scene_bundle):
     srv = server_factory("giveup", workers=1, extra=("--max-attempts", "1")).start()
     with srv.client("submit") as c:
@@ -124,6 +127,7 @@ def test_a_job_that_keeps_dying_fails_with_a_reason(server_factory, scene_bundle
     assert done["state"] == "failed" and "killed by signal 9" in done["error"] and "1 attempts" in done["error"]
 
 
+@pytest.mark.slow
 def test_server_killed_then_stopped_mid_queue_loses_nothing(server_factory, scene_bundle):
     srv = server_factory("restart", workers=1).start()
     with srv.client("submit") as c:

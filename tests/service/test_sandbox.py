@@ -208,6 +208,7 @@ def _submit(sbx, seed: int) -> dict:
         return r.json()
 
 
+@pytest.mark.slow
 def test_sandbox_on_refuses_to_start_when_not_possible(tmp_path):
     """`--sandbox on` is mandatory: where sandbox users cannot reach the data dir it says what to chmod."""
     data = tmp_path / "closed" / "data"  # tmp_path's ancestors are 0700 (pytest), so not traversable
@@ -220,6 +221,7 @@ def test_sandbox_on_refuses_to_start_when_not_possible(tmp_path):
     assert "chmod o+x" in r.stderr and "--sandbox off" in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_plan_runs_as_the_planner_uid(sbx):
     assert sbx["scene"]["plan_state"] == "ready", sbx["scene"]["plan_error"]
     assert sbx["plan_uids"] == {PLANNER}, sbx["plan_uids"]
@@ -228,6 +230,7 @@ def test_plan_runs_as_the_planner_uid(sbx):
     wait_for(lambda: not list((sbx["server"].data_dir / "sandbox").iterdir()), timeout=30, what="the plan's copy removed")
 
 
+@pytest.mark.slow
 def test_job_runs_as_its_slot_uid_and_its_dir_is_taken_back(sbx):
     data = sbx["server"].data_dir
     job = _submit(sbx, 7)
@@ -275,6 +278,7 @@ def test_job_runs_as_its_slot_uid_and_its_dir_is_taken_back(sbx):
     sbx["done_job_dir"] = job_dir
 
 
+@pytest.mark.slow
 def test_sandbox_users_cannot_read_the_database_the_lock_or_jobs(sbx):
     data = sbx["server"].data_dir
     # a finished job taken back by the service (the queued jobs of other tests may still be running as a slot)
@@ -306,6 +310,7 @@ def _job_of_seed(sbx, seed: int) -> dict:
     return sbx.get("queued", {}).get(seed) or _submit(sbx, seed)
 
 
+@pytest.mark.slow
 def test_a_job_that_lies_about_its_stack_hash_fails(sbx):
     job = _job_of_seed(sbx, 99)
     with sbx["server"].client("reader") as c:
@@ -315,6 +320,7 @@ def test_a_job_that_lies_about_its_stack_hash_fails(sbx):
         assert c.get(f"/v1/jobs/{job['id']}/stack").status_code == 409
 
 
+@pytest.mark.slow
 def test_an_artifact_swapped_for_a_link_to_the_database_is_dropped(sbx):
     data = sbx["server"].data_dir
     job = _job_of_seed(sbx, 98)
@@ -331,6 +337,7 @@ def test_an_artifact_swapped_for_a_link_to_the_database_is_dropped(sbx):
     assert "removed from its dir" in sbx["server"].log()
 
 
+@pytest.mark.slow
 def test_a_job_that_swaps_its_files_for_fifos_and_links_leaves_the_scheduler_running(sbx):
     """The scheduler (root) reads a running job's step.json and progress file on every tick: a FIFO there must
     not block it, and a link to a root-only file must not put that file's text into the job's progress."""

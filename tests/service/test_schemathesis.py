@@ -11,6 +11,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+pytestmark = pytest.mark.slow  # API fuzzing; test_hostile*.py send bad input by hand
+
 pytest.importorskip("schemathesis")
 
 

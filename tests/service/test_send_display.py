@@ -13,6 +13,8 @@ import pytest
 
 from tests.service.helpers import finished_job, planned_scene, start_agent, wait_for, wait_state, zip_dir
 
+pytestmark = pytest.mark.slow  # two finished jobs and a display agent; tests/service/test_web_phase.py sends a job to a display in the quick tier
+
 JOB = {"optics": {"resolution_hw": [16, 24], "seed": 11}, "preset": "fast", "frames": 1, "spp": 2,
        "encoder": "dpac"}
 

@@ -26,6 +26,8 @@ import tomllib
 from service.api.web import DOCS_CSP, WEB_DIR
 from tests.service.helpers import REPO, SMALL_JOB, wait_for, wait_state
 
+pytestmark = pytest.mark.slow  # headless Chromium; tests/service/test_units.py covers the page's API
+
 XSS_FOLDER = "<img src=x onerror=window.__xss=1>"
 XSS_MESSAGE = "<script>window.__xss=2</script><img src=x onerror=\"window.__xss=3\"> projector warm"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

@@ -113,6 +113,7 @@ def facing():
     return {fp: _plate_views(fp, 0.0, spp=1024 if fp == "directional" else 256) for fp in ("coded", "directional")}
 
 
+@pytest.mark.slow
 def test_a_glowing_plate_has_far_less_speckle_with_directional_frames(facing):
     def contrast(img):
         return float(np.mean(img.reshape(3, -1).std(axis=1) / img.reshape(3, -1).mean(axis=1)))
@@ -123,6 +124,7 @@ def test_a_glowing_plate_has_far_less_speckle_with_directional_frames(facing):
     assert beams < 0.5 * coded, (beams, coded)
 
 
+@pytest.mark.slow
 def test_a_white_plate_stays_white_in_every_view(facing):
     """beam_gain gives every colour the share a pupil takes of random phases: the directional views' colour is
     the coded ones' within 12 % (unscaled, red / blue would be 2x; measured: 1-8 %, the most for blue in the centre
@@ -136,6 +138,7 @@ def test_a_white_plate_stays_white_in_every_view(facing):
     assert d[-0.5].sum() == pytest.approx(d[0.5].sum(), rel=0.05)
 
 
+@pytest.mark.slow
 def test_a_tilted_plate_is_as_bright_from_the_left_as_from_the_right():
     """A plate turned 12 degrees leans ~1.2 degrees in hologram space; without Eq. B1's depth part its points'
     waves would leave in phase towards u_m tilted by twice that, out of the cone for most frames, and one side
@@ -146,6 +149,7 @@ def test_a_tilted_plate_is_as_bright_from_the_left_as_from_the_right():
     assert min(left, right) > 0.7 * centre, (left, centre, right)
 
 
+@pytest.mark.slow
 def test_every_beam_carries_its_share_at_every_wrp_margin():
     """A glowing plate at the WRP margin (4-8 pixel footprints: N_F = 2-4 for blue, where a hard-rimmed point's
     on-axis spectrum |1 - exp(i pi N_F)| vanishes at 4 and 8): the plane-wave amplitude each frame carries, read

@@ -130,6 +130,7 @@ def _channel_energy(field: np.ndarray) -> np.ndarray:
     return (np.abs(field.astype(np.complex128)) ** 2).sum(axis=(0, 2, 3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(CASES))
 def test_every_emitter_kind_lights_the_hologram_like_mitsubas_render(kind: str, tmp_path: Path) -> None:
     xml = _write_case(tmp_path / kind, kind)
@@ -149,6 +150,7 @@ def test_every_emitter_kind_lights_the_hologram_like_mitsubas_render(kind: str, 
     assert res.meta["stats"]["valid"] > 0 or not any(expected)
 
 
+@pytest.mark.slow
 def test_a_textured_area_light_in_view_is_imaged(tmp_path: Path) -> None:
     """The case of the issue: the emitter seen directly has a red-only checkerboard radiance; the hologram
     images its squares (red only) and the analysis no longer raises Texture::sample_spectrum()."""
@@ -169,6 +171,7 @@ def test_a_textured_area_light_in_view_is_imaged(tmp_path: Path) -> None:
     assert res.meta["stats"]["valid"] == res.meta["stats"]["rays"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["point", "area-checkerboard"])
 def test_field_amplitude_goes_as_the_square_root_of_the_emitted_power(kind: str, tmp_path: Path) -> None:
     """Four times the emitter's intensity: the same paths carry four times the radiance, so every sample's

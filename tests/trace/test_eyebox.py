@@ -85,6 +85,7 @@ def _colour(res, pupil_m: float) -> np.ndarray:
     return inner.reshape(3, -1).mean(axis=1)
 
 
+@pytest.mark.slow
 def test_every_colour_leaves_within_the_common_cone(plates):
     res = plates["common"]
     s = common_cone_sine(LAMS, 8e-6)

@@ -51,6 +51,7 @@ def dots(tmp_path_factory):
     return dot_texture(tmp_path_factory.mktemp("tex") / "dots.png")
 
 
+@pytest.mark.slow
 def test_plane_focuses_at_predicted_depth(dots):
     zc = 0.5
     res = render_loaded(scene(sensor=cam(), plane=emitting_plane(-zc, size=0.005, texture=dots)), optics(),
@@ -59,6 +60,7 @@ def test_plane_focuses_at_predicted_depth(dots):
     assert abs(z - z_holo(zc)) < 0.5 * dof, (z, z_holo(zc), dof)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wrp_planes", [1, 3])
 def test_two_planes_focus_at_their_own_depths(dots, wrp_planes):
     near = emitting_plane(-0.4, size=0.004, texture=dots, x=-0.004)
@@ -106,6 +108,7 @@ LEFT = (slice(6, HB - 6), slice(4, WB // 2 - 4))
 RIGHT = (slice(6, HB - 6), slice(WB // 2 + 4, WB - 4))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frame_phases", ["coded", "independent", "directional"])
 @pytest.mark.parametrize("wrp_planes", [1, 3])
 def test_equal_radiance_at_two_depths_is_equally_bright(wrp_planes, frame_phases):
@@ -124,6 +127,7 @@ def test_equal_radiance_at_two_depths_is_equally_bright(wrp_planes, frame_phases
     assert abs(a / b - 1) < 0.10, (a, b)
 
 
+@pytest.mark.slow
 def test_twice_the_radiance_gives_twice_the_intensity():
     dim = _half_plane(0.5, -1, radiance=1.0)
     bright = _half_plane(0.5, +1, radiance=2.0)

@@ -38,6 +38,7 @@ def test_grazing_floor():
     assert np.abs(res.wrp_field).max() > 0
 
 
+@pytest.mark.slow
 def test_total_internal_reflection_in_glass_block():
     # Looking obliquely into a thick glass block: rays refract in and meet the side walls beyond the
     # critical angle.
@@ -47,6 +48,7 @@ def test_total_internal_reflection_in_glass_block():
     assert res.meta["stats"]["delta_paths"] > 0
 
 
+@pytest.mark.slow
 def test_two_facing_mirrors_hit_the_cap():
     # A mirror hall: one mirror ahead, one behind the eye, facing each other; rays bounce until the cap.
     ahead = {"type": "rectangle", "to_world": T().translate([0, 0, -1]).scale(5), "bsdf": {"type": "conductor"}}
@@ -58,11 +60,13 @@ def test_two_facing_mirrors_hit_the_cap():
     assert np.abs(res.wrp_field).max() == 0  # nothing but mirrors: no image point survives
 
 
+@pytest.mark.slow
 def test_camera_inside_glass():
     ball = {"type": "sphere", "center": [0, 0, 0], "radius": 0.5, "bsdf": {"type": "dielectric"}}
     _render(scene(ball=ball, back=emitting_plane(-3.0)))
 
 
+@pytest.mark.slow
 def test_rays_escape_and_emitter_seen_directly():
     small = emitting_plane(-2.0, size=0.005)
     res = _render(scene(sensor=camera(fov=30), small=small))
@@ -77,6 +81,7 @@ def test_black_scene_gives_zero_field():
     assert "black" in " ".join(res.meta["plan"]["summary"])
 
 
+@pytest.mark.slow
 def test_surface_close_to_the_wrp_margin():
     # A surface 5 cm from the eye maps far from z_inf; the WRP must still lie in front of it.
     near = emitting_plane(-0.05, size=0.5)
@@ -86,6 +91,7 @@ def test_surface_close_to_the_wrp_margin():
     assert m["z_wrp_m"] > m["analysis"]["z_near_holo_m"]
 
 
+@pytest.mark.slow
 def test_point_like_emitter_between_the_prepass_rays_keeps_the_wrp_in_front():
     """A 0.1 mm glowing square 0.5 m away falls between the analysis grid's rays (0.16 mm apart there). Without
     its bounding box the WRP lands behind it: the rays then start beyond the dot and its light is lost."""
@@ -104,12 +110,14 @@ def test_point_like_emitter_between_the_prepass_rays_keeps_the_wrp_in_front():
     assert np.abs(res.wrp_field).max() > 0
 
 
+@pytest.mark.slow
 def test_sub_wavelength_pitch_hemisphere():
     optics = OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(640.0,), pitch_um=0.25, frames=1,
                           focal_length_mm=20.0)
     _render(scene(back=emitting_plane(-1.0)), optics)
 
 
+@pytest.mark.slow
 def test_scene_that_cannot_fit_is_refused():
     near = emitting_plane(-0.001, size=0.5)
     optics = OpticsConfig(resolution_hw=(16, 16), wavelengths_nm=(516.5,), frames=1, focal_length_mm=50.0,

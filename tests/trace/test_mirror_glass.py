@@ -22,6 +22,7 @@ def _emitter(texture: str, to_world) -> dict:
             "emitter": {"type": "area", "radiance": {"type": "bitmap", "filename": texture}}}
 
 
+@pytest.mark.slow
 def test_flat_mirror_focuses_at_the_virtual_image(dots):
     # Mirror 0.4 m ahead turned 45 deg: the view goes to +x, where a dot plane faces it 0.1 m away.
     mirror = {"type": "rectangle", "to_world": T().translate([0, 0, -0.4]).rotate([0, 1, 0], 45).scale(0.05),
@@ -35,6 +36,7 @@ def test_flat_mirror_focuses_at_the_virtual_image(dots):
     assert abs(z - z_holo(0.4)) > 1.5 * dof  # not at the mirror
 
 
+@pytest.mark.slow
 def test_convex_mirror_sphere_obeys_the_mirror_equation(dots):
     # Sphere radius 0.2 m centred 0.5 m ahead (vertex at 0.3 m); dot plane 0.5 m behind the eye facing it.
     radius, vertex, d_obj = 0.2, 0.3, 0.8
@@ -50,6 +52,7 @@ def test_convex_mirror_sphere_obeys_the_mirror_equation(dots):
     assert abs(z - z_holo(vertex + d_obj)) > 2 * dof  # not at the unfolded path length
 
 
+@pytest.mark.slow
 def test_glass_slab_brings_the_image_closer(dots):
     t, n, zc = 0.15, 1.5, 0.5
     slab = {"type": "cube", "to_world": T().translate([0, 0, -0.375]).scale([0.05, 0.05, t / 2]),
@@ -73,6 +76,7 @@ def _signal_and_noise(loaded, optics_, spp: int):
     return float(np.real(np.vdot(f[0], f[1]))), float(np.sum(np.abs(f[0] - f[1]) ** 2) / 2)
 
 
+@pytest.mark.slow
 def test_rays_through_a_glass_ball_add_up_coherently(tmp_path):
     # The paper's glass scene (a ball imaging a dotted card into the air in front of it, 0.72 m) at the paper
     # display with virtual infinity at 4 mm. The rays of one card point reach the WRP through different parts

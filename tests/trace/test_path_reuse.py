@@ -26,6 +26,7 @@ def result():
     return render_loaded(_scene(), OPT, RenderOptions(preset="balanced", spp=16))
 
 
+@pytest.mark.slow
 def test_frames_have_equal_mean_intensity(result):
     inten = (np.abs(result.wrp_field[:, 0]) ** 2).mean(axis=(1, 2))
     assert np.all(inten > 0)

@@ -54,7 +54,8 @@ def _per_direction(d: np.ndarray, ok: np.ndarray) -> list[float]:
     return out
 
 
-@pytest.fixture(scope="module", params=[False, True], ids=["poles-on-the-axis", "poles-sideways"])
+@pytest.fixture(scope="module", params=[pytest.param(False, marks=pytest.mark.slow), True],
+                ids=["poles-on-the-axis", "poles-sideways"])
 def ball_scene(request):
     return scene(sensor=camera(fov=5.0), ball=_ball(request.param), card=emitting_plane(-CARD_M)).scene
 

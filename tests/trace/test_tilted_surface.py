@@ -12,10 +12,12 @@ plate's in the left view, 5 % the other way in the right one).
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tests.trace.optics_probe import plate_view_colours
 
 
+@pytest.mark.slow
 def test_a_tilted_white_plate_has_the_colour_and_brightness_of_a_facing_one_in_every_view():
     facing, tilted = plate_view_colours(0.0, spp=512), plate_view_colours(12.0, spp=512)
     for c in (facing, tilted):

@@ -11,6 +11,8 @@ import pytest
 
 from tests.project_scenes import SCENE_SOURCES
 
+pytestmark = pytest.mark.slow  # millions of rays against the reference chain; tests/trace/test_sphere_pole.py runs both on few rays
+
 R = 128 * 128 * 32  # a 128 x 128 image, 32 rays a pixel
 
 

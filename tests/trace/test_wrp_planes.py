@@ -101,6 +101,7 @@ def _two_estimates(sc, planes: int, spp: int):
     return [r.wrp_field.astype(np.complex128) for r in out], out[0].meta
 
 
+@pytest.mark.slow
 def test_two_planes_estimate_the_same_field_with_far_less_noise(two_depths):
     """Noise energy per ray grows as r^2 (docs/design.md §4): recording the far card 1 mm instead of 6 mm from its
     plane cuts its noise about 36x; the means of the one- and two-plane estimates are the same field."""
