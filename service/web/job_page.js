@@ -8,7 +8,7 @@ import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
 import { actualSeconds, eta, jobName, loadText, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
-import { showJobPicture } from "./scene_picture.js";
+import { clearJobPicture, showJobPicture } from "./scene_picture.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
 
 export function leaveJobPage() {
@@ -188,6 +188,7 @@ function resetJobPage() {
   $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
   $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
   for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun", "job-compare"]) show(id, false);
+  clearJobPicture();
   resetPhaseFrames();
   resetEvaluation();
 }
@@ -202,12 +203,15 @@ export async function showJob(id) {
     job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
   } catch (err) {
     if (aborted(err) || state.page !== page) return;
+    // nothing of a job to show: only the address asked for and why
     setText($("job-id"), id);
-    setText($("job-error"), err.status === 404 ? "No such job (or it is another owner's)." : err.message);
-    show("timings-card", false);
+    setText($("job-name-title"), err.status === 404 ? "not found" : "");
+    setText($("job-error"), err.status === 404 ? "Job not found: no such job (or it is another owner's)."
+      : `Could not load the job: ${err.message}`);
+    show("timings-card", false); show("plan-card", false);
     return;
   }
-  show("timings-card", true);
+  show("timings-card", true); show("plan-card", true);
   await sceneName(job.scene_id);
   if (state.page !== page) return;
   renderJob(job);

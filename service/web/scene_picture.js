@@ -86,6 +86,11 @@ export function clearFormPicture() {
   if (holder) { clear(holder); holder.hidden = true; }
 }
 
+export function clearJobPicture() {
+  const holder = $("job-scene-picture");
+  if (holder) { clear(holder); holder.hidden = true; }
+}
+
 // A job's page: the scene's picture with the box at the job's own optics (GET /v1/jobs/{id} gives it; the
 // scene is asked afresh, since a list's copy may predate its plan).
 export async function showJobPicture(job, signal) {

@@ -41,6 +41,7 @@ function jobBody() {
   if ($("spp").value) body.spp = Number($("spp").value);
   if ($("iterations").value && body.encoder === "sgd") body.iterations = Number($("iterations").value);
   if ($("time-limit").value) body.render_time_limit_s = Number($("time-limit").value);
+  body.method = $("method").value;
   const planes = $("wrp-planes").value;
   body.wrp_planes = planes === "auto" ? "auto" : Number(planes);
   if ($("display").value.trim()) body.display = $("display").value.trim();
@@ -242,14 +243,16 @@ export async function prefillRerun(job) {
   sel.value = `job:${job.id}`;
   $("res-h").value = optics.resolution_hw[0];
   $("res-w").value = optics.resolution_hw[1];
-  $("frames").value = optics.frames;
+  // every option the job was made with, as it was stored: submitted unchanged, the job comes out the same
+  $("frames").value = o.frames ?? optics.frames;
   $("preset").value = o.preset;
   $("encoder").value = o.encoder;
-  $("time-limit").value = o.render_time_limit_s || "";
-  $("spp").value = o.spp && !o.render_time_limit_s ? o.spp : "";
+  $("method").value = o.method || "wrp";
+  $("time-limit").value = o.render_time_limit_s ?? "";
+  $("spp").value = o.spp ?? "";  // a time-limited job's is its cap of rays per pixel
   $("iterations").value = o.iterations ?? "";
   $("quality-db").value = "";  // a target was resolved into the options above when the job was made
-  $("wrp-planes").value = String(o.wrp_planes || "auto");
+  $("wrp-planes").value = String(o.wrp_planes ?? "auto");
   $("evaluate").checked = !!o.evaluate;
   $("display").value = job.display || "";
   $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);

