@@ -35,7 +35,7 @@ WEB_SLOW_UNTIL_MARKED: dict[str, str] = {
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
     """../shared/scenes, or a skip that says clearly that it is missing. Only for tests that need third-party
-    data as such; every other test takes :func:`scene_bundle` / :func:`scene_bundles`, which never skip."""
+    data as such; a test that runs on the project's scenes too takes :func:`bundles_of`."""
     if not shared_available():
         pytest.skip(f"shared scenes not found at {SHARED_SCENES} (clone the project beside ../shared), or "
                     "hidden by HOLO_NO_SHARED")
@@ -49,25 +49,27 @@ def project_scene_bundles(tmp_path_factory: pytest.TempPathFactory) -> SceneBund
 
 
 @pytest.fixture(scope="session")
-def scene_bundles(project_scene_bundles: SceneBundles) -> SceneBundles:
-    """The shared bundles when ../shared is there (and HOLO_NO_SHARED unset), else the project's stand-ins."""
-    return SceneBundles("shared", SHARED_SCENES) if shared_available() else project_scene_bundles
+def scene_bundle(project_scene_bundles: SceneBundles) -> Callable[[str], Path]:
+    """``scene_bundle("cbox-mirror-glass")``: the folder of the project's own bundle of that name, the same data
+    on a fresh clone and in CI. A test that should also run on ../shared's bundle takes :func:`bundles_of` with a
+    parametrisation whose id says ``shared``."""
+    return project_scene_bundles.folder
 
 
 @pytest.fixture(scope="session")
-def scene_bundle(scene_bundles: SceneBundles) -> Callable[[str], Path]:
-    """``scene_bundle("cbox-mirror-glass")``: that bundle's folder, shared if present, else the project's."""
-    return scene_bundles.folder
-
-
-@pytest.fixture(scope="session")
-def bundles_by_source(project_scene_bundles: SceneBundles) -> dict[str, SceneBundles]:
-    """Every available source by name (tests.project_scenes.SCENE_SOURCES): ``project`` always, ``shared``
-    when present. For cheap tests that run on both."""
-    out = {"project": project_scene_bundles}
-    if shared_available():
-        out["shared"] = SceneBundles("shared", SHARED_SCENES)
-    return out
+def bundles_of(project_scene_bundles: SceneBundles) -> Callable[[str], SceneBundles]:
+    """``bundles_of(source)`` for a source of tests.project_scenes.SCENE_SOURCES: ``"project"`` always,
+    ``"shared"`` (../shared/scenes) or a skip that says it is missing."""
+    def of(source: str) -> SceneBundles:
+        if source == "project":
+            return project_scene_bundles
+        if source != "shared":
+            raise ValueError(f"source must be 'project' or 'shared', got {source!r}")
+        if not shared_available():
+            pytest.skip(f"shared scenes not found at {SHARED_SCENES} (clone the project beside ../shared), or "
+                        "hidden by HOLO_NO_SHARED")
+        return SceneBundles("shared", SHARED_SCENES)
+    return of
 
 
 @pytest.hookimpl(tryfirst=True)  # before pytest's own -m selection reads the markers

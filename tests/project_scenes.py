@@ -1,8 +1,7 @@
-"""The scenes the tests run on: the third-party bundles in ``../shared/scenes`` when they are there, else the
-project's own equivalents, written by project code into a session folder with the same layout.
-
-A fresh clone has no ``../shared``; every test that would use a shared bundle runs on its stand-in instead,
-with the same assertions. ``HOLO_NO_SHARED=1`` pretends that ``../shared`` is absent (to check just that).
+"""The scenes the tests run on: the project's own, written by project code into a session folder with the layout
+of the third-party bundles in ``../shared/scenes``, and those bundles themselves for the tests whose id says
+``shared`` (they skip, saying so, when ``../shared`` is absent). A test id runs the same data on a fresh clone and
+in CI. ``HOLO_NO_SHARED=1`` pretends that ``../shared`` is absent (to check just that).
 
 =====================  ==============================================  ==========================================
 shared bundle          what the tests use it for                       the project's stand-in
@@ -39,8 +38,9 @@ def shared_available() -> bool:
     return all((SHARED_SCENES / name / entry).is_file() for name, entry in ENTRIES.items())
 
 
-# Where a test runs on each available source: the project's scenes always, the shared ones when present.
-SCENE_SOURCES: list[str] = ["project", *(["shared"] if shared_available() else [])]
+# The sources a test parametrised over both runs on (by the ``bundles_of`` fixture of tests/conftest.py): the
+# project's scenes, and ../shared's, whose case skips saying so when ../shared is absent; the id names the data.
+SCENE_SOURCES: list[str] = ["project", "shared"]
 
 _ROOM = """
     <bsdf type="diffuse" id="wall"><rgb name="reflectance" value="0.7, 0.68, 0.62"/></bsdf>

@@ -24,7 +24,7 @@ def _have_service() -> bool:
 
 @pytest.mark.skipif(not _have_service(), reason="holo serve / token / submit or Mitsuba not installed")
 def test_agent_shows_what_the_service_rendered(tmp_path, scene_bundle):
-    scene = scene_bundle("cbox-mirror-glass")  # ../shared's, else the project's own box
+    scene = scene_bundle("cbox-mirror-glass")  # the project's own box
     data = tmp_path / "svc"
     tok = subprocess.run([*HOLO, "token", "create", "--data-dir", str(data), "--scope", "submit", "--scope", "read",
                           "--scope", "agent"], env=env(), capture_output=True, text=True, timeout=60)

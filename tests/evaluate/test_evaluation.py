@@ -32,6 +32,7 @@ from holocore.evaluate.scoring import (
     load_slm_field,
     view_offsets_m,
 )
+from tests.project_scenes import SCENE_SOURCES
 
 HOLO = [sys.executable, "-m", "holo"]
 LAM = 516.5e-9
@@ -287,19 +288,21 @@ def test_near_and_far_focus_like_the_ground_truth_and_layers_misplace_the_mirror
     assert ours_far > lay_far + 1.0, (ours_far, lay_far)
 
 
-# ---- the Cornell box with mirror and glass (../shared's when present, else the project's own) -----------------
+# ---- the Cornell box with mirror and glass: the project's own; the speckle and colour test on ../shared's too ---
 @pytest.fixture(scope="module")
-def cbox(scene_bundle):
+def cbox(request, bundles_of):
+    """The box rendered once per source: ``project`` unless a test asks for another (indirect parametrisation)."""
     from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.load import load_scene
 
-    loaded = load_scene(scene_bundle("cbox-mirror-glass"))
+    loaded = load_scene(bundles_of(getattr(request, "param", "project")).entry("cbox-mirror-glass"))
     optics = OpticsConfig(resolution_hw=(48, 64), frames=8, z_inf_mm=2.0, fit_camera_fov=True)  # the whole box
     res = render_loaded(loaded, optics, RenderOptions(preset="balanced", spp=64))
     return loaded, optics, res
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("cbox", SCENE_SOURCES, indirect=True)
 def test_cbox_frames_average_speckle_and_layers_keep_colour_balance(cbox):
     from holocore.baselines.layers import render_layers
 

@@ -1,5 +1,5 @@
-"""EffectPlan on the scene bundles (the project's stand-ins always, ../shared's third-party scenes when
-present), and planned vs forced renders (docs/design.md §8)."""
+"""EffectPlan on the scene bundles (the project's stand-ins, and ../shared's third-party scenes in the cases
+whose id says shared), and planned vs forced renders (docs/design.md §8)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ OPT = OpticsConfig(resolution_hw=(32, 32), frames=2, fit_camera_fov=True)  # f f
 
 
 @pytest.fixture(scope="module", params=SCENE_SOURCES)
-def plans(request, bundles_by_source):
-    bundles = bundles_by_source[request.param]
+def plans(request, bundles_of):
+    bundles = bundles_of(request.param)
     out = {}
     for key, name in {"cbox": "cbox-mirror-glass", "bidir": "veach-bidir", "mis": "veach-mis"}.items():
         out[key] = plan_scene(load_scene(bundles.entry(name)), OPT, RenderOptions(preset="balanced"))
@@ -54,8 +54,8 @@ def test_veach_mis_plan_has_no_coherent_loop(plans):
 
 
 @pytest.mark.parametrize("source", SCENE_SOURCES)
-def test_forcing_turns_everything_on(bundles_by_source, source):
-    pl = plan_scene(load_scene(bundles_by_source[source].entry("veach-mis")),
+def test_forcing_turns_everything_on(bundles_of, source):
+    pl = plan_scene(load_scene(bundles_of(source).entry("veach-mis")),
                     OpticsConfig(resolution_hw=(16, 16), focal_length_mm=20.0, frames=1),
                     RenderOptions(preset="fast", force_all_effects=True))
     p = pl.plan

@@ -32,8 +32,8 @@ OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
 
 
 @pytest.mark.parametrize("source", SCENE_SOURCES)
-def test_scene_bundles_pass(bundles_by_source, source):
-    bundles = bundles_by_source[source]
+def test_scene_bundles_pass(bundles_of, source):
+    bundles = bundles_of(source)
     for name in ("cbox-mirror-glass", "veach-bidir", "veach-mis"):
         rep = validate_bundle(bundles.folder(name), entry=bundles.entry(name).name)
         assert rep.entry.suffix == ".xml" and rep.sha256 and rep.total_bytes > 0

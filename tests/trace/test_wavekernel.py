@@ -1,6 +1,6 @@
 """The fused wave-path kernel against the reference implementation (first hit, delta chain, then Mitsuba's
 ``path`` from the last chain vertex) on the cbox with its mirror and glass spheres: the project's own
-(holocore.scene.demo.write_cbox_scene) and ../shared's when present."""
+(holocore.scene.demo.write_cbox_scene) and ../shared's (the cases whose id says shared)."""
 
 from __future__ import annotations
 
@@ -17,14 +17,14 @@ R = 128 * 128 * 32  # a 128 x 128 image, 32 rays a pixel
 
 
 @pytest.fixture(scope="module", params=SCENE_SOURCES)
-def both(request, bundles_by_source):
+def both(request, bundles_of):
     from holocore.runtime.mitsuba_env import mitsuba
     from holocore.scene.load import load_scene
     from holocore.trace.kernel import trace_wave_paths
     from holocore.trace.reference_chain import aligned, trace_chain
 
     mi = mitsuba()
-    loaded = load_scene(bundles_by_source[request.param].entry("cbox-mirror-glass"))
+    loaded = load_scene(bundles_of(request.param).entry("cbox-mirror-glass"))
     M = np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
     rng = np.random.default_rng(0)
     tan = math.tan(math.radians(loaded.fov_x_deg) / 2)
