@@ -96,8 +96,9 @@ def plan(
     except (ValueError, FileNotFoundError) as exc:
         fail(str(exc))
     from holocore.display.profiles import display_meta
+    from holocore.plan.stored_plan import stored
 
-    doc = {**pl.to_dict(), "optics": json.loads(optics_cfg.model_dump_json()), **display_meta(profile, optics_cfg)}
+    doc = {**stored(pl, optics_cfg), **display_meta(profile, optics_cfg)}
     if picture is not None:
         doc["picture"] = _write_picture(loaded, picture, width=picture_width, spp=picture_spp)
     if probe:

@@ -9,7 +9,6 @@ import math
 from types import SimpleNamespace
 from typing import Any, Optional
 
-from holocore.display.optics import OpticsConfig
 from holocore.plan.estimate import (
     estimate_breakdown,
     features,
@@ -19,6 +18,8 @@ from holocore.plan.estimate import (
 )
 from holocore.plan.estimate_probe import Probe, estimate_with_probe
 from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
+from holocore.plan.presets import PRESETS
+from holocore.plan.stored_plan import scene_depth_m, wrp_distance_m
 from service.models import JobRequest, effective_optics
 from service.quality import job_quality, recording_radius
 from service.settings import JobLimits
@@ -26,13 +27,9 @@ from service.settings import JobLimits
 __all__ = ["estimate_cost", "hologram_seconds", "calibration_or_none", "plane_border_px", "job_memory",
            "memory_admission_error"]
 
-# Rays per pixel a preset typically picks when spp is not given (the renderer chooses from the scene depth,
-# between the preset's bounds; see holocore/plan/presets.py PRESETS).
-_TYPICAL_SPP = {"fast": 16, "balanced": 128, "reference": 1024}
-
-
 def _spp(req: JobRequest) -> int:
-    return req.spp if req.spp is not None else _TYPICAL_SPP[req.preset]
+    """Rays per pixel: the job's, else what its preset typically picks (the renderer chooses from the depth)."""
+    return req.spp if req.spp is not None else PRESETS[req.preset].typical_spp
 
 
 def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,
@@ -148,7 +145,7 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         radius = recording_radius(scene_plan) if scene_plan else None
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0,
-                                    z_wrp_m=_wrp_distance_m(o, scene_plan), calibration=cal)
+                                    z_wrp_m=wrp_distance_m(scene_plan, o), calibration=cal)
         encode = stages.get("encode", 0.0)
         render = stages["total"] - encode
         probe = _scene_probe(scene_plan)
@@ -169,42 +166,6 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         return out(1.5e-6 * rays + 4e-7 * pix, enc, rays, spp, "cpu-linear-v1", 2e-7 * h * w * c)
 
 
-def _wrp_distance_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
-    """The WRP's distance from the SLM with these optics (m), from the scene's plan (made at its own optics):
-    its depth beyond z_inf scales with (f / f_plan)^2 like every hologram depth. None (z_inf is then assumed)
-    when the plan does not say."""
-    try:
-        ana = scene_plan["analysis"]
-        f_plan = float(scene_plan["focal_length_m"])
-        beyond = float(ana["z_wrp_m"]) - float(scene_plan["optics"]["z_inf_mm"]) * 1e-3
-        f = o.focal_length_m((scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg"))
-    except (KeyError, TypeError, ValueError):
-        return None
-    z = o.z_inf_m + (f / f_plan) ** 2 * beyond
-    return z if math.isfinite(z) and z > 0 else None
-
-
-def _scene_depth_m(o: OpticsConfig, scene_plan: Optional[dict]) -> Optional[float]:
-    """How far behind the WRP the scene's farthest image point lies with these optics (m), from the scene's
-    plan (made at its own optics): hologram depth is z_inf + f^2 / zc, so depths scale with (f / f_plan)^2,
-    and the WRP lies one margin in front of the nearest point. None when the plan does not say."""
-    try:
-        ana = scene_plan["analysis"]
-        near, far = ana["z_near_holo_m"], ana["z_far_holo_m"]
-        f_plan = float(scene_plan["focal_length_m"])
-        cam_fov = (scene_plan.get("field_of_view") or {}).get("camera_fov_x_deg")
-        f = o.focal_length_m(cam_fov)
-    except (KeyError, TypeError, ValueError):
-        return None
-    if near is None or far is None:  # nothing visible: one plane will do
-        return 0.0
-    scale = (f / f_plan) ** 2
-    theta_min = min(o.theta_max(lam) for lam in o.wavelengths_m)
-    margin = o.wrp_margin_px * o.pitch_m / math.tan(theta_min)
-    depth = scale * (float(near) - float(far)) + margin
-    return depth if math.isfinite(depth) and depth >= 0 else None
-
-
 def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: str = "ready",
                     limits: Optional[JobLimits] = None) -> Optional[int]:
     """The widest border (px) a deeper recording plane of the job can have: 0 with one plane; from the scene's
@@ -222,7 +183,7 @@ def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: 
     theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
     if plan_state != "ready":  # the plan failed: nothing is known of the scene but the bound
         return deepest_border_px(bound_m, pitch_m=o.pitch_m, theta_max=theta)
-    depth = _scene_depth_m(o, scene_plan)
+    depth = scene_depth_m(scene_plan, o)
     if depth is None:  # a plan without the analysis (from before it was stored): not known
         return None
     return deepest_border_px(min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)

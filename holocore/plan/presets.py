@@ -35,10 +35,14 @@ class Preset:
     amp_spp: int  # incoherent radiance samples per image point
     gi_depth: int  # global-illumination bounces at most
     use_cache: bool  # the ambient radiance cache (unless every effect is forced on)
+    typical_spp: int  # what it typically picks (a scene of typical depth): estimates made without the scene's plan
 
 
 PRESETS: Mapping[PresetName, Preset] = MappingProxyType({
-    "fast": Preset(noise_to_signal=2.0, spp_min=4, spp_max=128, amp_spp=1, gi_depth=3, use_cache=True),
-    "balanced": Preset(noise_to_signal=1.0, spp_min=16, spp_max=512, amp_spp=2, gi_depth=6, use_cache=False),
-    "reference": Preset(noise_to_signal=0.1, spp_min=64, spp_max=8192, amp_spp=8, gi_depth=12, use_cache=False),
+    "fast": Preset(noise_to_signal=2.0, spp_min=4, spp_max=128, amp_spp=1, gi_depth=3, use_cache=True,
+                   typical_spp=16),
+    "balanced": Preset(noise_to_signal=1.0, spp_min=16, spp_max=512, amp_spp=2, gi_depth=6, use_cache=False,
+                       typical_spp=128),
+    "reference": Preset(noise_to_signal=0.1, spp_min=64, spp_max=8192, amp_spp=8, gi_depth=12,
+                        use_cache=False, typical_spp=1024),
 })

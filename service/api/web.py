@@ -22,7 +22,6 @@ plain HTML written from the schema: FastAPI's try-it pages, which load their scr
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -32,6 +31,7 @@ from fastapi import APIRouter, Request
 from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, Response
 
+from holocore.plan import stored_plan
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.files import file_response
@@ -190,54 +190,10 @@ def _estimate_warnings(req: JobRequest, scene: dict, optics) -> list[str]:
 
 
 def plan_at_options(req: JobRequest, scene: dict, *, max_spp: Optional[int] = None) -> Optional[dict]:
-    """The effect plan in words that the job's options would give, from the scene's stored plan (made at the
-    scene's default optics) without loading the scene: the inventory and pre-pass as they were, the farthest
-    sub-hologram rescaled to these optics (hologram depth grows with f^2, its radius in pixels with
-    tan(theta) / pitch), the job's preset, frames, colours and rays. The recording planes are placed when the
-    job renders (that needs the image points' depths), so they are only named here."""
+    """The effect plan in words that the job's options would give (holocore.plan.stored_plan), from the scene's
+    stored plan when it is ready."""
     plan = scene.get("plan") if scene.get("plan_state") == "ready" else None
-    if not isinstance(plan, dict):
-        return None
-    from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
-    from holocore.display.profiles import field_of_view_report
-    from holocore.plan.effects import SceneInventory, make_plan
-
-    try:
-        o = effective_optics(req)
-        ana = plan.get("analysis") or {}
-        inv = SceneInventory(**plan["inventory"])
-        cam_fov = (plan.get("field_of_view") or {}).get("camera_fov_x_deg")
-        theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
-        radius = float(ana.get("subhologram_radius_px") or 0.0)
-        try:
-            po = OpticsConfig(**plan["optics"])
-            f_plan, f = float(plan["focal_length_m"]), o.focal_length_m(cam_fov)
-            t_plan = math.tan(min(max(po.theta_max(lam) for lam in po.wavelengths_m), MAX_CONE_HALF_ANGLE_RAD))
-            t_job = math.tan(min(theta, MAX_CONE_HALF_ANGLE_RAD))
-            radius *= (f / f_plan) ** 2 * (t_job / o.pitch_m) / (t_plan / po.pitch_m)
-        except (KeyError, TypeError, ValueError, ZeroDivisionError):
-            pass  # a plan without its optics: the radius as planned
-        lit = ana.get("colors_lit")
-        lit = lit if isinstance(lit, list) and len(lit) == len(o.wavelengths_nm) else None
-        words = make_plan(inv, preset=req.preset, frames=o.frames, n_colors=len(o.wavelengths_nm), colors_lit=lit,
-                          spp=req.spp, max_spp=max_spp,
-                          max_delta_seen=ana.get("max_delta_seen"), prepass_capped=int(ana.get("prepass_capped") or 0),
-                          subhologram_radius_px=radius, theta_max=theta, wrp_planes_asked=1,
-                          z_inf_m=o.z_inf_m).summary
-        if req.method == "direct":
-            words.append("direct method: the rays are recorded on the SLM itself")
-        elif req.wrp_planes == "auto":
-            words.append("wave recording planes: as many as the scene's depth calls for (auto), placed when it "
-                         "renders")
-        elif req.wrp_planes > 1:
-            words.append(f"{req.wrp_planes} wave recording planes (asked for), placed at the scene's depths when "
-                         "it renders")
-        if cam_fov is not None:
-            words.append(field_of_view_report(o, float(cam_fov))["summary"])
-        words += [w for w in plan.get("summary") or [] if isinstance(w, str) and w.startswith("ignored:")]
-    except (KeyError, TypeError, ValueError):
-        return None
-    return {"summary": words, "source": "the scene's plan at these options"}
+    return stored_plan.plan_at_options(plan, effective_optics(req), req.hologram_options(), max_spp=max_spp)
 
 
 # ---- pictures -------------------------------------------------------------------------------------------------
