@@ -4,11 +4,12 @@
 // they share).
 
 import { ApiError, getJSON, setUnauthorizedHandler, token } from "./api.js";
-import { $, setText } from "./dom.js";
+import { $, clear, setText } from "./dom.js";
 import { leaveCompare, routeCompare } from "./compare.js";
 import { leaveJobPage, showJob } from "./job_page.js";
 import { refreshHome } from "./jobs_list.js";
-import { cancelEstimate, estimateSoon, initForm, loadProfiles, prefillRerun } from "./submit_form.js";
+import { estimateSoon, initForm, loadProfiles, prefillRerun, resetForm } from "./submit_form.js";
+import { forgetPictures } from "./scene_picture.js";
 import { aborted, show, state, status } from "./state.js";
 
 // ---- sign in / out -------------------------------------------------------------------------------------------
@@ -16,11 +17,25 @@ function signedOut(message = "") {
   token.clear();
   state.me = null;
   stopAll();
-  cancelEstimate();
+  forgetUser();
   show("signin", true); show("home", false); show("job", false); show("compare", false); show("signout", false);
   setText($("who"), "");
   setText($("signin-error"), message);
   $("token").focus();
+}
+
+// Everything the page holds for the signed-in owner goes with them: the form, the scenes and jobs it knows, the
+// lists, the pictures.
+function forgetUser() {
+  resetForm();
+  forgetPictures();
+  for (const u of state.thumbs.values()) if (u) URL.revokeObjectURL(u);
+  for (const m of [state.scenes, state.jobs, state.shown, state.thumbs]) m.clear();
+  state.rerun = null; state.rerunPending = null;
+  for (const id of ["jobs", "displays"]) clear($(id).tBodies[0]);
+  const queue = $("queue-line");
+  if (queue) setText(queue, "");
+  status("");
 }
 
 async function signIn(ev) {
@@ -75,7 +90,7 @@ function route() {
     const again = state.rerunPending;
     state.rerunPending = null;
     if (again) prefillRerun(again).catch((err) => status(`Could not re-run: ${err.message}`, true));
-    else if (state.scene) estimateSoon();
+    else if (state.scene && state.me.may_submit) estimateSoon();  // a read-only token has no form
   }
 }
 

@@ -86,6 +86,14 @@ export function clearFormPicture() {
   if (holder) { clear(holder); holder.hidden = true; }
 }
 
+// Signing out: no picture of one owner's scene stays for the next (its blob: URLs are let go).
+export function forgetPictures() {
+  for (const u of urls.values()) u.then((url) => URL.revokeObjectURL(url), () => {});
+  urls.clear();
+  clearFormPicture();
+  clearJobPicture();
+}
+
 export function clearJobPicture() {
   const holder = $("job-scene-picture");
   if (holder) { clear(holder); holder.hidden = true; }

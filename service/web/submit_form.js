@@ -268,6 +268,17 @@ export async function prefillRerun(job) {
 // No estimate goes out after this (signing out), and none that was out comes back in.
 export function cancelEstimate() { clearTimeout(estimateTimer); estimateSeq++; }
 
+// Signing out: the form as a fresh page has it, so the next person sees nothing of this one's scene or options.
+export function resetForm() {
+  cancelEstimate();
+  forgetScene();
+  state.rerunPending = null;
+  clear($("scene-info"));
+  $("upload-form").reset();
+  $("job-form").reset();
+  if (state.profiles) { $("profile").value = state.profiles.default; applyProfile(); }
+}
+
 // The form's own listeners (the page's start calls this once).
 export function initForm() {
   $("upload-form").addEventListener("submit", upload);

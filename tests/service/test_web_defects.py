@@ -8,6 +8,7 @@ One server, one browser and the jobs made through the API are shared by the modu
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -106,3 +107,48 @@ def test_a_missing_jobs_page_shows_nothing_of_the_job_before(page, made_jobs):
         assert not page.visible(id_), f"{id_} is still shown"
     assert not page.js("return document.getElementById('job-scene-img')"), "the first job's picture is kept"
     assert page.text("job-facts") == "" and page.text("plan") == ""
+
+
+def _switch_user(p: Page, token: str) -> None:
+    """Sign out with the page's button and sign in with ``token`` in the same document (no reload)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    p.d.find_element(By.ID, "signout").click()
+    p.until(lambda: p.visible("signin"), what="the sign-in form")
+    p.d.find_element(By.ID, "token").send_keys(token + Keys.ENTER)
+    p.until(lambda: p.visible("home"), what="the home page")
+
+
+def test_signing_out_leaves_nothing_of_the_form_to_the_next_owner(page, server, files):  # noqa: F811
+    from service.auth import create_token
+    from service.db import Database
+
+    other = create_token(Database(server.data_dir / "service.db"), scopes=["submit"], owner="someone-else")[1]
+    defaults = page.js("return ['frames', 'res-h', 'res-w', 'preset'].map((id) => document.getElementById(id).value)")
+    page.upload(files["demo"])
+    page.until(lambda: page.enabled("submit-button") and page.visible("form-fov-box"), what="the demo's estimate")
+    page.set("frames", "3")
+    page.set("job-name", "first owner's job")
+    page.choose("preset", "reference")
+    page.until(lambda: "3 frame(s)" in page.text("form-plan"), what="the plan at 3 frames")
+    page.d.get_log("browser")  # what the console said so far
+    _switch_user(page, other)
+    time.sleep(1.0)  # past the estimate's debounce
+    assert page.text("scene-info") == "", page.text("scene-info")
+    for id_ in ("job-form", "form-scene-picture", "rerun-note"):
+        assert not page.visible(id_), f"{id_} is still shown"
+    assert page.js("return document.getElementById('bundle').files.length") == 0
+    assert page.js("return document.getElementById('job-name').value") == ""
+    assert page.js("return ['frames', 'res-h', 'res-w', 'preset'].map((id) => document.getElementById(id).value)") \
+        == defaults
+    assert "error" not in page.js("return document.getElementById('status').className"), page.text("status")
+    assert not _console_errors(page), _console_errors(page)
+    # a read-only token after a submitter with a scene in the form: no estimate goes out (it would be refused)
+    page.upload(files["demo"])
+    page.until(lambda: page.enabled("submit-button"), what="the second owner's estimate")
+    page.d.get_log("browser")
+    _switch_user(page, server.reader)
+    time.sleep(1.0)
+    assert not page.visible("submit")
+    assert not _console_errors(page), _console_errors(page)
