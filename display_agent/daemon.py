@@ -32,7 +32,8 @@ from display_agent.service_client import (
     ServiceError,
     TransientError,
 )
-from display_agent.slm.base import SLM, open_slm
+from display_agent.slm.base import SLM
+from display_agent.slm.drivers import open_slm
 from holocore.formats import Stack
 
 __all__ = ["Agent"]

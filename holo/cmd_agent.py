@@ -161,7 +161,8 @@ def capture(
     from display_agent.focus.client import FocusController, FocusError
     from display_agent.hooks import HookError, make_hook
     from display_agent.playback import Player
-    from display_agent.slm.base import SLMError, open_slm
+    from display_agent.slm.base import SLMError
+    from display_agent.slm.drivers import open_slm
 
     try:
         trig = make_hook(trigger) if trigger else None
@@ -200,7 +201,8 @@ def play(
     """Play a local stack on the SLM (time-multiplexed, colour-sequential) and print the frame counts."""
     st, levels, stack_id, mapping = _load_local(stack, lut, levels_per_2pi)
     from display_agent.playback import Player
-    from display_agent.slm.base import SLMError, open_slm
+    from display_agent.slm.base import SLMError
+    from display_agent.slm.drivers import open_slm
 
     try:
         dev = open_slm(slm)

@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from holo.common import OpticsOptions, fail, hologram_options, with_optics_options
-from holocore.plan.presets import MAX_WRP_PLANES
+from holocore.options import MAX_WRP_PLANES
 
 
 def register(app: typer.Typer) -> None:

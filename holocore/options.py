@@ -6,7 +6,7 @@ as one JSON document (``--options-json``); the CLI's flags set the same fields (
 layer: a CLI, `holo submit`, the page's form, or the option table of docs/options.md (``python -m holocore.options``
 prints it).
 
-Light: pydantic and holocore.plan.presets' names only.
+Light: pydantic only, and no other holocore module (every stage may read the options).
 """
 
 from __future__ import annotations
@@ -15,11 +15,13 @@ from typing import Annotated, Any, Literal, Mapping, Optional, Union, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from holocore.plan.presets import MAX_WRP_PLANES, PresetName, RenderMethod
-
-__all__ = ["HologramOptions", "Encoder", "ENCODERS", "WrpPlanes", "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP",
+__all__ = ["HologramOptions", "PresetName", "RenderMethod", "MAX_WRP_PLANES", "Encoder", "ENCODERS", "WrpPlanes", "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP",
            "MAX_ITERATIONS", "QUALITY_DB_RANGE", "explain", "check", "option_table"]
 
+PresetName = Literal["fast", "balanced", "reference"]  # their settings: holocore.plan.presets.PRESETS
+# "wrp": trace to the wave recording plane(s), then ASM to the SLM; "direct": trace straight to the SLM.
+RenderMethod = Literal["wrp", "direct"]
+MAX_WRP_PLANES = 8  # the most wave recording planes a render may use (holocore.plan.wrp_planes chooses up to it)
 Encoder = Literal["sgd", "dpac"]  # the encoders a job may ask for (`holo encode` also has "naive", for tests)
 ENCODERS: tuple[Encoder, ...] = ("sgd", "dpac")
 MAX_FRAMES = 256

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1] / "holocore"
 # Stage of each top-level part of holocore, earliest first; a part may import only parts of a lower stage or
 # itself. Parts on one stage do not import each other.
 STAGES = (
-    ("validate", "formats", "runtime", "__init__"),
+    ("validate", "formats", "runtime", "options", "plugins", "__init__"),
     ("io",),
     ("display",),
     ("scene",),
@@ -82,11 +82,14 @@ def test_every_import_points_to_an_earlier_stage():
 
 
 def test_the_leaves_import_nothing_of_holocore_at_import_time():
+    # but the first stage's modules, which import nothing of holocore themselves (the plug-in finder)
+    first = {f"holocore.{part}" for part in STAGES[0]}
     for leaf in LEAVES:
         path = ROOT.parent / (leaf.replace(".", "/") + ".py")
         tree = ast.parse(path.read_text())
         top = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
-        assert not [n for n in top if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("holocore")]
+        assert not [n for n in top if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("holocore")
+                    and n.module not in first]
 
 
 def test_a_backwards_import_is_caught(tmp_path, monkeypatch):

@@ -1,4 +1,4 @@
-"""The abstract SLM and the backend factory."""
+"""The abstract SLM every driver implements (its drivers: display_agent.slm.drivers)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["SLM", "SLMError", "NullSLM", "open_slm"]
+__all__ = ["SLM", "SLMError", "NullSLM"]
 
 
 class SLMError(RuntimeError):
@@ -17,6 +17,14 @@ class SLMError(RuntimeError):
 class SLM(abc.ABC):
     """A phase-only SLM. ``load`` preloads one stack's gray levels uint8 [F, C, H, W]; ``show(frame, color)``
     puts one preloaded frame on the panel and returns once it is presented (vsync for real displays)."""
+
+    @classmethod
+    def from_spec(cls, arg: str) -> "SLM":
+        """The driver opened from what follows its name in a spec (``sim:DIR``: "DIR"; "" when nothing does);
+        ValueError in one line for an argument it cannot take."""
+        if arg:
+            raise ValueError(f"this SLM driver takes no argument, got {arg!r}")
+        return cls()
 
     def __init__(self) -> None:
         self._levels: Optional[np.ndarray] = None
@@ -84,29 +92,3 @@ class NullSLM(SLM):
 
     def _present(self, frame: int, color: int) -> None:
         pass
-
-
-def open_slm(spec: str) -> SLM:
-    """Backend from a spec: ``sim:DIR``, ``window[:MONITOR[:WxH]]``, or ``null``."""
-    kind, _, arg = spec.partition(":")
-    if kind == "sim":
-        if not arg:
-            raise ValueError("slm 'sim' needs a directory: sim:DIR")
-        from display_agent.slm.sim import SimSLM
-
-        return SimSLM(arg)
-    if kind == "window":
-        from display_agent.slm.window import WindowSLM
-
-        monitor, _, size = arg.partition(":")
-        try:
-            mon = int(monitor) if monitor else 0
-            wh = tuple(int(v) for v in size.lower().split("x")) if size else None
-        except ValueError:
-            raise ValueError(f"slm window spec must be window[:MONITOR[:WxH]], got {spec!r}") from None
-        if wh is not None and len(wh) != 2:
-            raise ValueError(f"slm window size must be WxH, got {size!r}")
-        return WindowSLM(monitor=mon, size=wh)  # type: ignore[arg-type]
-    if kind == "null":
-        return NullSLM()
-    raise ValueError(f"slm backend must be sim:DIR, window[:MONITOR[:WxH]] or null, got {spec!r}")

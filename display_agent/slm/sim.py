@@ -26,6 +26,12 @@ def frame_png_name(stack_id: str, color: int, frame: int) -> str:
 
 
 class SimSLM(SLM):
+    @classmethod
+    def from_spec(cls, arg: str) -> "SimSLM":
+        if not arg:
+            raise ValueError("slm 'sim' needs a directory: sim:DIR")
+        return cls(arg)
+
     def __init__(self, directory: Union[str, Path]) -> None:
         super().__init__()
         self.dir = Path(directory)

@@ -22,6 +22,19 @@ class WindowSLM(SLM):
 
     A stack smaller than the window is centred on a level-0 background; a larger one is refused."""
 
+    @classmethod
+    def from_spec(cls, arg: str) -> "WindowSLM":
+        """``MONITOR[:WxH]`` (both optional)."""
+        monitor, _, size = arg.partition(":")
+        try:
+            mon = int(monitor) if monitor else 0
+            wh = tuple(int(v) for v in size.lower().split("x")) if size else None
+        except ValueError:
+            raise ValueError(f"slm window spec must be window[:MONITOR[:WxH]], got {arg!r}") from None
+        if wh is not None and len(wh) != 2:
+            raise ValueError(f"slm window size must be WxH, got {size!r}")
+        return cls(monitor=mon, size=wh)  # type: ignore[arg-type]
+
     def __init__(self, *, monitor: int = 0, size: Optional[tuple[int, int]] = None, vsync: bool = True,
                  fullscreen: bool = True) -> None:
         super().__init__()

@@ -2,21 +2,23 @@
 :class:`Baseline` with a name, a one-line summary, an options model (its fields carry their units and limits:
 the one validator of every option) and ``render(loaded, optics, options) -> RenderResult`` in the renderer's
 RESULT format. ``holo baseline`` and the paper report find them here; a new baseline is one module that
-defines its options and its class and decorates the class with :func:`register_baseline` (the built-in
-modules are imported on the first lookup).
+defines its options and its class, declared as an entry point of group ``holocore.baselines`` by the package
+that holds it (holocore.plugins; the built-ins are declared so in the project's pyproject.toml and found on the
+first lookup).
 """
 
 from __future__ import annotations
 
-import importlib
+import warnings
 from typing import Any, ClassVar, Optional
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
+from holocore.plugins import BASELINES, discovered
+
 __all__ = ["Baseline", "BaselineOptions", "BaselineOptionsError", "register_baseline", "baseline_names",
            "get_baseline"]
 
-BUILTIN_MODULES = ("holocore.baselines.layers", "holocore.baselines.focal_stack", "holocore.baselines.light_field")
 
 
 class BaselineOptions(BaseModel):
@@ -80,22 +82,34 @@ def register_baseline(cls: type[Baseline]) -> type[Baseline]:
     return cls
 
 
-def _load_builtins() -> None:
-    for module in BUILTIN_MODULES:
-        importlib.import_module(module)
+_DISCOVERED: list[bool] = []
+
+
+def _discover() -> None:
+    """Register the baselines installed packages declare (entry point group ``holocore.baselines``, the
+    built-ins among them: holocore.plugins), once; one that is not a baseline, or clashes, is left out with a
+    warning."""
+    if _DISCOVERED:
+        return
+    _DISCOVERED.append(True)
+    for name, cls in discovered(BASELINES):
+        try:
+            if not isinstance(cls, type):
+                raise TypeError(f"{cls!r} is not a Baseline subclass")
+            register_baseline(cls)
+        except (TypeError, ValueError) as exc:
+            warnings.warn(f"baseline plug-in {name!r} left out: {exc}", RuntimeWarning, stacklevel=2)
 
 
 def baseline_names() -> tuple[str, ...]:
-    """Every registered baseline's name, built-in ones first."""
-    _load_builtins()
-    builtin = [n for n, cls in _REGISTRY.items() if cls.__module__ in BUILTIN_MODULES]
-    builtin.sort(key=lambda n: BUILTIN_MODULES.index(_REGISTRY[n].__module__))
-    return tuple(builtin + [n for n in _REGISTRY if n not in builtin])
+    """Every registered baseline's name, the project's own first (in the order its pyproject declares them)."""
+    _discover()
+    return tuple(sorted(_REGISTRY, key=lambda n: not _REGISTRY[n].__module__.startswith("holocore.")))
 
 
 def get_baseline(name: str) -> Baseline:
     """The baseline called ``name``; ValueError (with the names there are) for any other."""
-    _load_builtins()
+    _discover()
     if name not in _REGISTRY:
         raise ValueError(f"unknown baseline {name!r}: one of {', '.join(baseline_names())}")
     return _REGISTRY[name]()

@@ -11,18 +11,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Literal, Mapping, get_args
+from typing import Mapping, get_args
+
+from holocore.options import MAX_WRP_PLANES, PresetName, RenderMethod
 
 __all__ = ["PresetName", "PRESET_NAMES", "Preset", "PRESETS", "RenderMethod", "RENDER_METHODS", "MAX_WRP_PLANES"]
 
-PresetName = Literal["fast", "balanced", "reference"]
+# the names a user picks, with the hologram's other options (holocore.options)
 PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
-
-# "wrp": trace to the wave recording plane(s), then ASM to the SLM; "direct": trace straight to the SLM.
-RenderMethod = Literal["wrp", "direct"]
 RENDER_METHODS: tuple[RenderMethod, ...] = get_args(RenderMethod)
-
-MAX_WRP_PLANES = 8  # the most wave recording planes a render may use (holocore.plan.wrp_planes chooses up to it)
 
 
 @dataclass(frozen=True)

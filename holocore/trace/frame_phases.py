@@ -12,14 +12,19 @@ keys, the renderer (:mod:`holocore.pipeline`) and the baselines ask the mode obj
   phases the light-field stereogram keeps (:attr:`FramePhases.stereogram_coded`).
 
 The built-in modes: ``coded`` (the default; :mod:`holocore.trace.randomfield`, docs/physics.md "Coded frame
-phases"), ``independent`` (the paper's Eq. 4) and ``directional`` (:mod:`holocore.trace.beams`). This module
-imports nothing heavy and no other holocore module at import time (the optics config validates against its keys),
-so every implementation imports what it needs inside its methods.
+phases"), ``independent`` (the paper's Eq. 4) and ``directional`` (:mod:`holocore.trace.beams`). A mode
+from another package is found by its entry point (group ``holocore.frame_phases``: holocore.plugins), the
+built-ins are declared the same way. This module imports nothing heavy and no holocore module but the plug-in
+finder at import time (the optics config validates against its keys), so every implementation imports what it
+needs inside its methods, and a plug-in mode imports only this module at import time.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
+
+from holocore.plugins import FRAME_PHASES, discovered
 
 if TYPE_CHECKING:  # numpy only in annotations: the API process and the agent import this module for its names
     import numpy as np
@@ -68,13 +73,33 @@ def register_frame_phases(cls: type[FramePhases]) -> type[FramePhases]:
     return cls
 
 
+_DISCOVERED: list[bool] = []
+
+
+def _discover() -> None:
+    """Register the modes installed packages declare (entry point group ``holocore.frame_phases``, the built-ins
+    among them: holocore.plugins), once. A plug-in that is not a mode, or clashes, is left out with a warning."""
+    if _DISCOVERED:
+        return
+    _DISCOVERED.append(True)  # first: a plug-in's import may ask for the modes again
+    for name, cls in discovered(FRAME_PHASES):
+        try:
+            if not (isinstance(cls, type) and issubclass(cls, FramePhases)):
+                raise TypeError(f"{cls!r} is not a FramePhases subclass")
+            register_frame_phases(cls)
+        except (TypeError, ValueError) as exc:
+            warnings.warn(f"frame-phase plug-in {name!r} left out: {exc}", RuntimeWarning, stacklevel=2)
+
+
 def frame_phase_modes() -> tuple[str, ...]:
     """The registered modes' names, the built-ins first."""
+    _discover()
     return tuple(_REGISTRY)
 
 
 def get_frame_phases(name: str) -> FramePhases:
     """The mode registered as ``name``; one-line ValueError naming the known ones otherwise."""
+    _discover()
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):

@@ -52,7 +52,7 @@ def test_slm_refuses_bad_input(tmp_path):
     slm.load(stack_id="a", levels=np.zeros((2, 1, 2, 2), np.uint8))
     with pytest.raises(ValueError, match=r"frame must be in \[0, 1\]"):
         slm.show(2)
-    with pytest.raises(ValueError, match="backend must be"):
+    with pytest.raises(ValueError, match="slm driver must be one of .*null.*sim.*window"):
         open_slm("projector:1")
     with pytest.raises(ValueError, match="sim:DIR"):
         open_slm("sim:")

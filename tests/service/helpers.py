@@ -34,8 +34,10 @@ def make_token(data_dir: Path, *scopes: str) -> str:
 class Server:
     """One `holo serve` subprocess on a free port; restartable on the same data dir."""
 
-    def __init__(self, data_dir: Path, *, workers: int = 1, extra: tuple[str, ...] = ()) -> None:
+    def __init__(self, data_dir: Path, *, workers: int = 1, extra: tuple[str, ...] = (),
+                 pythonpath: tuple[str, ...] = ()) -> None:
         self.data_dir = data_dir
+        self.pythonpath = pythonpath  # more folders to import from (a plug-in package installed there)
         self.workers = workers
         self.extra = extra
         self.port = free_port()
@@ -49,7 +51,7 @@ class Server:
         self.starts = 0
 
     def start(self, timeout: float = 30.0) -> "Server":
-        env = dict(os.environ, PYTHONPATH=str(REPO))
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join((str(REPO), *self.pythonpath)))
         env.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
         self.starts += 1
         log = open(self.data_dir / f"server-{self.starts}.log", "wb")
