@@ -16,7 +16,9 @@ for a in "$@"; do
   if [ "$a" = "--quick" ]; then quick=1; else args+=("$a"); fi
 done
 if [ "$quick" = 1 ]; then
-  if ! .venv/bin/python -c "import holocore, mitsuba, torch" >/dev/null 2>&1; then bash scripts/setup.sh; fi
+  # set up again also when the install predates the plug-in entry points the built-ins are found by
+  if ! .venv/bin/python -c "import holocore, mitsuba, torch; from importlib.metadata import entry_points as e; \
+assert e(group='holocore.baselines') and e(group='display_agent.slm')" >/dev/null 2>&1; then bash scripts/setup.sh; fi
   exec .venv/bin/python -m pytest -q --capture=sys -m "not slow" ${args[@]+"${args[@]}"}
 fi
 bash scripts/setup.sh
