@@ -47,7 +47,7 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
                                  seconds_of=lambda r: hologram_seconds(r, scene_plan=scene_plan, max_spp=max_spp,
                                                                        calibration=cal),
                                  target_db=target_db)
-    if req.evaluate:
+    if req.evaluate and not evaluation_skipped(req, scene_plan):
         from service.workers.evaluation import evaluation_seconds
 
         o = effective_optics(req)
@@ -56,6 +56,16 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
                "steps_s": {**out["steps_s"], "evaluate": round(ev, 2)}, "model": out["model"] + " + evaluation"}
     load = machine_load(own_threads=busy_threads)
     return {**out, "load": load, "seconds_at_load": round(out["seconds"] * load["slowdown"], 1)}
+
+
+def evaluation_skipped(req: JobRequest, scene_plan: Optional[dict]) -> Optional[str]:
+    """Why a job that asks for an evaluation gets none (its SLM too small to score; None when it gets one):
+    such a job's time has no evaluation in it, and its estimate says so in a warning instead."""
+    from service.workers.evaluation import evaluation_too_small
+
+    cam = ((scene_plan or {}).get("field_of_view") or {}).get("camera_fov_x_deg")
+    return evaluation_too_small(effective_optics(req), camera_fov_x_deg=float(cam) if isinstance(cam, (int, float))
+                                else None)
 
 
 def hologram_seconds(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp: Optional[int] = None,

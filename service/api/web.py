@@ -175,17 +175,14 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
             "worker_memory_bytes": ctx.settings.worker_memory_bytes,
             "plan": plan_at_options(req, scene, max_spp=max_spp),
             "field_of_view_box": scene_field_of_view_box(scene, optics),
-            "warnings": _estimate_warnings(req, scene, optics) + est["quality"]["warnings"]}
+            "warnings": _estimate_warnings(req, scene) + est["quality"]["warnings"]}
 
 
-def _estimate_warnings(req: JobRequest, scene: dict, optics) -> list[str]:
+def _estimate_warnings(req: JobRequest, scene: dict) -> list[str]:
     """What the job would not give that it asks for (an evaluation on an SLM too small to score)."""
-    if not req.evaluate:
-        return []
-    from service.workers.evaluation import evaluation_too_small
+    from service.cost import evaluation_skipped
 
-    cam = ((scene.get("plan") or {}).get("field_of_view") or {}).get("camera_fov_x_deg")
-    why = evaluation_too_small(optics, camera_fov_x_deg=float(cam) if isinstance(cam, (int, float)) else None)
+    why = evaluation_skipped(req, scene.get("plan")) if req.evaluate else None
     return [why] if why else []
 
 

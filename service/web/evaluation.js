@@ -6,6 +6,7 @@
 
 import { blobURL, getJSON } from "./api.js";
 import { $, clear, el, setText } from "./dom.js";
+import { noEvaluation } from "./job_facts.js";
 import { aborted, plural, show } from "./state.js";
 
 const num = (v, digits) => (typeof v === "number" && isFinite(v) ? v.toFixed(digits) : "–");
@@ -41,6 +42,11 @@ function predictedLine(job, v) {
 export async function showEvaluation(job, page) {
   if (!(job.options || {}).evaluate) return;
   show("evaluation", true);
+  const none = noEvaluation(job);
+  if (none) {  // the render said why there is none: nothing to ask the service for
+    setText($("eval-note"), none.charAt(0).toUpperCase() + none.slice(1));
+    return;
+  }
   setText($("eval-note"), "Loading the evaluation…");
   let idx;
   try {

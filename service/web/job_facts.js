@@ -56,7 +56,7 @@ export function optionsText(job) {
   const res = (optics.resolution_hw || []).join("x");
   return [res && `${res} px`, typeof optics.frames === "number" ? plural(optics.frames, "frame") : null,
           o.preset, o.encoder, o.render_time_limit_s ? `${fmtSeconds(o.render_time_limit_s)} limit` : null,
-          o.spp && !o.render_time_limit_s ? `${o.spp} rays/px` : null, o.evaluate ? "evaluated" : null]
+          o.spp && !o.render_time_limit_s ? `${o.spp} rays/px` : null, evaluationWord(job)]
     .filter(Boolean).join(" · ");
 }
 
@@ -65,4 +65,19 @@ export function actualSeconds(job) {
   if (typeof t.run_s === "number") return t.run_s;
   if (job.state === "running" && job.started_at) return (Date.now() - Date.parse(job.started_at)) / 1000;
   return null;
+}
+
+// Why a job that asked for an evaluation has none (its render's warning, "no evaluation ..."), else null.
+export function noEvaluation(job) {
+  if (!(job.options || {}).evaluate) return null;
+  const warnings = (job.plan && !job.plan.source && job.plan.warnings) || [];
+  return warnings.find((w) => typeof w === "string" && /^no evaluation\b/i.test(w)) || null;
+}
+
+// What the list says of a job's evaluation: only a job that made one is "evaluated".
+function evaluationWord(job) {
+  if (!(job.options || {}).evaluate) return null;
+  if (noEvaluation(job)) return "no evaluation";
+  return job.state === "succeeded" ? "evaluated" : job.state === "queued" || job.state === "running"
+    ? "to be evaluated" : null;
 }

@@ -6,7 +6,7 @@ import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
 import { offerCompare } from "./compare.js";
 import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
-import { actualSeconds, eta, jobName, loadText, pct } from "./job_facts.js";
+import { actualSeconds, eta, jobName, loadText, noEvaluation, pct } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
 import { clearJobPicture, showJobPicture } from "./scene_picture.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
@@ -43,7 +43,8 @@ function renderJob(job) {
     + `${plural((optics.wavelengths_nm || []).length, "color")}, preset ${o.preset}, encoder ${o.encoder}`
     + (o.render_time_limit_s ? `, rendered for ${fmtSeconds(o.render_time_limit_s)}` : "")
     + (o.spp ? `, ${o.render_time_limit_s ? "at most " : ""}${plural(o.spp, "ray")} per pixel` : "")
-    + (o.evaluate ? ", evaluated against ground truth" : ""));
+    + (!o.evaluate ? "" : noEvaluation(job) ? ", no evaluation against ground truth (see below)"
+      : job.state === "succeeded" ? ", evaluated against ground truth" : ", to be evaluated against ground truth"));
   fact(dl, "Time", `estimated ${loadText(est) || fmtSeconds(est.seconds)} (${est.model || "–"}), actual `
     + `${actual === null ? "–" : fmtSeconds(actual)}${t.reused ? " (reused an earlier result)" : ""}`);
   const q = est.quality;
@@ -76,7 +77,10 @@ function renderJob(job) {
       : "The effect plan at this job's options comes when it renders."));
   }
   const warns = clear($("warnings"));
-  for (const w of (own && own.warnings) || (job.plan && job.plan.warnings) || []) warns.append(el("li", {}, w));
+  const noEval = noEvaluation(job);  // said once, in the evaluation's card
+  for (const w of (own && own.warnings) || (job.plan && job.plan.warnings) || []) {
+    if (w !== noEval) warns.append(el("li", {}, w));
+  }
 
   const tb = clear($("timings").tBodies[0]);
   for (const [k, v] of Object.entries(t)) {

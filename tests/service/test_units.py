@@ -223,7 +223,9 @@ def test_the_estimate_gives_each_step_its_seconds():
     assert set(e["steps_s"]) == {"render", "encode", "package", "preview"}
     assert sum(e["steps_s"].values()) == pytest.approx(e["seconds"], abs=0.1)
     assert e["steps_s"]["encode"] > e["encode_s"] > 0  # the encode step starts a process first
-    evaluated = estimate_cost(req.model_copy(update={"evaluate": True}))
+    # virtual infinity at 4 mm: a 135 x 240 SLM lights the evaluation's views (at the default 80 mm it has none)
+    near = req.model_copy(update={"evaluate": True, "optics": req.optics.model_copy(update={"z_inf_mm": 4})})
+    evaluated = estimate_cost(near)
     assert evaluated["steps_s"]["evaluate"] == pytest.approx(evaluated["evaluate_s"], abs=0.05) and evaluated["evaluate_s"] > 0
 
 def test_preview_focus_is_mid_volume():

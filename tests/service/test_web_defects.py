@@ -152,3 +152,41 @@ def test_signing_out_leaves_nothing_of_the_form_to_the_next_owner(page, server, 
     time.sleep(1.0)
     assert not page.visible("submit")
     assert not _console_errors(page), _console_errors(page)
+
+
+NO_EVAL_JOB = {"optics": {"resolution_hw": [96, 128], "seed": 3}, "preset": "fast", "frames": 1, "spp": 4,
+               "encoder": "dpac", "evaluate": True, "name": "too small to evaluate"}
+
+
+def test_a_job_too_small_to_evaluate_is_not_counted_or_called_evaluated(page, server, scene, files):  # noqa: F811
+    """96 x 128 at virtual infinity 80 mm lights none of the evaluation's views: the form's estimate has no
+    evaluation in it, the list does not call the job evaluated, its page says why there is none once and does
+    not ask the service for it."""
+    from selenium.webdriver.common.by import By
+
+    from tests.service.helpers import finished_job
+
+    job = finished_job(server, {"scene_id": scene["id"], **NO_EVAL_JOB})
+    assert "evaluate_s" not in job["estimate"] and "evaluation" not in job["estimate"]["model"], job["estimate"]
+    page.upload(files["demo"])
+    page.until(lambda: page.enabled("submit-button"), what="the demo scene's estimate")
+    page.set("res-h", "96")
+    page.set("res-w", "128")
+    page.d.find_element(By.ID, "evaluate").click()
+    page.until(lambda: "no evaluation at 96x128" in page.text("estimate") and page.enabled("submit-button"),
+               what="the estimate's warning")
+    assert "the evaluation" not in page.text("estimate") and "+ evaluation" not in page.text("estimate")
+    row = f"tr[data-job-id='{job['id']}']"
+    page.until(lambda: page.js(f"return !!document.querySelector(\"{row}\")"), what="the job's row")
+    words = page.js(f"return document.querySelector(\"{row}\").innerText")
+    assert "evaluated" not in words and "no evaluation" in words, words
+    page.d.get_log("browser")
+    page.go(f"#/jobs/{job['id']}")
+    page.until(lambda: page.visible("evaluation") and page.text("eval-note"), what="the evaluation's note")
+    time.sleep(0.5)
+    note = page.text("eval-note")
+    assert note.startswith("No evaluation") and "96x128" in note and note.lower().count("no evaluation") == 1, note
+    shown = page.text("job")
+    assert shown.count(note) == 1 and "evaluation: no evaluation" not in shown.lower(), shown
+    assert "evaluated against ground truth" not in page.text("job-facts")
+    assert not [m for m in _console_errors(page) if "/evaluation" in m], _console_errors(page)
