@@ -128,7 +128,7 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
     ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="How the frames phase the image "
                                                  "points: coded (default), independent, directional, or a mode "
-                                                 "registered with holocore.trace.frame_phases (docs/physics.md); "
+                                                 "registered with holocore.display.phase_modes (docs/physics.md); "
                                                  "an unknown name is refused with the list.")),
     ("eyebox", Optional[str], typer.Option(None, "--eyebox", help="common (default: every colour cut to the "
                                            "smallest colour's cone, so the colour an eye sees does not change "

@@ -2,7 +2,7 @@
 one module and a line in its ``pyproject.toml``, no edit here::
 
     [project.entry-points."holocore.frame_phases"]
-    lab_mode = "lab_holo.modes:LabMode"        # a holocore.trace.frame_phases.FramePhases subclass
+    lab_mode = "lab_holo.modes:LabMode"        # a holocore.display.phase_modes.FramePhases subclass
     [project.entry-points."holocore.baselines"]
     lab-fit = "lab_holo.fit:LabFitBaseline"    # a holocore.baselines.registry.Baseline subclass
 

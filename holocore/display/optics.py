@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from holocore.trace.frame_phases import frame_phase_modes, get_frame_phases  # a leaf module: the modes' registry
+from holocore.display.phase_modes import frame_phase_modes, get_frame_phases
 
 __all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "cone_sine",
            "common_cone_sine", "channel_of"]
@@ -100,7 +100,7 @@ class OpticsConfig(BaseModel):
     seed: int = Field(default=0, ge=0, lt=2**63, description="Seed of every random choice (rays, phase bank).")
     frame_phases: str = Field(
         default="coded",
-        description="Phases of the frames' image points, a registered mode (holocore.trace.frame_phases): "
+        description="Phases of the frames' image points, a registered mode (holocore.display.phase_modes): "
                     + "; ".join(f"'{n}' ({get_frame_phases(n).summary})" for n in frame_phase_modes()) + ".",
     )
     eyebox: Literal["common", "per_colour"] = Field(
@@ -127,7 +127,7 @@ class OpticsConfig(BaseModel):
         return v
 
     def frame_phase_mode(self):
-        """The :class:`holocore.trace.frame_phases.FramePhases` object of ``frame_phases``."""
+        """The :class:`holocore.display.phase_modes.FramePhases` object of ``frame_phases``."""
         return get_frame_phases(self.frame_phases)
 
     @field_validator("wavelengths_nm")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from typing import Optional
 
 __all__ = ["ENV", "cuda_available", "requested_device", "select_device", "torch_device"]
@@ -49,9 +50,10 @@ def select_device(name: Optional[str] = None) -> str:
         dev = "cuda" if cuda_available() else "cpu"
     elif dev.startswith("cuda") and not cuda_available():
         raise ValueError(f"device {dev} asked for, but torch sees no CUDA device")
-    from holocore.runtime import mitsuba_env
-
-    current = mitsuba_env.variant_if_set()
+    # Mitsuba's variant is set only through holocore.runtime.mitsuba_env (which reads this module's choice): not
+    # imported yet, no variant is set
+    mitsuba_env = sys.modules.get("holocore.runtime.mitsuba_env")
+    current = mitsuba_env.variant_if_set() if mitsuba_env is not None else None
     if current is not None and current.startswith("cuda") != dev.startswith("cuda"):
         raise ValueError(f"device {dev} asked for, but this process already runs Mitsuba's {current}")
     os.environ[ENV] = dev

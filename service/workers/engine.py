@@ -22,12 +22,11 @@ __all__ = ["Handle", "Engine", "LocalEngine", "group_alive", "kill_group", "driv
            "SandboxUnavailable", "resolve_sandbox", "sandbox_blockers", "sandbox_env", "secure_data_dir",
            "give_tree", "reclaim_tree", "kill_uids", "uid_alive", "remove_leftovers", "SHARED_TMP"]
 
-_REPO = Path(__file__).resolve().parents[2]
-
-from service.workers.sandbox import (  # noqa: E402  (the sandbox imports driver_env from here, inside a function)
+from service.workers.sandbox import (
     SHARED_TMP,
     RunAs,
     SandboxUnavailable,
+    driver_env,
     give_tree,
     kill_uids,
     reclaim_tree,
@@ -63,15 +62,6 @@ class Engine(Protocol):
     def kill(self, handle: Handle, *, grace_s: float) -> None: ...
 
     def close(self) -> None: ...
-
-
-def driver_env() -> dict[str, str]:
-    """The environment of a job driver: ours, with the repository importable."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO), env.get("PYTHONPATH", "")) if p)
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    env["PYTHONSAFEPATH"] = "1"  # `python -m` never imports from its working dir (a job dir, a bundle)
-    return env
 
 
 def group_alive(pgid: int) -> bool:

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-__all__ = ["SandboxUnavailable", "RunAs", "sandbox_env", "sandbox_blockers", "resolve_sandbox", "secure_data_dir", "give_tree", "reclaim_tree", "remove_leftovers", "uid_alive", "kill_uids", "SHARED_TMP"]
+__all__ = ["SandboxUnavailable", "RunAs", "driver_env", "sandbox_env", "sandbox_blockers", "resolve_sandbox",
+           "secure_data_dir", "give_tree", "reclaim_tree", "remove_leftovers", "uid_alive", "kill_uids", "SHARED_TMP"]
 
 _REPO = Path(__file__).resolve().parents[2]
 log = logging.getLogger("holo.service.sandbox")
@@ -50,11 +51,18 @@ _SANDBOX_ENV = frozenset({
 _SANDBOX_ENV_PREFIXES = ("LC_", "NVIDIA_")
 
 
+def driver_env() -> dict[str, str]:
+    """The environment of a job driver: ours, with the repository importable."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_REPO), env.get("PYTHONPATH", "")) if p)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env["PYTHONSAFEPATH"] = "1"  # `python -m` never imports from its working dir (a job dir, a bundle)
+    return env
+
+
 def sandbox_env(home: Path) -> dict[str, str]:
     """A sandboxed process's environment: the allow-listed variables of the driver's, and HOME and TMPDIR (so
     Dr.Jit's and Mitsuba's caches) inside its own folder ``home``."""
-    from service.workers.engine import driver_env  # the engine imports this module
-
     env = {k: v for k, v in driver_env().items() if k in _SANDBOX_ENV or k.startswith(_SANDBOX_ENV_PREFIXES)}
     env.update(HOME=str(home / "home"), TMPDIR=str(home / "tmp"), XDG_CACHE_HOME=str(home / "home" / ".cache"))
     return env

@@ -52,7 +52,7 @@ def test_each_built_in_mode_gives_its_own_module_bank():
 
 @pytest.fixture
 def scratch_registry():
-    from holocore.trace import frame_phases as registry
+    from holocore.display import phase_modes as registry
 
     before = dict(registry._REGISTRY)
     yield

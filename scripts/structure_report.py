@@ -1,0 +1,201 @@
+"""The project's shape in numbers, and whether it keeps its rules (docs/architecture.md): the hologram's options
+declared outside their one model, import cycles among the project's modules (counting imports inside functions),
+function-level imports of the project's own modules, the longest modules and functions, and lines over 120
+columns. Run: ``.venv/bin/python scripts/structure_report.py``; it exits 1 when a rule is broken.
+
+The rules: no import cycle; an option is declared only in holocore.options (or where :data:`OPTION_COPIES`
+says why); no module over 400 lines, no function over 80, no line over 120 columns, except those
+:data:`KNOWN_LONG` lists, which may only shrink; function-level imports of the project's own modules at most
+:data:`MOST_OWN_LATE_IMPORTS` (each heavy import that start-up time keeps inside a function counts; the number
+may only go down).
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("holocore", "service", "display_agent", "holo")
+MODULE_LINES, FUNCTION_LINES, LINE_COLUMNS = 400, 80, 120
+# Option fields a class other than the model declares, and why (module:class -> fields).
+OPTION_COPIES = {
+    "holocore.render_setup:RenderOptions": "the renderer's own dataclass with its kernel fields; built by "
+                                           "RenderOptions.from_options and checked by holocore.options.check",
+    "holocore.baselines.adam_budget:AdamOptions": "a baseline's fit: its own frames and Adam steps, not the "
+                                                  "hologram's",
+}
+# Pieces over the limits when the limits were set; each is to be split, none may be added.
+KNOWN_LONG = {
+    "holocore/baselines/focal_stack.py", "holocore/evaluate/scoring.py",
+    "holocore/trace/tile.py:trace_tile", "holo/cmd_evaluate.py:evaluate", "holocore/baselines/focal_stack.py:"
+    "render_focal_stack", "holocore/evaluate/viewer.py:viewer_score", "holo/cmd_submit.py:submit",
+    "holocore/calibration.py:calibrate", "holocore/trace/reference_chain.py:trace_chain",
+    "holocore/baselines/focal_stack.py:optimise_focal_stack", "holocore/encode/stream.py:encode_file",
+    "holocore/plan/effects.py:make_plan", "holocore/baselines/light_field.py:render_light_field",
+    "holo/cmd_view.py:view", "service/api/app.py:create_app", "holocore/optics/viewing.py:view_intensities",
+    "holocore/trace/kernel.py:trace_wave_paths", "holocore/baselines/focal_stack.py:_optimise_pupil_aware",
+    "holocore/trace/hologram_rays.py:trace_field", "holo/cmd_encode.py:encode", "holocore/plan/analysis.py:analyze",
+    "holocore/optics/plane_chain.py:chain_planes",
+}
+MOST_OWN_LATE_IMPORTS = 240
+
+
+def _files() -> list[Path]:
+    return sorted(p for pkg in PACKAGES for p in (REPO / pkg).rglob("*.py"))
+
+
+def _module(path: Path) -> str:
+    name = ".".join(path.relative_to(REPO).with_suffix("").parts)
+    return name.removesuffix(".__init__")
+
+
+def _target(module: str, names: list[str], known: set[str]) -> list[str]:
+    """The project modules an ``from module import names`` loads: a named submodule, else the module."""
+    subs = [f"{module}.{n}" for n in names if f"{module}.{n}" in known]
+    return subs or ([module] if module in known else [])
+
+
+def import_graph(files: list[Path]) -> tuple[dict[str, set[str]], int, int]:
+    """(module -> the project modules it imports anywhere in its code but its ``if TYPE_CHECKING:`` blocks,
+    function-level imports of the project's modules, all function-level imports)."""
+    known = {_module(p) for p in files}
+    graph: dict[str, set[str]] = defaultdict(set)
+    own_late = all_late = 0
+    for path in files:
+        src = _module(path)
+        tree = ast.parse(path.read_text(), filename=str(path))
+        late = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
+                for n in ast.walk(f) if isinstance(n, (ast.Import, ast.ImportFrom))}
+        typing_only = {id(n) for b in ast.walk(tree) if isinstance(b, ast.If) and "TYPE_CHECKING" in ast.unparse(b.test)
+                       for n in ast.walk(b)}  # annotations only: never run
+        for node in ast.walk(tree):
+            if id(node) in typing_only:
+                continue
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                dst = _target(node.module, [a.name for a in node.names], known)
+            elif isinstance(node, ast.Import):
+                dst = [a.name for a in node.names if a.name in known]
+            else:
+                continue
+            if id(node) in late:
+                all_late += 1
+                own_late += bool(dst)
+            graph[src].update(d for d in dst if d != src)
+    return graph, own_late, all_late
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                out.append(sorted(group))
+
+    sys.setrecursionlimit(10_000)
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+def option_copies(files: list[Path]) -> list[str]:
+    """``module:Class.field`` for each option field that a class of options outside holocore.options declares (a
+    class named ``*Options``, ``*Fields`` or ``*Request`` that declares two or more of them: a restated set; a
+    result or a meta that records what ran is not one)."""
+    sys.path.insert(0, str(REPO))
+    from holocore.options import HologramOptions
+
+    fields = set(HologramOptions.model_fields)
+    out = []
+    for path in files:
+        mod = _module(path)
+        if mod == "holocore.options":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and node.name.endswith(("Options", "Fields", "Request")):
+                own = [item.target.id for item in node.body if isinstance(item, ast.AnnAssign)
+                       and isinstance(item.target, ast.Name) and item.target.id in fields]
+                out += [f"{mod}:{node.name}.{f}" for f in own] if len(own) >= 2 else []
+    return out
+
+
+def long_pieces(files: list[Path]) -> tuple[list[tuple[int, str]], list[tuple[int, str]], list[str]]:
+    """(modules by lines, functions by lines, lines over the column limit as path:line)."""
+    modules, functions, wide = [], [], []
+    for path in files:
+        rel = str(path.relative_to(REPO))
+        lines = path.read_text().splitlines()
+        modules.append((len(lines), rel))
+        wide += [f"{rel}:{i}" for i, line in enumerate(lines, 1) if len(line) > LINE_COLUMNS]
+        for node in ast.walk(ast.parse("\n".join(lines))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                functions.append((node.end_lineno - node.lineno + 1, f"{rel}:{node.name}"))
+    return sorted(modules, reverse=True), sorted(functions, reverse=True), wide
+
+
+def main() -> int:
+    files = _files()
+    graph, own_late, all_late = import_graph(files)
+    groups = cycles(graph)
+    copies = option_copies(files)
+    modules, functions, wide = long_pieces(files)
+    unexplained = [c for c in copies if c.rsplit(".", 1)[0] not in OPTION_COPIES]
+    new_long = [name for n, name in modules if n > MODULE_LINES and name not in KNOWN_LONG]
+    new_long += [name for n, name in functions if n > FUNCTION_LINES and name not in KNOWN_LONG]
+    print(f"modules: {len(files)} in {', '.join(PACKAGES)}")
+    print(f"option fields declared outside holocore.options: {len(copies)} ({len(unexplained)} without a reason)")
+    for c in copies:
+        print(f"  {c}: {OPTION_COPIES.get(c.rsplit('.', 1)[0], 'NO REASON GIVEN')}")
+    print(f"import cycles (imports inside functions counted): {len(groups)}")
+    for g in groups:
+        print(f"  {' <-> '.join(g)}")
+    print(f"function-level imports: {all_late}, of the project's own modules {own_late} "
+          f"(at most {MOST_OWN_LATE_IMPORTS})")
+    print(f"modules over {MODULE_LINES} lines: {sum(n > MODULE_LINES for n, _ in modules)}; longest: "
+          + ", ".join(f"{name} {n}" for n, name in modules[:5]))
+    print(f"functions over {FUNCTION_LINES} lines: {sum(n > FUNCTION_LINES for n, _ in functions)}; longest: "
+          + ", ".join(f"{name} {n}" for n, name in functions[:5]))
+    print(f"lines over {LINE_COLUMNS} columns: {len(wide)}" + (f" ({', '.join(wide[:5])}...)" if wide else ""))
+    broken = []
+    if groups:
+        broken.append("import cycles")
+    if unexplained:
+        broken.append(f"options declared without a reason: {', '.join(unexplained)}")
+    if new_long:
+        broken.append(f"over the length limits and not known: {', '.join(new_long)}")
+    if own_late > MOST_OWN_LATE_IMPORTS:
+        broken.append(f"{own_late} function-level imports of the project's modules, more than "
+                      f"{MOST_OWN_LATE_IMPORTS}")
+    if wide:
+        broken.append(f"{len(wide)} lines over {LINE_COLUMNS} columns")
+    print("rules: " + ("kept" if not broken else "BROKEN: " + "; ".join(broken)))
+    return 1 if broken else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
