@@ -1,5 +1,6 @@
-"""Shared pieces of the phase-only encoder (docs/design.md §6; see :mod:`holocore.encode.encoder` for the physics):
-argument checks, the ASM and passband helpers, the complex-field error, the reach margin and phase wrapping.
+"""Shared pieces of the phase-only encoder (docs/design.md §6, the loss Eq. D7; see :mod:`holocore.encode.encoder`
+for the physics): argument checks, the ASM and passband helpers, the complex-field error, the reach margin and
+phase wrapping.
 """
 
 from __future__ import annotations

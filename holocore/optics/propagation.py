@@ -1,4 +1,4 @@
-"""Band-limited angular spectrum propagation between parallel planes (docs/design.md §5).
+"""Band-limited angular spectrum propagation between parallel planes (docs/design.md §5, its band limit Eq. D6).
 
     U(x, y, z) = IFFT{ FFT{U(x, y, 0)} * H(f_x, f_y; z) },   H = exp(i 2 pi z sqrt(1/lambda^2 - f_x^2 - f_y^2))
 

@@ -1,4 +1,4 @@
-"""Simulated viewing of a hologram through an eye pupil (docs/design.md §7).
+"""Simulated viewing of a hologram through an eye pupil (docs/design.md §7, the pupil disc Eq. D8).
 
 An eye of pupil diameter D behind an eyepiece of focal length f, looking from lateral offset e, accepts the
 plane waves whose direction sines (lambda f_x, lambda f_y) lie in the disc of centre e / f and radius

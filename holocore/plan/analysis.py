@@ -1,6 +1,6 @@
 """Scene analysis: a sparse pre-pass that finds the depth range of the first surfaces and of the image
 points (through a mirror the image lies behind it), which colors carry light, and where the WRP goes
-(docs/design.md §3: on the viewer's side of every surface and image point, with a margin)."""
+(docs/design.md §3 Eq. D3: on the viewer's side of every surface and image point, with a margin)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Wave paths in one Dr.Jit loop: the delta chain and the incoherent radiance of its image point traced as
-one path (paper Sec. 4.2, docs/design.md §4).
+one path (paper Sec. 4.2, docs/design.md §4; what a ray adds: Eq. D5).
 
 A wave path starts like any path of a path tracer. While its vertices are delta vertices (mirrors, smooth
 dielectrics) it is *coherent*: it carries the four float64 ray differentials of :mod:`holocore.trace.reference_chain`

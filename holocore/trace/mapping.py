@@ -1,4 +1,4 @@
-"""The world-to-hologram map T (paper Eq. 3, docs/design.md §3), in float64.
+"""The world-to-hologram map T (paper Eq. 3, docs/design.md §3 Eq. D2), in float64.
 
 Eye-camera coordinates (xc right, yc up, zc > 0 forward) come from the scene's perspective sensor; Mitsuba's
 camera frame has +x towards the image's left, so xc = -x_camera. A point maps to hologram space as
