@@ -1,7 +1,7 @@
 """Peak RSS and output bytes of a job's evaluate step (`holo evaluate`, as service/workers/evaluation.py runs it:
 the cells at the sweep's depths with their PNG pairs, and for more than one frame the viewer score) on the demo
 scene at a few SLM sizes, beside the model (holocore.plan.memory_estimate.evaluation_bytes and
-service.submission.evaluation_output_bytes). Writes bench/results/evaluation_memory.md. Usage:
+service.evaluation_rules.evaluation_output_bytes). Writes bench/results/evaluation_memory.md. Usage:
 ``.venv/bin/python bench/bench_evaluation_memory.py [--sizes 352x480x1,540x960x1,720x1280x1]`` (H x W x frames,
 3 colours). The stack is a short render (fast preset, 4 spp) and a DPAC encode: the evaluation's cost does not
 depend on how good the hologram is; the ground truth takes the service's own GT_SPP."""
@@ -91,7 +91,7 @@ def measure(sizes: str) -> list[dict]:
 
 def write_table(raw: dict, out: Path) -> None:
     from holocore.plan.memory_estimate import evaluation_bytes
-    from service.submission import evaluation_output_bytes
+    from service.evaluation_rules import evaluation_output_bytes
 
     rows = []
     for r in raw["runs"]:

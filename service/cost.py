@@ -18,13 +18,14 @@ from holocore.plan.estimate import (
 )
 from holocore.plan.estimate_probe import Probe, estimate_with_probe
 from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
-from holocore.plan.presets import PRESETS
+from holocore.plan.presets import MAX_WRP_PLANES, PRESETS
 from holocore.plan.stored_plan import scene_depth_m, wrp_distance_m
+from service.evaluation_rules import evaluation_output_bytes, evaluation_seconds, evaluation_too_small
 from service.models import JobRequest, effective_optics
 from service.quality import job_quality, recording_radius
 from service.settings import JobLimits
 
-__all__ = ["estimate_cost", "hologram_seconds", "calibration_or_none", "plane_border_px", "job_memory",
+__all__ = ["output_bytes", "estimate_cost", "hologram_seconds", "calibration_or_none", "plane_border_px", "job_memory",
            "memory_admission_error"]
 
 def _spp(req: JobRequest) -> int:
@@ -48,8 +49,6 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
                                                                        calibration=cal),
                                  target_db=target_db)
     if req.evaluate and not evaluation_skipped(req, scene_plan):
-        from service.workers.evaluation import evaluation_seconds
-
         o = effective_optics(req)
         ev = evaluation_seconds(height=o.height, width=o.width, colors=len(o.wavelengths_nm), frames=o.frames)
         out = {**out, "seconds": round(out["seconds"] + ev, 1), "evaluate_s": round(ev, 1),
@@ -61,8 +60,6 @@ def estimate_cost(req: JobRequest, *, scene_plan: Optional[dict] = None, max_spp
 def evaluation_skipped(req: JobRequest, scene_plan: Optional[dict]) -> Optional[str]:
     """Why a job that asks for an evaluation gets none (its SLM too small to score; None when it gets one):
     such a job's time has no evaluation in it, and its estimate says so in a warning instead."""
-    from service.workers.evaluation import evaluation_too_small
-
     cam = ((scene_plan or {}).get("field_of_view") or {}).get("camera_fov_x_deg")
     return evaluation_too_small(effective_optics(req), camera_fov_x_deg=float(cam) if isinstance(cam, (int, float))
                                 else None)
@@ -224,3 +221,30 @@ def memory_admission_error(req: JobRequest, worker_memory_bytes: int, *,
             f"{o.height}x{o.width} px x {len(o.wavelengths_nm)} colors x {o.frames} frames), but the workers have "
             f"{worker_memory_bytes / 1e9:.1f} GB: lower optics.resolution_hw, frames or the number of wavelengths "
             f"(memory grows with their product){planes}{evaluation}")
+
+
+# ---- what a job stores ----------------------------------------------------------------------------------------
+# Bytes a job writes per pixel, frame and colour: STACK.npz's float32 phase and 8-bit frames, frames.zip (PNGs
+# of those 8-bit frames, at most about their size), RESULT.npz's two complex64 fields when results are kept.
+_OUT_PER_SAMPLE = 4 + 1 + 1
+_RESULT_PER_SAMPLE = 16
+_OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
+
+
+_MOST_PLANES = MAX_WRP_PLANES  # wrp_planes up to it; auto chooses at most as many
+
+
+def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0,
+                 evaluate: bool = False) -> int:
+    """The most bytes a job with these (effective) optics has in its folder: what it leaves (its evaluation's
+    folder when ``evaluate``), and while it renders the scratch files of its deeper recording planes (each a
+    [frames, colours] stack of its grid, ``plane_border`` px wider than the SLM on each side, complex64;
+    unlinked, but on the disk until the render ends)."""
+    h, w = (int(v) for v in optics.get("resolution_hw") or (1080, 1920))
+    c, f = len(optics.get("wavelengths_nm") or (0, 0, 0)), int(optics.get("frames") or 1)
+    out = h * w * c * f * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * h * w + _OUT_FIXED
+    if evaluate:
+        out += evaluation_output_bytes(height_px=h, width_px=w)
+    b = int(plane_border or 0)
+    deeper = (_MOST_PLANES if wrp_planes == "auto" else int(wrp_planes)) - 1
+    return out + (deeper * f * c * (h + 2 * b) * (w + 2 * b) * 8 if b > 0 and deeper > 0 else 0)

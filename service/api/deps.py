@@ -14,7 +14,7 @@ from service.api.problems import ApiError
 from service.auth import Principal, allows, verify_token
 
 __all__ = ["get_ctx", "context", "require", "authenticate", "client_address", "scope_error", "PRINCIPAL_KEY", "Ctx",
-           "ReadScope", "SubmitScope", "AgentScope", "AdminScope"]
+           "ReadScope", "SubmitScope", "AgentScope", "AdminScope", "owned_job"]
 
 _bearer = HTTPBearer(auto_error=False, description="A token from `holo token create`.")
 _CHALLENGE = {"WWW-Authenticate": 'Bearer realm="holo"'}
@@ -131,3 +131,11 @@ ReadScope = Annotated[Principal, Depends(require("read"))]
 SubmitScope = Annotated[Principal, Depends(require("submit"))]
 AgentScope = Annotated[Principal, Depends(require("agent"))]
 AdminScope = Annotated[Principal, Depends(require("admin"))]
+
+
+def owned_job(ctx: ServiceContext, job_id: str, principal: Optional[Principal] = None) -> dict:
+    """The job, or 404 when it does not exist or belongs to another owner (the same answer: no leak)."""
+    row = ctx.db.get_job(job_id)
+    if row is None or (principal is not None and not principal.sees(row.get("owner"))):
+        raise ApiError(404, f"no job {job_id!r}")
+    return row

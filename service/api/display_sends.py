@@ -11,8 +11,7 @@ from fastapi import APIRouter
 from fastapi import Path as PathParam
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.api.deps import Ctx, SubmitScope
-from service.api.jobs import _get
+from service.api.deps import Ctx, SubmitScope, owned_job
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
 from service.models import ID_PATTERN, NAME_PATTERN
@@ -38,7 +37,7 @@ def send_to_display(body: SendRequest, ctx: Ctx, principal: SubmitScope,
                     job_id: str = PathParam(pattern=ID_PATTERN)):
     """Make a succeeded job the one ``display`` shows next (scope submit; the display must be one of the job's
     owner's). Its agent switches at its next poll of ``GET /v1/jobs?display=NAME``."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     if row["state"] != "succeeded":
         raise ApiError(409, f"job {job_id} is {row['state']}; only a succeeded job can be sent to a display")
     # The job's owner, not the caller: an admin sending a lab's job must pick that lab's display, the only one

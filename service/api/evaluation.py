@@ -15,9 +15,8 @@ from fastapi import APIRouter, Request
 from fastapi import Path as PathParam
 from pydantic import BaseModel, Field
 
-from service.api.deps import Ctx, ReadScope
+from service.api.deps import Ctx, ReadScope, owned_job
 from service.api.files import file_response
-from service.api.jobs import _get
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN
@@ -106,7 +105,7 @@ class EvaluationOut(BaseModel):
 
 def _evaluated(ctx, job_id: str, principal) -> tuple[dict, Path, dict]:
     """The job's row, evaluation folder and index; 404 with the reason when there is none to give."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
     if not spec.get("evaluate"):
         raise ApiError(404, f"job {job_id} did not ask for an evaluation against ground truth (submit it with "

@@ -15,9 +15,9 @@ from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, PlainTextResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from service import submission
+from service.api import submission
 from service.api.context import ServiceContext
-from service.api.deps import Ctx, ReadScope, SubmitScope
+from service.api.deps import Ctx, ReadScope, SubmitScope, owned_job
 from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
@@ -55,14 +55,6 @@ def job_out(row: dict) -> dict:
             "links": links}
 
 
-def _get(ctx: ServiceContext, job_id: str, principal: Optional[Principal] = None) -> dict:
-    """The job, or 404 when it does not exist or belongs to another owner (the same answer: no leak)."""
-    row = ctx.db.get_job(job_id)
-    if row is None or (principal is not None and not principal.sees(row.get("owner"))):
-        raise ApiError(404, f"no job {job_id!r}")
-    return row
-
-
 def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
     headers = {"Location": f"/v1/jobs/{row['id']}"}
     if replayed:
@@ -85,7 +77,7 @@ def submit_job(
     if req.name is not None and not done.replayed and job["spec"].get("name") != req.name:
         # the name is for people only: kept in the stored options, outside the content address
         ctx.db.update_job(job["id"], spec={**job["spec"], "name": req.name})
-        job = _get(ctx, job["id"])
+        job = owned_job(ctx, job["id"])
     return _accepted(job, replayed=done.replayed)
 
 
@@ -110,7 +102,7 @@ async def get_job(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(patter
     """A job's state, progress, timings, plan and error."""
     # Polled by clients and agents: answered on the event loop (indexed reads) without re-validating the
     # body against JobOut (job_out builds exactly that shape; the schema tests check it).
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     return JSONResponse({**job_out(row), "field_of_view_box": _job_fov_box(ctx, row)})
 
 
@@ -132,21 +124,21 @@ def _job_fov_box(ctx: ServiceContext, row: dict) -> Optional[dict]:
 @router.delete("/v1/jobs/{job_id}", status_code=202, response_model=JobOut, responses=PROBLEM_RESPONSES)
 def cancel_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """Cancel a queued or running job (a running render's process group is killed)."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     if not ctx.db.update_job(job_id, where_state=("queued", "running"), state="cancelled", finished_at=time.time()):
-        raise ApiError(409, f"job {job_id} is already {_get(ctx, job_id)['state']}; only queued or running jobs "
+        raise ApiError(409, f"job {job_id} is already {owned_job(ctx, job_id)['state']}; only queued or running jobs "
                             "can be cancelled")
     ctx.metrics.jobs_finished.labels(state="cancelled").inc()
     if row["state"] == "running":
         ctx.wake_scheduler()
-    return JSONResponse(job_out(_get(ctx, job_id)), status_code=202)
+    return JSONResponse(job_out(owned_job(ctx, job_id)), status_code=202)
 
 
 @router.post("/v1/jobs/{job_id}/delete", status_code=204, responses=PROBLEM_RESPONSES)
 def delete_job(ctx: Ctx, principal: SubmitScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """Delete a finished (succeeded, failed or cancelled) job: its record, and its folder unless another job
     reuses that result. A queued or running job must be cancelled first (``DELETE /v1/jobs/{id}``)."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     if row["state"] not in FINAL_STATES:
         raise ApiError(409, f"job {job_id} is {row['state']}; cancel it first (DELETE /v1/jobs/{job_id}), then "
                             "delete it")
@@ -183,7 +175,7 @@ def _log_text(path: Path, roots: list[str]) -> str:
 def job_logs(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
     """The steps' logs the job has (render, encode, preview, evaluate: each step's output; driver), with their
     sizes and URLs. A reused result's logs are those of the job that computed it."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     folder = Path(row["artifact_dir"] or "")
     out = []
     for step in _LOG_STEPS:
@@ -197,7 +189,7 @@ def job_logs(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_
 def job_log(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN),
             step: Literal[_LOG_STEPS] = PathParam()):
     """One step's log as text (its last 64 KiB; server paths replaced by ``<server path>``)."""
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     folder = Path(row["artifact_dir"] or "")
     p = folder / f"{step}.log"
     if not row["artifact_dir"] or not p.is_file() or p.is_symlink():
@@ -219,7 +211,7 @@ async def job_events(request: Request, ctx: Ctx, principal: ReadScope,
                      job_id: str = PathParam(pattern=ID_PATTERN)):
     """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
     job reaches succeeded, failed or cancelled."""
-    await run_in_threadpool(_get, ctx, job_id, principal)
+    await run_in_threadpool(owned_job, ctx, job_id, principal)
     held = _Held(ctx.streams_open, principal.owner, ctx.settings.max_streams_per_owner, job_id)
 
     async def stream():
@@ -286,7 +278,7 @@ async def _events(request: Request, ctx: ServiceContext, job_id: str):
 
 
 def _artifact(request: Request, ctx: ServiceContext, job_id: str, kind: str, principal: Principal):
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     if row["state"] != "succeeded":
         raise ApiError(409, f"job {job_id} is {row['state']}; its artifacts exist once it has succeeded")
     name, media = _ARTIFACTS[kind]

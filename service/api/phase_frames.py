@@ -17,8 +17,7 @@ from fastapi import Path as PathParam
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from service.api.deps import Ctx, ReadScope
-from service.api.jobs import _get
+from service.api.deps import Ctx, ReadScope, owned_job
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN
@@ -61,7 +60,7 @@ def colour_name(wavelength_nm: float) -> str:
 
 
 def _succeeded(ctx, job_id: str, principal) -> dict:
-    row = _get(ctx, job_id, principal)
+    row = owned_job(ctx, job_id, principal)
     if row["state"] != "succeeded":
         raise ApiError(409, f"job {job_id} is {row['state']}; its phase frames exist once it has succeeded")
     return row

@@ -31,7 +31,7 @@ from service.api.files import file_response
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN, SceneOut
 from service.scene_view import scene_field_of_view_box
-from service.submission import storage_error
+from service.api.submission import storage_error
 from service.uploads import UploadError, bundle_root, unpack_zip, write_files
 from service.workers.planner import killed_from_outside
 

@@ -42,7 +42,7 @@ from service.cost import estimate_cost
 from service.job_rules import binding_max_spp
 from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics
 from service.scene_view import scene_field_of_view_box
-from service.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
+from service.api.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
 from service.untrusted import open_job_file, read_job_json
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]

@@ -11,6 +11,7 @@ import logging
 from dataclasses import dataclass
 from typing import Any, Optional
 
+from service.cost import output_bytes
 from service.jobfiles import JobSpec
 
 __all__ = ["Admission", "admit", "peak_bytes", "largest_file_bytes"]
@@ -35,15 +36,13 @@ def peak_bytes(row: dict) -> int:
 
 
 def largest_file_bytes(row: dict, spec: JobSpec) -> Optional[int]:
-    """The most one file of the job can hold: all its folder may hold (service.submission.output_bytes, with
+    """The most one file of the job can hold: all its folder may hold (service.cost.output_bytes, with
     RESULT.npz and its deeper planes' scratch), with a quarter to spare; None while its planes' border is not
     known (a job from before they were counted)."""
     mem = (row.get("estimate") or {}).get("memory") or {}
     border = 0 if spec.wrp_planes == 1 or spec.method == "direct" else mem.get("plane_border_px")
     if border is None:
         return None
-    from service.submission import output_bytes
-
     most = output_bytes(spec.optics, keep_result=True, wrp_planes=spec.wrp_planes, plane_border=border,
                         evaluate=bool(spec.evaluate))
     return most + most // 4

@@ -34,21 +34,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
+from service.evaluation_rules import (
+    EVALUATION_VERSION,
+    FILE_PATTERN,
+    GT_SPP,
+    MIN_LIT_PX,
+    SWEEP_DEPTHS,
+    VIEW_DEG,
+    VIEWER_EYE_GRID,
+    VIEWER_PUPILS_MM,
+    VIEWS,
+    evaluation_cells,
+    evaluation_seconds,
+    evaluation_too_small,
+)
 
-__all__ = ["evaluation_too_small", "GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID", "EVALUATION_VERSION", "FILE_PATTERN",
+
+__all__ = ["evaluation_too_small", "GT_SPP", "VIEWS", "VIEW_DEG", "VIEWER_PUPILS_MM", "VIEWER_EYE_GRID",
+           "EVALUATION_VERSION", "FILE_PATTERN",
            "EvalPlan", "plan_evaluation", "cells_args", "viewer_args", "write_index", "run_evaluation",
            "evaluation_cells", "evaluation_seconds"]
-
-EVALUATION_VERSION = 1
-GT_SPP = 32
-VIEWS = 3
-VIEW_DEG = 0.5
-VIEWER_PUPILS_MM = (2.0, 4.0)
-VIEWER_EYE_GRID = 3
-SWEEP_DEPTHS = 9  # the pictures step's sweep (service.workers.pictures), and the depths when it made none
-FILE_PATTERN = r"^(recon|truth)-f\d{2}-v\d{2}\.png$"  # holocore.evaluate.scoring.pair_names
-_MIN_LIT_PX = 16  # holocore.evaluate.scoring.evaluate refuses a view with less fully lit than this
-
 
 def _num(v: Any) -> Optional[float]:
     """A finite float, else None (JSON has no infinity: a cell identical to its ground truth scores inf dB)."""
@@ -108,7 +113,7 @@ def plan_evaluation(job_dir: Path, meta: dict, *, shape_hw: tuple[int, int], fra
 
     def lit(z_mm: float, e: tuple[float, float]) -> bool:
         m = lit_margin_px(vm, focus_z_m=z_mm * 1e-3, pupil_diameter_m=pupil, view_offset_m=e)
-        return min(H, W) - 2 * m >= _MIN_LIT_PX
+        return min(H, W) - 2 * m >= MIN_LIT_PX
 
     for d in depths:
         if d["z_mm"] < z_inf_mm:
@@ -241,49 +246,3 @@ def run_evaluation(job_dir: Path, *, scene_path: str, meta: dict, shape_fchw: tu
     return time.monotonic() - t0, warnings
 
 
-# ---- cost ------------------------------------------------------------------------------------------------------
-# Measured on a 2-core CPU (the demo scene, holo evaluate): a ground truth render of 540x960 took 2.2 s at 16 spp
-# and 5.5 s at 64 (1.3e-7 s a sample, 2.1e-6 s a pixel for the film and the pupil's diffraction), a view 0.4 s a
-# frame (2.6e-7 s a pixel, colour and frame), and each cell about 0.6 s of its own (the sensor, the kernels, the
-# transfer functions of its depth; 35 cells of 96x128 x 2 frames took 35 s with another job beside them); each
-# holo evaluate process 5 s to start (Mitsuba, torch, the scene).
-_S_PER_SAMPLE, _S_PER_PIXEL, _S_PER_VIEW_PX, _S_PER_CELL, _S_PER_PROCESS = 1.3e-7, 2.1e-6, 2.6e-7, 0.6, 5.0
-
-
-def evaluation_cells(frames: int) -> tuple[int, int]:
-    """(cells, holo evaluate processes) of an evaluation: the sweep's depths plus the other views at the middle
-    one, and the viewer score's pupils x eye grid for more than one frame."""
-    cells = SWEEP_DEPTHS + VIEWS * VIEWS - 1
-    if frames > 1:
-        return cells + len(VIEWER_PUPILS_MM) * VIEWER_EYE_GRID ** 2, 2
-    return cells, 1
-
-
-def evaluation_too_small(optics: Any, *, camera_fov_x_deg: Optional[float] = None) -> Optional[str]:
-    """Why an evaluation would score nothing on this SLM (None when it can score): a view is scored only where
-    the SLM lights all of the pupil's bundle, a border of ceil(z NA / p) px at hologram depth z
-    (holocore.evaluate.scoring.lit_margin_px), and no depth it scores is nearer the SLM than virtual infinity,
-    so an SLM whose shorter side is under 2 ceil(z_inf NA / p) + 16 px has no depth to score. ``optics``: the
-    job's OpticsConfig; ``camera_fov_x_deg``: the scene camera's view (it sets f with fit_camera_fov)."""
-    from holocore.evaluate.scoring import default_pupil_m, lit_margin_px
-
-    try:
-        meta = {"wavelengths_m": tuple(optics.wavelengths_m), "focal_length_m": optics.focal_length_m(camera_fov_x_deg),
-                "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m}
-        pupil = default_pupil_m(meta, view_deg=VIEW_DEG)
-        need = 2 * lit_margin_px(meta, focus_z_m=optics.z_inf_m, pupil_diameter_m=pupil) + _MIN_LIT_PX
-    except (ValueError, TypeError):
-        return None  # the step itself says why, in its warning
-    h, w = (int(v) for v in optics.resolution_hw)
-    if min(h, w) >= need:
-        return None
-    return (f"no evaluation at {h}x{w} px: the ground truth is scored only where the SLM lights all of a "
-            f"{pupil * 1e3:.3g} mm pupil's light, which on this display needs at least {need} px on each side")
-
-
-def evaluation_seconds(*, height: int, width: int, colors: int, frames: int) -> float:
-    """Predicted seconds of the evaluate step (the pictures' 9 sweep depths; the model above)."""
-    cells, processes = evaluation_cells(frames)
-    px = height * width
-    per_cell = _S_PER_CELL + px * (_S_PER_PIXEL + _S_PER_SAMPLE * GT_SPP) + _S_PER_VIEW_PX * px * colors * frames
-    return processes * _S_PER_PROCESS + cells * per_cell

@@ -768,7 +768,7 @@ def test_what_a_sandbox_uid_leaves_in_shared_temporary_folders_is_removed_with_i
 def test_what_one_owner_stores_is_capped_in_bytes(tmp_path):
     """The caps counted scenes and queued jobs, not bytes: 1000 scenes of 256 MiB, or finished jobs without
     end (a 4096x2304 job with 64 frames and 3 colours leaves 40 GB), were one owner's to fill the disk with."""
-    from service.submission import output_bytes, owner_stored_bytes
+    from service.api.submission import output_bytes, owner_stored_bytes
 
     svc = App(tmp_path / "data", max_stored_gb_per_owner=0.015)  # 15 MB an owner
     svc.scene("alice", scene_id="salice")
@@ -803,7 +803,7 @@ def test_reuse_then_delete_never_lowers_what_an_owner_is_charged_below_its_disk_
     """A reused result was charged only to the job that computed it; deleting that job kept the folder (the
     reusing job holds it) and charged it to nobody: compute, resubmit, delete, again, and the owner stored
     gigabytes counted as nothing. Every job that holds a folder charges it, once per owner."""
-    from service.submission import owner_stored_bytes
+    from service.api.submission import owner_stored_bytes
 
     svc = App(tmp_path / "data", max_stored_gb_per_owner=0.005)  # 5 MB an owner; a new job's prediction is 4.2
     svc.scene("alice", scene_id="salice")
@@ -836,7 +836,7 @@ def test_a_jobs_plane_scratch_counts_against_its_owners_storage(tmp_path):
     """A deeper recording plane is held in a scratch file of [frames, colours] on its wider grid while the job
     renders: at f = 300 mm on a 32x48 SLM a few MB of output came with tens of MB of scratch per frame, which
     only the memory check (one frame of one colour) counted."""
-    from service.submission import output_bytes
+    from service.api.submission import output_bytes
 
     svc = App(tmp_path / "data", worker_memory_mb=4000, max_stored_gb_per_owner=0.09)
     sid = svc.scene("default", plan=_plan())

@@ -148,7 +148,7 @@ def test_a_time_limited_job():
     # The render takes its limit, rays up to the cap (the job's spp, else the service's max_spp); the cap counts
     # against the ray budget; the driver hands both to `holo render` in the job's options document.
     from service.jobfiles import JobFile
-    from service.submission import job_spec
+    from service.api.submission import job_spec
 
     lim = JobLimits(max_spp=64, max_ray_budget=1e7, max_render_time_s=600)
     timed = JobRequest(scene_id="s", optics=OpticsConfig(resolution_hw=(128, 128)), frames=4, encoder="dpac",

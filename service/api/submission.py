@@ -20,15 +20,21 @@ from service.api.problems import ApiError
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
-from holocore.plan.presets import MAX_WRP_PLANES
 from service.jobfiles import JobSpec
-from service.cost import calibration_or_none, estimate_cost, hologram_seconds, memory_admission_error, plane_border_px
+from service.cost import (
+    calibration_or_none,
+    estimate_cost,
+    hologram_seconds,
+    memory_admission_error,
+    output_bytes,
+    plane_border_px,
+)
 from service.job_rules import binding_max_spp, job_limit_errors, optics_sanity_errors, spp_cap
 from service.models import JobRequest, cache_key, effective_optics
 from service.settings import JobLimits
 
 __all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",
-           "IDEMPOTENCY_KEY", "output_bytes", "evaluation_output_bytes", "owner_stored_bytes", "storage_error"]
+           "IDEMPOTENCY_KEY", "output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")
 
@@ -124,49 +130,7 @@ def job_spec(req: JobRequest, limits: JobLimits) -> JobSpec:
                       "max_spp": binding_max_spp(req, limits)})
 
 
-# ---- what an owner stores -----------------------------------------------------------------------------------
-# Bytes a job writes per pixel, frame and colour: STACK.npz's float32 phase and 8-bit frames, frames.zip (PNGs
-# of those 8-bit frames, at most about their size), RESULT.npz's two complex64 fields when results are kept.
-_OUT_PER_SAMPLE = 4 + 1 + 1
-_RESULT_PER_SAMPLE = 16
-_OUT_FIXED = 4 << 20  # logs, the preview and the pictures, the small files
-
-
-_MOST_PLANES = MAX_WRP_PLANES  # wrp_planes up to it; auto chooses at most as many
-
-
-# The evaluation's folder (service/workers/evaluation.py): per cell a PNG pair of the SLM's size, 8-bit RGB, which
-# PNG stores in at most 3 bytes a pixel and a filter byte a row (a noisy reconstruction hardly compresses), for
-# each of the most cells its scored views can have whatever the frames (the viewer score writes no pictures);
-# and its JSON. Measured (bench/results/evaluation_memory.md): 720x1280 with 17 cells 37 MB against a bound of
-# 95 MB (its pictures compress).
-_EVAL_FIXED = 1 << 20
-
-
-def evaluation_output_bytes(*, height_px: int, width_px: int) -> int:
-    """The most bytes a job's ``evaluation/`` folder holds on an SLM of ``height_px`` x ``width_px`` pixels."""
-    from service.workers.evaluation import evaluation_cells
-
-    cells, _ = evaluation_cells(1)
-    return cells * 2 * (3 * height_px * width_px + height_px) + _EVAL_FIXED
-
-
-def output_bytes(optics: dict, *, keep_result: bool, wrp_planes="auto", plane_border: Optional[int] = 0,
-                 evaluate: bool = False) -> int:
-    """The most bytes a job with these (effective) optics has in its folder: what it leaves (its evaluation's
-    folder when ``evaluate``), and while it renders the scratch files of its deeper recording planes (each a
-    [frames, colours] stack of its grid, ``plane_border`` px wider than the SLM on each side, complex64;
-    unlinked, but on the disk until the render ends)."""
-    h, w = (int(v) for v in optics.get("resolution_hw") or (1080, 1920))
-    c, f = len(optics.get("wavelengths_nm") or (0, 0, 0)), int(optics.get("frames") or 1)
-    out = h * w * c * f * (_OUT_PER_SAMPLE + (_RESULT_PER_SAMPLE if keep_result else 0)) + 8 * h * w + _OUT_FIXED
-    if evaluate:
-        out += evaluation_output_bytes(height_px=h, width_px=w)
-    b = int(plane_border or 0)
-    deeper = (_MOST_PLANES if wrp_planes == "auto" else int(wrp_planes)) - 1
-    return out + (deeper * f * c * (h + 2 * b) * (w + 2 * b) * 8 if b > 0 and deeper > 0 else 0)
-
-
+# ---- what an owner stores ----------------------------------------------------------------------------------
 _finished_bytes: dict[str, tuple[int, int]] = {}  # a finished job's folder -> (its mtime_ns, bytes in it)
 
 
