@@ -62,9 +62,10 @@ function renderJob(job) {
   $("job-bar").style.width = `${(100 * p).toFixed(1)}%`;
   $("job-bar").dataset.fraction = String(p);
   const left = eta(job);
+  // a queued job's time left already says it waits for a worker: that line alone, once
   setText($("job-stage"), FINAL.has(job.state) ? "" : `${Math.round(100 * p)}% · ${job.progress ? job.progress.step + " / "
-    + job.progress.stage : "waiting for a worker"}${left && job.state === "running" ? " · " + left : ""}`
-    + (job.state === "queued" && left ? ` (${left})` : ""));
+    + job.progress.stage : left && job.state === "queued" ? left : "waiting for a worker"}`
+    + (left && job.state === "running" ? " · " + left : ""));
   setText($("job-error"), job.error ? `Failed: ${job.error}` : "");
   renderActions(job);
 
@@ -210,7 +211,7 @@ export async function showJob(id) {
     // nothing of a job to show: only the address asked for and why
     setText($("job-id"), id);
     setText($("job-name-title"), err.status === 404 ? "not found" : "");
-    setText($("job-error"), err.status === 404 ? "Job not found: no such job (or it is another owner's)."
+    setText($("job-error"), err.status === 404 ? `No such job (or it is another owner's): ${id} was not found.`
       : `Could not load the job: ${err.message}`);
     show("timings-card", false); show("plan-card", false);
     return;

@@ -54,12 +54,12 @@ function jobRow(job) {
     thumbCell(job),
     el("td", { class: "job-name" }, el("a", { href: `#/jobs/${job.id}` }, jobName(job)),
        el("div", { class: "mono muted" }, job.id)),
-    el("td", { class: "scene-name", title: job.scene_id }, scene),
-    el("td", { class: "options" }, optionsText(job)),
-    el("td", {}, job.display || "–"),
     el("td", { class: "state" }, el("span", { class: `badge ${job.state}` }, job.state),
        job.error ? el("div", { class: "error reason" }, job.error) : null),
     progressCell(job),
+    el("td", { class: "scene-name", title: job.scene_id }, scene),
+    el("td", { class: "options" }, optionsText(job)),
+    el("td", {}, job.display || "–"),
     ...estimateCells(job),
     el("td", { class: "num", title: fmtTime(job.created_at) }, fmtShortTime(job.created_at)));
 }

@@ -81,6 +81,14 @@ export function showFormPicture(scene, box) {
   return showScenePicture($("form-scene-picture"), "form", scene, box || (scene && scene.field_of_view_box) || null);
 }
 
+// The form's options were refused: no field of view is drawn for them (not the last accepted one's).
+export function refuseFormBox() {
+  const fig = $("form-scene-picture") && $("form-scene-picture").querySelector("figure.scene-picture");
+  if (!fig) return;
+  fig.querySelector(".fov-box").hidden = true;
+  setText(fig.querySelector("figcaption"), "No field of view: the options are refused (see the estimate).");
+}
+
 export function clearFormPicture() {
   const holder = $("form-scene-picture");
   if (holder) { clear(holder); holder.hidden = true; }

@@ -6,7 +6,8 @@ import { ApiError, getJSON, postJSON, request } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
 import { jobName, loadText } from "./job_facts.js";
 import { plural, show, state } from "./state.js";
-import { clearFormPicture, showFormPicture } from "./scene_picture.js";
+import { clearFormPicture, refuseFormBox, showFormPicture } from "./scene_picture.js";
+import { refreshQueue } from "./job_filters.js";
 
 export async function loadProfiles() {
   state.profiles = await getJSON("/v1/display-profiles");
@@ -124,7 +125,10 @@ export async function waitForPlan(id) {
       if (sc.plan_state !== state.scene.plan_state) {
         state.scene = sc; state.scenes.set(id, sc); showScene(sc); estimateSoon();
       }
-      if (sc.plan_state === "ready" || sc.plan_state === "failed") return;
+      if (sc.plan_state === "ready" || sc.plan_state === "failed") {
+        if ($("queue-line")) refreshQueue();  // the planner's line no longer counts this scene
+        return;
+      }
     } catch (err) { if (err instanceof ApiError && (err.status === 401 || err.status === 404)) return; }
   }
 }
@@ -144,6 +148,23 @@ export function estimateSoon() {
 // Boxes that must hold something (their label's words); every other check is the server's, whose refusal says
 // what to change (the browser's own range checks would only say "invalid").
 const REQUIRED = [["frames", "Frames"], ["res-h", "Resolution (rows)"], ["res-w", "Resolution (columns)"]];
+// A box the browser shows red (out of its own range) is refused here too, in its label's words: the page never
+// estimates or submits what it marks as wrong.
+const RANGED = [...REQUIRED, ["spp", "Rays per pixel"], ["iterations", "Encoder iterations"],
+                ["time-limit", "Render time limit"], ["quality-db", "Quality target"], ["display", "Display name"]];
+
+function outOfRange() {
+  for (const [id, words] of RANGED) {
+    const box = $(id);
+    const v = box.validity;
+    if (!v || v.valid) continue;
+    if (v.patternMismatch) return `${words}: letters, digits, '.', '_' or '-', starting with a letter or digit.`;
+    if (v.badInput) return `${words} must be a number.`;
+    if (box.min && box.max) return `${words} must be ${box.min} to ${box.max}.`;
+    return box.min ? `${words} must be at least ${box.min}.` : `${words} must be at most ${box.max}.`;
+  }
+  return null;
+}
 
 function showFormPlan(plan) {
   const ul = clear($("form-plan"));
@@ -158,7 +179,16 @@ async function estimate() {
   setText($("submit-error"), "");
   out.classList.remove("error");
   const empty = REQUIRED.filter(([id]) => !$(id).value.trim()).map(([, words]) => words);
-  if (empty.length) { setText(out, `Fill in ${empty.join(", ")} to see the estimate.`); return; }
+  if (empty.length) {
+    setText(out, `Fill in ${empty.join(", ")} to see the estimate.`); showFormPlan(null); refuseFormBox();
+    return;
+  }
+  const wrong = outOfRange();
+  if (wrong) {
+    setText(out, `Cannot submit: ${wrong}`);
+    out.classList.add("error"); showFormPlan(null); refuseFormBox();
+    return;
+  }
   if (state.scene.plan_state === "failed") {
     setText(out, "Cannot submit: the scene's plan failed (see above); fix the scene and upload it again.");
     out.classList.add("error"); showFormPlan(null);
@@ -191,6 +221,7 @@ async function estimate() {
     setText(out, `Cannot submit: ${err.message}`);
     out.classList.add("error");
     showFormPlan(null);
+    refuseFormBox();
   }
 }
 

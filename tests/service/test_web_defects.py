@@ -190,3 +190,60 @@ def test_a_job_too_small_to_evaluate_is_not_counted_or_called_evaluated(page, se
     assert shown.count(note) == 1 and "evaluation: no evaluation" not in shown.lower(), shown
     assert "evaluated against ground truth" not in page.text("job-facts")
     assert not [m for m in _console_errors(page) if "/evaluation" in m], _console_errors(page)
+
+
+def test_the_forms_small_wrong_states(page, files):  # noqa: F811
+    """An untouched file box is not red; a box the page shows red is not estimated (and the field-of-view box
+    goes with a refusal); the planner's "to plan" goes when the plan is done."""
+    from selenium.webdriver.common.by import By
+
+    red = page.js("return getComputedStyle(document.body).getPropertyValue('--bad').trim()")
+    border = page.js("return getComputedStyle(document.getElementById('bundle')).borderTopColor")
+    assert border != page.js("const e = document.createElement('i'); e.style.color = arguments[0]; "
+                             "document.body.append(e); const c = getComputedStyle(e).color; e.remove(); return c;", red)
+    page.d.find_element(By.ID, "bundle").send_keys(str(files["demo"]))
+    page.d.find_element(By.ID, "upload-button").click()
+    page.until(lambda: page.visible("job-form"), what="the uploaded scene")
+    page.d.find_element(By.ID, "refresh").click()  # the queue's line while the scene's plan is pending
+    page.until(lambda: page.enabled("submit-button") and page.visible("form-fov-box"), what="the estimate")
+    page.until(lambda: "to plan" not in page.text("queue-line"), timeout=4, what="the planner's line to follow")
+    page.set("res-h", "7")
+    page.until(lambda: "Cannot submit" in page.text("estimate"), what="the refusal of 7 rows")
+    assert "8 to 4096" in page.text("estimate") and not page.enabled("submit-button"), page.text("estimate")
+    assert page.js("return document.getElementById('res-h').matches(':invalid')")  # red once the box is left
+    assert not page.visible("form-fov-box") and "refused" in page.text("form-fov-caption")
+    page.set("res-h", "64")
+    page.until(lambda: page.enabled("submit-button") and page.visible("form-fov-box"), what="the estimate again")
+
+
+def test_a_queued_jobs_page_and_the_list_at_390_px(page, browser, made_jobs):
+    """The queued line says it waits once; Cancel is not the page's primary button; at 390 px the job list shows
+    a job's state and progress without scrolling sideways."""
+    job = made_jobs["direct"]
+    # the job as it was while queued: the page's GET answers it so, its event stream stays open
+    page.js("""const real = window.fetch, id = arguments[0];
+        window.fetch = async (u, o) => {
+          if (String(u) === `/v1/jobs/${id}/events`) return new Response(new ReadableStream({ start() {} }), {
+            headers: { 'Content-Type': 'text/event-stream' } });
+          const r = await real(u, o);
+          if (String(u) !== `/v1/jobs/${id}`) return r;
+          const j = await r.json();
+          return new Response(JSON.stringify({ ...j, state: 'queued', progress: null, finished_at: null,
+                                               started_at: null, error: null }));
+        };""", job["id"])
+    page.go(f"#/jobs/{job['id']}")
+    page.until(lambda: page.text("job-stage") and page.visible("job-cancel"), what="the queued job's line")
+    line = page.text("job-stage")
+    assert line.count("waiting for a worker") == 1, line
+    accent = page.js("return getComputedStyle(document.getElementById('job-rerun')).borderTopColor")
+    cancel = page.js("const s = getComputedStyle(document.getElementById('job-cancel')); "
+                     "return [s.backgroundColor, s.borderTopColor]")
+    assert cancel[0] in ("rgba(0, 0, 0, 0)", "transparent") and cancel[1] != accent, cancel
+    browser.set_window_size(390, 900)
+    page.go("#/")
+    row = f"tr[data-job-id='{job['id']}']"
+    page.until(lambda: page.js(f"return !!document.querySelector(\"{row}\")"), what="the job's row")
+    edges = page.js(f"""const r = document.querySelector("{row}"), w = r.closest('.table-wrap');
+        return [w.getBoundingClientRect().right, w.scrollLeft, r.querySelector('td.state').getBoundingClientRect().right,
+                r.querySelector('td.progress-cell').getBoundingClientRect().right]""")
+    assert edges[1] == 0 and edges[2] <= edges[0] + 1 and edges[3] <= edges[0] + 1, edges
