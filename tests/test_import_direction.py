@@ -105,3 +105,8 @@ def test_a_backwards_import_is_caught(tmp_path, monkeypatch):
 @pytest.mark.parametrize("part", sorted({_part(_module_name(p)) for p in ROOT.rglob("*.py")}))
 def test_every_part_has_a_stage(part):
     assert part in RANK, f"holocore.{part} is missing from STAGES"
+
+
+def test_the_architecture_page_holds_the_stages_in_this_order():
+    line = " -> ".join(", ".join(p for p in parts if p != "__init__") for parts in STAGES)
+    assert line in (ROOT.parent / "docs/architecture.md").read_text(), line
