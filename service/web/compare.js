@@ -10,7 +10,10 @@ import { sceneName } from "./jobs_list.js";
 import { aborted, state, status } from "./state.js";
 
 const SIDES = ["a", "b"];
-const SAME_MM = 1e-3; // two sweep depths closer than this are one slider position
+// two sweeps' depths closer than this (mm), or than 1 % of the depths' span, are one slider position: a stop
+// between them would change neither side's picture
+const SAME_MM = 0.02;
+const SAME_SPAN = 0.01;
 
 let view = null; // {abort, urls, sides: [{job, sweep, urls}]}
 
@@ -21,7 +24,8 @@ export function leaveCompare() {
   view = null;
 }
 
-// Every option as "name" -> text, the optics' fields under "optics." (a job's options are its stored spec).
+// Every option as "name" -> text, the optics' fields under "optics." (a job's options are its stored spec). The
+// request's "frames" is not listed beside them: the frames a job made are its optics' (optics.frames).
 function flatOptions(job) {
   const out = new Map();
   const put = (key, v) => {
@@ -29,7 +33,7 @@ function flatOptions(job) {
     out.set(key, Array.isArray(v) ? v.join(" x ") : typeof v === "object" ? JSON.stringify(v) : String(v));
   };
   const o = job.options || {};
-  for (const [k, v] of Object.entries(o)) if (k !== "optics" && k !== "name") put(k, v);
+  for (const [k, v] of Object.entries(o)) if (k !== "optics" && k !== "name" && k !== "frames") put(k, v);
   for (const [k, v] of Object.entries(o.optics || {})) put(`optics.${k}`, v);
   const sc = state.scenes.get(job.scene_id);
   put("scene", sc ? `${sc.entry} (${job.scene_id})` : job.scene_id);
@@ -47,13 +51,16 @@ export function optionDiff(a, b) {
 }
 
 // The slider's positions: both sweeps' depths (mm from the SLM) in the sweeps' own order (far to near, which
-// is falling or rising z as the display maps the scene), one position for depths within SAME_MM of each other.
-function sliderDepths(sweeps) {
+// is falling or rising z as the display maps the scene), one position for depths closer than SAME_MM or
+// SAME_SPAN of the span.
+export function sliderDepths(sweeps) {
   const first = sweeps.find((s) => s.length > 1);
   const falling = !first || first[0].z_mm > first[first.length - 1].z_mm;
   const all = sweeps.flatMap((s) => s.map((p) => p.z_mm)).sort((x, y) => (falling ? y - x : x - y));
+  const span = all.length ? Math.abs(all[all.length - 1] - all[0]) : 0;
+  const same = Math.max(SAME_MM, SAME_SPAN * span);
   const out = [];
-  for (const z of all) if (!out.length || Math.abs(out[out.length - 1] - z) > SAME_MM) out.push(z);
+  for (const z of all) if (!out.length || Math.abs(out[out.length - 1] - z) >= same) out.push(z);
   return out;
 }
 

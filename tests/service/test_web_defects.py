@@ -247,3 +247,20 @@ def test_a_queued_jobs_page_and_the_list_at_390_px(page, browser, made_jobs):
         return [w.getBoundingClientRect().right, w.scrollLeft, r.querySelector('td.state').getBoundingClientRect().right,
                 r.querySelector('td.progress-cell').getBoundingClientRect().right]""")
     assert edges[1] == 0 and edges[2] <= edges[0] + 1 and edges[3] <= edges[0] + 1, edges
+
+
+def test_compare_lists_frames_once_and_merges_near_depths(page, made_jobs):
+    a, b = made_jobs["direct"]["id"], made_jobs["wrp6"]["id"]
+    page.go(f"#/compare/{a}/{b}")
+    page.until(lambda: page.js("return document.querySelectorAll('#cmp-diff tbody tr').length") > 0,
+               what="the options' differences")
+    keys = page.js("return [...document.querySelectorAll('#cmp-diff tbody tr')].map(r => r.dataset.option)")
+    assert "optics.frames" in keys and "frames" not in keys, keys
+    # two sweeps of 9 depths over 8 mm whose depths differ by 2-15 µm: 9 slider stops, not 17
+    stops = page.d.execute_async_script("""const done = arguments[arguments.length - 1];
+        import('/web/compare.js').then((m) => {
+          const one = [...Array(9).keys()].map((i) => ({ z_mm: 88 - i }));
+          const two = one.map((p, i) => ({ z_mm: p.z_mm + 0.002 + 0.0015 * i }));
+          done(m.sliderDepths([one, two]).length);
+        }).catch((e) => done(String(e)));""")
+    assert stops == 9, stops
