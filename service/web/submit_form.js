@@ -26,11 +26,26 @@ function profile() {
   return state.profiles.profiles.find((p) => p.name === v) || state.profiles.profiles[0];
 }
 
-function applyProfile() {
+// The options of a size of the profile: a first job is a preview (half the display's rows and columns, a few
+// frames, the fast preset: minutes, not hours); the full display is one choice away, its time shown beside.
+const PREVIEW = { scale: 0.5, frames: 4, preset: "fast" };
+
+function sizeOptions(size) {
   const o = profile().optics;
-  $("res-h").value = o.resolution_hw[0];
-  $("res-w").value = o.resolution_hw[1];
-  $("frames").value = Math.min(o.frames, 64);
+  if (size !== "preview") {
+    return { res: o.resolution_hw, frames: Math.min(o.frames, 64), preset: "balanced" };
+  }
+  return { res: o.resolution_hw.map((n) => Math.max(8, Math.round(n * PREVIEW.scale))),
+           frames: Math.min(PREVIEW.frames, o.frames, 64), preset: PREVIEW.preset };
+}
+
+function applyProfile() {
+  const isJob = $("profile").value.startsWith("job:");
+  const s = sizeOptions(isJob ? "full" : $("size").value);
+  $("res-h").value = s.res[0];
+  $("res-w").value = s.res[1];
+  $("frames").value = s.frames;
+  if (!isJob) $("preset").value = s.preset;
 }
 
 function jobBody() {
@@ -211,6 +226,7 @@ async function estimate() {
       if (!qw.has(w)) out.append(el("span", { class: "warning estimate-warning" }, ` · ${w}`));
     }
     showQuality(e.estimate.quality, e.options);
+    if ($("size").value === "preview" && !$("profile").value.startsWith("job:")) fullEstimate(seq);
     showFormPlan(e.plan);
     showFormPicture(state.scene, e.field_of_view_box);
     if (!planReady()) out.append(el("span", { class: "muted", id: "plan-wait" },
@@ -223,6 +239,27 @@ async function estimate() {
     showFormPlan(null);
     refuseFormBox();
   }
+}
+
+// The full display's time beside a preview's estimate, and the choice of it one click away.
+async function fullEstimate(seq) {
+  const s = sizeOptions("full");
+  const body = { ...jobBody(), frames: s.frames, preset: s.preset };
+  body.optics = { ...body.optics, resolution_hw: s.res };
+  let text;
+  try {
+    const e = await postJSON("/v1/jobs/estimate", body);
+    text = `the full display (${s.res.join("x")}, ${plural(s.frames, "frame")}, ${s.preset}) would take `
+      + `${loadText(e.estimate) || fmtSeconds(e.estimate.seconds)}`;
+  } catch (err) {
+    text = `the full display (${s.res.join("x")}): ${err.message}`;
+  }
+  if (seq !== estimateSeq || !state.scene) return;
+  const span = el("span", { class: "muted", id: "full-estimate" }, ` · This is a preview; ${text} `);
+  const go = el("button", { type: "button", class: "small", id: "full-size" }, "Use the full display");
+  go.addEventListener("click", () => { $("size").value = "full"; applyProfile(); estimateSoon(); });
+  span.append(go);
+  $("estimate").append(span);
 }
 
 // What the options buy: the predicted viewer-faithful PSNR, what costs the most, the options a quality target
@@ -320,4 +357,5 @@ export function initForm() {
   $("job-form").addEventListener("change", (ev) => { if (ev.target.tagName === "SELECT") estimateSoon(); });
   $("bundle").addEventListener("change", () => { forgetScene(); clear($("scene-info")); });
   $("profile").addEventListener("change", () => { applyProfile(); estimateSoon(); });
+  $("size").addEventListener("change", () => { applyProfile(); estimateSoon(); });
 }

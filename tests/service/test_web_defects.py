@@ -264,3 +264,22 @@ def test_compare_lists_frames_once_and_merges_near_depths(page, made_jobs):
           done(m.sliderDepths([one, two]).length);
         }).catch((e) => done(String(e)));""")
     assert stops == 9, stops
+
+
+def test_the_forms_default_is_a_preview_with_the_full_display_one_click_away(page, files):  # noqa: F811
+    from selenium.webdriver.common.by import By
+
+    def values():
+        return page.js("return ['res-h', 'res-w', 'frames', 'preset', 'size'].map((id) => "
+                       "document.getElementById(id).value)")
+
+    page.upload(files["demo"])
+    page.until(lambda: page.enabled("submit-button") and page.visible("full-size"), what="the preview's estimate")
+    assert values() == ["540", "960", "4", "fast", "preview"], values()
+    full = page.text("full-estimate")
+    assert "full display (1080x1920, 24 frames, balanced) would take" in full, full
+    page.d.find_element(By.ID, "full-size").click()
+    page.until(lambda: page.enabled("submit-button") and "24 frame(s)" in page.text("form-plan"),
+               what="the full display's estimate")
+    assert values() == ["1080", "1920", "24", "balanced", "full"], values()
+    assert not page.visible("full-estimate")
