@@ -506,7 +506,8 @@ def picture(runs: list[SceneRun], path: Path) -> None:
     from PIL import Image, ImageDraw
 
     from holocore.evaluate.preview import to_png8
-    from holocore.evaluate.scoring import compare, eye_view, to_rgb
+    from holocore.evaluate.score_files import to_rgb
+    from holocore.evaluate.scoring import compare, eye_view
 
     tiles_rows = []
     for run in runs:

@@ -68,7 +68,7 @@ def sheet(tiles: dict, wl, whites: dict, path: Path, *, tile_w: int) -> None:
     from PIL import Image, ImageDraw
 
     from holocore.evaluate.preview import to_png8
-    from holocore.evaluate.scoring import to_rgb
+    from holocore.evaluate.score_files import to_rgb
 
     rows = ["hologram", "ground truth"]
     cols = list(whites)

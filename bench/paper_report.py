@@ -621,7 +621,7 @@ def image_grid(eq: dict, npz: Path, path: Path, *, zoom: int = 1) -> None:
     from PIL import Image, ImageDraw
 
     from holocore.evaluate.preview import to_png8
-    from holocore.evaluate.scoring import to_rgb
+    from holocore.evaluate.score_files import to_rgb
 
     with np.load(npz) as z:
         imgs = {k.replace("__", "|"): z[k] for k in z.files}

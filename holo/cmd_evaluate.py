@@ -104,7 +104,7 @@ def evaluate(
 
     from holocore.evaluate.truths import ground_truth
     from holocore.evaluate.scoring import evaluate as run_eval
-    from holocore.evaluate.scoring import write_outputs
+    from holocore.evaluate.score_files import write_outputs
     from holocore.optics.fieldsource import open_slm_field
     from holocore.runtime.membudget import memory_budget_bytes
     from holocore.scene.load import load_scene

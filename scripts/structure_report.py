@@ -29,19 +29,18 @@ OPTION_COPIES = {
 }
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG = {
-    "holocore/baselines/focal_stack.py", "holocore/evaluate/scoring.py",
     "holocore/trace/tile.py:trace_tile", "holo/cmd_evaluate.py:evaluate", "holocore/baselines/focal_stack.py:"
     "render_focal_stack", "holocore/evaluate/viewer.py:viewer_score", "holo/cmd_submit.py:submit",
     "holocore/calibration.py:calibrate", "holocore/trace/reference_chain.py:trace_chain",
-    "holocore/baselines/focal_stack.py:optimise_focal_stack", "holocore/encode/stream.py:encode_file",
+    "holocore/baselines/focal_stack_fit.py:optimise_focal_stack", "holocore/encode/stream.py:encode_file",
     "holocore/plan/effects.py:make_plan", "holocore/baselines/light_field.py:render_light_field",
     "holo/cmd_view.py:view", "service/api/app.py:create_app", "holocore/optics/viewing.py:view_intensities",
-    "holocore/trace/kernel.py:trace_wave_paths", "holocore/baselines/focal_stack.py:_optimise_pupil_aware",
+    "holocore/trace/kernel.py:trace_wave_paths", "holocore/baselines/focal_stack_fit.py:_optimise_pupil_aware",
     "holocore/trace/hologram_rays.py:trace_field", "holo/cmd_encode.py:encode", "holocore/plan/analysis.py:analyze",
     "holocore/optics/plane_chain.py:chain_planes",
 }
-MOST_OWN_LATE_IMPORTS = 240
-MOST_WIDE_LINES = 52  # lines over 120 columns when the limit was checked; may only go down
+MOST_OWN_LATE_IMPORTS = 225
+MOST_WIDE_LINES = 51  # lines over 120 columns when the limit was checked; may only go down
 
 
 def _files() -> list[Path]:

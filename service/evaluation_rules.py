@@ -18,7 +18,7 @@ VIEW_DEG = 0.5
 VIEWER_PUPILS_MM = (2.0, 4.0)
 VIEWER_EYE_GRID = 3
 SWEEP_DEPTHS = 9  # the pictures step's sweep (service.workers.pictures), and the depths when it made none
-FILE_PATTERN = r"^(recon|truth)-f\d{2}-v\d{2}\.png$"  # holocore.evaluate.scoring.pair_names
+FILE_PATTERN = r"^(recon|truth)-f\d{2}-v\d{2}\.png$"  # holocore.evaluate.score_files.pair_names
 MIN_LIT_PX = 16  # holocore.evaluate.scoring.evaluate refuses a view with less fully lit than this
 
 

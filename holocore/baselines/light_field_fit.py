@@ -27,7 +27,7 @@ import numpy as np
 
 from holocore import validate
 from holocore.baselines.adam_budget import AdamOptions, StepBudget
-from holocore.baselines.focal_stack import FocalStackFit
+from holocore.baselines.focal_stack_fit import FocalStackFit
 
 if TYPE_CHECKING:
     import torch

@@ -102,9 +102,9 @@ def _discover() -> None:
 
 
 def baseline_names() -> tuple[str, ...]:
-    """Every registered baseline's name, the project's own first (in the order its pyproject declares them)."""
+    """Every registered baseline's name, the project's own first, each part by name."""
     _discover()
-    return tuple(sorted(_REGISTRY, key=lambda n: not _REGISTRY[n].__module__.startswith("holocore.")))
+    return tuple(sorted(_REGISTRY, key=lambda n: (not _REGISTRY[n].__module__.startswith("holocore."), n)))
 
 
 def get_baseline(name: str) -> Baseline:

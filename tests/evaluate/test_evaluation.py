@@ -213,7 +213,8 @@ def test_views_at_middle_scores_a_cross_and_pairs_are_written_at_one_white(tmp_p
     ``pairs`` each cell's view (at its scale) and ground truth as PNGs at one white level, named in metrics.json."""
     from PIL import Image
 
-    from holocore.evaluate.scoring import evaluate, write_outputs
+    from holocore.evaluate.score_files import write_outputs
+    from holocore.evaluate.scoring import evaluate
 
     meta = {"focal_length_m": F_M, "z_inf_m": Z_INF, "pitch_m": P, "wavelengths_m": [LAM]}
     rng = np.random.default_rng(1)

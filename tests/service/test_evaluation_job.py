@@ -115,7 +115,8 @@ def test_the_scores_of_a_depth_are_those_of_its_pictures(server, evaluated, demo
     images (one white level, gamma 2.2). A ground truth or view of another depth (a sweep read near to far, an
     index off by one) fails: neighbouring depths' ground truths differ by far more than a grey level."""
     from holocore.evaluate.preview import to_png8
-    from holocore.evaluate.scoring import compare, eye_view, to_rgb
+    from holocore.evaluate.score_files import to_rgb
+    from holocore.evaluate.scoring import compare, eye_view
     from holocore.io import load_stack
     from holocore.evaluate.truths import DEFAULT_TRUTH, ground_truth
     from holocore.scene.load import load_scene
