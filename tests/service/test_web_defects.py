@@ -244,7 +244,8 @@ def test_a_queued_jobs_page_and_the_list_at_390_px(page, browser, made_jobs):
     row = f"tr[data-job-id='{job['id']}']"
     page.until(lambda: page.js(f"return !!document.querySelector(\"{row}\")"), what="the job's row")
     edges = page.js(f"""const r = document.querySelector("{row}"), w = r.closest('.table-wrap');
-        return [w.getBoundingClientRect().right, w.scrollLeft, r.querySelector('td.state').getBoundingClientRect().right,
+        return [w.getBoundingClientRect().right, w.scrollLeft,
+                r.querySelector('td.state').getBoundingClientRect().right,
                 r.querySelector('td.progress-cell').getBoundingClientRect().right]""")
     assert edges[1] == 0 and edges[2] <= edges[0] + 1 and edges[3] <= edges[0] + 1, edges
 
