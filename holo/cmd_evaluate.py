@@ -4,6 +4,7 @@ side-by-side images."""
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
@@ -57,6 +58,49 @@ def evaluate(
                                          "chunks of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
 ) -> None:
     """Simulated views vs ground truth (--truth): PSNR/SSIM per (focus, view) after one brightness scale."""
+    focus_z_m = _check_grid(focus_planes=focus_planes, focus_mm=focus_mm, views=views, views_at=views_at,
+                            view_deg=view_deg, pupil_mm=pupil_mm, truth_kind=truth_kind, gt_spp=gt_spp)
+    pupils_m = _check_viewer(pupils_mm, eye_grid=eye_grid, eye_span_mm=eye_span_mm, seed=seed) if viewer else []
+    if not source.is_file():
+        fail(f"input not found: {source}")
+    if not scene.exists():
+        fail(f"scene not found: {scene}")
+
+    from holocore.evaluate.score_files import write_outputs
+    from holocore.evaluate.scoring import evaluate as run_eval
+    from holocore.runtime.membudget import memory_budget_bytes
+
+    t0 = time.perf_counter()
+    write_progress = progress_writer(progress_jsonl)
+    write_progress("load", 1, 1)
+    try:
+        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
+        field, truth = _field_and_truth(source, scene, truth_kind, gt_spp)
+        if viewer:
+            from holocore.evaluate.viewer import viewer_score
+
+            vs = viewer_score(field, field.meta, truth, pupils_m=pupils_m, eye_grid=eye_grid, seed=seed,
+                              eye_span_m=None if eye_span_mm is None else eye_span_mm * 1e-3,
+                              focus_planes=focus_planes, focus_z_m=focus_z_m, progress=write_progress,
+                              memory_budget_bytes=budget)
+            return _write_viewer(vs, out, source.name)
+        ev = run_eval(field, field.meta, truth, focus_planes=focus_planes, focus_z_m=focus_z_m, views=views,
+                      view_deg=view_deg, views_at=views_at,
+                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images or pairs,
+                      progress=write_progress, memory_budget_bytes=budget)
+    except (ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    paths = write_outputs(ev, out, label=source.name, sheets=images, pairs=pairs)
+    _print_cells(ev, field)
+    typer.echo(f"evaluated in {time.perf_counter() - t0:.1f} s (ground truth {truth.seconds:.1f} s) -> {out} "
+               f"({', '.join(p.name for p in paths.values())})", err=True)
+
+
+def _check_grid(*, focus_planes: int, focus_mm: Optional[str], views: int, views_at: str, view_deg: float,
+                pupil_mm: Optional[float], truth_kind: str, gt_spp: int) -> Optional[list[float]]:
+    """The cells' options checked (one line and exit 2 otherwise); the --focus-mm depths in m, if given."""
+    from holocore.evaluate.truths import TRUTHS
+
     if not 1 <= focus_planes <= 64:
         fail(f"--focus-planes must be in 1..64, got {focus_planes}")
     if not 1 <= views <= 15:
@@ -65,101 +109,79 @@ def evaluate(
         fail(f"--view-deg must be in [0, 45) degrees, got {view_deg}")
     if pupil_mm is not None and not (math.isfinite(pupil_mm) and 0 < pupil_mm <= 1000):
         fail(f"--pupil-mm must be in (0, 1000] mm, got {pupil_mm}")
-    from holocore.evaluate.truths import TRUTHS
-
     if truth_kind not in TRUTHS:
         fail(f"--truth must be one of {', '.join(TRUTHS)}, got {truth_kind!r}")
     if not 1 <= gt_spp <= 65536:
         fail(f"--gt-spp must be in 1..65536, got {gt_spp}")
-    focus_z_m = None
-    if focus_mm is not None:
-        try:
-            focus_z_m = [float(v) * 1e-3 for v in focus_mm.split(",") if v.strip()]
-        except ValueError:
-            fail(f"--focus-mm must be a comma-separated list of depths in mm, got {focus_mm!r}")
-        if not 1 <= len(focus_z_m) <= 64 or not all(math.isfinite(z) and 0 <= z <= 10.0 for z in focus_z_m):
-            fail(f"--focus-mm must list 1..64 depths in [0, 10000] mm, got {focus_mm!r}")
     if views_at not in ("all", "middle"):
         fail(f"--views-at must be all or middle, got {views_at!r}")
     if views_at == "middle" and views % 2 == 0:
         fail(f"--views-at middle needs an odd --views (the centre view is scored at every focus), got {views}")
-    pupils_m = []
-    if viewer:
-        try:
-            pupils_m = [float(v) * 1e-3 for v in pupils_mm.split(",") if v.strip()]
-        except ValueError:
-            fail(f"--pupils-mm must be a comma-separated list of diameters in mm, got {pupils_mm!r}")
-        if not pupils_m or not all(math.isfinite(v) and 0 < v <= 0.05 for v in pupils_m):
-            fail(f"--pupils-mm must list diameters in (0, 50] mm, got {pupils_mm!r}")
-        if not 1 <= eye_grid <= 9:
-            fail(f"--eye-grid must be in 1..9, got {eye_grid}")
-        if eye_span_mm is not None and not (math.isfinite(eye_span_mm) and 0 <= eye_span_mm <= 50):
-            fail(f"--eye-span-mm must be in [0, 50] mm, got {eye_span_mm}")
-        if seed < 0:
-            fail(f"--seed must be >= 0, got {seed}")
-    if not source.is_file():
-        fail(f"input not found: {source}")
-    if not scene.exists():
-        fail(f"scene not found: {scene}")
+    if focus_mm is None:
+        return None
+    try:
+        focus_z_m = [float(v) * 1e-3 for v in focus_mm.split(",") if v.strip()]
+    except ValueError:
+        fail(f"--focus-mm must be a comma-separated list of depths in mm, got {focus_mm!r}")
+    if not 1 <= len(focus_z_m) <= 64 or not all(math.isfinite(z) and 0 <= z <= 10.0 for z in focus_z_m):
+        fail(f"--focus-mm must list 1..64 depths in [0, 10000] mm, got {focus_mm!r}")
+    return focus_z_m
 
+
+def _check_viewer(pupils_mm: str, *, eye_grid: int, eye_span_mm: Optional[float], seed: int) -> list[float]:
+    """The viewer score's options checked; its pupil diameters in m."""
+    try:
+        pupils_m = [float(v) * 1e-3 for v in pupils_mm.split(",") if v.strip()]
+    except ValueError:
+        fail(f"--pupils-mm must be a comma-separated list of diameters in mm, got {pupils_mm!r}")
+    if not pupils_m or not all(math.isfinite(v) and 0 < v <= 0.05 for v in pupils_m):
+        fail(f"--pupils-mm must list diameters in (0, 50] mm, got {pupils_mm!r}")
+    if not 1 <= eye_grid <= 9:
+        fail(f"--eye-grid must be in 1..9, got {eye_grid}")
+    if eye_span_mm is not None and not (math.isfinite(eye_span_mm) and 0 <= eye_span_mm <= 50):
+        fail(f"--eye-span-mm must be in [0, 50] mm, got {eye_span_mm}")
+    if seed < 0:
+        fail(f"--seed must be >= 0, got {seed}")
+    return pupils_m
+
+
+def _field_and_truth(source: Path, scene: Path, truth_kind: str, gt_spp: int):
+    """(the hologram's SLM field as a chunked source, its ground truth); a note when the scene changed since."""
     from holocore.evaluate.truths import ground_truth
-    from holocore.evaluate.scoring import evaluate as run_eval
-    from holocore.evaluate.score_files import write_outputs
     from holocore.optics.fieldsource import open_slm_field
-    from holocore.runtime.membudget import memory_budget_bytes
     from holocore.scene.load import load_scene
 
-    t0 = time.perf_counter()
-    write_progress = progress_writer(progress_jsonl)
-    write_progress("load", 1, 1)
-    try:
-        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
-        field = open_slm_field(source)
-        meta, kind = field.meta, field.kind
-        loaded = load_scene(scene)
-        sha = getattr(loaded.bundle, "sha256", None)
-        if meta.get("scene_sha256") and sha and meta["scene_sha256"] != sha:
-            typer.echo(f"  note: {source.name} was rendered from a different version of this scene "
-                       "(content hash differs)", err=True)
-        truth = ground_truth(truth_kind, loaded, meta, shape_hw=tuple(field.shape[-2:]), spp=gt_spp)
-        if viewer:
-            from holocore.evaluate.viewer import viewer_score
+    field = open_slm_field(source)
+    loaded = load_scene(scene)
+    sha = getattr(loaded.bundle, "sha256", None)
+    if field.meta.get("scene_sha256") and sha and field.meta["scene_sha256"] != sha:
+        typer.echo(f"  note: {source.name} was rendered from a different version of this scene "
+                   "(content hash differs)", err=True)
+    return field, ground_truth(truth_kind, loaded, field.meta, shape_hw=tuple(field.shape[-2:]), spp=gt_spp)
 
-            vs = viewer_score(field, meta, truth, pupils_m=pupils_m, eye_grid=eye_grid, seed=seed,
-                              eye_span_m=None if eye_span_mm is None else eye_span_mm * 1e-3,
-                              focus_planes=focus_planes, focus_z_m=focus_z_m, progress=write_progress,
-                              memory_budget_bytes=budget)
-    except (ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    if viewer:
-        import json
 
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "viewer.json").write_text(json.dumps({"label": source.name, **vs.to_dict()}, indent=1, default=float))
-        typer.echo(f"{'pupil mm':>8} {'PSNR dB':>8} {'SSIM':>6} {'bright max/min':>14} {'cast':>6} {'edge err':>8} "
-                   f"{'parallax px':>11} {'band':>5}")
-        for p in vs.pupils:
-            typer.echo(f"{p.pupil_mm:8.2f} {p.mean_psnr_db:8.2f} {p.mean_ssim:6.3f} {p.brightness_max_over_min:14.3f} "
-                       f"{p.colour_cast:6.3f} {p.edge_error:8.3f} {p.parallax_error_px:11.2f} {p.band_share:5.2f}")
-        typer.echo(f"mean over {len(vs.cells)} cells: PSNR {vs.mean_psnr_db:.2f} dB, one scale per colour "
-                   f"(per-cell scales spread {vs.scale_spread:.2f}x) -> {out / 'viewer.json'}")
-        return
-    try:
-        ev = run_eval(field, meta, truth, focus_planes=focus_planes, focus_z_m=focus_z_m, views=views,
-                      view_deg=view_deg, views_at=views_at,
-                      pupil_diameter_m=None if pupil_mm is None else pupil_mm * 1e-3, keep_images=images or pairs,
-                      progress=write_progress, memory_budget_bytes=budget)
-    except (ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    paths = write_outputs(ev, out, label=source.name, sheets=images, pairs=pairs)
+def _write_viewer(vs, out: Path, label: str) -> None:
+    """viewer.json and the viewer score's table, a row per pupil."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "viewer.json").write_text(json.dumps({"label": label, **vs.to_dict()}, indent=1, default=float))
+    typer.echo(f"{'pupil mm':>8} {'PSNR dB':>8} {'SSIM':>6} {'bright max/min':>14} {'cast':>6} {'edge err':>8} "
+               f"{'parallax px':>11} {'band':>5}")
+    for p in vs.pupils:
+        typer.echo(f"{p.pupil_mm:8.2f} {p.mean_psnr_db:8.2f} {p.mean_ssim:6.3f} {p.brightness_max_over_min:14.3f} "
+                   f"{p.colour_cast:6.3f} {p.edge_error:8.3f} {p.parallax_error_px:11.2f} {p.band_share:5.2f}")
+    typer.echo(f"mean over {len(vs.cells)} cells: PSNR {vs.mean_psnr_db:.2f} dB, one scale per colour "
+               f"(per-cell scales spread {vs.scale_spread:.2f}x) -> {out / 'viewer.json'}")
+
+
+def _print_cells(ev, field) -> None:
+    """The table of cells: focus, the depth it shows, the eye's offset, PSNR and SSIM; then their mean."""
+    meta = field.meta
     f_m = meta.focal_length_m
     typer.echo(f"{'focus mm':>9} {'depth m':>8} {'view x,y mm':>14} {'PSNR dB':>8} {'SSIM':>6}")
     for c in ev.cells:
         dz = c.focus_z_m - meta.z_inf_m
         depth = f"{f_m * f_m / dz:8.3g}" if dz > 0 else "     inf"
-        typer.echo(f"{c.focus_z_m * 1e3:9.4f} {depth} {c.view_offset_m[0] * 1e3:6.3f},{c.view_offset_m[1] * 1e3:<7.3f} "
-                   f"{c.score.psnr_db:8.2f} {c.score.ssim:6.3f}")
+        typer.echo(f"{c.focus_z_m * 1e3:9.4f} {depth} {c.view_offset_m[0] * 1e3:6.3f},"
+                   f"{c.view_offset_m[1] * 1e3:<7.3f} {c.score.psnr_db:8.2f} {c.score.ssim:6.3f}")
     typer.echo(f"mean over {len(ev.cells)} cells: PSNR {ev.mean_psnr_db:.2f} dB, SSIM {ev.mean_ssim:.3f} "
-               f"({kind}, {field.shape[0]} frame(s), pupil {ev.pupil_diameter_m * 1e3:.4g} mm)")
-    typer.echo(f"evaluated in {time.perf_counter() - t0:.1f} s (ground truth {truth.seconds:.1f} s) -> {out} "
-               f"({', '.join(p.name for p in paths.values())})", err=True)
+               f"({field.kind}, {field.shape[0]} frame(s), pupil {ev.pupil_diameter_m * 1e3:.4g} mm)")

@@ -71,7 +71,6 @@ def submit(
     body = {k: v for k, v in body.items() if v is not None}
 
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from service.client import ClientError, ServiceClient
 
@@ -82,61 +81,8 @@ def submit(
         fail(str(exc))
     try:
         with client:
-            sc = client.upload_scene(scene, entry=entry)
-            console.print(f"scene {sc['id']} ({sc['report']['total_bytes']:,} bytes, {len(sc['report']['files'])} "
-                          f"files, sha256 {sc['sha256'][:12]}..)")
-            for w in sc["report"].get("warnings", []):
-                console.print(f"  warning: {w}")
-            ahead = client.estimate({"scene_id": sc["id"], **body})  # what the options buy, before they run
-            q = ahead["estimate"].get("quality") or {}
-            if q:
-                console.print(f"predicted quality: {q['words']}")
-            if ahead.get("options"):
-                o = ahead["options"]
-                rays = o["spp"] or "the preset's"
-                its = o["iterations"] or "the stop rule's"
-                console.print(f"  for {quality_db:g} dB the service chose {o['frames']} frames, {rays} rays per "
-                              f"pixel, {its} encoder iterations")
-            for w in ahead.get("warnings") or []:
-                console.print(f"  warning: {w}")
-            for line in q.get("instead") or []:
-                console.print(f"  instead: {line}")
-            job = client.submit({"scene_id": sc["id"], **body}, idempotency_key=idempotency_key)
-            e = job.get("estimate") or {}
-            est, load = e.get("seconds"), e.get("load") or {}
-            if est and load.get("slowdown", 1.0) >= 1.2:  # the load the machine has now, not an idle one's time
-                est = f"{e['seconds_at_load']:.0f} s at the machine's present load ({load['others']:.1f} other " \
-                      f"threads on {load['cores']} cores), {est:.0f} s on an idle one"
-            elif est:
-                est = f"{est:.0f} s"
-            console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est}" if est else "")
-                          + (f" (reused {job['reused_from']})" if job.get("reused_from") else ""))
-            if no_wait:
-                print(job["id"])
-                return
-            # the fraction is weighed by the estimate's seconds per step, so the pace gives the time left (and
-            # carries the load the job meets)
-            with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                          TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
-                          disable=not sys.stderr.isatty()) as bar:
-                task = bar.add_task(job["state"], total=1.0)
-
-                def on_event(event: str, data: dict) -> None:
-                    if event == "progress":
-                        bar.update(task, completed=float(data.get("fraction", 0.0)),
-                                   description=f"{data.get('step', '')}: {data.get('stage', '')}")
-                    elif event == "state":
-                        bar.update(task, description=data.get("state", ""))
-
-                final = client.follow(job["id"], on_event)
-            if final["state"] != "succeeded":
-                fail(f"job {final['id']} {final['state']}: {final.get('error') or 'no message'}", code=1)
-            t = final.get("timings") or {}
-            console.print(f"job {final['id']} succeeded" + (f" in {t['run_s']:.1f} s" if "run_s" in t else ""))
-            if out is not None:
-                digest = client.download_stack(final["id"], out)
-                console.print(f"stack -> {out} (sha256 {digest[:16]}..)")
-            print(json.dumps({"job_id": final["id"], "stack_sha256": final["stack_sha256"]}))
+            _submit_and_follow(client, console, scene, body, entry=entry, quality_db=quality_db,
+                               idempotency_key=idempotency_key, no_wait=no_wait, out=out)
     except ClientError as exc:
         fail(str(exc), code=1)
     except Exception as exc:  # noqa: BLE001 - transport errors: one line, not a traceback
@@ -145,3 +91,77 @@ def submit(
         if isinstance(exc, httpx.HTTPError):
             fail(f"{server}: {type(exc).__name__}: {exc}", code=1)
         raise
+
+
+def _submit_and_follow(client, console, scene: Path, body: dict, *, entry: Optional[str],
+                       quality_db: Optional[float], idempotency_key: Optional[str], no_wait: bool,
+                       out: Optional[Path]) -> None:
+    """Upload, say what the options buy, submit, then (unless ``no_wait``) follow the job and download."""
+    sc = client.upload_scene(scene, entry=entry)
+    console.print(f"scene {sc['id']} ({sc['report']['total_bytes']:,} bytes, {len(sc['report']['files'])} "
+                  f"files, sha256 {sc['sha256'][:12]}..)")
+    for w in sc["report"].get("warnings", []):
+        console.print(f"  warning: {w}")
+    _print_ahead(console, client.estimate({"scene_id": sc["id"], **body}), quality_db)
+    job = client.submit({"scene_id": sc["id"], **body}, idempotency_key=idempotency_key)
+    est = _estimate_words(job.get("estimate") or {})
+    console.print(f"job {job['id']}: {job['state']}" + (f", estimated {est}" if est else "")
+                  + (f" (reused {job['reused_from']})" if job.get("reused_from") else ""))
+    if no_wait:
+        print(job["id"])
+        return
+    final = _follow(client, console, job)
+    if final["state"] != "succeeded":
+        fail(f"job {final['id']} {final['state']}: {final.get('error') or 'no message'}", code=1)
+    t = final.get("timings") or {}
+    console.print(f"job {final['id']} succeeded" + (f" in {t['run_s']:.1f} s" if "run_s" in t else ""))
+    if out is not None:
+        digest = client.download_stack(final["id"], out)
+        console.print(f"stack -> {out} (sha256 {digest[:16]}..)")
+    print(json.dumps({"job_id": final["id"], "stack_sha256": final["stack_sha256"]}))
+
+
+def _print_ahead(console, ahead: dict, quality_db: Optional[float]) -> None:
+    """What the options buy, before they run: the predicted quality, a target's chosen options, warnings."""
+    q = ahead["estimate"].get("quality") or {}
+    if q:
+        console.print(f"predicted quality: {q['words']}")
+    if ahead.get("options"):
+        o = ahead["options"]
+        rays = o["spp"] or "the preset's"
+        its = o["iterations"] or "the stop rule's"
+        console.print(f"  for {quality_db:g} dB the service chose {o['frames']} frames, {rays} rays per "
+                      f"pixel, {its} encoder iterations")
+    for w in ahead.get("warnings") or []:
+        console.print(f"  warning: {w}")
+    for line in q.get("instead") or []:
+        console.print(f"  instead: {line}")
+
+
+def _estimate_words(e: dict) -> Optional[str]:
+    """The job's estimated time in words: at the machine's present load when that slows it, not an idle one's."""
+    est, load = e.get("seconds"), e.get("load") or {}
+    if est and load.get("slowdown", 1.0) >= 1.2:
+        return (f"{e['seconds_at_load']:.0f} s at the machine's present load ({load['others']:.1f} other "
+                f"threads on {load['cores']} cores), {est:.0f} s on an idle one")
+    return f"{est:.0f} s" if est else None
+
+
+def _follow(client, console, job: dict) -> dict:
+    """Follow the job to its end with a progress bar; its final state. The fraction is weighed by the
+    estimate's seconds per step, so the pace gives the time left (and carries the load the job meets)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+                  disable=not sys.stderr.isatty()) as bar:
+        task = bar.add_task(job["state"], total=1.0)
+
+        def on_event(event: str, data: dict) -> None:
+            if event == "progress":
+                bar.update(task, completed=float(data.get("fraction", 0.0)),
+                           description=f"{data.get('step', '')}: {data.get('stage', '')}")
+            elif event == "state":
+                bar.update(task, description=data.get("state", ""))
+
+        return client.follow(job["id"], on_event)
