@@ -95,9 +95,14 @@ def encode(
     except (ValueError, OSError) as exc:
         fail(str(exc))
     write_progress("save", 1, 1)
+    _print_summary(res, result.name, method, time.perf_counter() - t0, out)
+
+
+def _print_summary(res, name: str, method: str, seconds: float, out: Path) -> None:
+    """What the encode did in one line (display, supervision, blocks, errors, light, iterations) and notes."""
     s = res.summary()
     F, C, H, W = len(res.black), len(res.black[0]), *res.phase.shape[-2:]
-    msg = (f"encoded {result.name} with {method} for a display {'with' if s['fourier_filter'] else 'without'} a "
+    msg = (f"encoded {name} with {method} for a display {'with' if s['fourier_filter'] else 'without'} a "
            f"Fourier filter ({s['fourier_filter_source']}; {s['supervision']} supervision): {F} frame(s) x {C} "
            f"color(s) x {H}x{W} in blocks of {s['block_frames']} frame(s), complex-field error {s['loss_mean']:.4f} "
            f"(start {s['loss_init_mean']:.4f}; in the cone {s['loss_cone_mean']:.4f}, whole field "
@@ -105,7 +110,7 @@ def encode(
            f"{s['efficiency_target_mean']:.0%}")
     if method == "sgd":
         msg += f", {res.iterations} iteration(s){' (converged)' if res.converged else ''}"
-    typer.echo(f"{msg}, {time.perf_counter() - t0:.1f} s -> {out}", err=True)
+    typer.echo(f"{msg}, {seconds:.1f} s -> {out}", err=True)
     if res.black.any():
         typer.echo(f"  - {int(res.black.sum())} black (frame, color) target(s): nothing to match (error 1 by "
                    "definition), phase left at its start", err=True)

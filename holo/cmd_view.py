@@ -87,6 +87,47 @@ def view(
                                          "of frames that fit; default: HOLO_MEMORY_BUDGET_MB, else 8192."),
 ) -> None:
     """Simulate what an eye sees (frame-averaged, pupil-filtered, focused) and write a PNG, sheet or GIF."""
+    _check(out, focus_mm=focus_mm, sweep=sweep, pupil_mm=pupil_mm, white_percentile=white_percentile,
+           frame_ms=frame_ms)
+    ex, ey = _parse_xy(view_mm)
+    if not source.is_file():
+        fail(f"input not found: {source}")
+
+    import numpy as np
+
+    from holocore.evaluate.preview import depth_words, focus_depths, views_rgb
+    from holocore.runtime.device import select_device
+    from holocore.runtime.membudget import memory_budget_bytes
+
+    try:
+        dev = select_device(device)
+        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
+    except ValueError as exc:
+        fail(str(exc))
+    t0 = time.perf_counter()
+    field = _load(source, quantized, equal_power)
+    meta = field.meta
+    pupil_m, offset_m = pupil_mm * 1e-3, (ex * 1e-3, ey * 1e-3)
+    depths = [focus_mm * 1e-3] if focus_mm is not None else [float(z) for z in focus_depths(meta, sweep)]
+    try:
+        views = views_rgb(field, meta, focus_z_m=depths, pupil_diameter_m=pupil_m, view_offset_m=offset_m,
+                          device=dev, memory_budget_bytes=budget)
+    except ValueError as exc:
+        fail(str(exc))
+    white = float(np.percentile(np.stack(views), white_percentile)) or 1.0  # one white level for all views
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _write_views(views, depths, out, white=white, sweep=sweep is not None, frame_ms=frame_ms)
+    focus = [f"{z * 1e3:.3f} mm ({depth_words(z, meta)})" for z in depths]
+    where = focus[0] if len(focus) == 1 else f"from {focus[0]} to {focus[-1]} in {len(focus)} views"
+    typer.echo(f"viewed {source.name} ({field.kind}, {field.shape[0]} frame(s) averaged) with a {pupil_mm:g} mm "
+               f"pupil at ({ex:g}, {ey:g}) mm, focus {where}, in {time.perf_counter() - t0:.1f} s -> {out}",
+               err=True)
+    _warn_cone(meta, pupil_m, offset_m)
+
+
+def _check(out: Path, *, focus_mm: Optional[float], sweep: Optional[int], pupil_mm: float, white_percentile: float,
+           frame_ms: int) -> None:
+    """The options checked, one line and exit 2 for the first refused."""
     if (focus_mm is None) == (sweep is None):
         fail("give exactly one of --focus-mm (one view) or --sweep N (focal sweep)")
     if sweep is not None and not 1 <= sweep <= 64:
@@ -104,59 +145,30 @@ def view(
         fail(f"--out for --sweep must end in .png (contact sheet) or .gif (animation), got {out.name!r}")
     if sweep is None and suffix not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"):
         fail(f"--out must be an image file (.png, .jpg, ...), got {out.name!r}")
-    ex, ey = _parse_xy(view_mm)
-    if not source.is_file():
-        fail(f"input not found: {source}")
 
-    import numpy as np
+
+def _write_views(views: list, depths: list[float], out: Path, *, white: float, sweep: bool, frame_ms: int) -> None:
+    """One view as an image; a sweep as labelled tiles in a contact sheet (.png) or an animation (.gif)."""
     from PIL import Image, ImageDraw
 
-    from holocore.evaluate.preview import focus_depths, to_png8, views_rgb
-    from holocore.runtime.device import select_device
-    from holocore.runtime.membudget import memory_budget_bytes
+    from holocore.evaluate.preview import to_png8
 
-    try:
-        dev = select_device(device)
-        budget = memory_budget_bytes(None if memory_budget_mb is None else memory_budget_mb << 20)
-    except ValueError as exc:
-        fail(str(exc))
-    t0 = time.perf_counter()
-    field = _load(source, quantized, equal_power)
-    meta, kind = field.meta, field.kind
-    pupil_m, offset_m = pupil_mm * 1e-3, (ex * 1e-3, ey * 1e-3)
-    depths = [focus_mm * 1e-3] if focus_mm is not None else [float(z) for z in focus_depths(meta, sweep)]
-
-    try:
-        views = views_rgb(field, meta, focus_z_m=depths, pupil_diameter_m=pupil_m, view_offset_m=offset_m,
-                          device=dev, memory_budget_bytes=budget)
-    except ValueError as exc:
-        fail(str(exc))
-    white = float(np.percentile(np.stack(views), white_percentile)) or 1.0  # one white level for all views
-    out.parent.mkdir(parents=True, exist_ok=True)
     H, W = views[0].shape[:2]
-    if sweep is None:
+    if not sweep:
         Image.fromarray(to_png8(views[0], white=white)).save(out)
-    else:
-        tiles = []
-        for v, z in zip(views, depths):
-            tile = Image.new("RGB", (W, H + _LABEL_PX), (0, 0, 0))
-            tile.paste(Image.fromarray(to_png8(v, white=white)), (0, _LABEL_PX))
-            ImageDraw.Draw(tile).text((2, 1), f"{z * 1e3:.2f}mm", fill=(255, 255, 255))
-            tiles.append(tile)
-        if suffix == ".gif":
-            tiles[0].save(out, save_all=True, append_images=tiles[1:], duration=frame_ms, loop=0)
-        else:
-            cols = math.ceil(math.sqrt(len(tiles)))
-            rows = math.ceil(len(tiles) / cols)
-            sheet = Image.new("RGB", (cols * W, rows * (H + _LABEL_PX)), (0, 0, 0))
-            for i, tile in enumerate(tiles):
-                sheet.paste(tile, ((i % cols) * W, (i // cols) * (H + _LABEL_PX)))
-            sheet.save(out)
-    F = field.shape[0]
-    from holocore.evaluate.preview import depth_words
-
-    focus = [f"{z * 1e3:.3f} mm ({depth_words(z, meta)})" for z in depths]
-    where = focus[0] if len(focus) == 1 else f"from {focus[0]} to {focus[-1]} in {len(focus)} views"
-    typer.echo(f"viewed {source.name} ({kind}, {F} frame(s) averaged) with a {pupil_mm:g} mm pupil at "
-               f"({ex:g}, {ey:g}) mm, focus {where}, in {time.perf_counter() - t0:.1f} s -> {out}", err=True)
-    _warn_cone(meta, pupil_m, offset_m)
+        return
+    tiles = []
+    for v, z in zip(views, depths):
+        tile = Image.new("RGB", (W, H + _LABEL_PX), (0, 0, 0))
+        tile.paste(Image.fromarray(to_png8(v, white=white)), (0, _LABEL_PX))
+        ImageDraw.Draw(tile).text((2, 1), f"{z * 1e3:.2f}mm", fill=(255, 255, 255))
+        tiles.append(tile)
+    if out.suffix.lower() == ".gif":
+        tiles[0].save(out, save_all=True, append_images=tiles[1:], duration=frame_ms, loop=0)
+        return
+    cols = math.ceil(math.sqrt(len(tiles)))
+    rows = math.ceil(len(tiles) / cols)
+    sheet = Image.new("RGB", (cols * W, rows * (H + _LABEL_PX)), (0, 0, 0))
+    for i, tile in enumerate(tiles):
+        sheet.paste(tile, ((i % cols) * W, (i // cols) * (H + _LABEL_PX)))
+    sheet.save(out)
