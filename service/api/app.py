@@ -203,6 +203,12 @@ def _dependency_scope(dependant) -> Optional[str]:
     return None
 
 
+# The API's routers, listed once: included in this order (the page's routes before the jobs', for POST
+# /v1/jobs/estimate and the page at /) and guarded by the size and rate guard.
+ROUTERS = (web.router, scenes.router, jobs.router, phase_frames.router, evaluation.router, display_sends.router,
+           displays.router, queue.router)
+
+
 def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=None) -> FastAPI:
     """The service app. With ``start_workers`` its lifespan locks the data dir and runs the scheduler and the
     planner in this process (what `holo serve` does)."""
@@ -211,6 +217,35 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
         d.mkdir(parents=True, exist_ok=True)
     db = Database(settings.db_path)
     ctx = ServiceContext(settings=settings, db=db, metrics=Metrics(db.count_jobs), code_version=code_version())
+
+    # No CDN pages: FastAPI's /docs and /redoc load their scripts from a CDN (no SRI), which would run a third
+    # party's code next to the tokens the pages ask for. /docs is an API index written here, from the schema.
+    app = FastAPI(title="HoloPathTracer service", version=SERVICE_VERSION,
+                  lifespan=_lifespan(ctx, start_workers=start_workers, engine=engine), docs_url=None,
+                  redoc_url=None,
+                  description="Upload Mitsuba scene bundles, render them into phase-only hologram stacks, and "
+                              "serve the stacks to display agents. Errors are application/problem+json.")
+    app.state.ctx = ctx
+    install_handlers(app)
+    app.add_middleware(_Guard, ctx=ctx, routers=(*ROUTERS, app.router))
+    app.add_middleware(web.SecurityHeaders)  # outermost: every answer, the Guard's 413 included
+    for router in ROUTERS:
+        app.include_router(router)
+    _add_health(app, ctx, start_workers=start_workers)
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> Response:
+        """The API's routes and what they do, from the OpenAPI schema (/openapi.json): one self-contained page,
+        no script, nothing from another origin."""
+        return Response(api_index_html(app.openapi()), media_type="text/html; charset=utf-8")
+
+    _add_problem_schema(app)
+    return app
+
+
+def _lifespan(ctx: ServiceContext, *, start_workers: bool, engine):
+    """With ``start_workers``: lock the data dir, run the scheduler and the planner, stop them at the end."""
+    settings, db = ctx.settings, ctx.db
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -235,26 +270,12 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
                 ctx.scheduler.stop(requeue=True)
             ctx.unlock_data_dir()
 
-    # No CDN pages: FastAPI's /docs and /redoc load their scripts from a CDN (no SRI), which would run a third
-    # party's code next to the tokens the pages ask for. /docs is an API index written here, from the schema.
-    app = FastAPI(title="HoloPathTracer service", version=SERVICE_VERSION, lifespan=lifespan, docs_url=None,
-                  redoc_url=None,
-                  description="Upload Mitsuba scene bundles, render them into phase-only hologram stacks, and "
-                              "serve the stacks to display agents. Errors are application/problem+json.")
-    app.state.ctx = ctx
-    install_handlers(app)
-    app.add_middleware(_Guard, ctx=ctx, routers=(web.router, scenes.router, jobs.router, phase_frames.router,
-                                                    evaluation.router, display_sends.router, displays.router,
-                                                    queue.router, app.router))
-    app.add_middleware(web.SecurityHeaders)  # outermost: every answer, the Guard's 413 included
-    app.include_router(web.router)  # before jobs: POST /v1/jobs/estimate, the page at /
-    app.include_router(scenes.router)
-    app.include_router(jobs.router)
-    app.include_router(phase_frames.router)
-    app.include_router(evaluation.router)
-    app.include_router(display_sends.router)
-    app.include_router(displays.router)
-    app.include_router(queue.router)
+    return lifespan
+
+
+def _add_health(app: FastAPI, ctx: ServiceContext, *, start_workers: bool) -> None:
+    """/livez, /readyz and /metrics (public or per owner, as the settings say)."""
+    settings, db = ctx.settings, ctx.db
 
     @app.get("/livez", tags=["health"])
     def livez() -> dict:
@@ -290,15 +311,6 @@ def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=
             others do."""
             registry = ctx.metrics.registry if principal.is_admin else owner_registry(db, principal.owner)
             return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
-
-    @app.get("/docs", include_in_schema=False)
-    def docs() -> Response:
-        """The API's routes and what they do, from the OpenAPI schema (/openapi.json): one self-contained page,
-        no script, nothing from another origin."""
-        return Response(api_index_html(app.openapi()), media_type="text/html; charset=utf-8")
-
-    _add_problem_schema(app)
-    return app
 
 
 def api_index_html(schema: dict) -> str:
