@@ -128,6 +128,55 @@ def make_plan(
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     p = PRESETS[preset]
+    coherent, cap, words = _delta_chain(inv, force_all=force_all, max_delta_seen=max_delta_seen,
+                                        prepass_capped=prepass_capped)
+    # Mitsuba's integrators cannot continue a path that sits inside a medium where the kernel found P: the
+    # extra radiance samples are the kernel's own one sample then.
+    amp_spp = 1 if inv.absorbing_media else p.amp_spp
+    view_dep = force_all or bool(inv.glossy) or bool(inv.mixed_delta)
+    if inv.glossy:
+        words.append(f"glossy, view-dependent radiance traced per ray: {', '.join(inv.glossy[:4])}")
+    elif not view_dep:
+        words.append("all rough surfaces diffuse: radiance is view-independent")
+
+    gi = p.gi_depth
+    words.append(f"global illumination: up to {gi} bounces")
+    use_cache = p.use_cache and not force_all
+    cache_exact = not view_dep
+    if use_cache:
+        words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
+                                                    else "used on diffuse surfaces; glossy surfaces are path "
+                                                         "traced (their highlights move with the view)"))
+    lit = list(colors_lit) if colors_lit is not None else [True] * n_colors
+    if force_all:
+        lit = [True] * n_colors
+    if not all(lit):
+        dark = [str(i) for i, v in enumerate(lit) if not v]
+        words.append(f"color channel(s) {', '.join(dark)} carry no light: skipped")
+    if not any(lit):
+        words.append("the scene is black: the fields are zero")
+    random_phase = force_all or frames > 1
+    words.append(f"{frames} frame(s): " + ("band-limited random-phase bank, paths shared by all frames"
+                                           if random_phase else "one frame, no random-phase bank (smooth phase)"))
+    planes = list(wrp_planes_m or [])
+    words += _planes_words(planes, wrp_planes_asked=wrp_planes_asked, z_inf_m=z_inf_m)
+    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max, max_spp)
+    ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
+    words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
+                 f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
+                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {amp_spp} radiance sample(s) per "
+                 f"image point" + (" (absorbing media: the tracer's own)" if amp_spp < p.amp_spp else ""))
+    return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
+                      use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
+                      spp=n, amp_spp=amp_spp, noise_to_signal=ratio, forced=force_all,
+                      wrp_planes_m=[float(z) for z in planes],
+                      summary=words)
+
+
+def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Optional[int],
+                 prepass_capped: int) -> tuple[bool, int, list[str]]:
+    """(whether the coherent delta loop runs, its cap on delta bounces, the plan's words on mirrors, glass, coated
+    surfaces and absorbing media)."""
     words: list[str] = []
     n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta)
     n_delta_shapes += int(bool(max_delta_seen))
@@ -155,56 +204,21 @@ def make_plan(
         words.append(f"absorbing medium in {where}: sigma_t = ({', '.join(f'{x:.3g}' for x in sig)}) /m per "
                      "colour, every path segment inside it attenuated by exp(-sigma_t d / 2) in amplitude "
                      "(Beer-Lambert)")
-    # Mitsuba's integrators cannot continue a path that sits inside a medium where the kernel found P: the
-    # extra radiance samples are the kernel's own one sample then.
-    amp_spp = 1 if inv.absorbing_media else p.amp_spp
     if not coherent:
         words.append("no mirror or glass: coherent delta loop off, the first hit is the image point")
     elif force_all and n_delta_shapes == 0:
         words.append(f"coherent delta loop forced on (cap {cap}) although the scene has no delta surface")
+    return coherent, cap, words
 
-    view_dep = force_all or bool(inv.glossy) or bool(inv.mixed_delta)
-    if inv.glossy:
-        words.append(f"glossy, view-dependent radiance traced per ray: {', '.join(inv.glossy[:4])}")
-    elif not view_dep:
-        words.append("all rough surfaces diffuse: radiance is view-independent")
 
-    gi = p.gi_depth
-    words.append(f"global illumination: up to {gi} bounces")
-    use_cache = p.use_cache and not force_all
-    cache_exact = not view_dep
-    if use_cache:
-        words.append("ambient radiance cache: " + ("exact here (view-independent radiance)" if cache_exact
-                                                    else "used on diffuse surfaces; glossy surfaces are path "
-                                                         "traced (their highlights move with the view)"))
-    lit = list(colors_lit) if colors_lit is not None else [True] * n_colors
-    if force_all:
-        lit = [True] * n_colors
-    if not all(lit):
-        dark = [str(i) for i, v in enumerate(lit) if not v]
-        words.append(f"color channel(s) {', '.join(dark)} carry no light: skipped")
-    if not any(lit):
-        words.append("the scene is black: the fields are zero")
-    random_phase = force_all or frames > 1
-    words.append(f"{frames} frame(s): " + ("band-limited random-phase bank, paths shared by all frames"
-                                           if random_phase else "one frame, no random-phase bank (smooth phase)"))
-    planes = list(wrp_planes_m or [])
+def _planes_words(planes: list[float], *, wrp_planes_asked: object, z_inf_m: float) -> list[str]:
+    """The plan's words on the recording planes."""
     if len(planes) > 1:
         at = ", ".join(f"{(z - z_inf_m) * 1e3:.2f}" for z in planes)
         why = "chosen from the scene depth (auto)" if wrp_planes_asked == "auto" else "asked for"
-        words.append(f"{len(planes)} wave recording planes at z_inf + {at} mm ({why}): each ray's contribution is "
-                     f"recorded where it crosses the plane just in front of its image point, the planes chained "
-                     f"to the WRP by the ASM")
-    elif wrp_planes_asked == "auto":
-        words.append("one wave recording plane (auto: more planes would not lower the noise much at this depth)")
-    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max, max_spp)
-    ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
-    words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
-                 f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
-                 f"Monte Carlo noise about {ratio:.2g}x its signal power; {amp_spp} radiance sample(s) per "
-                 f"image point" + (" (absorbing media: the tracer's own)" if amp_spp < p.amp_spp else ""))
-    return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
-                      use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
-                      spp=n, amp_spp=amp_spp, noise_to_signal=ratio, forced=force_all,
-                      wrp_planes_m=[float(z) for z in planes],
-                      summary=words)
+        return [f"{len(planes)} wave recording planes at z_inf + {at} mm ({why}): each ray's contribution is "
+                f"recorded where it crosses the plane just in front of its image point, the planes chained "
+                f"to the WRP by the ASM"]
+    if wrp_planes_asked == "auto":
+        return ["one wave recording plane (auto: more planes would not lower the noise much at this depth)"]
+    return []
