@@ -102,27 +102,11 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     z = validate.bounded("z_wrp_m", meta.z_wrp_m, low=0.0, low_inclusive=False, unit="m")
     lams = validate.wavelengths(meta.wavelengths_m, C)
     pitch = meta.pitch_m
-    display = meta.display
-    if fourier_filter is None:
-        source = "display" if display is not None and "fourier_filter" in display else "default"
-        fourier_filter = bool(display["fourier_filter"]) if source == "display" else True
-    else:
-        source = "option"
-    sup = supervision_for(bool(fourier_filter))
+    fourier_filter, source = _fourier_filter(meta.display, fourier_filter)
+    sup = supervision_for(fourier_filter)
     sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
                                "efficiency_weight": 0.0, **sgd}) if method == "sgd" else {}
-    init_src = None
-    if init_path is not None:
-        if method != "sgd":
-            raise ValueError(f"a start phase (init) applies to method 'sgd' only, not {method!r}")
-        try:  # the shape is checked from the member's header, before a compressed one is inflated
-            init_src = NpyMember(init_path, "phase", shape=(F, C, H, W))
-        except MemberShapeError as exc:
-            raise ValueError(f"the start stack {Path(init_path).name} holds phase {list(exc.shape)}, but the "
-                             f"render is {[F, C, H, W]}: a warm start needs the same frames, colours and pixels") \
-                from None
-        except (OSError, KeyError, ValueError) as exc:
-            raise ValueError(f"cannot read the start phase from {Path(init_path).name}: {exc}") from None
+    init_src = None if init_path is None else _start_phase(init_path, (F, C, H, W), method)
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
     n_blocks = math.ceil(F / fb)
@@ -145,14 +129,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                     done = (bi * C + c) * sgd_opts.get("iterations", 0)
                     cb = None if progress is None or method != "sgd" else \
                         (lambda it, _d=done: progress("encode", _d + it, total))
-                    t = torch.from_numpy(src.read_fc(f0, f1, c)).to(device=device, dtype=torch.complex64)
-                    if not bool(torch.isfinite(torch.view_as_real(t)).all()):
-                        raise ValueError(f"{result_path}: wrp_field contains NaN or infinite values")
-                    phi0 = None
-                    if init_src is not None:
-                        phi0 = torch.from_numpy(np.ascontiguousarray(init_src.read_fc(f0, f1, c), np.float32))
-                        if not bool(torch.isfinite(phi0).all()):
-                            raise ValueError(f"the start stack {Path(init_path).name} holds NaN or infinite phases")
+                    t, phi0 = _block_inputs(src, init_src, f0, f1, c, device=device, what=(result_path, init_path))
                     blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
                                        progress=cb, init=phi0, **sgd_opts)
                     del t
@@ -188,3 +165,40 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
         Path(tmp_u8).unlink(missing_ok=True)
         threads.__exit__(None, None, None)
     return res, out_meta
+
+
+def _fourier_filter(display: Optional[dict], asked: Optional[bool]) -> tuple[bool, str]:
+    """(whether the display's Fourier filter passes only the recording cone, where that was decided): the option,
+    else the RESULT's display, else on."""
+    if asked is not None:
+        return bool(asked), "option"
+    if display is not None and "fourier_filter" in display:
+        return bool(display["fourier_filter"]), "display"
+    return True, "default"
+
+
+def _start_phase(init_path: Union[str, Path], shape: tuple[int, int, int, int], method: str) -> NpyMember:
+    """The warm start's phase member, its shape checked from its header before a compressed one is inflated."""
+    if method != "sgd":
+        raise ValueError(f"a start phase (init) applies to method 'sgd' only, not {method!r}")
+    try:
+        return NpyMember(init_path, "phase", shape=shape)
+    except MemberShapeError as exc:
+        raise ValueError(f"the start stack {Path(init_path).name} holds phase {list(exc.shape)}, but the "
+                         f"render is {list(shape)}: a warm start needs the same frames, colours and pixels") from None
+    except (OSError, KeyError, ValueError) as exc:
+        raise ValueError(f"cannot read the start phase from {Path(init_path).name}: {exc}") from None
+
+
+def _block_inputs(src: NpyMember, init_src: Optional[NpyMember], f0: int, f1: int, c: int, *, device, what):
+    """(frames f0..f1 of colour c of the target on ``device``, their start phases or None), both checked finite."""
+    result_path, init_path = what
+    t = torch.from_numpy(src.read_fc(f0, f1, c)).to(device=device, dtype=torch.complex64)
+    if not bool(torch.isfinite(torch.view_as_real(t)).all()):
+        raise ValueError(f"{result_path}: wrp_field contains NaN or infinite values")
+    if init_src is None:
+        return t, None
+    phi0 = torch.from_numpy(np.ascontiguousarray(init_src.read_fc(f0, f1, c), np.float32))
+    if not bool(torch.isfinite(phi0).all()):
+        raise ValueError(f"the start stack {Path(init_path).name} holds NaN or infinite phases")
+    return t, phi0
