@@ -22,37 +22,31 @@ import math
 import numpy as np
 import pytest
 
-from tests.service.helpers import planned_scene, wait_state, zip_dir
 
 EVAL_JOB = {"optics": {"resolution_hw": [96, 128], "seed": 3, "z_inf_mm": 4}, "preset": "fast", "frames": 2,
             "spp": 16, "encoder": "sgd", "iterations": 40, "wrp_planes": 1, "name": "evaluated"}
 
 
+# The session's one evaluated job (tests/service/conftest.py), which tests/service/test_web_evaluation.py can share.
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """The demo scene the project writes itself: its folder and a zip of it."""
-    from holocore.scene.demo import write_demo_scene
-
-    tmp = tmp_path_factory.mktemp("eval")
-    write_demo_scene(tmp / "demo")
-    return {"dir": tmp / "demo", "zip": zip_dir(tmp / "demo"), "tmp": tmp}
+def server(evaluation_server):
+    return evaluation_server
 
 
 @pytest.fixture(scope="module")
-def scene(server, demo):
-    return planned_scene(server, demo["zip"])
+def demo(evaluation_demo):
+    return evaluation_demo
 
 
 @pytest.fixture(scope="module")
-def evaluated(server, scene) -> dict:
+def scene(evaluation_scene):
+    return evaluation_scene
+
+
+@pytest.fixture(scope="module")
+def evaluated(evaluated_job) -> dict:
     """The finished evaluated job, and what its evaluation route answered right after the submit."""
-    with server.client("submit") as c:
-        r = c.post("/v1/jobs", json={"scene_id": scene["id"], **EVAL_JOB, "evaluate": True})
-        assert r.status_code == 202, r.text
-        early = c.get(f"/v1/jobs/{r.json()['id']}/evaluation")
-        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=420)
-    assert job["state"] == "succeeded", job["error"]
-    return {"job": job, "early": early}
+    return evaluated_job
 
 
 def _index(server, job_id: str) -> dict:
