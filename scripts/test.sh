@@ -3,8 +3,8 @@
 #   bash scripts/test.sh           the full suite (CI, and before pushing): sets everything up first
 #                                  (scripts/setup.sh), then every test
 #   bash scripts/test.sh --quick   the everyday run after a change: a representative subset, every package,
-#                                  under 4 minutes on 2 cores; the tests marked slow (tests/conftest.py,
-#                                  FULL_TIER_ONLY) are left to the full run. Sets up only a missing environment.
+#                                  under 4 minutes on 2 cores; the tests marked slow (@pytest.mark.slow in
+#                                  their own files) are left to the full run. Sets up only a missing environment.
 # Other arguments go to pytest (e.g. a test file, -x, -k NAME). Output written by native code (Dr.Jit, LLVM,
 # Mitsuba) goes straight to the terminal (--capture=sys): when such code aborts the process, its own last message
 # is then in the log beside Python's traceback instead of lost with pytest's captured file descriptors.
