@@ -11,12 +11,12 @@ Light: pydantic only, and no other holocore module (every stage may read the opt
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Mapping, Optional, Union, get_args
+from typing import Annotated, Any, Literal, Mapping, Optional, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = ["HologramOptions", "PresetName", "RenderMethod", "MAX_WRP_PLANES", "Encoder", "ENCODERS", "WrpPlanes", "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP",
-           "MAX_ITERATIONS", "QUALITY_DB_RANGE", "explain", "check", "option_table"]
+__all__ = ["HologramOptions", "PresetName", "RenderMethod", "MAX_WRP_PLANES", "Encoder", "ENCODERS", "WrpPlanes",
+           "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP", "MAX_ITERATIONS", "QUALITY_DB_RANGE", "bounds", "choices", "explain", "check", "option_table"]
 
 PresetName = Literal["fast", "balanced", "reference"]  # their settings: holocore.plan.presets.PRESETS
 # "wrp": trace to the wave recording plane(s), then ASM to the SLM; "direct": trace straight to the SLM.
@@ -97,7 +97,11 @@ CLI_FLAGS: Mapping[str, tuple[Optional[str], Optional[str], Optional[str]]] = {
 _COMMANDS = ("render", "encode", "submit")
 
 
-def _bounds(name: str) -> tuple[Any, Any]:
+def bounds(name: str) -> tuple[Any, Any]:
+    """(lowest, highest) of a numeric option (None, None for one that has choices instead; wrp_planes: its count,
+    besides its word)."""
+    if name == "wrp_planes":
+        return 1, MAX_WRP_PLANES
     lo = hi = None
     for meta in HologramOptions.model_fields[name].metadata:
         lo = getattr(meta, "ge", None) if getattr(meta, "ge", None) is not None else lo
@@ -117,7 +121,7 @@ def explain(exc: ValidationError, command: Optional[str] = None) -> str:
         name = field
         if command is not None and field in CLI_FLAGS:
             name = CLI_FLAGS[field][_COMMANDS.index(command)] or field
-        lo, hi = _bounds(field) if field in HologramOptions.model_fields else (None, None)
+        lo, hi = bounds(field) if field in HologramOptions.model_fields else (None, None)
         if not field:
             parts.append(str(err["msg"]).removeprefix("Value error, "))
         elif field == "wrp_planes":
@@ -142,15 +146,22 @@ def check(**fields: Any) -> HologramOptions:
 _UNITS = {"_s": "s", "_db": "dB", "spp": "rays per pixel"}
 
 
+def choices(name: str) -> tuple[Any, ...]:
+    """The values an option of choices takes (() for a numeric one; wrp_planes: its word, "auto")."""
+    if name == "wrp_planes":
+        return ("auto",)
+    annotation = HologramOptions.model_fields[name].annotation
+    return tuple(get_args(annotation)) if get_origin(annotation) is Literal else ()
+
+
 def _limits(name: str) -> str:
     """An option's allowed values in words: its range, or its choices."""
     if name == "wrp_planes":
         return f"1..{MAX_WRP_PLANES}, auto"
-    lo, hi = (f"{v:,}" if isinstance(v, int) else "None" if v is None else f"{v:g}" for v in _bounds(name))
+    lo, hi = (f"{v:,}" if isinstance(v, int) else "None" if v is None else f"{v:g}" for v in bounds(name))
     if lo != "None":
         return f"({lo}, {hi})" if name == "render_time_limit_s" else f"{lo}..{hi}"
-    choices = get_args(HologramOptions.model_fields[name].annotation)
-    return ", ".join(str(c) for c in choices)
+    return ", ".join(str(c) for c in choices(name))
 
 
 def option_table() -> str:

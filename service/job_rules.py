@@ -4,14 +4,16 @@ size, rays, time and recording planes (service.settings.JobLimits), each answere
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Any, Optional
 
-from holocore.display.optics import OpticsConfig
+from holocore.display.optics import MAX_SIDE_PX, OpticsConfig
+from holocore.options import HologramOptions, bounds, choices
 from holocore.plan.presets import PRESETS
 from service.models import JobRequest, effective_optics
 from service.settings import JobLimits
 
-__all__ = ["optics_sanity_errors", "job_limit_errors", "preset_spp_cap", "binding_max_spp", "spp_cap"]
+__all__ = ["optics_sanity_errors", "job_limit_errors", "preset_spp_cap", "binding_max_spp", "spp_cap",
+           "option_limits"]
 
 # Physical bounds of the numbers a display may have: legal but absurd values (a pitch of 1e-300 um) overflow
 # in the numerics long after submit, so they are refused here, in the user's units.
@@ -98,3 +100,19 @@ def binding_max_spp(req: JobRequest, limits: JobLimits) -> Optional[int]:
 def spp_cap(req: JobRequest, limits: JobLimits) -> int:
     """The most rays per pixel a time-limited job may trace: its spp, else the service's max_spp."""
     return req.spp if req.spp is not None else limits.max_spp
+
+
+def option_limits(limits: JobLimits) -> dict[str, dict[str, Any]]:
+    """Each hologram option's allowed values on this service (``GET /v1/job-options``, what the page's form bounds
+    its boxes with): the model's own (holocore.options), tightened by the service's job limits; and the SLM's
+    side in pixels."""
+    service_most = {"frames": limits.max_frames, "spp": limits.max_spp, "max_spp": limits.max_spp,
+                    "iterations": limits.max_iterations, "render_time_limit_s": limits.max_render_time_s}
+    out: dict[str, dict[str, Any]] = {}
+    for name, field in HologramOptions.model_fields.items():
+        lo, hi = bounds(name)
+        if name in service_most:
+            hi = min(hi, service_most[name])
+        out[name] = {"min": lo, "max": hi, "choices": list(choices(name)), "default": field.default}
+    out["resolution_px"] = {"min": 1, "max": min(MAX_SIDE_PX, limits.max_side_px), "choices": [], "default": None}
+    return out

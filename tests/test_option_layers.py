@@ -88,5 +88,17 @@ def test_the_page_form_sends_every_option():
             assert re.search(rf"\b{name}\b", form), f"the form never sends {name}"
 
 
+def test_the_service_answers_every_options_limits():
+    from service.job_rules import option_limits
+    from service.settings import JobLimits
+
+    tight = option_limits(JobLimits(max_frames=12, max_spp=300, max_iterations=40, max_render_time_s=60.0))
+    assert set(HologramOptions.model_fields) <= set(tight)
+    assert (tight["frames"]["max"], tight["spp"]["max"], tight["iterations"]["max"]) == (12, 300, 40)
+    assert tight["render_time_limit_s"]["max"] == 60.0 and tight["wrp_planes"] == {
+        "min": 1, "max": MAX_WRP_PLANES, "choices": ["auto"], "default": "auto"}
+    assert tight["preset"]["choices"] == ["fast", "balanced", "reference"]
+
+
 def test_docs_hold_the_option_table():
     assert option_table() in (REPO / "docs/options.md").read_text(), "rerun: python -m holocore.options"

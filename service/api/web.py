@@ -39,7 +39,7 @@ from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.auth import Principal
 from service.integrity import artifact_intact
 from service.cost import estimate_cost
-from service.job_rules import binding_max_spp
+from service.job_rules import binding_max_spp, option_limits
 from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics
 from service.scene_view import scene_field_of_view_box
 from service.api.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
@@ -152,6 +152,13 @@ def display_profiles(principal: ReadScope) -> dict:  # noqa: ARG001
         out.append({"name": p.name, "description": p.description, "fourier_filter": p.fourier_filter,
                     "field_of_view_x_deg": round(p.field_of_view_x_deg(), 3), "optics": optics})
     return {"default": DEFAULT_DISPLAY, "profiles": out}
+
+
+@router.get("/v1/job-options", tags=["jobs"], responses=PROBLEM_RESPONSES)
+def job_options(ctx: Ctx, principal: ReadScope) -> dict:  # noqa: ARG001
+    """Each job option's allowed values on this service (the hologram's options model tightened by the service's
+    job limits: docs/options.md): ``min``, ``max`` and ``choices`` per option, and the SLM's side in pixels."""
+    return {"options": option_limits(ctx.settings.job_limits)}
 
 
 @router.post("/v1/jobs/estimate", tags=["jobs"], responses=PROBLEM_RESPONSES)

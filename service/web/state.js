@@ -8,6 +8,7 @@ export const MAX_STREAMS = 4; // live event streams at once (a browser holds ~6 
 export const state = {
   me: null,
   profiles: null,
+  optionLimits: null, // each job option's allowed values on this service (GET /v1/job-options)
   scenes: new Map(), // scene id -> scene (entry name for the lists)
   jobs: new Map(),
   streams: new Map(), // job id -> AbortController (job list streams)

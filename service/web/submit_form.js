@@ -9,7 +9,29 @@ import { plural, show, state } from "./state.js";
 import { clearFormPicture, refuseFormBox, showFormPicture } from "./scene_picture.js";
 import { refreshQueue } from "./job_filters.js";
 
+// The boxes the service's option limits bound (GET /v1/job-options: the options model's limits tightened by the
+// service's), so that a box turns red exactly where the service would refuse: option -> the boxes' ids.
+const LIMITED_BOXES = { frames: ["frames"], iterations: ["iterations"], spp: ["spp"], quality_db: ["quality-db"],
+                        render_time_limit_s: ["time-limit"], resolution_px: ["res-h", "res-w"] };
+
+function applyLimits(limits) {
+  for (const [name, ids] of Object.entries(LIMITED_BOXES)) {
+    const { min, max } = limits[name];
+    for (const id of ids) {
+      if (min !== null && name !== "render_time_limit_s") $(id).min = min;  // a time limit only above 0
+      if (max !== null) $(id).max = max;
+    }
+  }
+  const planes = $("wrp-planes");
+  planes.replaceChildren(planes.options[0]);  // "auto", then every count the service takes
+  for (let n = limits.wrp_planes.min; n <= limits.wrp_planes.max; n++) planes.append(el("option", { value: n }, String(n)));
+}
+
+function framesMost() { return state.optionLimits ? state.optionLimits.frames.max : Infinity; }
+
 export async function loadProfiles() {
+  state.optionLimits = (await getJSON("/v1/job-options")).options;
+  applyLimits(state.optionLimits);
   state.profiles = await getJSON("/v1/display-profiles");
   const sel = clear($("profile"));
   for (const p of state.profiles.profiles) {
@@ -33,10 +55,10 @@ const PREVIEW = { scale: 0.5, frames: 4, preset: "fast" };
 function sizeOptions(size) {
   const o = profile().optics;
   if (size !== "preview") {
-    return { res: o.resolution_hw, frames: Math.min(o.frames, 64), preset: "balanced" };
+    return { res: o.resolution_hw, frames: Math.min(o.frames, framesMost()), preset: "balanced" };
   }
   return { res: o.resolution_hw.map((n) => Math.max(8, Math.round(n * PREVIEW.scale))),
-           frames: Math.min(PREVIEW.frames, o.frames, 64), preset: PREVIEW.preset };
+           frames: Math.min(PREVIEW.frames, o.frames, framesMost()), preset: PREVIEW.preset };
 }
 
 function applyProfile() {

@@ -207,9 +207,9 @@ def test_the_forms_small_wrong_states(page, files):  # noqa: F811
     page.d.find_element(By.ID, "refresh").click()  # the queue's line while the scene's plan is pending
     page.until(lambda: page.enabled("submit-button") and page.visible("form-fov-box"), what="the estimate")
     page.until(lambda: "to plan" not in page.text("queue-line"), timeout=4, what="the planner's line to follow")
-    page.set("res-h", "7")
-    page.until(lambda: "Cannot submit" in page.text("estimate"), what="the refusal of 7 rows")
-    assert "8 to 4096" in page.text("estimate") and not page.enabled("submit-button"), page.text("estimate")
+    page.set("res-h", "5000")  # beyond the service's largest side: its limit bounds the box (GET /v1/job-options)
+    page.until(lambda: "Cannot submit" in page.text("estimate"), what="the refusal of 5000 rows")
+    assert "1 to 4096" in page.text("estimate") and not page.enabled("submit-button"), page.text("estimate")
     assert page.js("return document.getElementById('res-h').matches(':invalid')")  # red once the box is left
     assert not page.visible("form-fov-box") and "refused" in page.text("form-fov-caption")
     page.set("res-h", "64")
@@ -284,3 +284,20 @@ def test_the_forms_default_is_a_preview_with_the_full_display_one_click_away(pag
                what="the full display's estimate")
     assert values() == ["1080", "1920", "24", "balanced", "full"], values()
     assert not page.visible("full-estimate")
+
+
+def test_the_forms_boxes_carry_the_services_option_limits(page, server):
+    """The page writes no limit of its own: every bounded box and the recording planes' choices come from the
+    service's option limits (the options model's, tightened by the service's job limits)."""
+    from holocore.options import MAX_WRP_PLANES
+
+    with server.client("reader") as c:
+        limits = c.get("/v1/job-options").json()["options"]
+    boxes = {"frames": "frames", "iterations": "iterations", "spp": "spp", "quality_db": "quality-db",
+             "resolution_px": "res-h"}
+    got = page.js("return arguments[0].map((id) => [document.getElementById(id).min, document.getElementById(id).max])",
+                  list(boxes.values()))
+    assert [[float(a), float(b)] for a, b in got] == [[limits[n]["min"], limits[n]["max"]] for n in boxes]
+    assert float(page.js("return document.getElementById('time-limit').max")) == limits["render_time_limit_s"]["max"]
+    planes = page.js("return [...document.getElementById('wrp-planes').options].map((o) => o.value)")
+    assert planes == ["auto", *map(str, range(1, MAX_WRP_PLANES + 1))]
