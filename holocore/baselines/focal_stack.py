@@ -8,12 +8,12 @@ holography): phase-only SGD of F frames on the amplitude of a focal stack.
    ground-truth view per plane of what the eye sees focused there through its pupil D, from the ground truth
    `holo evaluate` scores against (``truth``, :mod:`holocore.evaluate.truths`: by default the wave-optical one,
    whose views of one depth-layer render cost an FFT pass each; ``thinlens``, a Mitsuba render each). Per laser
-   line the channel
-   that holds it; all targets share one white level (their ``white_percentile``; emitters above it clip).
+   line the channel that holds it; all targets share one white level (their ``white_percentile``; emitters above
+   it clip).
 2. Model: frame m's SLM field exp(i phi_m), propagated from the SLM (z = 0) to z_k with the band-limited ASM
-   (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, docs/design.md §5) through the same pupil disc
-   (:func:`holocore.optics.viewing.pupil_mask`; the centre view), |.|^2 averaged over the F frames: exactly the
-   centre view `holo view` and `holo evaluate` simulate.
+   (:func:`holocore.optics.propagation.transfer_function`, 2x zero padding, docs/design.md §5) through the same
+   pupil disc (:func:`holocore.optics.viewing.pupil_mask`; the centre view), |.|^2 averaged over the F frames:
+   exactly the centre view `holo view` and `holo evaluate` simulate.
 3. Loss (per colour c, all planes): sum_k || s_c sqrt(mean_m I_{m,k}) - sqrt(T_k) ||^2 / (K H W), Adam on the
    phases of all frames together (time multiplexing: only the frame average is supervised), s_c the
    least-squares scale of the previous iteration (variable projection; no gradient through it). Each plane is
@@ -64,10 +64,8 @@ from holocore.baselines.registry import Baseline, register_baseline
 from holocore.display.optics import OpticsConfig
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "FITS", "DEFAULT_FIT_EYE_GRID",
-           "FIT_EYE_SEED", "stack_plane_depths",
-           "depth_of_focus_m", "default_stack_planes",
-           "optimise_focal_stack", "FocalStackFit", "render_focal_stack", "stack_of", "FocalStackOptions",
-           "FocalStackBaseline"]
+           "FIT_EYE_SEED", "stack_plane_depths", "depth_of_focus_m", "default_stack_planes", "optimise_focal_stack",
+           "FocalStackFit", "render_focal_stack", "stack_of", "FocalStackOptions", "FocalStackBaseline"]
 
 DEFAULT_PLANES = 5
 DEFAULT_SPACING_M = 1.25e-3  # the paper's 5 planes at 1.25 mm spacing within 80-85 mm
@@ -133,43 +131,9 @@ def default_stack_planes(*, z_far_m: Optional[float], z_near_m: Optional[float],
     return int(min(most, 1 + math.floor(depth / step * (1 + 1e-9))))
 
 
-def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[int] = None,
-                       spacing_m: Optional[float] = None, plane_z_m: Optional[Sequence[float]] = None,
-                       pupil_diameter_m: Optional[float] = None, iterations: int = 200, lr: float = 0.05,
-                       gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
-                       progress: Optional[Any] = None, display: Optional[Any] = None,
-                       time_limit_s: Optional[float] = None, fit: str = "pupil-aware",
-                       fit_pupils_m: Optional[Sequence[float]] = None, fit_eye_grid: int = DEFAULT_FIT_EYE_GRID,
-                       truth: str = "wave") -> Any:
-    """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
-
-    Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
-    with ``planes`` and ``spacing_m``. Defaults from that volume: ``planes`` None is
-    :func:`default_stack_planes` (up to 5, no two closer than the pupil's depth of focus for the longest
-    wavelength), ``spacing_m`` None spreads them uniformly from the volume's far to its near end, so every plane
-    lies inside it; a ``spacing_m`` given keeps that spacing, centred on the volume, with 5 planes unless
-    ``planes`` says otherwise (ValueError where the stack does not fit between optical infinity and the WRP). ``pupil_diameter_m``: the eye's pupil of the targets and of the model
-    (default: the one `holo evaluate` uses by default, :func:`holocore.evaluate.scoring.default_pupil_m` at +-0.5 deg).
-    ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
-    their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
-    ``optics`` and the renderer's own scene analysis; ``display`` is recorded in the meta as the renderer does.
-    ``time_limit_s``: the whole baseline's wall time (s), targets included: the Adam steps stop early to keep
-    it (:func:`optimise_focal_stack`; the SLM fields' last propagation, about a second, is not counted).
-    ``fit``: "pupil-aware" (the default) fits a bank of views, every pupil of ``fit_pupils_m`` (default the
-    viewer-faithful score's, :data:`holocore.evaluate.viewer.DEFAULT_PUPILS_M`) from every eye position of a
-    jittered ``fit_eye_grid`` x ``fit_eye_grid`` grid (:func:`holocore.evaluate.viewer.eye_grid_m`, its default
-    span, jittered from ``optics.seed`` + :data:`FIT_EYE_SEED`, not the score's seed): pupils x grid x planes
-    Mitsuba renders, held in memory as float32. "centred": one centred pupil of ``pupil_diameter_m``, one
-    render per plane.
-    """
-    import torch
-
-    from holocore.evaluate.truths import ground_truth
-    from holocore.evaluate.scoring import default_pupil_m
-    from holocore.optics.propagation import asm
-    from holocore.render_meta import RenderResult, result_meta
-    from holocore.render_setup import RenderOptions, plan_scene
-
+def _check_fit_args(gt_spp: int, fit: str, fit_eye_grid: int, white_percentile: float) -> tuple[int, int, float]:
+    """(gt_spp, fit_eye_grid, white percentile) checked; ValueError for a ``fit`` not in :data:`FITS` or a
+    percentile outside 50..100."""
     gt_spp = validate.integer("gt_spp", gt_spp, 1, 1 << 16)
     if fit not in FITS:
         raise ValueError(f"fit must be one of {', '.join(FITS)}, got {fit!r}")
@@ -177,16 +141,14 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     wp = float(white_percentile)
     if not (math.isfinite(wp) and 50.0 <= wp <= 100.0):
         raise ValueError(f"white_percentile must be in 50..100, got {white_percentile!r}")
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
-    ana = pl.analysis
-    f = pl.focal_length_m
-    timings["analysis_s"] = time.perf_counter() - t0
-    base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
-                 "wavelengths_m": list(optics.wavelengths_m)}
-    D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
-    D = validate.positive("pupil_diameter_m", D, unit="")
+    return gt_spp, fit_eye_grid, wp
+
+
+def _plane_depths(optics: OpticsConfig, ana: Any, f: float, D: float, *, planes: Optional[int],
+                  spacing_m: Optional[float], plane_z_m: Optional[Sequence[float]]) -> np.ndarray:
+    """The stack's hologram depths (m): ``plane_z_m`` checked, else :func:`stack_plane_depths` of the image volume
+    (``planes`` None: the paper's 5 for a fixed spacing, else :func:`default_stack_planes`); ValueError where a
+    plane lies at or beyond the WRP."""
     if plane_z_m is not None:
         zs = np.asarray([float(z) for z in plane_z_m], dtype=np.float64)
         if zs.size < 1 or zs.size > MAX_PLANES or not np.all(np.isfinite(zs)) or np.any(zs < optics.z_inf_m):
@@ -204,20 +166,27 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     if zs.max() >= ana.z_wrp_m:
         raise ValueError(f"a focal-stack plane at {zs.max() * 1e3:.4f} mm lies at or beyond the WRP "
                          f"({ana.z_wrp_m * 1e3:.4f} mm)")
-    H, W = optics.resolution_hw
-    t1 = time.perf_counter()
-    # the targets are the ground truth the score takes (holocore.evaluate.truths): fitted to another, the stack
-    # would be fitted to that one's errors
-    truth_kind = truth
-    truth = ground_truth(truth_kind, loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
-    bank: Optional[list[tuple[float, tuple[float, float]]]] = None
-    if fit == "pupil-aware":
-        from holocore.evaluate.viewer import DEFAULT_PUPILS_M, eye_grid_m
+    return zs
 
-        pupils = [validate.positive("fit_pupils_m", v, unit="") for v in (fit_pupils_m or DEFAULT_PUPILS_M)]
-        eyes = eye_grid_m(base_meta, n=fit_eye_grid, seed=int(optics.seed) + FIT_EYE_SEED)
-        bank = [(Dv, e) for Dv in pupils for _idx, e in eyes]
-        targets = np.empty((len(bank), zs.size, len(optics.wavelengths_m), H, W), dtype=np.float32)
+
+def _fit_bank(base_meta: dict, fit_pupils_m: Optional[Sequence[float]], fit_eye_grid: int, seed: int
+              ) -> tuple[list[float], list, list[tuple[float, tuple[float, float]]]]:
+    """(pupils (m), the jittered eye grid [(index, offset)], the bank's views [(pupil, eye offset)]) of the
+    pupil-aware fit: every pupil from every eye position, the jitter seeded ``seed`` + :data:`FIT_EYE_SEED`."""
+    from holocore.evaluate.viewer import DEFAULT_PUPILS_M, eye_grid_m
+
+    pupils = [validate.positive("fit_pupils_m", v, unit="") for v in (fit_pupils_m or DEFAULT_PUPILS_M)]
+    eyes = eye_grid_m(base_meta, n=fit_eye_grid, seed=int(seed) + FIT_EYE_SEED)
+    return pupils, eyes, [(Dv, e) for Dv in pupils for _idx, e in eyes]
+
+
+def _stack_targets(truth: Any, zs: np.ndarray, D: float, bank: Optional[list], shape_chw: tuple[int, int, int],
+                   progress: Optional[Any], wp: float) -> tuple[np.ndarray, float]:
+    """(targets / white clipped to [0, 1], white): the ground truth's views at every plane, [views, K, C, H, W]
+    float32 over the bank, or [K, C, H, W] through the centred pupil ``D`` when ``bank`` is None; white is their
+    ``wp`` percentile, their max where that is not positive, 1 for black targets."""
+    if bank is not None:
+        targets = np.empty((len(bank), zs.size) + tuple(shape_chw), dtype=np.float32)
         for v, (Dv, e) in enumerate(bank):
             for k, z in enumerate(zs):
                 targets[v, k] = truth.channels(focus_z_m=float(z), pupil_diameter_m=Dv, view_offset_m=e)
@@ -228,7 +197,119 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     white = float(np.percentile(targets, wp))
     if not white > 0:
         white = float(targets.max()) if targets.max() > 0 else 1.0
-    targets = np.clip(targets / white, 0.0, 1.0)
+    return np.clip(targets / white, 0.0, 1.0), white
+
+
+def _stack_fields(res: FocalStackFit, optics: OpticsConfig, z_wrp_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(SLM field sqrt(P_c) exp(i phi), that field propagated to the WRP), both complex64 [F, C, H, W]."""
+    import torch
+
+    from holocore.optics.propagation import asm
+
+    power = res.illumination
+    slm = (np.exp(1j * res.phase.astype(np.float32)) * np.sqrt(power).astype(np.float32)[None, :, None, None]
+           ).astype(np.complex64)
+    wrp = np.empty_like(slm)
+    for c, lam in enumerate(optics.wavelengths_m):
+        wrp[:, c] = asm(torch.from_numpy(np.ascontiguousarray(slm[:, c])), z_wrp_m, float(lam),
+                        optics.pitch_m).numpy()
+    return slm, wrp
+
+
+def _stack_summary(zs: np.ndarray, D: float, pupils: Optional[list[float]], fit_eye_grid: int, renders: int,
+                   gt_spp: int, frames: int, res: FocalStackFit) -> list[str]:
+    """The result's one-line summary: planes, targets, frames and Adam steps."""
+    through = (f"a {D * 1e3:.3g} mm centred pupil" if pupils is None else
+               f"{len(pupils)} pupils ({', '.join(f'{v * 1e3:g}' for v in pupils)} mm) x a "
+               f"{fit_eye_grid}x{fit_eye_grid} jittered eye grid ({renders} renders), one view drawn per Adam step")
+    return [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
+            f"Mitsuba thin-lens targets through {through} at {gt_spp} spp, "
+            f"{frames} phase-only frame(s) per colour optimised together "
+            f"({'/'.join(str(n) for n in res.iterations)} Adam steps) on "
+            f"the frame-averaged amplitude, colours balanced by laser power"]
+
+
+def _fit_meta(fit: str, truth: str, renders: int, render_bytes: int, ff: bool, fit_eye_grid: int, seed: int,
+              pupils: Optional[list[float]], eyes: Optional[list]) -> dict[str, Any]:
+    """The meta's record of the fit: its kind, target renders and truth, and for a pupil-aware fit its bank."""
+    fit_meta: dict[str, Any] = {"fit": fit, "target_renders": renders, "truth": truth}
+    if pupils is not None:
+        fit_meta["bank"] = {"pupils_m": pupils, "eye_grid": fit_eye_grid, "eye_seed": int(seed) + FIT_EYE_SEED,
+                            "eye_offsets_m": [list(e) for _i, e in eyes], "views": len(pupils) * len(eyes),
+                            "fourier_filter": ff, "bytes": renders * render_bytes}
+    return fit_meta
+
+
+def _stack_extra(*, zs: np.ndarray, plane_z_m: Optional[Sequence[float]], spacing_m: Optional[float], D: float,
+                 iterations: int, res: FocalStackFit, time_limit_s: Optional[float], lr: float, gt_spp: int,
+                 fit_meta: dict, wp: float, white: float) -> dict:
+    """The meta's ``focal_stack`` record: planes, pupil, fit settings, white level, scales, powers and loss."""
+    hist = res.loss
+    step = max(1, len(hist) // 200)
+    return {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
+            "spacing_m": None if plane_z_m is not None else spacing_m,
+            "pupil_diameter_m": D, "iterations": iterations, "iterations_done": res.iterations,
+            "time_limit_s": time_limit_s, "lr": lr, "gt_spp": gt_spp, **fit_meta,
+            "white_percentile": wp, "target_white": white, "scale": [float(v) for v in res.scale],
+            "illumination": [float(v) for v in res.illumination], "loss_first": hist[0], "loss_final": hist[-1],
+            "loss_every": step, "loss": hist[::step], "phase_only": True}
+
+
+def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[int] = None,
+                       spacing_m: Optional[float] = None, plane_z_m: Optional[Sequence[float]] = None,
+                       pupil_diameter_m: Optional[float] = None, iterations: int = 200, lr: float = 0.05,
+                       gt_spp: int = 64, white_percentile: float = 99.5, device: str = "cpu",
+                       progress: Optional[Any] = None, display: Optional[Any] = None,
+                       time_limit_s: Optional[float] = None, fit: str = "pupil-aware",
+                       fit_pupils_m: Optional[Sequence[float]] = None, fit_eye_grid: int = DEFAULT_FIT_EYE_GRID,
+                       truth: str = "wave") -> Any:
+    """The focal-stack baseline for a loaded scene -> :class:`holocore.pipeline.RenderResult` (RESULT format).
+
+    Planes: ``plane_z_m`` (hologram depths, m) or :func:`stack_plane_depths` of the renderer's image volume
+    with ``planes`` and ``spacing_m``. Defaults from that volume: ``planes`` None is
+    :func:`default_stack_planes` (up to 5, no two closer than the pupil's depth of focus for the longest
+    wavelength), ``spacing_m`` None spreads them uniformly from the volume's far to its near end, so every plane
+    lies inside it; a ``spacing_m`` given keeps that spacing, centred on the volume, with 5 planes unless
+    ``planes`` says otherwise (ValueError where the stack does not fit between optical infinity and the WRP).
+    ``pupil_diameter_m``: the eye's pupil of the targets and of the model (default: the one `holo evaluate` uses
+    by default, :func:`holocore.evaluate.scoring.default_pupil_m` at +-0.5 deg).
+    ``gt_spp``: Mitsuba samples per pixel of each target; ``white_percentile`` (50..100) of all targets is
+    their common white level (brighter pixels clip). Frames, colours, pitch, seed and the WRP come from
+    ``optics`` and the renderer's own scene analysis; ``display`` is recorded in the meta as the renderer does.
+    ``time_limit_s``: the whole baseline's wall time (s), targets included: the Adam steps stop early to keep
+    it (:func:`optimise_focal_stack`; the SLM fields' last propagation, about a second, is not counted).
+    ``fit``: "pupil-aware" (the default) fits a bank of views, every pupil of ``fit_pupils_m`` (default the
+    viewer-faithful score's, :data:`holocore.evaluate.viewer.DEFAULT_PUPILS_M`) from every eye position of a
+    jittered ``fit_eye_grid`` x ``fit_eye_grid`` grid (:func:`holocore.evaluate.viewer.eye_grid_m`, its default
+    span, jittered from ``optics.seed`` + :data:`FIT_EYE_SEED`, not the score's seed): pupils x grid x planes
+    Mitsuba renders, held in memory as float32. "centred": one centred pupil of ``pupil_diameter_m``, one
+    render per plane.
+    """
+    from holocore.evaluate.truths import ground_truth
+    from holocore.evaluate.scoring import default_pupil_m
+    from holocore.render_meta import RenderResult, result_meta
+    from holocore.render_setup import RenderOptions, plan_scene
+
+    gt_spp, fit_eye_grid, wp = _check_fit_args(gt_spp, fit, fit_eye_grid, white_percentile)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
+    ana = pl.analysis
+    f = pl.focal_length_m
+    timings["analysis_s"] = time.perf_counter() - t0
+    base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
+                 "wavelengths_m": list(optics.wavelengths_m)}
+    D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
+    D = validate.positive("pupil_diameter_m", D, unit="")
+    zs = _plane_depths(optics, ana, f, D, planes=planes, spacing_m=spacing_m, plane_z_m=plane_z_m)
+    H, W = optics.resolution_hw
+    C = len(optics.wavelengths_m)
+    t1 = time.perf_counter()
+    # the targets are the ground truth the score takes (holocore.evaluate.truths), not another one and its errors
+    gt = ground_truth(truth, loaded, base_meta, shape_hw=(H, W), spp=gt_spp, seed=optics.seed)
+    pupils, eyes, bank = (_fit_bank(base_meta, fit_pupils_m, fit_eye_grid, optics.seed) if fit == "pupil-aware"
+                          else (None, None, None))
+    targets, white = _stack_targets(gt, zs, D, bank, (C, H, W), progress, wp)
     timings["targets_s"] = time.perf_counter() - t1
     renders = zs.size * (1 if bank is None else len(bank))
     if progress and bank is None:
@@ -240,42 +321,19 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
                                lr=lr, seed=optics.seed, device=device, progress=progress, time_limit_s=left,
                                views=bank, z_inf_m=optics.z_inf_m, fourier_filter=ff)
     del targets
-    fit_meta: dict[str, Any] = {"fit": fit, "target_renders": renders, "truth": truth_kind}
-    if bank is not None:
-        fit_meta["bank"] = {"pupils_m": pupils, "eye_grid": fit_eye_grid, "eye_seed": int(optics.seed) + FIT_EYE_SEED,
-                            "eye_offsets_m": [list(e) for _i, e in eyes], "views": len(bank),
-                            "fourier_filter": ff, "bytes": renders * len(optics.wavelengths_m) * H * W * 4}
+    fit_meta = _fit_meta(fit, truth, renders, C * H * W * 4, ff, fit_eye_grid, optics.seed, pupils, eyes)
     timings["optimise_s"] = res.seconds
     t2 = time.perf_counter()
-    power = res.illumination
-    slm = (np.exp(1j * res.phase.astype(np.float32)) * np.sqrt(power).astype(np.float32)[None, :, None, None]
-           ).astype(np.complex64)
-    wrp = np.empty_like(slm)
-    for c, lam in enumerate(optics.wavelengths_m):
-        wrp[:, c] = asm(torch.from_numpy(np.ascontiguousarray(slm[:, c])), ana.z_wrp_m, float(lam),
-                        optics.pitch_m).numpy()
+    slm, wrp = _stack_fields(res, optics, ana.z_wrp_m)
     timings["propagate_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
-    F, C = slm.shape[:2]
-    hist = res.loss
-    step = max(1, len(hist) // 200)
-    through = (f"a {D * 1e3:.3g} mm centred pupil" if bank is None else
-               f"{len(pupils)} pupils ({', '.join(f'{v * 1e3:g}' for v in pupils)} mm) x a {fit_eye_grid}x{fit_eye_grid}"
-               f" jittered eye grid ({renders} renders), one view drawn per Adam step")
-    summary = [f"focal-stack baseline: {zs.size} planes from {zs[0] * 1e3:.3f} to {zs[-1] * 1e3:.3f} mm, "
-               f"Mitsuba thin-lens targets through {through} at {gt_spp} spp, "
-               f"{F} phase-only frame(s) per colour optimised together "
-               f"({'/'.join(str(n) for n in res.iterations)} Adam steps) on "
-               f"the frame-averaged amplitude, colours balanced by laser power"]
+    F = slm.shape[0]
+    summary = _stack_summary(zs, D, pupils, fit_eye_grid, renders, gt_spp, F, res)
+    extra = _stack_extra(zs=zs, plane_z_m=plane_z_m, spacing_m=spacing_m, D=D, iterations=iterations, res=res,
+                         time_limit_s=time_limit_s, lr=lr, gt_spp=gt_spp, fit_meta=fit_meta, wp=wp, white=white)
     meta = result_meta(method="focal-stack", preset=None, loaded=loaded, optics=optics, scene_plan=pl,
                        shape_fchw=(F, C, H, W), timings=timings, display=display, summary=summary,
-                       extra={"focal_stack": {"planes": int(zs.size), "plane_z_m": [float(z) for z in zs],
-                           "spacing_m": None if plane_z_m is not None else spacing_m,
-                           "pupil_diameter_m": D, "iterations": iterations, "iterations_done": res.iterations,
-                           "time_limit_s": time_limit_s, "lr": lr, "gt_spp": gt_spp, **fit_meta,
-                           "white_percentile": wp, "target_white": white, "scale": [float(v) for v in res.scale],
-                           "illumination": [float(v) for v in power], "loss_first": hist[0], "loss_final": hist[-1],
-                           "loss_every": step, "loss": hist[::step], "phase_only": True}})
+                       extra={"focal_stack": extra})
     return RenderResult(slm_field=slm, wrp_field=wrp, meta=meta)
 
 
