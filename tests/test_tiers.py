@@ -55,6 +55,7 @@ def test_the_slow_marker_is_registered(pytestconfig):
     assert "slow" in names
 
 
+@pytest.mark.slow  # collects the whole suite in a subprocess (about 12 s); CI's full run keeps the tiers in check
 def test_the_quick_tier_holds_tests_of_every_package(collected):
     quick = [n for n, slow in collected.items() if not slow]
     without = [pkg for pkg in _packages()
@@ -63,6 +64,7 @@ def test_the_quick_tier_holds_tests_of_every_package(collected):
     assert any(slow for slow in collected.values()), "no test marked slow: the full tier is the quick tier"
 
 
+@pytest.mark.slow  # the same collection
 def test_the_tests_listed_slow_by_name_exist_and_are_only_web_page_tests(collected):
     """The transitional by-name list in tests/conftest.py names only tests/service/test_web_*.py tests, and each
     of its entries names collected tests (a renamed one would otherwise fall into the quick tier)."""
