@@ -167,127 +167,47 @@ def _to_torch(x, dev: torch.device) -> torch.Tensor:
 
 @recording_kernels()
 def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings, integrator, radiance_cache,
-                want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False,
-                taper: Optional[float] = None) -> dict:
+               want_cells: bool, *, seed: int, stats: TraceStats, device: torch.device, want_dz: bool = False,
+               taper: Optional[float] = None) -> dict:
     """Rows r0..r1 of the plane, all in Dr.Jit: ray generation, wave paths, the complex contribution of every
     ray. Returns per color a complex64 tensor (per pixel when ``want_cells`` is False, else per ray, pixel-
     major) and, with ``want_cells``, the bank cell of every ray's image point ("idx"). ``want_dz`` (directional
     frames, :mod:`holocore.trace.beams`): each ray's phase also holds k (Q_z - z_wrp), the depth part of Eq. B1
-    common to all frames, and "dz" returns Q_z - z_wrp (m, float32) for the part that differs between frames, "drec"
-    the distance (m) from the ray's image point to the plane that records it. ``taper`` (directional frames): each
-    ray's amplitude is also weighted by the rim taper (:func:`holocore.trace.beams.rim_taper`) at its tan(angle)
-    over its colour's cone, which starts at this fraction of the cone: a soft-edged sub-hologram."""
+    common to all frames, and "dz" returns Q_z - z_wrp (m, float32) for the part that differs between frames,
+    "drec" the distance (m) from the ray's image point to the plane that records it. ``taper`` (directional
+    frames): each ray's amplitude is also weighted by the rim taper (:func:`holocore.trace.beams.rim_taper`) at
+    its tan(angle) over its colour's cone, which starts at this fraction of the cone: a soft-edged sub-hologram.
+
+    The steps below build one Dr.Jit kernel, evaluated once: the helpers only name its parts."""
     mi = mitsuba()
     import drjit as dr
 
     from holocore.trace.kernel import trace_wave_paths
 
-    F64, V3d, N = mi.Float64, mi.Vector3d, settings.spp
+    N = settings.spp
     R = (r1 - r0) * g.W * N
     o = _opaque(mi, g)
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(seed, R)
-    pix = dr.arange(mi.UInt32, R) // o.N + dr.opaque(mi.UInt32, r0 * g.W)
-    s = V3d((F64(pix % o.W) - (o.Wf - 1.0) * 0.5) * o.pitch, ((o.Hf - 1.0) * 0.5 - F64(pix // o.W)) * o.pitch,
-            o.plane_z)
-    # Directions uniform in solid angle in the widest cone around -z: a pixel's N rays form a scrambled
-    # Hammersley set (stratified; each ray still uniform on its own, so the estimate stays unbiased), or N
-    # independent samples.
-    u = _pixel_directions(mi, pix, o.N, seed) if settings.stratified else sampler.next_2d()
-    cos_t = 1.0 - F64(u.x) * (1.0 - o.cos_max)
-    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
-    sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
-    dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
-    if g.planes:
-        # Several recording planes: each ray leaves a point uniform in its WRP pixel. A ray is recorded where
-        # it crosses its plane, and rays from pixel centres would cross a deeper plane on a lattice of spacing
-        # (1 - alpha) p, so each pixel there would take 1..4 bundles of the rays to one image cell (a moire
-        # that adds ~20% of spurious energy and does not fall with N); from spread origins they land evenly.
-        jit = sampler.next_2d()
-        s = s + V3d((F64(jit.x) - 0.5) * o.pitch, (F64(jit.y) - 0.5) * o.pitch, 0.0)
-    if g.direct:
-        # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
-        # WRP, back into the scene (docs/design.md §4; paper Fig. 5's baseline).
-        x = s - ((o.z_wrp - o.plane_z) / cos_t) * dirs
-    else:
-        x = s
-    # T^-1 of the hologram ray (docs/design.md §3): through x and the point where it reaches z_mid.
-    c0 = _holo_to_camera(mi, o, x)
-    c1 = _holo_to_camera(mi, o, x + ((o.z_mid - x.z) / dirs.z) * dirs)
-    vc = dr.normalize(c1 - c0)
-    o_w = _mat(mi, o.rot, c0) + V3d(*o.origin)
-    v_w = dr.normalize(_mat(mi, o.rot, vc))
+    s, dirs, cos_t = _hologram_rays(mi, dr, o, g, settings, sampler, r0=r0, R=R, seed=seed)
+    c0, o_w, v_w = _world_rays(mi, dr, o, g, s, dirs, cos_t)
     wp = trace_wave_paths(scene, mi.Point3d(o_w), v_w, sampler, max_delta=settings.max_delta,
                           max_depth=settings.max_depth, amp_spp=settings.amp_spp, integrator=integrator,
                           radiance_cache=radiance_cache)
     # Virtual image point and its hologram position, float64 (docs/design.md §2: long lengths in float64).
     cv = c0 + wp.d * _mat(mi, o.rot_inv, v_w)
-    q = V3d(*camera_to_holo_xyz(cv.x, cv.y, cv.z, f=o.f, z_inf=o.z_inf))
+    q = mi.Vector3d(*camera_to_holo_xyz(cv.x, cv.y, cv.z, f=o.f, z_inf=o.z_inf))
     ok = wp.valid & (cv.z > 0) & dr.isfinite(q.x) & dr.isfinite(q.y) & dr.isfinite(q.z) & (q.z < o.z_wrp)
     pos = None
-    if o.planes:  # several recording planes: the plane in front of the image point, where the ray crosses it
-        pos, rec, found = mi.UInt32(0), V3d(s), mi.Bool(False)
-        for k, (z_k, lo, hi, Hk, Wk, Wk_u, ring, off) in enumerate(o.planes):
-            xk = s + ((o.z_wrp - z_k) / cos_t) * dirs
-            j = dr.clip(dr.round(xk.x / o.pitch + (Wk - 1.0) * 0.5), 0.0, Wk - 1.0)
-            i = dr.clip(dr.round((Hk - 1.0) * 0.5 - xk.y / o.pitch), 0.0, Hk - 1.0)
-            centre = V3d((j - (Wk - 1.0) * 0.5) * o.pitch, ((Hk - 1.0) * 0.5 - i) * o.pitch, z_k)
-            here = ok & ~found & (q.z > lo) & (q.z <= hi)
-            pos = dr.select(here, off + (mi.UInt32(i) % ring) * Wk_u + mi.UInt32(j), pos)
-            rec = dr.select(here, centre, rec)
-            found |= here
-        ok &= found
-        s = rec
+    if o.planes:
+        pos, s, ok = _recording_planes(mi, dr, o, s, dirs, cos_t, q, ok)
     q = dr.select(ok, q, s)
     r = dr.norm(q - s)
-    if o.planes:
-        # A recorded ray crossed its plane's pixel at a point spread over the pixel (its origin was), not at the
-        # centre, so near the cone's edge the image points it samples are those of a cone blurred by the pixel:
-        # keep those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them inside its
-        # cone), which makes the estimate unbiased again (docs/physics.md). Angles are seen from the centre.
-        cos_t = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
-        frac = _pixel_fraction_in_cone(mi, q - s, o.cos_max, o.pitch)
-        ok &= frac > 0
-        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t / dr.maximum(frac, 1e-3), 0.0)
-    else:
-        weight = dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0)
-    # One depth per image point behind delta vertices (docs/physics.md, "Image points behind delta vertices").
-    # d is each ray's own apparent distance; through a glass ball it varies by ~0.4 % between the rays of one
-    # surface point (astigmatism of the local bundle), which moves Q along each ray by a few micrometres: a
-    # piston of tens of radians in k r that decorrelates the point's sub-hologram (the field's signal fell
-    # 260x). The phase therefore uses Q's depth rounded to a grid of depth_step, an eighth of the recording
-    # cone's depth of field: the rays of one point agree, and the point moves by at most 1/16 of a depth of
-    # field. Weights, the plane choice and the random-phase cell keep the unrounded Q. The grid is offset by a
-    # random fraction of a step per lateral cell: the points whose rays straddle a grid level (their phases then
-    # disagree) are scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image
-    # field made them coloured rings in the view).
-    # With random phases (want_cells) every image point takes the rounded depth, not only those behind delta
-    # vertices (docs/physics.md, "Random-phase cells lie flat in hologram space"): the points of one random-phase
-    # cell share its phase, so with their own depths a cell of a surface tilted in hologram space radiated like a
-    # small tilted mirror, its light leaning by the tilt (a 12-degree plate at 0.5 m looked 0.68x as bright from
-    # the left as from the right, and red from one side, blue from the other). On the grid a cell lies flat.
-    # (the random-phase cell's own indices, so no point straddles a cell of one and not of the other)
-    j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)  # Q's random-phase cell (column, row), before the wrap
-    i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
-    shift = mi.sample_tea_float64(mi.UInt32(mi.Int32(j) + (1 << 24)), mi.UInt32(mi.Int32(i) + (1 << 24)), 4)
-    z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
-    q_ph = V3d(q.x, q.y, z_grid) if want_cells else dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
+    weight, cos_t, ok = _ray_weights(mi, dr, o, s, q, r, cos_t, ok)
+    q_ph, j, i = _phase_points(mi, dr, o, q, wp, want_cells)
     r_ph = dr.select(ok, dr.norm(q_ph - s), r)
-    parts = []
-    for c in range(len(g.ks)):
-        inside = cos_t >= o.cos_lim[c] - 1e-15
-        w_c = weight
-        if taper is not None:  # a soft rim: raised cosine in tan(angle) / tan(theta_c) from ``taper`` to 1
-            x = dr.safe_sqrt(1.0 - cos_t * cos_t) / cos_t / o.tan_lim[c]
-            t = dr.clip((x - taper) / (1.0 - taper), 0.0, 1.0)
-            w_c = weight * (0.5 + 0.5 * dr.cos(math.pi * t))
-        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * w_c, 0.0))
-        kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r_ph
-        if want_dz:  # Eq. B1's k (Q_z - z_ref) with the depth the phase uses (on the grid: the two agree there)
-            kr = kr + o.ks[c] * (q_ph.z - o.z_wrp)
-        phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
-        sn, cs = dr.sincos(phase)
-        parts += [amp * cs, amp * sn]
+    parts = _colour_parts(mi, dr, o, g, wp, weight=weight, cos_t=cos_t, r_ph=r_ph, q_ph=q_ph, taper=taper,
+                          want_dz=want_dz)
     idx = None
     if want_cells:
         j, i = j - o.Wf * dr.floor(j / o.Wf), i - o.Hf * dr.floor(i / o.Hf)  # periodic wrap (docs/design.md §4)
@@ -306,25 +226,152 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
         dr.sync_thread()  # Dr.Jit's kernels run on its own stream: done before torch reads their outputs
     out = {c: torch.complex(_to_torch(parts[2 * c], device), _to_torch(parts[2 * c + 1], device))
            for c in range(len(g.ks))}
-    if want_cells:
-        out["idx"] = _to_torch(idx, device).to(torch.int64)
-    if pos is not None:
-        out["pos"] = _to_torch(pos, device).to(torch.int64)
+    for name, value in (("idx", idx), ("pos", pos)):
+        if value is not None:
+            out[name] = _to_torch(value, device).to(torch.int64)
     if dz is not None:
         out["dz"] = _to_torch(dz, device)
         out["drec"] = _to_torch(drec, device)
-    # The ray counts, reduced where the rays are (one small read back per tile).
-    st = _to_torch(status, device).to(torch.int64)
+    _count(stats, _to_torch(status, device).to(torch.int64), rays=R, amp_spp=settings.amp_spp)
+    return out
+
+
+def _hologram_rays(mi, dr, o, g: TileGeometry, settings: TraceSettings, sampler, *, r0: int, R: int, seed: int):
+    """(each ray's origin s on its recording plane, its direction, cos of its angle to -z). Directions are
+    uniform in solid angle in the widest cone around -z: a pixel's N rays form a scrambled Hammersley set
+    (stratified; each ray still uniform on its own, so the estimate stays unbiased), or N independent samples."""
+    F64, V3d = mi.Float64, mi.Vector3d
+    pix = dr.arange(mi.UInt32, R) // o.N + dr.opaque(mi.UInt32, r0 * g.W)
+    s = V3d((F64(pix % o.W) - (o.Wf - 1.0) * 0.5) * o.pitch, ((o.Hf - 1.0) * 0.5 - F64(pix // o.W)) * o.pitch,
+            o.plane_z)
+    u = _pixel_directions(mi, pix, o.N, seed) if settings.stratified else sampler.next_2d()
+    cos_t = 1.0 - F64(u.x) * (1.0 - o.cos_max)
+    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+    sp, cp = dr.sincos(2.0 * math.pi * F64(u.y))
+    dirs = V3d(sin_t * cp, sin_t * sp, -cos_t)
+    if g.planes:
+        # Several recording planes: each ray leaves a point uniform in its WRP pixel. A ray is recorded where
+        # it crosses its plane, and rays from pixel centres would cross a deeper plane on a lattice of spacing
+        # (1 - alpha) p, so each pixel there would take 1..4 bundles of the rays to one image cell (a moire
+        # that adds ~20% of spurious energy and does not fall with N); from spread origins they land evenly.
+        jit = sampler.next_2d()
+        s = s + V3d((F64(jit.x) - 0.5) * o.pitch, (F64(jit.y) - 0.5) * o.pitch, 0.0)
+    return s, dirs, cos_t
+
+
+def _world_rays(mi, dr, o, g: TileGeometry, s, dirs, cos_t):
+    """(the ray's start in the camera's frame, its world origin, its world direction): T^-1 of the hologram
+    ray (docs/design.md §3), through its start and the point where it reaches z_mid."""
+    V3d = mi.Vector3d
+    if g.direct:
+        # Rays leave the SLM towards +z; the world ray is the same line, traced from where it crosses the
+        # WRP, back into the scene (docs/design.md §4; paper Fig. 5's baseline).
+        x = s - ((o.z_wrp - o.plane_z) / cos_t) * dirs
+    else:
+        x = s
+    c0 = _holo_to_camera(mi, o, x)
+    c1 = _holo_to_camera(mi, o, x + ((o.z_mid - x.z) / dirs.z) * dirs)
+    vc = dr.normalize(c1 - c0)
+    return c0, _mat(mi, o.rot, c0) + V3d(*o.origin), dr.normalize(_mat(mi, o.rot, vc))
+
+
+def _recording_planes(mi, dr, o, s, dirs, cos_t, q, ok):
+    """Several recording planes: (each ray's slot in its plane's ring buffer, the centre of the pixel that
+    records it, whether a plane takes it): the plane in front of the image point, where the ray crosses it."""
+    V3d = mi.Vector3d
+    pos, rec, found = mi.UInt32(0), V3d(s), mi.Bool(False)
+    for k, (z_k, lo, hi, Hk, Wk, Wk_u, ring, off) in enumerate(o.planes):
+        xk = s + ((o.z_wrp - z_k) / cos_t) * dirs
+        j = dr.clip(dr.round(xk.x / o.pitch + (Wk - 1.0) * 0.5), 0.0, Wk - 1.0)
+        i = dr.clip(dr.round((Hk - 1.0) * 0.5 - xk.y / o.pitch), 0.0, Hk - 1.0)
+        centre = V3d((j - (Wk - 1.0) * 0.5) * o.pitch, ((Hk - 1.0) * 0.5 - i) * o.pitch, z_k)
+        here = ok & ~found & (q.z > lo) & (q.z <= hi)
+        pos = dr.select(here, off + (mi.UInt32(i) % ring) * Wk_u + mi.UInt32(j), pos)
+        rec = dr.select(here, centre, rec)
+        found |= here
+    return pos, rec, ok & found
+
+
+def _ray_weights(mi, dr, o, s, q, r, cos_t, ok):
+    """(each ray's weight Omega / N r / cos(theta) (docs/design.md Eq. D5), cos(theta), which rays count).
+
+    A ray recorded on a plane crossed its pixel at a point spread over the pixel (its origin was), not at the
+    centre, so near the cone's edge the image points it samples are those of a cone blurred by the pixel: keep
+    those inside the centre's cone, weighted by 1 / (the pixel's fraction that sees them inside its cone), which
+    makes the estimate unbiased again (docs/physics.md). Angles are then seen from the centre."""
+    F64 = mi.Float64
+    if not o.planes:
+        return dr.select(ok, (o.omega / F64(o.N)) * r / cos_t, 0.0), cos_t, ok
+    cos_t = dr.maximum((s.z - q.z) / dr.maximum(r, 1e-30), 1e-12)
+    frac = _pixel_fraction_in_cone(mi, q - s, o.cos_max, o.pitch)
+    ok &= frac > 0
+    return dr.select(ok, (o.omega / F64(o.N)) * r / cos_t / dr.maximum(frac, 1e-3), 0.0), cos_t, ok
+
+
+def _phase_points(mi, dr, o, q, wp, want_cells: bool):
+    """(the image point whose distance sets each ray's phase, the column and row of its random-phase cell
+    before the wrap).
+
+    One depth per image point behind delta vertices (docs/physics.md, "Image points behind delta vertices").
+    d is each ray's own apparent distance; through a glass ball it varies by ~0.4 % between the rays of one
+    surface point (astigmatism of the local bundle), which moves Q along each ray by a few micrometres: a piston
+    of tens of radians in k r that decorrelates the point's sub-hologram (the field's signal fell 260x). The
+    phase therefore uses Q's depth rounded to a grid of depth_step, an eighth of the recording cone's depth of
+    field: the rays of one point agree, and the point moves by at most 1/16 of a depth of field. Weights, the
+    plane choice and the random-phase cell keep the unrounded Q. The grid is offset by a random fraction of a
+    step per lateral cell: the points whose rays straddle a grid level (their phases then disagree) are
+    scattered, instead of lying on the image's iso-depth contours (a glass ball's curved image field made them
+    coloured rings in the view).
+
+    With random phases (``want_cells``) every image point takes the rounded depth, not only those behind delta
+    vertices (docs/physics.md, "Random-phase cells lie flat in hologram space"): the points of one random-phase
+    cell share its phase, so with their own depths a cell of a surface tilted in hologram space radiated like a
+    small tilted mirror, its light leaning by the tilt (a 12-degree plate at 0.5 m looked 0.68x as bright from
+    the left as from the right, and red from one side, blue from the other). On the grid a cell lies flat. The
+    offset uses the random-phase cell's own indices, so no point straddles a cell of one and not of the other."""
+    V3d = mi.Vector3d
+    j = dr.round(q.x / o.pitch + (o.Wf - 1.0) * 0.5)
+    i = dr.round((o.Hf - 1.0) * 0.5 - q.y / o.pitch)
+    shift = mi.sample_tea_float64(mi.UInt32(mi.Int32(j) + (1 << 24)), mi.UInt32(mi.Int32(i) + (1 << 24)), 4)
+    z_grid = o.depth_step * (dr.floor(q.z / o.depth_step - shift) + 0.5 + shift)
+    q_ph = V3d(q.x, q.y, z_grid) if want_cells else dr.select(wp.n_delta > 0, V3d(q.x, q.y, z_grid), q)
+    return q_ph, j, i
+
+
+def _colour_parts(mi, dr, o, g: TileGeometry, wp, *, weight, cos_t, r_ph, q_ph, taper: Optional[float],
+                  want_dz: bool) -> list:
+    """Each colour's contribution of every ray as (real, imaginary) float32 parts: amplitude sqrt(L) times the
+    weight, inside that colour's cone (a raised-cosine rim from ``taper``), phase k r wrapped in float64."""
+    F64 = mi.Float64
+    parts = []
+    for c in range(len(g.ks)):
+        inside = cos_t >= o.cos_lim[c] - 1e-15
+        w_c = weight
+        if taper is not None:  # a soft rim: raised cosine in tan(angle) / tan(theta_c) from ``taper`` to 1
+            x = dr.safe_sqrt(1.0 - cos_t * cos_t) / cos_t / o.tan_lim[c]
+            t = dr.clip((x - taper) / (1.0 - taper), 0.0, 1.0)
+            w_c = weight * (0.5 + 0.5 * dr.cos(math.pi * t))
+        amp = mi.Float(dr.select(inside, dr.sqrt(F64(wp.radiance[g.chans[c]])) * w_c, 0.0))
+        kr = (-1.0 if g.direct else 1.0) * o.ks[c] * r_ph
+        if want_dz:  # Eq. B1's k (Q_z - z_ref) with the depth the phase uses (on the grid: the two agree there)
+            kr = kr + o.ks[c] * (q_ph.z - o.z_wrp)
+        phase = mi.Float(kr - (2.0 * math.pi) * dr.floor(kr / (2.0 * math.pi)))  # wrapped in float64
+        sn, cs = dr.sincos(phase)
+        parts += [amp * cs, amp * sn]
+    return parts
+
+
+def _count(stats: TraceStats, st: torch.Tensor, *, rays: int, amp_spp: int) -> None:
+    """Add the tile's ray counts to ``stats``, reduced where the rays are (one small read back per tile)."""
     ok_t = (st & 1).bool()
     nd = st >> 8
     counts = torch.stack([*[((st >> b) & 1).sum() for b in range(5)], (ok_t & (nd > 0)).sum(),
                           nd.masked_fill(~ok_t, 0).max() if st.numel() else st.new_zeros(())]).tolist()
-    stats.rays += R
+    stats.rays += rays
     stats.valid += counts[0]
     stats.behind_plane += counts[1]
     stats.escaped += counts[2]
     stats.capped += counts[3]
-    stats.path_samples += counts[4] * settings.amp_spp
+    stats.path_samples += counts[4] * amp_spp
     stats.delta_paths += counts[5]
     stats.max_delta_seen = max(stats.max_delta_seen, counts[6])
-    return out
