@@ -66,12 +66,6 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
     OpticsConfig(**base)  # refuse bad optics before anything runs
     import tempfile
 
-    import numpy as np
-    import torch
-
-    from holocore.baselines.layers import render_layers
-    from holocore.encode.encoder import encode_sgd
-    from holocore.pipeline import RenderOptions, render_loaded
     from holocore.scene.load import load_scene
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,51 +79,87 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         loaded = load_scene(scene)
         primitives = sum(int(sh.primitive_count()) for sh in loaded.scene.shapes())
         runs = _RUNS[::2] if quick else _RUNS
-        total = len(runs) + 5
-        # Warm-up: compile every kernel once (the first render of a process pays for it).
-        for preset, method in {(r[2], r[3]) for r in runs}:
-            render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
-                          RenderOptions(preset=preset, method=method, spp=4))
-        render_layers(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2), planes=2, spp=4)
-        samples = []
-        for i, (H, W, preset, method, spp, F) in enumerate(runs):
-            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F, seed=i)
-            options = RenderOptions(preset=preset, method=method, spp=spp)
-            res = _best_of(repeats, lambda o=optics, op=options: render_loaded(loaded, o, op),
-                           lambda r: r.meta["timings"]["total_s"])
-            x = features(optics, options)
-            samples.append({"H": H, "W": W, "preset": preset, "method": method, "spp": spp, "frames": F,
-                            "features": {k: v for k, v in x.items() if k != "key"}, "key": x["key"],
-                            "timings": res.meta["timings"], "trace_s": res.meta["stats"]["seconds_trace"],
-                            "accumulate_s": res.meta["stats"]["seconds_accumulate"]})
-            if progress:
-                progress("calibrate", i + 1, total)
-        enc_samples = []
-        lams = [640e-9, 516.5e-9, 455.4e-9]
-        # two sizes near the SLM (a grid barely wider than the SLM) and one far from it (the 2x grid)
-        for j, (H, W, F, it, z) in enumerate(((48, 64, 4, 20, 1e-3), (96, 128, 8, 20, 1e-3), (96, 128, 4, 20, 40e-3))):
-            g = torch.Generator().manual_seed(j)
-            tgt = torch.polar(torch.rand((F, 3, H, W), generator=g), 6.3 * torch.rand((F, 3, H, W), generator=g))
+        tick = (lambda n: progress("calibrate", n, len(runs) + 5)) if progress else (lambda n: None)
+        samples = _render_samples(loaded, base, runs, repeats, tick)
+        enc_samples = _encode_samples(repeats, lambda j: tick(len(runs) + j + 1))
+        lay_samples = _layer_samples(loaded, base, repeats, lambda j: tick(len(runs) + 4 + j))
+    import torch
 
-            def enc(tgt=tgt, it=it, z=z) -> float:
-                t0 = time.perf_counter()
-                encode_sgd(tgt, z_wrp_m=z, wavelengths_m=lams, pitch_m=8e-6, iterations=it, tol=0.0)
-                return time.perf_counter() - t0
+    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
+            "primitives": primitives,
+            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                        "cpus": os.cpu_count(), "torch_threads": torch.get_num_threads()},
+            "repeats": repeats, "rates": _fit_rates(samples, enc_samples, lay_samples), "samples": samples}
 
-            grid = OpticsConfig(resolution_hw=(H, W), frames=F, pitch_um=8.0, wavelengths_nm=[x * 1e9 for x in lams])
-            enc_samples.append({"seconds": _best_of(repeats, enc, float), "x": it * encode_work(grid, z)})
-            if progress:
-                progress("calibrate", len(runs) + j + 1, total)
-        lay_samples = []  # RGB-D renders of 0.05 to 0.2 s: well above the timing noise
-        for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 128, 4), (96, 128, 8, 128, 8))):
-            optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
-            res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
-                           lambda r: r.meta["timings"]["total_s"])
-            P = 4 * H * W
-            lay_samples.append({"t": res.meta["timings"], "pix_spp": H * W * spp,
-                                "fft": (planes + 1) * F * 3 * P * math.log2(P)})
-            if progress:
-                progress("calibrate", len(runs) + 4 + j, total)  # after the three encodings
+
+def _render_samples(loaded, base: dict, runs, repeats: int, tick) -> list[dict]:
+    """The timed renders of ``runs`` (each the fastest of ``repeats``), after one warm-up per preset and method
+    that compiles every kernel (the first render of a process pays for it)."""
+    from holocore.baselines.layers import render_layers
+    from holocore.pipeline import RenderOptions, render_loaded
+
+    for preset, method in {(r[2], r[3]) for r in runs}:
+        render_loaded(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2, seed=1),
+                      RenderOptions(preset=preset, method=method, spp=4))
+    render_layers(loaded, OpticsConfig(**base, resolution_hw=(24, 32), frames=2), planes=2, spp=4)
+    samples = []
+    for i, (H, W, preset, method, spp, F) in enumerate(runs):
+        optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F, seed=i)
+        options = RenderOptions(preset=preset, method=method, spp=spp)
+        res = _best_of(repeats, lambda o=optics, op=options: render_loaded(loaded, o, op),
+                       lambda r: r.meta["timings"]["total_s"])
+        x = features(optics, options)
+        samples.append({"H": H, "W": W, "preset": preset, "method": method, "spp": spp, "frames": F,
+                        "features": {k: v for k, v in x.items() if k != "key"}, "key": x["key"],
+                        "timings": res.meta["timings"], "trace_s": res.meta["stats"]["seconds_trace"],
+                        "accumulate_s": res.meta["stats"]["seconds_accumulate"]})
+        tick(i + 1)
+    return samples
+
+
+def _encode_samples(repeats: int, tick) -> list[dict]:
+    """SGD encodings of random targets: two sizes near the SLM (a grid barely wider than the SLM) and one far
+    from it (the 2x grid), with their work (iterations x the encoder's transforms, holocore.plan.estimate)."""
+    import torch
+
+    from holocore.encode.encoder import encode_sgd
+
+    out = []
+    lams = [640e-9, 516.5e-9, 455.4e-9]
+    for j, (H, W, F, it, z) in enumerate(((48, 64, 4, 20, 1e-3), (96, 128, 8, 20, 1e-3), (96, 128, 4, 20, 40e-3))):
+        g = torch.Generator().manual_seed(j)
+        tgt = torch.polar(torch.rand((F, 3, H, W), generator=g), 6.3 * torch.rand((F, 3, H, W), generator=g))
+
+        def enc(tgt=tgt, it=it, z=z) -> float:
+            t0 = time.perf_counter()
+            encode_sgd(tgt, z_wrp_m=z, wavelengths_m=lams, pitch_m=8e-6, iterations=it, tol=0.0)
+            return time.perf_counter() - t0
+
+        grid = OpticsConfig(resolution_hw=(H, W), frames=F, pitch_um=8.0, wavelengths_nm=[x * 1e9 for x in lams])
+        out.append({"seconds": _best_of(repeats, enc, float), "x": it * encode_work(grid, z)})
+        tick(j)
+    return out
+
+
+def _layer_samples(loaded, base: dict, repeats: int, tick) -> list[dict]:
+    """The layer baseline's timed renders: RGB-D renders of 0.05 to 0.2 s, well above the timing noise."""
+    from holocore.baselines.layers import render_layers
+
+    out = []
+    for j, (H, W, planes, spp, F) in enumerate(((48, 64, 4, 128, 4), (96, 128, 8, 128, 8))):
+        optics = OpticsConfig(**base, resolution_hw=(H, W), frames=F)
+        res = _best_of(repeats, lambda o=optics, n=planes, s=spp: render_layers(loaded, o, planes=n, spp=s),
+                       lambda r: r.meta["timings"]["total_s"])
+        P = 4 * H * W
+        out.append({"t": res.meta["timings"], "pix_spp": H * W * spp,
+                    "fft": (planes + 1) * F * 3 * P * math.log2(P)})
+        tick(j)
+    return out
+
+
+def _fit_rates(samples: list[dict], enc_samples: list[dict], lay_samples: list[dict]) -> dict[str, Any]:
+    """The cost model's rates fitted to the timed runs (holocore.plan.estimate reads them)."""
+    import numpy as np
 
     rates: dict[str, Any] = {}
     rates["analysis"] = float(np.median([s["timings"]["analysis_s"] for s in samples]))
@@ -157,13 +187,7 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
     rates["layer_fft"] = float(_fit([[s["fft"]] for s in lay_samples], [s["t"]["propagate_s"] for s in lay_samples])[0])
     rates["layers_overhead"] = float(max(0.0, np.median([
         s["t"]["total_s"] - s["t"]["analysis_s"] - s["t"]["rgbd_s"] - s["t"]["propagate_s"] for s in lay_samples])))
-    import torch as _torch
-
-    return {"version": CALIBRATION_VERSION, "created_unix": time.time(), "scene": label, "optics": base,
-            "primitives": primitives,
-            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                        "cpus": os.cpu_count(), "torch_threads": _torch.get_num_threads()},
-            "repeats": repeats, "rates": rates, "samples": samples}
+    return rates
 
 
 def _work(result: Any) -> tuple[float, float]:

@@ -29,14 +29,12 @@ OPTION_COPIES = {
 }
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG = {
-    "holo/cmd_evaluate.py:evaluate",
-    "holocore/evaluate/viewer.py:viewer_score", "holo/cmd_submit.py:submit",
-    "holocore/calibration.py:calibrate", "holocore/trace/reference_chain.py:trace_chain",
+    "holocore/trace/reference_chain.py:trace_chain",
     "holocore/baselines/focal_stack_fit.py:optimise_focal_stack", "holocore/encode/stream.py:encode_file",
-    "holocore/plan/effects.py:make_plan", "holocore/baselines/light_field.py:render_light_field",
-    "holo/cmd_view.py:view", "service/api/app.py:create_app", "holocore/optics/viewing.py:view_intensities",
+    "holocore/baselines/light_field.py:render_light_field",
+    "holocore/optics/viewing.py:view_intensities",
     "holocore/trace/kernel.py:trace_wave_paths", "holocore/baselines/focal_stack_fit.py:_optimise_pupil_aware",
-    "holocore/trace/hologram_rays.py:trace_field", "holo/cmd_encode.py:encode", "holocore/plan/analysis.py:analyze",
+    "holocore/trace/hologram_rays.py:trace_field", "holocore/plan/analysis.py:analyze",
     "holocore/optics/plane_chain.py:chain_planes",
 }
 MOST_OWN_LATE_IMPORTS = 225
@@ -167,6 +165,9 @@ def main() -> int:
     unexplained = [c for c in copies if c.rsplit(".", 1)[0] not in OPTION_COPIES]
     new_long = [name for n, name in modules if n > MODULE_LINES and name not in KNOWN_LONG]
     new_long += [name for n, name in functions if n > FUNCTION_LINES and name not in KNOWN_LONG]
+    long_now = {name for n, name in modules if n > MODULE_LINES} | {name for n, name in functions
+                                                                    if n > FUNCTION_LINES}
+    stale = sorted(KNOWN_LONG - long_now)
     print(f"modules: {len(files)} in {', '.join(PACKAGES)}")
     print(f"option fields declared outside holocore.options: {len(copies)} ({len(unexplained)} without a reason)")
     for c in copies:
@@ -188,6 +189,8 @@ def main() -> int:
         broken.append(f"options declared without a reason: {', '.join(unexplained)}")
     if new_long:
         broken.append(f"over the length limits and not known: {', '.join(new_long)}")
+    if stale:
+        broken.append(f"within the limits now, to be struck from KNOWN_LONG: {', '.join(stale)}")
     if own_late > MOST_OWN_LATE_IMPORTS:
         broken.append(f"{own_late} function-level imports of the project's modules, more than "
                       f"{MOST_OWN_LATE_IMPORTS}")
