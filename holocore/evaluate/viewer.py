@@ -21,10 +21,11 @@ This score therefore
 * reports what the one scale hides or blends: the spread of the per-cell best scales, the brightness over the
   eye grid per pupil (largest / smallest, and its coefficient of variation), the colour cast per pupil (how the
   per-colour best scales of one pupil differ from the global ones), the colour tint of single views (how a cell's
-  own per-colour scales differ from each other: a colour that changes with the eye's position), the defocus-blur fidelity (the edge
-  profile: relative error of the luminance gradient against the ground truth's, and the ratio of their
-  energies, > 1 for copies, halos or speckle, < 1 for too much blur) and the motion parallax (the image shift
-  between the two outer eye positions of a grid row, by phase correlation, against the ground truth's).
+  own per-colour scales differ from each other: a colour that changes with the eye's position), the defocus-blur
+  fidelity (the edge profile: relative error of the luminance gradient against the ground truth's, and the ratio
+  of their energies, > 1 for copies, halos or speckle, < 1 for too much blur) and the motion parallax (the image
+  shift between the two outer eye positions of a grid row, by phase correlation, against the ground truth's,
+  :mod:`holocore.evaluate.parallax`).
 
 Units: metres inside, ``_mm`` in the outputs; intensities linear; shifts in pixels of the view.
 """
@@ -38,6 +39,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore.display.optics import common_cone_sine, cone_sine
+from holocore.evaluate.parallax import image_shift_px, parallax_shifts
+from holocore.evaluate.scoring import eye_view, focus_planes_m
 from holocore.evaluate.wave_truth import band_share
 from holocore.formats.meta import MetaLike, parse_view_meta
 
@@ -98,32 +101,6 @@ def aperture_share(meta: MetaLike, *, pupil_diameter_m: float, eye_offset_m: tup
     na = float(pupil_diameter_m) / (2.0 * f)
     d = math.hypot(float(eye_offset_m[0]), float(eye_offset_m[1])) / f
     return _disc_overlap(na, s_c, d) / (math.pi * s_c * s_c)
-
-
-def image_shift_px(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(rows, cols) shift of image ``b`` against ``a`` (float [H, W]), b(x) = a(x - shift): the peak of their
-    cross-correlation (means removed, a Hann window against the borders, both smoothed by a 1-px Gaussian so that
-    speckle and Monte Carlo noise do not make the peak), refined by a parabola through its neighbours."""
-    from scipy.ndimage import gaussian_filter
-
-    a = gaussian_filter(np.asarray(a, dtype=np.float64), 1.0)
-    b = gaussian_filter(np.asarray(b, dtype=np.float64), 1.0)
-    if a.shape != b.shape or a.ndim != 2:
-        raise ValueError(f"images must be [H, W] of one shape, got {a.shape} and {b.shape}")
-    win = np.outer(np.hanning(a.shape[0]), np.hanning(a.shape[1]))
-    A = np.fft.fft2((a - a.mean()) * win)
-    B = np.fft.fft2((b - b.mean()) * win)
-    corr = np.fft.ifft2(B * np.conj(A)).real
-    i, j = np.unravel_index(int(np.argmax(corr)), corr.shape)
-    H, W = corr.shape
-
-    def sub(c_m, c_0, c_p):
-        den = c_m - 2 * c_0 + c_p
-        return 0.0 if abs(den) < 1e-30 else float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5))
-
-    di = sub(corr[(i - 1) % H, j], corr[i, j], corr[(i + 1) % H, j])
-    dj = sub(corr[i, (j - 1) % W], corr[i, j], corr[i, (j + 1) % W])
-    return float((i + H // 2) % H - H // 2 + di), float((j + W // 2) % W - W // 2 + dj)
 
 
 @dataclass(frozen=True)
@@ -232,29 +209,12 @@ def _lit_margin(meta, *, focus_z_m: float, pupil_m: float, eye_m: tuple[float, f
     return int(math.ceil(max(0.0, float(focus_z_m)) * reach / p - 1e-9))
 
 
-def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequence[float] = DEFAULT_PUPILS_M,
-                 eye_grid: int = 5, eye_span_m: Optional[float] = None, seed: int = 0, focus_planes: int = 3,
-                 focus_z_m: Optional[Sequence[float]] = None, white_percentile: float = 99.0,
-                 progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None,
-                 device=None) -> ViewerScore:
-    """Score a hologram as an eye sees it (module docstring). ``field_slm``: complex [F, C, H, W] on the SLM or a
-    chunked source; ``truth``: anything with ``channels(focus_z_m=, pupil_diameter_m=, view_offset_m=)`` ->
-    [C, H, W] (a :class:`holocore.evaluate.groundtruth.GroundTruth`); pupils in m; the eye grid n x n over
-    +-``eye_span_m`` (default :func:`eye_grid_m`'s), jittered by ``seed``; ``focus_planes`` uniform over the
-    image volume unless ``focus_z_m`` lists depths (m)."""
-    from holocore.evaluate.metrics import psnr, ssim
-    from holocore.evaluate.scoring import eye_view, focus_planes_m
-
-    meta = parse_view_meta(meta)
-    pupils = [float(p) for p in pupils_m]
-    if not pupils or not all(math.isfinite(p) and 0 < p <= 0.05 for p in pupils):
-        raise ValueError(f"pupils must be diameters in (0, 50] mm, got {[p * 1e3 for p in pupils]}")
-    zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
-    eyes = eye_grid_m(meta, n=eye_grid, span_m=eye_span_m, seed=seed)
-    lams = [float(v) for v in meta.wavelengths_m]
-    C = len(lams)
-    lum = _lum_weights(lams)
-    # Pass 1: every view (share-normalised) and its ground truth, on the lit part.
+def _gather_views(field_slm: Any, meta: Any, truth: Any, pupils: list[float], eyes: list, zs: list[float], *,
+                  progress: Optional[Any], memory_budget_bytes: Optional[int],
+                  device: Any) -> list[tuple[int, int, int, np.ndarray, np.ndarray, int]]:
+    """Pass 1: every cell's (pupil index, eye index, focus index, view divided by the pupil's share, ground truth,
+    margin px), both float32 [C, h, w] cropped to the lit part; ValueError where the two differ in shape."""
+    C = len(meta.wavelengths_m)
     views: list[tuple[int, int, int, np.ndarray, np.ndarray, int]] = []
     total = len(pupils) * len(eyes) * len(zs)
     n_done = 0
@@ -274,13 +234,18 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
                 n_done += 1
                 if progress is not None:
                     progress("viewer", n_done, total)
-    # The white of each colour over all cells, and the one scale per colour.
+    return views
+
+
+def _whites_and_scales(views: list, C: int, white_percentile: float
+                       ) -> tuple[list[float], np.ndarray, np.ndarray, np.ndarray]:
+    """(white of each colour over all cells, the one scale per colour, per-cell least-squares numerators and
+    denominators [cells, C]), over each cell's unsaturated ground-truth pixels (all of a flat or saturated one)."""
     whites = []
     for c in range(C):
         allg = np.concatenate([v[4][c].reshape(-1) for v in views])
         w = float(np.percentile(allg, white_percentile))
         whites.append(w if w > 0 else (float(allg.max()) if allg.max() > 0 else 1.0))
-    num, den = np.zeros(C), np.zeros(C)
     cell_num, cell_den = np.zeros((len(views), C)), np.zeros((len(views), C))
     for k, (_p, _e, _z, r, g, _m) in enumerate(views):
         for c in range(C):
@@ -291,10 +256,19 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
             cell_num[k, c], cell_den[k, c] = float(np.sum(rc * gc)), float(np.sum(rc * rc))
     num, den = cell_num.sum(axis=0), cell_den.sum(axis=0)
     scales = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
-    # Pass 2: the cells at the one scale.
+    return whites, scales, cell_num, cell_den
+
+
+def _score_cells(views: list, eyes: list, pupils: list[float], zs: list[float], lum: np.ndarray, whites: list[float],
+                 scales: np.ndarray, cell_num: np.ndarray, cell_den: np.ndarray
+                 ) -> tuple[list[ViewerCell], dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]]]:
+    """Pass 2: (the cells scored at the one scale, the luminance images (recon, truth) of each cell by (pupil,
+    focus, eye) index)."""
+    from holocore.evaluate.metrics import psnr, ssim
+
+    C = len(whites)
     wv = np.asarray(whites)[:, None, None]
     cells: list[ViewerCell] = []
-    shifts: dict[tuple[int, int, int], tuple[float, float]] = {}  # (pupil, focus, eye) -> (recon, truth) col shift
     lumimg: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
     for k, (pi_, ei, zi, r, g, m) in enumerate(views):
         rs = scales[:, None, None] * r.astype(np.float64)
@@ -306,58 +280,79 @@ def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequen
                      else math.nan for c in range(C))
         err, sharp = _grad_norms(np.tensordot(lum, rd, axes=1), np.tensordot(lum, gd, axes=1))
         (col, row), e = eyes[ei]
-        cells.append(ViewerCell(pupil_mm=pupils[pi_] * 1e3, focus_index=zi, focus_mm=zs[zi] * 1e3, eye_index=(col, row),
-                                eye_mm=(e[0] * 1e3, e[1] * 1e3), psnr_db=float(psnr(rd, gd, data_range=1.0, channel_axis=0)),
+        cells.append(ViewerCell(pupil_mm=pupils[pi_] * 1e3, focus_index=zi, focus_mm=zs[zi] * 1e3,
+                                eye_index=(col, row), eye_mm=(e[0] * 1e3, e[1] * 1e3),
+                                psnr_db=float(psnr(rd, gd, data_range=1.0, channel_axis=0)),
                                 ssim=float(ssim(rd, gd, data_range=1.0, channel_axis=0)), brightness=bright,
                                 best_scales=best, edge_error=err, sharpness=sharp, margin_px=m))
         lumimg[(pi_, zi, ei)] = (np.tensordot(lum, rd, axes=1), np.tensordot(lum, gd, axes=1))
-    # Motion parallax: the outer eyes of each grid row, on the part both views score.
-    n = int(eye_grid)
-    pairs = [(row * n, row * n + n - 1) for row in range(n)] if n > 1 else []
-    par: dict[int, list[tuple[float, float]]] = {pi_: [] for pi_ in range(len(pupils))}
-    for pi_ in range(len(pupils)):
-        for zi in range(len(zs)):
-            for a, b in pairs:
-                (ra, ga), (rb, gb) = lumimg[(pi_, zi, a)], lumimg[(pi_, zi, b)]
-                h, w = min(ra.shape[0], rb.shape[0]), min(ra.shape[1], rb.shape[1])
-                crop = lambda x: x[(x.shape[0] - h) // 2:(x.shape[0] - h) // 2 + h, (x.shape[1] - w) // 2:(x.shape[1] - w) // 2 + w]  # noqa: E731
-                sr = image_shift_px(crop(ra), crop(rb))[1]
-                sg = image_shift_px(crop(ga), crop(gb))[1]
-                par[pi_].append((sr, sg))
-    summaries = []
-    for pi_, D in enumerate(pupils):
-        mine = [c for c in cells if round(c.pupil_mm, 6) == round(D * 1e3, 6)]
-        by_eye = {}
-        for c in mine:
-            by_eye.setdefault(c.eye_index, []).append(c.brightness)
-        b = np.array([np.mean(v) for v in by_eye.values()])
-        b = b[np.isfinite(b)]
-        ks = [k for k, v in enumerate(views) if v[0] == pi_]
-        p_scale = [float(cell_num[ks, c].sum() / cell_den[ks, c].sum() / scales[c]) if cell_den[ks, c].sum() > 0
-                   else math.nan for c in range(C)]
-        pr = par[pi_]
-        moving = [(sr, sg) for sr, sg in pr if abs(sg) >= 0.5]
-        finite = lambda xs: [x for x in xs if math.isfinite(x)]  # noqa: E731
-        summaries.append(PupilSummary(
-            pupil_mm=D * 1e3, mean_psnr_db=float(np.mean(finite([c.psnr_db for c in mine]))),
-            mean_ssim=float(np.mean([c.ssim for c in mine])),
-            brightness_max_over_min=float(b.max() / b.min()) if b.size and b.min() > 0 else math.nan,
-            brightness_cv=float(b.std() / b.mean()) if b.size and b.mean() > 0 else math.nan,
-            brightness_max_dev=float(np.abs(b / b.mean() - 1.0).max()) if b.size and b.mean() > 0 else math.nan,
-            colour_cast=float(max(p_scale) / min(p_scale)) if all(math.isfinite(v) and v > 0 for v in p_scale)
-            else math.nan,
-            colour_tint=_finite_mean([max(c.best_scales) / min(c.best_scales) for c in mine
-                                      if min(c.best_scales) > 0]),
-            colour_tint_worst=max([max(c.best_scales) / min(c.best_scales) for c in mine if min(c.best_scales) > 0],
-                                  default=math.nan),
-            edge_error=_finite_mean([c.edge_error for c in mine]),
-            sharpness=_finite_mean([c.sharpness for c in mine]),
-            parallax_error_px=float(np.mean([abs(sr - sg) for sr, sg in pr])) if pr else math.nan,
-            parallax_ratio=float(np.mean([sr / sg for sr, sg in moving])) if moving else math.nan,
-            band_share=float(np.mean([band_share(wavelength_m=lam, pitch_m=float(meta.pitch_m),
-                                                 focal_length_m=meta.focal_length_m, pupil_diameter_m=D,
-                                                 view_offset_m=e, fourier_filter=meta.fourier_filter, samples=128)
-                                      for lam in lams for _i, e in eyes]))))
+    return cells, lumimg
+
+
+def _pupil_summary(pi_: int, D: float, cells: list[ViewerCell], views: list, cell_num: np.ndarray,
+                   cell_den: np.ndarray, scales: np.ndarray, pr: list[tuple[float, float]], meta: Any,
+                   lams: list[float], eyes: list) -> PupilSummary:
+    """The summary of one pupil's cells: mean scores, brightness over the eye grid, colour cast and tint, edge
+    fidelity, parallax and the display's band share."""
+    C = len(lams)
+    mine = [c for c in cells if round(c.pupil_mm, 6) == round(D * 1e3, 6)]
+    by_eye = {}
+    for c in mine:
+        by_eye.setdefault(c.eye_index, []).append(c.brightness)
+    b = np.array([np.mean(v) for v in by_eye.values()])
+    b = b[np.isfinite(b)]
+    ks = [k for k, v in enumerate(views) if v[0] == pi_]
+    p_scale = [float(cell_num[ks, c].sum() / cell_den[ks, c].sum() / scales[c]) if cell_den[ks, c].sum() > 0
+               else math.nan for c in range(C)]
+    moving = [(sr, sg) for sr, sg in pr if abs(sg) >= 0.5]
+    finite = lambda xs: [x for x in xs if math.isfinite(x)]  # noqa: E731
+    return PupilSummary(
+        pupil_mm=D * 1e3, mean_psnr_db=float(np.mean(finite([c.psnr_db for c in mine]))),
+        mean_ssim=float(np.mean([c.ssim for c in mine])),
+        brightness_max_over_min=float(b.max() / b.min()) if b.size and b.min() > 0 else math.nan,
+        brightness_cv=float(b.std() / b.mean()) if b.size and b.mean() > 0 else math.nan,
+        brightness_max_dev=float(np.abs(b / b.mean() - 1.0).max()) if b.size and b.mean() > 0 else math.nan,
+        colour_cast=float(max(p_scale) / min(p_scale)) if all(math.isfinite(v) and v > 0 for v in p_scale)
+        else math.nan,
+        colour_tint=_finite_mean([max(c.best_scales) / min(c.best_scales) for c in mine
+                                  if min(c.best_scales) > 0]),
+        colour_tint_worst=max([max(c.best_scales) / min(c.best_scales) for c in mine if min(c.best_scales) > 0],
+                              default=math.nan),
+        edge_error=_finite_mean([c.edge_error for c in mine]),
+        sharpness=_finite_mean([c.sharpness for c in mine]),
+        parallax_error_px=float(np.mean([abs(sr - sg) for sr, sg in pr])) if pr else math.nan,
+        parallax_ratio=float(np.mean([sr / sg for sr, sg in moving])) if moving else math.nan,
+        band_share=float(np.mean([band_share(wavelength_m=lam, pitch_m=float(meta.pitch_m),
+                                             focal_length_m=meta.focal_length_m, pupil_diameter_m=D,
+                                             view_offset_m=e, fourier_filter=meta.fourier_filter, samples=128)
+                                  for lam in lams for _i, e in eyes])))
+
+
+def viewer_score(field_slm: Any, meta: MetaLike, truth: Any, *, pupils_m: Sequence[float] = DEFAULT_PUPILS_M,
+                 eye_grid: int = 5, eye_span_m: Optional[float] = None, seed: int = 0, focus_planes: int = 3,
+                 focus_z_m: Optional[Sequence[float]] = None, white_percentile: float = 99.0,
+                 progress: Optional[Any] = None, memory_budget_bytes: Optional[int] = None,
+                 device=None) -> ViewerScore:
+    """Score a hologram as an eye sees it (module docstring). ``field_slm``: complex [F, C, H, W] on the SLM or a
+    chunked source; ``truth``: anything with ``channels(focus_z_m=, pupil_diameter_m=, view_offset_m=)`` ->
+    [C, H, W] (a :class:`holocore.evaluate.groundtruth.GroundTruth`); pupils in m; the eye grid n x n over
+    +-``eye_span_m`` (default :func:`eye_grid_m`'s), jittered by ``seed``; ``focus_planes`` uniform over the
+    image volume unless ``focus_z_m`` lists depths (m)."""
+    meta = parse_view_meta(meta)
+    pupils = [float(p) for p in pupils_m]
+    if not pupils or not all(math.isfinite(p) and 0 < p <= 0.05 for p in pupils):
+        raise ValueError(f"pupils must be diameters in (0, 50] mm, got {[p * 1e3 for p in pupils]}")
+    zs = [float(z) for z in focus_z_m] if focus_z_m is not None else focus_planes_m(meta, focus_planes)
+    eyes = eye_grid_m(meta, n=eye_grid, span_m=eye_span_m, seed=seed)
+    lams = [float(v) for v in meta.wavelengths_m]
+    lum = _lum_weights(lams)
+    views = _gather_views(field_slm, meta, truth, pupils, eyes, zs, progress=progress,
+                          memory_budget_bytes=memory_budget_bytes, device=device)
+    whites, scales, cell_num, cell_den = _whites_and_scales(views, len(lams), white_percentile)
+    cells, lumimg = _score_cells(views, eyes, pupils, zs, lum, whites, scales, cell_num, cell_den)
+    par = parallax_shifts(lumimg, len(pupils), len(zs), eye_grid)
+    summaries = [_pupil_summary(pi_, D, cells, views, cell_num, cell_den, scales, par[pi_], meta, lams, eyes)
+                 for pi_, D in enumerate(pupils)]
     return ViewerScore(cells=cells, pupils=summaries, scales=tuple(float(s) for s in scales),
                        whites=tuple(whites), wavelengths_m=tuple(lams), focus_z_m=tuple(zs),
                        eye_offsets_m=tuple(e for _i, e in eyes),
