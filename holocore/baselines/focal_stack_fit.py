@@ -89,17 +89,25 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     colour gets an equal share of what is left, and a step is started only if its mean duration still fits);
     ``iterations`` stays the most. The loss history then holds each colour's final loss from its last step on.
     """
-    import torch
-
-    from holocore.optics.propagation import padded_shape, transfer_function
-    from holocore.optics.viewing import pupil_mask
-
     T = np.asarray(targets, dtype=np.float64 if views is None else np.float32)
     if views is not None:
         return _optimise_pupil_aware(T, plane_z_m, views, wavelengths_m=wavelengths_m, pitch_m=pitch_m,
                                      focal_length_m=focal_length_m, z_inf_m=z_inf_m, fourier_filter=fourier_filter,
                                      frames=frames, iterations=iterations, lr=lr, seed=seed, device=device,
                                      progress=progress, time_limit_s=time_limit_s)
+    return _optimise_centred(T, plane_z_m, wavelengths_m=wavelengths_m, pitch_m=pitch_m, focal_length_m=focal_length_m,
+                             pupil_diameter_m=pupil_diameter_m, frames=frames, iterations=iterations, lr=lr,
+                             seed=seed, device=device, progress=progress, time_limit_s=time_limit_s)
+
+
+def _optimise_centred(T: np.ndarray, plane_z_m: Sequence[float], *, wavelengths_m: Sequence[float], pitch_m: float,
+                      focal_length_m: float, pupil_diameter_m: Optional[float], frames: int, iterations: int,
+                      lr: float, seed: int, device: str, progress: Optional[Callable[[str, int, int], None]],
+                      time_limit_s: Optional[float]) -> FocalStackFit:
+    """:func:`optimise_focal_stack` through the centred pupil (its docstring): the inputs checked, then each
+    colour fitted in turn (:func:`_centred_colour`) from one phase generator."""
+    import torch
+
     if pupil_diameter_m is None:
         raise ValueError("the centred fit needs pupil_diameter_m")
     if T.ndim != 4:
@@ -110,7 +118,6 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     opts = AdamOptions.check(frames=frames, iterations=iterations, lr=lr, time_limit_s=time_limit_s)
     frames, iterations, lr = opts.frames, opts.iterations, opts.lr
     dev = torch.device(device)
-    hp, wp = padded_shape((H, W))
     budget = StepBudget(opts.time_limit_s, colours=C)
     gen = torch.Generator(device="cpu").manual_seed(int(seed) % (2**63))
     phase_out = np.zeros((frames, C, H, W), dtype=np.float32)
@@ -119,59 +126,78 @@ def optimise_focal_stack(targets: np.ndarray, plane_z_m: Sequence[float], *, wav
     steps = [0] * C
     for c, lam in enumerate(lams):
         budget.start_colour(c)  # an equal share of the time left
-        amp = torch.from_numpy(np.sqrt(T[:, c])).to(dev, torch.float32)  # [K, H, W]
-        energy = float(amp.square().sum()) or 1.0
-        mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, device=dev).to(torch.float32)
-        filt = [transfer_function((hp, wp), z, lam, p, device=dev) * mask for z in zs]
-        phi = (torch.rand((frames, H, W), generator=gen, dtype=torch.float32) * (2 * math.pi)).to(dev)
-        phi.requires_grad_(True)
-        opt = torch.optim.Adam([phi], lr=lr)
-
-        def spectrum() -> "torch.Tensor":
-            return torch.fft.fft2(torch.polar(torch.ones_like(phi), phi), s=(hp, wp))  # [F, Hp, Wp]
-
-        def recon(spec: "torch.Tensor", k: int) -> "torch.Tensor":
-            # inverse DFT as conj(FFT(conj(.))) / N, out of place (see holocore.optics.propagation.ifft2 for why)
-            v = torch.conj(torch.fft.fft2(torch.conj(spec * filt[k])))[..., :H, :W] / (hp * wp)
-            return (v.real.square() + v.imag.square()).mean(dim=0)  # frame average [H, W]
-
-        with torch.no_grad():  # the first scale: least squares on the initial reconstruction
-            sp = spectrum()
-            r = [torch.sqrt(recon(sp, k) + _EPS) for k in range(K)]
-            num = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
-            den = sum(float(rk.square().sum()) for rk in r)
-        s = num / den if den > 0 else 1.0
-        budget.begin_steps()
-        for it in range(iterations + 1):
-            opt.zero_grad(set_to_none=True)
-            num = den = loss_sum = 0.0
-            # the final loss only, no step: at the last iteration, or when one more step would pass the deadline
-            last = budget.last(it, iterations)
-            with torch.set_grad_enabled(not last):
-                sp = spectrum()
-            for k in range(K):  # one plane's graph at a time (the shared spectrum kept); gradients add up
-                with torch.set_grad_enabled(not last):
-                    rk = torch.sqrt(recon(sp, k) + _EPS)
-                    lk = (s * rk - amp[k]).square().sum() / (K * H * W)
-                if not last:
-                    lk.backward(retain_graph=k < K - 1)
-                rd = rk.detach()
-                num += float((rd * amp[k]).sum())
-                den += float(rd.square().sum())
-                loss_sum += float(lk.detach())
-            if last:  # this colour's final loss, held to the end of the history if it stopped early
-                loss_total[it:] += loss_sum * (K * H * W) / energy
-                steps[c] = it
-                break
-            loss_total[it] += loss_sum * (K * H * W) / energy
-            opt.step()
-            s = num / den if den > 0 else s
-            if progress is not None:
-                progress("focal-stack", c * iterations + it + 1, C * iterations)
-        with torch.no_grad():
-            phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
-        scales[c] = s
+        phase_out[:, c], scales[c], steps[c] = _centred_colour(
+            T, c, zs, lam, p, f, D, frames=frames, iterations=iterations, lr=lr, gen=gen, dev=dev, budget=budget,
+            loss_total=loss_total, progress=progress)
     return FocalStackFit.of_run(phase_out, scales, loss_total, steps, budget.t0)
+
+
+def _centred_colour(T: np.ndarray, c: int, zs: list[float], lam: float, p: float, f: float, D: float, *,
+                    frames: int, iterations: int, lr: float, gen, dev, budget: StepBudget, loss_total: np.ndarray,
+                    progress: Optional[Callable[[str, int, int], None]]) -> tuple[np.ndarray, float, int]:
+    """Colour ``c``'s centred fit: Adam on its frames' phases against the plane amplitudes sqrt(T[:, c]), its loss
+    (over its target's energy) added to ``loss_total`` -> (phases [F, H, W] in [0, 2pi), its scale, the steps
+    it took)."""
+    import torch
+
+    from holocore.optics.propagation import padded_shape, transfer_function
+    from holocore.optics.viewing import pupil_mask
+
+    K, C, H, W = T.shape
+    hp, wp = padded_shape((H, W))
+    step = 0
+    amp = torch.from_numpy(np.sqrt(T[:, c])).to(dev, torch.float32)  # [K, H, W]
+    energy = float(amp.square().sum()) or 1.0
+    mask = pupil_mask((hp, wp), lam, p, focal_length_m=f, pupil_diameter_m=D, device=dev).to(torch.float32)
+    filt = [transfer_function((hp, wp), z, lam, p, device=dev) * mask for z in zs]
+    phi = (torch.rand((frames, H, W), generator=gen, dtype=torch.float32) * (2 * math.pi)).to(dev)
+    phi.requires_grad_(True)
+    opt = torch.optim.Adam([phi], lr=lr)
+
+    def spectrum() -> "torch.Tensor":
+        return torch.fft.fft2(torch.polar(torch.ones_like(phi), phi), s=(hp, wp))  # [F, Hp, Wp]
+
+    def recon(spec: "torch.Tensor", k: int) -> "torch.Tensor":
+        # inverse DFT as conj(FFT(conj(.))) / N, out of place (see holocore.optics.propagation.ifft2 for why)
+        v = torch.conj(torch.fft.fft2(torch.conj(spec * filt[k])))[..., :H, :W] / (hp * wp)
+        return (v.real.square() + v.imag.square()).mean(dim=0)  # frame average [H, W]
+
+    with torch.no_grad():  # the first scale: least squares on the initial reconstruction
+        sp = spectrum()
+        r = [torch.sqrt(recon(sp, k) + _EPS) for k in range(K)]
+        num = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
+        den = sum(float(rk.square().sum()) for rk in r)
+    s = num / den if den > 0 else 1.0
+    budget.begin_steps()
+    for it in range(iterations + 1):
+        opt.zero_grad(set_to_none=True)
+        num = den = loss_sum = 0.0
+        # the final loss only, no step: at the last iteration, or when one more step would pass the deadline
+        last = budget.last(it, iterations)
+        with torch.set_grad_enabled(not last):
+            sp = spectrum()
+        for k in range(K):  # one plane's graph at a time (the shared spectrum kept); gradients add up
+            with torch.set_grad_enabled(not last):
+                rk = torch.sqrt(recon(sp, k) + _EPS)
+                lk = (s * rk - amp[k]).square().sum() / (K * H * W)
+            if not last:
+                lk.backward(retain_graph=k < K - 1)
+            rd = rk.detach()
+            num += float((rd * amp[k]).sum())
+            den += float(rd.square().sum())
+            loss_sum += float(lk.detach())
+        if last:  # this colour's final loss, held to the end of the history if it stopped early
+            loss_total[it:] += loss_sum * (K * H * W) / energy
+            step = it
+            break
+        loss_total[it] += loss_sum * (K * H * W) / energy
+        opt.step()
+        s = num / den if den > 0 else s
+        if progress is not None:
+            progress("focal-stack", c * iterations + it + 1, C * iterations)
+    with torch.no_grad():
+        phase = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
+    return phase, s, step
 
 
 def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequence[tuple[float, tuple[float, float]]],
@@ -185,7 +211,6 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
 
     from holocore.evaluate.scoring import view_shift_px
     from holocore.evaluate.viewer import aperture_share
-    from holocore.optics.viewing import simulate_view
 
     if T.ndim != 5:
         raise ValueError(f"pupil-aware targets must be [V, K, C, H, W], got shape {T.shape}")
@@ -212,60 +237,79 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
     scales = np.zeros(C, dtype=np.float64)
     loss_total = np.zeros(iterations + 1, dtype=np.float64)
     steps = [0] * C
-    # the scale: least squares over about one bank's worth of recent steps (exponentially weighted)
-    keep = 1.0 - 1.0 / V
     for c, lam in enumerate(lams):
         budget.start_colour(c)
-        phi = (torch.rand((frames, H, W), generator=gen, dtype=torch.float32) * (2 * math.pi)).to(dev)
-        phi.requires_grad_(True)
-        opt = torch.optim.Adam([phi], lr=lr)
-
-        def view(v: int, k: int) -> "torch.Tensor":
-            D, e = bank[v]
-            u = torch.polar(torch.ones_like(phi), phi)[:, None]  # [F, 1, H, W]
-            i = simulate_view(u, wavelengths_m=[lam], pitch_m=p, focal_length_m=f, pupil_diameter_m=D,
-                              distance_m=zs[k], view_offset_m=e, shift_px=shift[v][k],
-                              fourier_filter=fourier_filter, pixel_orders=None)[0]
-            return torch.sqrt(i.clamp(min=0.0) / share[v] + _EPS)
-
-        order = draw.integers(0, V, size=iterations + 1)
-        num_acc = den_acc = 0.0
-        s = None
-        budget.begin_steps()
-        for it in range(iterations + 1):
-            opt.zero_grad(set_to_none=True)
-            v = int(order[it])
-            amp = torch.from_numpy(np.sqrt(T[v, :, c])).to(dev, torch.float32)  # [K, H, W]
-            energy = float(amp.square().sum()) or 1.0
-            last = budget.last(it, iterations)
-            if s is None:  # the first scale: least squares on the first view's initial reconstruction
-                with torch.no_grad():
-                    r = [view(v, k) for k in range(K)]
-                    num_acc = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
-                    den_acc = sum(float(rk.square().sum()) for rk in r)
-                s = num_acc / den_acc if den_acc > 0 else 1.0
-            num = den = loss_sum = 0.0
-            for k in range(K):  # one plane's graph at a time; gradients add up
-                with torch.set_grad_enabled(not last):
-                    rk = view(v, k)
-                    lk = (s * rk - amp[k]).square().sum() / (K * H * W)
-                if not last:
-                    lk.backward()
-                rd = rk.detach()
-                num += float((rd * amp[k]).sum())
-                den += float(rd.square().sum())
-                loss_sum += float(lk.detach())
-            if last:
-                loss_total[it:] += loss_sum * (K * H * W) / energy
-                steps[c] = it
-                break
-            loss_total[it] += loss_sum * (K * H * W) / energy
-            opt.step()
-            num_acc, den_acc = keep * num_acc + num, keep * den_acc + den
-            s = num_acc / den_acc if den_acc > 0 else s
-            if progress is not None:
-                progress("focal-stack", c * iterations + it + 1, C * iterations)
-        with torch.no_grad():
-            phase_out[:, c] = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
-        scales[c] = s
+        phase_out[:, c], scales[c], steps[c] = _pupil_aware_colour(
+            T, c, lam, bank, share, shift, zs, p, f, fourier_filter=fourier_filter, frames=frames,
+            iterations=iterations, lr=lr, gen=gen, draw=draw, dev=dev, budget=budget, loss_total=loss_total,
+            progress=progress)
     return FocalStackFit.of_run(phase_out, scales, loss_total, steps, budget.t0)
+
+
+def _pupil_aware_colour(T: np.ndarray, c: int, lam: float, bank: list, share: list[float], shift: list,
+                        zs: list[float], p: float, f: float, *, fourier_filter: bool, frames: int, iterations: int,
+                        lr: float, gen, draw: np.random.Generator, dev, budget: StepBudget, loss_total: np.ndarray,
+                        progress: Optional[Callable[[str, int, int], None]]) -> tuple[np.ndarray, float, int]:
+    """Colour ``c``'s pupil-aware fit: Adam on its frames' phases, each step against one view of the bank drawn
+    from ``draw``, its loss (over the drawn target's energy) added to ``loss_total`` -> (phases [F, H, W] in
+    [0, 2pi), its scale, the steps it took)."""
+    import torch
+
+    from holocore.optics.viewing import simulate_view
+
+    V, K, C, H, W = T.shape
+    # the scale: least squares over about one bank's worth of recent steps (exponentially weighted)
+    keep = 1.0 - 1.0 / V
+    step = 0
+    phi = (torch.rand((frames, H, W), generator=gen, dtype=torch.float32) * (2 * math.pi)).to(dev)
+    phi.requires_grad_(True)
+    opt = torch.optim.Adam([phi], lr=lr)
+
+    def view(v: int, k: int) -> "torch.Tensor":
+        D, e = bank[v]
+        u = torch.polar(torch.ones_like(phi), phi)[:, None]  # [F, 1, H, W]
+        i = simulate_view(u, wavelengths_m=[lam], pitch_m=p, focal_length_m=f, pupil_diameter_m=D,
+                          distance_m=zs[k], view_offset_m=e, shift_px=shift[v][k],
+                          fourier_filter=fourier_filter, pixel_orders=None)[0]
+        return torch.sqrt(i.clamp(min=0.0) / share[v] + _EPS)
+
+    order = draw.integers(0, V, size=iterations + 1)
+    num_acc = den_acc = 0.0
+    s = None
+    budget.begin_steps()
+    for it in range(iterations + 1):
+        opt.zero_grad(set_to_none=True)
+        v = int(order[it])
+        amp = torch.from_numpy(np.sqrt(T[v, :, c])).to(dev, torch.float32)  # [K, H, W]
+        energy = float(amp.square().sum()) or 1.0
+        last = budget.last(it, iterations)
+        if s is None:  # the first scale: least squares on the first view's initial reconstruction
+            with torch.no_grad():
+                r = [view(v, k) for k in range(K)]
+                num_acc = sum(float((rk * amp[k]).sum()) for k, rk in enumerate(r))
+                den_acc = sum(float(rk.square().sum()) for rk in r)
+            s = num_acc / den_acc if den_acc > 0 else 1.0
+        num = den = loss_sum = 0.0
+        for k in range(K):  # one plane's graph at a time; gradients add up
+            with torch.set_grad_enabled(not last):
+                rk = view(v, k)
+                lk = (s * rk - amp[k]).square().sum() / (K * H * W)
+            if not last:
+                lk.backward()
+            rd = rk.detach()
+            num += float((rd * amp[k]).sum())
+            den += float(rd.square().sum())
+            loss_sum += float(lk.detach())
+        if last:
+            loss_total[it:] += loss_sum * (K * H * W) / energy
+            step = it
+            break
+        loss_total[it] += loss_sum * (K * H * W) / energy
+        opt.step()
+        num_acc, den_acc = keep * num_acc + num, keep * den_acc + den
+        s = num_acc / den_acc if den_acc > 0 else s
+        if progress is not None:
+            progress("focal-stack", c * iterations + it + 1, C * iterations)
+    with torch.no_grad():
+        phase = torch.remainder(phi.detach(), 2 * math.pi).cpu().numpy()
+    return phase, s, step
