@@ -12,25 +12,7 @@ import pytest
 
 from tests.project_scenes import SHARED_SCENES, SceneBundles, shared_available
 
-__all__ = ["SHARED_SCENES", "WEB_SLOW_UNTIL_MARKED"]
-
-# Transitional: the tests/service/test_web_*.py tests that belong to the full tier only still get the ``slow``
-# marker here by name until they carry ``@pytest.mark.slow`` / ``pytestmark`` themselves; every other test says
-# its tier with the marker in its own file (tests/test_tiers.py checks both). Path -> why it is slow.
-WEB_SLOW_UNTIL_MARKED: dict[str, str] = {
-    # a job submitted from the page's form and watched to its end (25 s): test_re_run_with_changes submits from
-    # the form, the done job's tests show a finished job's page and list, test_web_journey.py follows progress
-    "tests/service/test_web_page.py::test_a_job_named_after_its_file_whose_progress_only_moves_forward":
-        "a job submitted from the page's form and watched to its end",
-    "tests/service/test_web_compare.py": "headless Chromium on two jobs; tests/service/test_web_page.py drives the page",
-    "tests/service/test_web_journey.py": "headless Chromium through three jobs of the mirror room; "
-                                         "tests/service/test_web_page.py drives each part",
-    "tests/service/test_web_evaluation.py": "headless Chromium on an evaluated job; "
-                                            "tests/service/test_evaluation_job.py holds the API it shows",
-    "tests/service/test_web_list.py": "headless Chromium on four jobs; tests/service/test_scene_picture.py and "
-                                      "test_queue_status.py hold the API it shows",
-}
-
+__all__ = ["SHARED_SCENES"]
 
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
@@ -70,12 +52,3 @@ def bundles_of(project_scene_bundles: SceneBundles) -> Callable[[str], SceneBund
                         "hidden by HOLO_NO_SHARED")
         return SceneBundles("shared", SHARED_SCENES)
     return of
-
-
-@pytest.hookimpl(tryfirst=True)  # before pytest's own -m selection reads the markers
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The tests of :data:`WEB_SLOW_UNTIL_MARKED` get the ``slow`` marker (transitional, see there)."""
-    for item in items:
-        if any(item.nodeid == p or item.nodeid.startswith(p if "::" in p else p + "::")
-               for p in WEB_SLOW_UNTIL_MARKED):
-            item.add_marker(pytest.mark.slow)

@@ -5,7 +5,6 @@ still hold tests of every package. The suite is collected once, in a subprocess,
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import os
 import subprocess
@@ -14,7 +13,6 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import WEB_SLOW_UNTIL_MARKED
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -62,18 +60,3 @@ def test_the_quick_tier_holds_tests_of_every_package(collected):
                if not any(n.split("::")[0].rpartition("/")[0] == pkg for n in quick)]
     assert without == [], f"no quick-tier test in {without}"
     assert any(slow for slow in collected.values()), "no test marked slow: the full tier is the quick tier"
-
-
-@pytest.mark.slow  # the same collection
-def test_the_tests_listed_slow_by_name_exist_and_are_only_web_page_tests(collected):
-    """The transitional by-name list in tests/conftest.py names only tests/service/test_web_*.py tests, and each
-    of its entries names collected tests (a renamed one would otherwise fall into the quick tier)."""
-    outside = [p for p in WEB_SLOW_UNTIL_MARKED if not fnmatch.fnmatch(p.split("::")[0], "tests/service/test_web_*.py")]
-    assert outside == [], f"mark these slow in their own files instead: {outside}"
-    missing = [p for p in WEB_SLOW_UNTIL_MARKED
-               if not any(n == p or n.startswith(p if "::" in p else p + "::") or n.startswith(p + "[")
-                          for n in collected)]
-    assert missing == [], f"listed slow but not collected (renamed or moved?): {missing}"
-    not_slow = [n for n in collected for p in WEB_SLOW_UNTIL_MARKED
-                if (n.startswith(p + "::") or n.startswith(p + "[") or n == p) and not collected[n]]
-    assert not_slow == []

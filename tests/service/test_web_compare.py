@@ -13,6 +13,9 @@ import pytest
 from tests.service.helpers import finished_job
 from tests.service.test_web_page import DONE_JOB, Page, browser, done_job, files, scene  # noqa: F401 (fixtures)
 
+# headless Chromium on two jobs; tests/service/test_web_page.py drives the page
+pytestmark = pytest.mark.slow
+
 OTHER_JOB = {**DONE_JOB, "encoder": "dpac", "frames": 2, "name": "lab demo (dpac)"}
 OTHER_JOB.pop("iterations")
 

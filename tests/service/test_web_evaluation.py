@@ -4,8 +4,9 @@ says so), and an evaluated job's page shows, at the focus the sweep's slider sel
 beside the ground truth with that depth's PSNR and SSIM: moving the slider moves the sweep, both images and the
 numbers to the same depth; the tables list every depth and view, and the viewer-faithful score is there.
 
-The evaluated job is submitted over the API (tests/service/test_evaluation_job.py's: the form's display
-profiles put virtual infinity at 80 mm, where a 96 x 128 SLM lights none of the evaluation's views).
+The evaluated job is the session's (tests/service/conftest.py), submitted over the API with
+tests/service/test_evaluation_job.py's options: the form's display profiles put virtual infinity at 80 mm, where
+a 96 x 128 SLM lights none of the evaluation's views.
 """
 
 from __future__ import annotations
@@ -13,19 +14,25 @@ from __future__ import annotations
 import pytest
 
 from tests.service.helpers import wait_state
-from tests.service.test_evaluation_job import EVAL_JOB
 from tests.service.test_web import _pixels
 from tests.service.test_web_page import Page, browser, files, scene  # noqa: F401 (fixtures)
 
+# headless Chromium on an evaluated job; test_evaluation_job.py holds the API it shows
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
-def evaluated(server, scene) -> dict:  # noqa: F811
-    with server.client("submit") as c:
-        r = c.post("/v1/jobs", json={"scene_id": scene["id"], **EVAL_JOB, "evaluate": True})
-        assert r.status_code == 202, r.text
-        job = wait_state(c, r.json()["id"], ("succeeded", "failed", "cancelled"), timeout=420)
-        assert job["state"] == "succeeded", job["error"]
-        return {"job": job, "index": c.get(f"/v1/jobs/{job['id']}/evaluation").json()}
+def server(evaluation_server):
+    """The session's evaluation server (tests/service/conftest.py): its evaluated job is shared with
+    tests/service/test_evaluation_job.py, and these tests leave it as they found it."""
+    return evaluation_server
+
+
+@pytest.fixture(scope="module")
+def evaluated(evaluated_job, evaluation_server) -> dict:
+    with evaluation_server.client("reader") as c:
+        index = c.get(f"/v1/jobs/{evaluated_job['job']['id']}/evaluation").json()
+    return {"job": evaluated_job["job"], "index": index}
 
 
 @pytest.fixture

@@ -13,6 +13,9 @@ import pytest
 from tests.service.helpers import zip_dir
 from tests.service.test_web_page import Page, browser  # noqa: F401 (fixture)
 
+# headless Chromium through three jobs of the mirror room; test_web_page.py drives each part
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def mirror_zip(tmp_path_factory):

@@ -12,6 +12,9 @@ import pytest
 from tests.service.helpers import wait_state
 from tests.service.test_web_page import DONE_JOB, Page, browser, done_job, files, page, scene  # noqa: F401
 
+# headless Chromium on four jobs; test_scene_picture.py and test_queue_status.py hold its API
+pytestmark = pytest.mark.slow
+
 TINY = {"optics": {"resolution_hw": [32, 48], "seed": 1}, "preset": "fast", "frames": 1, "spp": 1,
         "encoder": "dpac"}
 DEMO_FOV_X_DEG, DEMO_FILM_HW = 10.0, (192, 256)  # holocore.scene.demo's camera

@@ -252,6 +252,7 @@ def test_the_servers_refusals_are_shown(page, files):
 
 
 # ---- a job from the browser -------------------------------------------------------------------------------
+@pytest.mark.slow  # a job submitted from the page's form and watched to its end (25 s)
 def test_a_job_named_after_its_file_whose_progress_only_moves_forward(page, files, server):
     from selenium.webdriver.common.by import By
 
