@@ -31,7 +31,6 @@ OPTION_COPIES = {
 KNOWN_LONG = {
     "holocore/trace/reference_chain.py:trace_chain",
     "holocore/encode/stream.py:encode_file",
-    "holocore/baselines/light_field.py:render_light_field",
     "holocore/optics/viewing.py:view_intensities",
     "holocore/trace/kernel.py:trace_wave_paths",
     "holocore/trace/hologram_rays.py:trace_field", "holocore/plan/analysis.py:analyze",

@@ -8,10 +8,11 @@ ray-sampling plane (Wakunami and Yamaguchi 2011) inside the image volume.
    grid is (k - (B-1)/2) / B p, symmetric about the axis for any B.
 2. Light field from Mitsuba. The plane wave of frequency f leaves the hogel towards the eye with direction sine
    s = lambda f, hologram tan t = s / sqrt(1 - |s|^2). Straight hologram rays stay straight in the world (the
-   map T is projective, docs/design.md §3), and every ray of tan t crosses the eye's plane zc = 0 at (f t_x, f t_y): so
-   the radiance of that wave is what a pinhole at (f t_x, f t_y, 0) sees through the hogel's world image at
-   zc = f^2 / (z_rs - z_inf). Each ray is jittered over its hogel (box in position) and its frequency bin (box
-   in direction) and traced with the scene's integrator (else ``path``, 12 bounces), ``spp`` times.
+   map T is projective, docs/design.md §3), and every ray of tan t crosses the eye's plane zc = 0 at
+   (f t_x, f t_y): so the radiance of that wave is what a pinhole at (f t_x, f t_y, 0) sees through the hogel's
+   world image at zc = f^2 / (z_rs - z_inf). Each ray is jittered over its hogel (box in position) and its
+   frequency bin (box in direction) and traced with the scene's integrator (else ``path``, 12 bounces), ``spp``
+   times.
 3. Field (per colour c, frame m): hogel spectrum S(f) = B^2 sqrt(L_c(f) / n) exp(i phi_m(f)) a_c, n the number
    of frequencies in the cone, so that a uniform radiance L gives mean |U|^2 = L a_c^2 over the hogel
    (Parseval); its inverse DFT is the hogel's field. phi_m is the renderer's random-phase bank laid out on the
@@ -243,6 +244,55 @@ def stereogram_colours(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel
         yield field[:, :H, :W]
 
 
+def _rs_depth(z_rs_m: Optional[float], optics: OpticsConfig, ana: Any) -> float:
+    """The RS plane's hologram depth (m): :func:`rs_plane_depth` of the image volume when ``z_rs_m`` is None, else
+    ``z_rs_m`` checked to lie between optical infinity and the WRP."""
+    zw = ana.z_wrp_m
+    if z_rs_m is None:
+        return rs_plane_depth(z_inf_m=optics.z_inf_m, z_wrp_m=zw, z_far_m=ana.z_far_holo_m,
+                              z_near_m=ana.z_near_holo_m)
+    z_rs_m = validate.positive("z_rs_m", z_rs_m)
+    if not optics.z_inf_m < z_rs_m < zw:
+        raise ValueError(f"z_rs_m = {z_rs_m * 1e3:.4f} mm must lie between optical infinity "
+           f"({optics.z_inf_m * 1e3:.4f} mm) and the WRP ({zw * 1e3:.4f} mm)")
+    return z_rs_m
+
+
+def _fields(rad: Optional[np.ndarray], res: Any, *, shape_hw: tuple[int, int], hogel_px: int, z_rs_m: float,
+            z_wrp_m: float, lams: list[float], optics: OpticsConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(SLM field, WRP field), complex64 [F, C, H, W]: with a fit ``res``, its frames sqrt(P_c) exp(i phi)
+    propagated to the WRP; else the stereogram of the light field ``rad`` on the RS plane propagated to the WRP
+    and back to the SLM."""
+    import torch
+
+    from holocore.optics.propagation import asm
+
+    H, W = shape_hw
+    F = optics.frames
+    wrp = np.empty((F, len(lams), H, W), dtype=np.complex64)
+    slm = np.empty_like(wrp)
+    step = max(1, min(F, _PROPAGATE_PIXELS // (H * W)))  # frames per ASM call: its padded workspace stays small
+    if res is not None:
+        power = res.illumination
+        for c, lam in enumerate(lams):
+            for a in range(0, F, step):
+                u = torch.polar(torch.full(res.phase[a:a + step, c].shape, math.sqrt(power[c])),
+                                torch.from_numpy(res.phase[a:a + step, c]))
+                slm[a:a + step, c] = u.numpy()
+                wrp[a:a + step, c] = asm(u, z_wrp_m, lam, optics.pitch_m).numpy()
+        return slm, wrp
+    # a stereogram's phases are per plane wave, not per image point: the mode says coded or independent
+    for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
+                                              wavelengths_m=lams, frames=F, seed=optics.seed,
+                                              coded=optics.frame_phase_mode().stereogram_coded)):
+        for a in range(0, F, step):
+            chunk = rs[a:a + step].contiguous()
+            wrp[a:a + step, c] = asm(chunk, z_wrp_m - z_rs_m, lams[c], optics.pitch_m).numpy()
+            slm[a:a + step, c] = asm(chunk, -z_rs_m, lams[c], optics.pitch_m).numpy()
+        del rs
+    return slm, wrp
+
+
 def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEFAULT_HOGEL_PX, spp: int = 16,
                        z_rs_m: Optional[float] = None, fit: str = "stereogram", iterations: int = 200,
                        lr: float = 0.05, time_limit_s: Optional[float] = None, device: str = "cpu",
@@ -257,7 +307,6 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     ``device``, stopped early to keep the whole baseline within ``time_limit_s``; the SLM field is then
     sqrt(P_c) exp(i phi), P_c the colour's laser power).
     """
-    from holocore.optics.propagation import asm
     from holocore.render_meta import RenderResult, result_meta
     from holocore.render_setup import RenderOptions, plan_scene
 
@@ -273,14 +322,7 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     pl = plan_scene(loaded, optics, RenderOptions(preset="fast"))
     hmap, ana = pl.hmap, pl.analysis
     zw = ana.z_wrp_m
-    if z_rs_m is None:
-        z_rs_m = rs_plane_depth(z_inf_m=optics.z_inf_m, z_wrp_m=zw, z_far_m=ana.z_far_holo_m,
-                                z_near_m=ana.z_near_holo_m)
-    else:
-        z_rs_m = validate.positive("z_rs_m", z_rs_m)
-        if not optics.z_inf_m < z_rs_m < zw:
-            raise ValueError(f"z_rs_m = {z_rs_m * 1e3:.4f} mm must lie between optical infinity "
-               f"({optics.z_inf_m * 1e3:.4f} mm) and the WRP ({zw * 1e3:.4f} mm)")
+    z_rs_m = _rs_depth(z_rs_m, optics, ana)
     timings["analysis_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     lams = list(optics.wavelengths_m)
@@ -290,14 +332,9 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     if progress:
         progress("light field", 1, 1)
     t2 = time.perf_counter()
-    F = optics.frames
-    wrp = np.empty((F, len(lams), H, W), dtype=np.complex64)
-    slm = np.empty_like(wrp)
-    step = max(1, min(F, _PROPAGATE_PIXELS // (H * W)))  # frames per ASM call: its padded workspace stays small
+    geometry = dict(shape_hw=(H, W), hogel_px=hogel_px, z_rs_m=z_rs_m, lams=lams, optics=optics)
     fit_meta: dict[str, Any] = {"fit": fit}
     if fit == "sgd":
-        import torch
-
         from holocore.baselines.light_field_fit import optimise_light_field
 
         target = hogel_amplitudes(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
@@ -305,27 +342,14 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
         del rad
         left = None if time_limit_s is None else max(1e-3, time_limit_s - (time.perf_counter() - t0))
         res = optimise_light_field(target, shape_hw=(H, W), hogel_px=hogel_px, z_rs_m=z_rs_m, wavelengths_m=lams,
-                                   pitch_m=optics.pitch_m, frames=F, iterations=iterations, lr=lr, seed=optics.seed,
-                                   device=device, time_limit_s=left)
-        power = res.illumination
-        for c, lam in enumerate(lams):
-            for a in range(0, F, step):
-                u = torch.polar(torch.full(res.phase[a:a + step, c].shape, math.sqrt(power[c])),
-                                torch.from_numpy(res.phase[a:a + step, c]))
-                slm[a:a + step, c] = u.numpy()
-                wrp[a:a + step, c] = asm(u, zw, lam, optics.pitch_m).numpy()
+                                   pitch_m=optics.pitch_m, frames=optics.frames, iterations=iterations, lr=lr,
+                                   seed=optics.seed, device=device, time_limit_s=left)
+        slm, wrp = _fields(None, res, z_wrp_m=zw, **geometry)
         fit_meta.update(iterations_done=list(res.iterations), loss_first=res.loss[0], loss_final=res.loss[-1],
-                        illumination=[float(v) for v in power])
+                        illumination=[float(v) for v in res.illumination])
         timings["fit_s"] = res.seconds
-    else:  # a stereogram's phases are per plane wave, not per image point: the mode says coded or independent
-        for c, rs in enumerate(stereogram_colours(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
-                                                  wavelengths_m=lams, frames=F, seed=optics.seed,
-                                                  coded=optics.frame_phase_mode().stereogram_coded)):
-            for a in range(0, F, step):
-                chunk = rs[a:a + step].contiguous()
-                wrp[a:a + step, c] = asm(chunk, zw - z_rs_m, lams[c], optics.pitch_m).numpy()
-                slm[a:a + step, c] = asm(chunk, -z_rs_m, lams[c], optics.pitch_m).numpy()
-            del rs
+    else:
+        slm, wrp = _fields(rad, None, z_wrp_m=zw, **geometry)
         del rad
     timings["propagate_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
