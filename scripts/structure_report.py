@@ -33,7 +33,7 @@ KNOWN_LONG = {
     "holocore/encode/stream.py:encode_file",
     "holocore/optics/viewing.py:view_intensities",
     "holocore/trace/kernel.py:trace_wave_paths",
-    "holocore/trace/hologram_rays.py:trace_field", "holocore/plan/analysis.py:analyze",
+    "holocore/trace/hologram_rays.py:trace_field",
     "holocore/optics/plane_chain.py:chain_planes",
 }
 MOST_OWN_LATE_IMPORTS = 225

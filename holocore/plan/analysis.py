@@ -160,17 +160,7 @@ def analyze(
     o = np.repeat(eye_w, R, axis=0)
     v = hmap.camera_dir_to_world(dirs_c)
 
-    # First surfaces (any BSDF): the WRP must stay in air, in front of them.
-    import drjit as dr
-
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
-                   mi.Vector3f(*[mi.Float(aligned(v[:, i])) for i in range(3)]))
-    si = scene.ray_intersect(ray)
-    dr.eval(si.t)
-    hit = np.asarray(si.is_valid(), dtype=bool)
-    t = np.asarray(si.t, dtype=np.float64)
-    zc_first = (t * dirs_c[:, 2])[hit]
-
+    zc_first, hit = _first_surfaces(mi, scene, o, v, dirs_c)
     integ = mi.load_dict({"type": "path", "max_depth": 4})
     res = trace_chain(scene, o, v, max_delta=max_delta, amp_spp=4, integrator=integ, seed=seed + 17)
     zc_img_all = res.d * dirs_c[:, 2]
@@ -185,24 +175,8 @@ def analyze(
     theta_max = max(theta_max_rad(lam, pitch_m) for lam in wavelengths_m)
     margin = margin_px * pitch_m / math.tan(theta_min)
     depths = np.concatenate([zc_first, zc_img, _small_shape_depths(scene, hmap, dirs_c, n_side)])
-    depths = depths[np.isfinite(depths) & (depths > 0)]
-    if depths.size:
-        zc_min = float(depths.min())
-        zc_max = float(depths.max())
-        z_near = float(hmap.holo_depth_m(zc_min))
-        z_far = float(hmap.holo_depth_m(zc_max))
-        z_wrp = z_near + margin
-    else:  # nothing visible: a black scene; any plane will do
-        zc_min = zc_max = None
-        z_near = z_far = None
-        z_wrp = hmap.z_inf_m + margin
-    if z_wrp - hmap.z_inf_m > max_wrp_distance_m:
-        raise SceneDoesNotFit(
-            f"the nearest surface or image point is {zc_min:.4g} m from the eye, which maps to "
-            f"{(z_wrp - hmap.z_inf_m) * 1e3:.1f} mm in front of z_inf with the eyepiece f = "
-            f"{hmap.focal_length_m * 1e3:.2f} mm; the limit (max_wrp_distance_mm) is "
-            f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
-        )
+    zc_min, z_near, z_far, z_wrp = _wrp_place(hmap, depths[np.isfinite(depths) & (depths > 0)], margin,
+                                              max_wrp_distance_m)
     depth_q = _weighted_quantiles(hmap.holo_depth_m(zc_img), res.radiance[good & (zc_img_all > 0)].sum(axis=1))
     ok = good & (zc_img_all > 0)
     w_lum = res.radiance[ok].sum(axis=1).astype(np.float64)
@@ -228,6 +202,41 @@ def analyze(
         margin_m=float(margin),
         image_depths_holo_m=depth_q,
     )
+
+
+def _first_surfaces(mi, scene, o: np.ndarray, v: np.ndarray, dirs_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(camera depth of each ray's first surface of any BSDF, which rays hit one): the WRP must stay in air, in
+    front of them."""
+    import drjit as dr
+
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float(aligned(v[:, i])) for i in range(3)]))
+    si = scene.ray_intersect(ray)
+    dr.eval(si.t)
+    hit = np.asarray(si.is_valid(), dtype=bool)
+    t = np.asarray(si.t, dtype=np.float64)
+    return (t * dirs_c[:, 2])[hit], hit
+
+
+def _wrp_place(hmap: HologramMap, depths: np.ndarray, margin: float, max_wrp_distance_m: float):
+    """(the nearest camera depth, the image volume's near and far hologram depths, the WRP's: docs/design.md
+    Eq. D3) from the visible depths; :class:`SceneDoesNotFit` when the WRP would lie past the limit."""
+    if depths.size:
+        zc_min = float(depths.min())
+        z_near = float(hmap.holo_depth_m(zc_min))
+        z_far = float(hmap.holo_depth_m(float(depths.max())))
+        z_wrp = z_near + margin
+    else:  # nothing visible: a black scene; any plane will do
+        zc_min = z_near = z_far = None
+        z_wrp = hmap.z_inf_m + margin
+    if z_wrp - hmap.z_inf_m > max_wrp_distance_m:
+        raise SceneDoesNotFit(
+            f"the nearest surface or image point is {zc_min:.4g} m from the eye, which maps to "
+            f"{(z_wrp - hmap.z_inf_m) * 1e3:.1f} mm in front of z_inf with the eyepiece f = "
+            f"{hmap.focal_length_m * 1e3:.2f} mm; the limit (max_wrp_distance_mm) is "
+            f"{max_wrp_distance_m * 1e3:.1f} mm: move the camera away, shorten f, or raise the limit"
+        )
+    return zc_min, z_near, z_far, z_wrp
 
 
 def _weighted_quantiles(z: np.ndarray, lum: np.ndarray, n: int = 64) -> list[float]:
