@@ -92,10 +92,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     allows. ``init_path``: a STACK.npz of the same shape whose phases the SGD starts from (a warm start: the
     stack of an earlier render of the same scene and display, or an encode stopped early, goes on from where it
     was instead of from the naive phase; the stop rule ends it once it gains no more)."""
-    t0 = time.perf_counter()
-    result_path, out_path = Path(result_path), Path(out_path)
-    meta = read_meta(result_path)
-    src = NpyMember(result_path, "wrp_field")
+    t0, result_path, out_path = time.perf_counter(), Path(result_path), Path(out_path)
+    meta, src = read_meta(result_path), NpyMember(result_path, "wrp_field")
     if len(src.shape) != 4:
         raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
     F, C, H, W = src.shape
@@ -147,12 +145,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
             u8_out.close()
             opts = {"fourier_filter": bool(fourier_filter), "fourier_filter_source": source,
                     "block_frames": int(fb), "memory_limit_bytes": int(memory_limit_bytes), "streamed": True,
-                    "grid": [list(encoder_grid((H, W), z, lam, pitch)) for lam in lams], "device": str(device)}
-            if method == "sgd":
-                opts.update({"lr": sgd_opts["lr"], "tol": sgd_opts["tol"], "stop_db": sgd_opts["stop_db"],
-                             "efficiency_weight": sgd_opts["efficiency_weight"],
-                             "max_iterations": sgd_opts["iterations"],
-                             "init": "naive" if init_path is None else f"stack {Path(init_path).name}"})
+                    "grid": [list(encoder_grid((H, W), z, lam, pitch)) for lam in lams], "device": str(device),
+                    **_sgd_meta(sgd_opts, init_path)}
             res = acc.result(method, np.empty((0, C, H, W), np.float32), sup, t0, opts)
             out_meta = parse_stack_meta(stack_meta(meta, res, lut=lut, lut_source=lut_source), what=str(out_path))
             with zf.open("meta.npy", "w") as mf:
@@ -165,6 +159,15 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
         Path(tmp_u8).unlink(missing_ok=True)
         threads.__exit__(None, None, None)
     return res, out_meta
+
+
+def _sgd_meta(sgd_opts: dict, init_path: Optional[Union[str, Path]]) -> dict:
+    """What the stack's meta says of the SGD's options and its start (nothing for another encoder)."""
+    if not sgd_opts:
+        return {}
+    return {"lr": sgd_opts["lr"], "tol": sgd_opts["tol"], "stop_db": sgd_opts["stop_db"],
+            "efficiency_weight": sgd_opts["efficiency_weight"], "max_iterations": sgd_opts["iterations"],
+            "init": "naive" if init_path is None else f"stack {Path(init_path).name}"}
 
 
 def _fourier_filter(display: Optional[dict], asked: Optional[bool]) -> tuple[bool, str]:
