@@ -82,8 +82,8 @@ def stack_to_field(phase: Union[np.ndarray, torch.Tensor]) -> torch.Tensor:
 
 
 def pupil_mask(shape_hw_padded: tuple[int, int], wavelength_m: float, pitch_m: PitchLike, *,
-               focal_length_m: float, pupil_diameter_m: float,
-               view_offset_m: tuple[float, float] = (0.0, 0.0), device: Union[str, torch.device] = "cpu") -> torch.Tensor:
+               focal_length_m: float, pupil_diameter_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
+               device: Union[str, torch.device] = "cpu") -> torch.Tensor:
     """Boolean [Hp, Wp] mask (unshifted DFT order) of the plane waves the pupil accepts.
 
     Keeps (lambda f_x - e_x / f)^2 + (lambda f_y - e_y / f)^2 <= (D / 2f)^2 with f_y = -(row frequency).
@@ -201,6 +201,83 @@ class _TensorSource:
 _VIEW_FIXED_BYTES = 0.6 * 2**30  # interpreter, torch, filters, accumulators outside the chunk
 
 
+def _view_layout(shape: tuple[int, int, int, int], lams: list[float], n_planes: int, *, pitch_m: PitchLike,
+                 focal_length_m: float, pupil_diameter_m: float, view_offset_m: tuple[float, float],
+                 shift_px: tuple[float, float], pad_factor: float, memory_budget_bytes: Optional[int],
+                 fourier_filter: bool, pixel_orders: bool) -> tuple[int, tuple[int, int], list[int], int]:
+    """(m, padded shape (hp, wp), diffraction orders k per colour, frames per chunk): the border m (px) a shift
+    needs on each side, the FFT grid of the view padded by it, and the chunk that keeps the working set within the
+    memory budget."""
+    from holocore.runtime.membudget import frames_per_chunk
+    from holocore.runtime.membudget import memory_budget_bytes as _budget
+
+    F, C, h, w = shape
+    a_row, a_col = shift_px
+    m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
+    hs, ws = h + 2 * m, w + 2 * m
+    hp, wp = padded_shape((hs, ws), pad_factor)
+    ks = [orders_factor(lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
+                        view_offset_m=view_offset_m, fourier_filter=fourier_filter) if pixel_orders else 1
+          for lam in lams]
+    cap = max(1, _CHUNK_BYTES // (hp * wp * 8))  # bound the padded working set
+    per_frame = 8 * ((4 if pixel_orders else 3) * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
+    fixed = _VIEW_FIXED_BYTES + n_planes * C * h * w * 4 + 16 * h * w + 80 * hp * wp + 8 * max(ks) ** 2 * hp * wp
+    chunk = frames_per_chunk(F, per_frame_bytes=per_frame, fixed_bytes=fixed,
+                             budget_bytes=_budget(memory_budget_bytes), cap=cap)
+    return m, (hp, wp), ks, chunk
+
+
+def _load_chunk(source, f0: int, f1: int, c: int, dev: Optional[torch.device]) -> torch.Tensor:
+    """Frames f0..f1 of colour ``c`` of ``source``, complex64 [k, H, W] (on ``dev`` when given); ValueError for a
+    real field."""
+    u0 = source.chunk(f0, f1, c)
+    u0 = torch.from_numpy(u0) if isinstance(u0, np.ndarray) else u0
+    if not u0.is_complex():
+        raise ValueError("field must be complex")
+    if dev is not None:
+        u0 = u0.to(dev)
+    if u0.dtype != torch.complex64:
+        u0 = u0.to(torch.complex64)
+    return u0
+
+
+def _shifted_chunk(u0: torch.Tensor, m: int, shift_px: tuple[float, float], pixel_orders: bool,
+                   ramp: Optional[torch.Tensor]) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+    """(the chunk zero-padded by ``m`` px on each side and, without pixel orders, shifted by ``shift_px`` on its
+    spectrum (with pixel orders the shift goes into each order's filter); the shift's phase ramp, made once)."""
+    h, w = u0.shape[-2:]
+    hs, ws = h + 2 * m, w + 2 * m
+    a_row, a_col = shift_px
+    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
+    big[..., m:m + h, m:m + w] = u0
+    if pixel_orders:
+        return big, ramp
+    if ramp is None:
+        ky = torch.fft.fftfreq(hs, dtype=torch.float64)
+        kx = torch.fft.fftfreq(ws, dtype=torch.float64)
+        ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
+                           2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
+                           ).to(torch.complex64).to(u0.device)
+    return ifft2(torch.fft.fft2(big) * ramp), ramp
+
+
+def _plane_filters(padded_hw: tuple[int, int], k: int, lam: float, pitch_m: PitchLike, z: float, *,
+                   focal_length_m: float, pupil_diameter_m: float, view_offset_m: tuple[float, float],
+                   shift_px: tuple[float, float], fourier_filter: bool, pixel_orders: bool,
+                   u0: torch.Tensor) -> list[torch.Tensor]:
+    """The spectrum filters of one colour at distance ``z``, on ``u0``'s device: one per diffraction order taken
+    (:func:`_order_filters`) with pixel orders, else the one transfer function times the eye's mask."""
+    if pixel_orders:
+        return _order_filters(padded_hw, k, lam, pitch_m, distance_m=z, focal_length_m=focal_length_m,
+                              pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                              shift_px=shift_px, fourier_filter=fourier_filter, device=u0.device)
+    mask = eye_mask(padded_hw, lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
+                    view_offset_m=view_offset_m, fourier_filter=fourier_filter, device=u0.device)
+    filt = transfer_function(padded_hw, z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
+        if z != 0.0 else torch.ones(padded_hw, dtype=u0.dtype, device=u0.device)
+    return [filt.mul_(mask.to(filt.real.dtype))]
+
+
 def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLike, focal_length_m: float,
                      pupil_diameter_m: float, distances_m: Sequence[float],
                      view_offset_m: tuple[float, float] = (0.0, 0.0), shift_px: tuple[float, float] = (0.0, 0.0),
@@ -218,9 +295,6 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     docstring; :func:`orders_factor` bounds the orders tried); None: exactly where there is no Fourier filter,
     the display the callers that follow a display profile model.
     """
-    from holocore.runtime.membudget import frames_per_chunk
-    from holocore.runtime.membudget import memory_budget_bytes as _budget
-
     F, C, h, w = (int(v) for v in source.shape)
     lams = [float(v) for v in wavelengths_m]
     if len(lams) != C:
@@ -228,19 +302,13 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
     zs = [validate.real("distance_m", z) for z in distances_m]
     validate.pitch_pair(pitch_m)
     a_row, a_col = (float(v) for v in shift_px)
-    m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0
-    hs, ws = h + 2 * m, w + 2 * m
-    hp, wp = padded_shape((hs, ws), pad_factor)
     if pixel_orders is None:
         pixel_orders = not fourier_filter
-    ks = [orders_factor(lam, pitch_m, focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m,
-                        view_offset_m=view_offset_m, fourier_filter=fourier_filter) if pixel_orders else 1
-          for lam in lams]
-    cap = max(1, _CHUNK_BYTES // (hp * wp * 8))  # bound the padded working set
-    per_frame = 8 * ((4 if pixel_orders else 3) * hp * wp + (3 * hs * ws if m else 0) + 2 * h * w)
-    fixed = _VIEW_FIXED_BYTES + len(zs) * C * h * w * 4 + 16 * h * w + 80 * hp * wp + 8 * max(ks) ** 2 * hp * wp
-    chunk = frames_per_chunk(F, per_frame_bytes=per_frame, fixed_bytes=fixed,
-                             budget_bytes=_budget(memory_budget_bytes), cap=cap)
+    optics = dict(focal_length_m=focal_length_m, pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
+                  fourier_filter=fourier_filter, pixel_orders=pixel_orders)
+    m, (hp, wp), ks, chunk = _view_layout((F, C, h, w), lams, len(zs), pitch_m=pitch_m, shift_px=(a_row, a_col),
+                                          pad_factor=pad_factor, memory_budget_bytes=memory_budget_bytes, **optics)
+    hs, ws = h + 2 * m, w + 2 * m
     dev = None if device is None else torch.device(device)
     out = None
     ramp = None
@@ -250,43 +318,13 @@ def view_intensities(source, *, wavelengths_m: Sequence[float], pitch_m: PitchLi
             acc = None
             filt = None
             for f0 in range(0, F, chunk):
-                u0 = source.chunk(f0, min(F, f0 + chunk), c)
-                u0 = torch.from_numpy(u0) if isinstance(u0, np.ndarray) else u0
-                if not u0.is_complex():
-                    raise ValueError("field must be complex")
-                if dev is not None:
-                    u0 = u0.to(dev)
-                if u0.dtype != torch.complex64:
-                    u0 = u0.to(torch.complex64)
+                u0 = _load_chunk(source, f0, min(F, f0 + chunk), c, dev)
                 if out is None:
                     out = torch.empty((len(zs), C, h, w), dtype=torch.float32, device=u0.device)
                 if m:
-                    big = torch.zeros((u0.shape[0], hs, ws), dtype=torch.complex64, device=u0.device)
-                    big[..., m:m + h, m:m + w] = u0
-                    if pixel_orders:  # the shift goes into each order's filter
-                        u0 = big
-                    else:
-                        if ramp is None:
-                            ky = torch.fft.fftfreq(hs, dtype=torch.float64)
-                            kx = torch.fft.fftfreq(ws, dtype=torch.float64)
-                            ramp = torch.polar(torch.ones(hs, ws, dtype=torch.float64),
-                                               2 * math.pi * (ky[:, None] * a_row + kx[None, :] * a_col)
-                                               ).to(torch.complex64).to(u0.device)
-                        u0 = ifft2(torch.fft.fft2(big) * ramp)
-                    del big
-                if filt is None and pixel_orders:
-                    filt = _order_filters((hp, wp), k, lam, pitch_m, distance_m=z, focal_length_m=focal_length_m,
-                                          pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
-                                          shift_px=(a_row, a_col), fourier_filter=fourier_filter,
-                                          device=u0.device)
-                    acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
-                elif filt is None:
-                    mask = eye_mask((hp, wp), lam, pitch_m, focal_length_m=focal_length_m,
-                                    pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m,
-                                    fourier_filter=fourier_filter, device=u0.device)
-                    filt = transfer_function((hp, wp), z, lam, pitch_m, device=u0.device, dtype=u0.dtype) \
-                        if z != 0.0 else torch.ones((hp, wp), dtype=u0.dtype, device=u0.device)
-                    filt = [filt.mul_(mask.to(filt.real.dtype))]
+                    u0, ramp = _shifted_chunk(u0, m, (a_row, a_col), pixel_orders, ramp)
+                if filt is None:
+                    filt = _plane_filters((hp, wp), k, lam, pitch_m, z, shift_px=(a_row, a_col), u0=u0, **optics)
                     acc = torch.zeros((hs, ws), dtype=torch.float64, device=u0.device)
                 spec = torch.fft.fft2(u0, s=(hp, wp))
                 del u0
