@@ -1,4 +1,4 @@
-"""SQLite store of scenes, jobs, tokens, idempotency keys and displays (WAL; one connection per thread).
+"""SQLite store of scenes, jobs, sweeps, tokens, idempotency keys and displays (WAL; one connection per thread).
 
 Times are Unix seconds (REAL); JSON columns hold text. State changes of a job are single ``UPDATE ... WHERE
 state = ...`` statements, so the scheduler's claim and the API's cancel can never both win.
@@ -44,9 +44,9 @@ CREATE TABLE IF NOT EXISTS displays (
     message TEXT, token_id TEXT);
 CREATE TABLE IF NOT EXISTS scene_owners (
     scene_id TEXT NOT NULL, owner TEXT NOT NULL, created_at REAL NOT NULL, PRIMARY KEY (scene_id, owner));
-CREATE TABLE IF NOT EXISTS display_sends (
-    display TEXT NOT NULL, job_id TEXT NOT NULL, sent_at REAL NOT NULL, token_id TEXT,
-    PRIMARY KEY (display, job_id));
+CREATE TABLE IF NOT EXISTS display_sends (display TEXT NOT NULL, job_id TEXT NOT NULL, sent_at REAL NOT NULL,
+    token_id TEXT, PRIMARY KEY (display, job_id));
+CREATE TABLE IF NOT EXISTS sweeps (id TEXT PRIMARY KEY, owner TEXT NOT NULL, doc TEXT NOT NULL, created_at REAL);
 CREATE INDEX IF NOT EXISTS display_sends_job ON display_sends(job_id);
 """
 # A job is shown on the display it was submitted for, and on every display it was sent to afterwards

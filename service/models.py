@@ -17,7 +17,8 @@ from service.jobfiles import JobFields
 from service.scene_view import FieldOfViewBox
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
-           "DisplayOut", "DisplayList", "Problem", "cache_key", "effective_optics"]
+           "DisplayOut", "DisplayList", "Problem", "SweepRequest", "SweepCreated", "SweepJob", "SweepOut", "SweepList", "SWEEP_OPTIONS",
+           "cache_key", "effective_optics"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
@@ -35,6 +36,57 @@ class JobRequest(JobFields):
     name: Optional[str] = Field(default=None, min_length=1, max_length=120, pattern=r"^[^\x00-\x1f\x7f]+$",
                                 description="A name for people (the web page offers the uploaded file's); not "
                                             "part of the result's content address.")
+
+
+SWEEP_OPTIONS = ("frames", "spp", "iterations", "encoder", "preset", "method", "wrp_planes", "render_time_limit_s",
+                 "quality_db", "max_spp")
+
+
+class SweepRequest(BaseModel):
+    """One job per value of one option, every other option the job's."""
+
+    model_config = ConfigDict(extra="forbid")
+    job: JobRequest = Field(description="The job every value changes one option of (a POST /v1/jobs body).")
+    option: Literal[SWEEP_OPTIONS] = Field(description="The job option the sweep varies.")
+    values: list[Any] = Field(min_length=2, max_length=12, description="Its values, 2 to 12, each once.")
+
+
+class SweepCreated(BaseModel):
+    id: str
+    option: str
+    values: list[Any]
+    jobs: list[str] = Field(description="The jobs' ids, in the order of the values.")
+    links: dict[str, str]
+
+
+class SweepJob(BaseModel):
+    id: str
+    value: Any
+    name: Optional[str] = None
+    state: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    progress: Optional[dict[str, Any]] = None
+    estimate_s: Optional[float] = Field(default=None, description="The estimate's seconds.")
+    predicted_psnr_db: Optional[float] = Field(default=None, description="The estimate's predicted "
+                                               "viewer-faithful PSNR (its quality.psnr_db).")
+    predicted_uncertainty_db: Optional[float] = None
+    run_s: Optional[float] = Field(default=None, description="The measured run time, once the job ran.")
+    measured_psnr_db: Optional[float] = Field(default=None, description="Once evaluated: the evaluation's "
+                                              "viewer-faithful mean PSNR, else its mean PSNR.")
+    measured_kind: Optional[Literal["viewer", "mean"]] = None
+    error: Optional[str] = None
+
+
+class SweepOut(BaseModel):
+    id: str
+    option: str
+    values: list[Any]
+    created_at: str
+    jobs: list[SweepJob] = Field(description="The sweep's jobs in the order of its values (a deleted job is left "
+                                             "out).")
+
+
+class SweepList(BaseModel):
+    sweeps: list[SweepOut]
 
 
 class Showing(BaseModel):

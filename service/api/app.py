@@ -14,7 +14,7 @@ from fastapi import Depends, FastAPI
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from service.api import display_sends, displays, evaluation, jobs, phase_frames, queue, scenes, web
+from service.api import display_sends, displays, evaluation, jobs, phase_frames, queue, scenes, sweeps, web
 from service.api.context import ServiceContext
 from service.api.deps import PRINCIPAL_KEY, authenticate, require, scope_error
 from service.api.problems import ApiError, install_handlers, problem
@@ -206,7 +206,7 @@ def _dependency_scope(dependant) -> Optional[str]:
 # The API's routers, listed once: included in this order (the page's routes before the jobs', for POST
 # /v1/jobs/estimate and the page at /) and guarded by the size and rate guard.
 ROUTERS = (web.router, scenes.router, jobs.router, phase_frames.router, evaluation.router, display_sends.router,
-           displays.router, queue.router)
+           displays.router, queue.router, sweeps.router)
 
 
 def create_app(settings: ServiceSettings, *, start_workers: bool = True, engine=None) -> FastAPI:
