@@ -31,7 +31,6 @@ OPTION_COPIES = {
 KNOWN_LONG = {
     "holocore/trace/reference_chain.py:trace_chain",
     "holocore/trace/kernel.py:trace_wave_paths",
-    "holocore/trace/hologram_rays.py:trace_field",
     "holocore/optics/plane_chain.py:chain_planes",
 }
 MOST_OWN_LATE_IMPORTS = 225

@@ -190,10 +190,7 @@ def trace_field(
     """
     H, W = grid.shape_hw
     C = len(grid.wavelengths_m)
-    if frames < 1:
-        raise ValueError(f"frames must be >= 1, got {frames}")
-    if bank_phasors is not None and len(bank_phasors) != C:
-        raise ValueError("bank_phasors needs one bank per wavelength")
+    _check_banks(frames, bank_phasors, depth_terms, C)
     stats = stats if stats is not None else TraceStats()
     rows_per_tile = max(1, settings.tile_rays // (settings.spp * W))
     multi = grid.several
@@ -202,16 +199,9 @@ def trace_field(
     geo = TileGeometry.make(hmap, wavelengths_m=grid.wavelengths_m, pitch_m=grid.pitch_m, shape_hw=grid.shape_hw,
                             plane_z_m=grid.plane_z_m, z_wrp_m=grid.z_wrp_m, spp=settings.spp,
                             planes=grid.planes if multi else None, ring_rows=rows_per_tile)
-    if device is not None:
-        dev = torch.device(device)
-        if dev.type == "cuda" and dev.index is None:  # "cuda" is the current GPU; tensors say "cuda:0"
-            dev = torch.device("cuda", torch.cuda.current_device())
-    else:
-        dev = bank_phasors[0].device if bank_phasors is not None else torch.device("cpu")
+    dev = _trace_device(device, bank_phasors)
     out = None if on_tile is not None else torch.zeros((frames, C, H, W), dtype=torch.complex64, device=dev)
     cells = None if bank_phasors is None else combined_cells(bank_phasors)
-    if depth_terms is not None and (cells is None or len(depth_terms.ks) != C):
-        raise ValueError("depth_terms need bank_phasors and one wavenumber per wavelength")
     if cells is not None and cells.device != dev:
         raise ValueError(f"bank_phasors are on {cells.device}, the trace runs on {dev}")
     tiles = [(r0, min(H, r0 + rows_per_tile)) for r0 in range(0, H, rows_per_tile)]
@@ -231,13 +221,9 @@ def trace_field(
             bands.deposit(tile, cells, depth_terms)
             for k, a, blk in bands.flush(r1 if ti + 1 < len(tiles) else None):
                 on_plane_rows(k, a, blk.expand(frames, *blk.shape[1:]))
-        elif cells is None:  # one smooth-phase field, the same for every frame (summed in the kernel)
-            block = torch.stack([tile[c].view(r1 - r0, W) for c in range(C)])[None].expand(frames, C, r1 - r0, W)
-        else:  # path reuse: every frame from the same rays (one gather of phi_m(Q) rows for all colors)
-            base = torch.stack([tile[c] for c in range(C)], dim=1)
-            acc = _accumulate_frames(cells, tile["idx"], base, settings.spp, depth_terms, tile.get("dz"),
-                                     tile.get("drec") if taper is not None else None)  # [P, C, F]
-            block = acc.permute(2, 1, 0).reshape(frames, C, r1 - r0, W)
+        else:
+            block = _tile_block(tile, cells, C=C, rows=r1 - r0, W=W, frames=frames, spp=settings.spp,
+                                depth_terms=depth_terms, tapered=taper is not None)
         if block is not None and on_tile is not None:
             on_tile(r0, r1, block)
         elif block is not None:
@@ -248,6 +234,41 @@ def trace_field(
         if progress is not None:
             progress("trace", ti + 1, len(tiles))
     return None if out is None else out.cpu().numpy()
+
+
+def _check_banks(frames: int, bank_phasors, depth_terms: Optional[BeamDepthTerms], C: int) -> None:
+    """ValueError unless there is a frame, a bank per colour (or none), and directional frames' depth terms come
+    with banks and one wavenumber per colour."""
+    if frames < 1:
+        raise ValueError(f"frames must be >= 1, got {frames}")
+    if bank_phasors is not None and len(bank_phasors) != C:
+        raise ValueError("bank_phasors needs one bank per wavelength")
+    if depth_terms is not None and (bank_phasors is None or len(depth_terms.ks) != C):
+        raise ValueError("depth_terms need bank_phasors and one wavenumber per wavelength")
+
+
+def _trace_device(device, bank_phasors) -> torch.device:
+    """Where the torch work runs: ``device`` ("cuda" as the current GPU, which tensors call "cuda:0"), else the
+    banks' device, else the CPU."""
+    if device is None:
+        return bank_phasors[0].device if bank_phasors is not None else torch.device("cpu")
+    dev = torch.device(device)
+    if dev.type == "cuda" and dev.index is None:
+        dev = torch.device("cuda", torch.cuda.current_device())
+    return dev
+
+
+def _tile_block(tile: dict, cells, *, C: int, rows: int, W: int, frames: int, spp: int,
+                depth_terms: Optional[BeamDepthTerms], tapered: bool) -> torch.Tensor:
+    """A tile's rows of every frame, complex64 [F, C, rows, W]: one smooth-phase field for every frame (summed in
+    the kernel), or with random phases every frame from the same rays (path reuse: one gather of phi_m(Q) rows
+    for all colours)."""
+    if cells is None:
+        return torch.stack([tile[c].view(rows, W) for c in range(C)])[None].expand(frames, C, rows, W)
+    base = torch.stack([tile[c] for c in range(C)], dim=1)
+    acc = _accumulate_frames(cells, tile["idx"], base, spp, depth_terms, tile.get("dz"),
+                             tile.get("drec") if tapered else None)  # [P, C, F]
+    return acc.permute(2, 1, 0).reshape(frames, C, rows, W)
 
 
 class _PlaneBands:
