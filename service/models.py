@@ -17,8 +17,8 @@ from service.jobfiles import JobFields
 from service.scene_view import FieldOfViewBox
 
 __all__ = ["NAME_PATTERN", "ID_PATTERN", "JobRequest", "Heartbeat", "Showing", "JobOut", "JobList", "SceneOut",
-           "DisplayOut", "DisplayList", "Problem", "SweepRequest", "SweepCreated", "SweepJob", "SweepOut", "SweepList", "SWEEP_OPTIONS",
-           "cache_key", "effective_optics"]
+           "DisplayOut", "DisplayList", "Problem", "SweepRequest", "SweepCreated", "SweepJob", "SweepOut",
+           "SweepList", "SWEEP_OPTIONS", "cache_key", "effective_optics"]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
