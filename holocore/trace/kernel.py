@@ -30,13 +30,13 @@ Units: world metres (positions, distances, d), unit direction vectors, radiance 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 from holocore.scene.features import has_media, has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.differentials import igehy_transfer
-from holocore.trace.media import absorb, extinction, sensor_medium, transmittance
+from holocore.trace.media import absorb, extinction, transmittance
+from holocore.trace.path_state import KernelSettings, Lobes, PathState, Vertex, WavePaths, start_state
 
 if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
     import mitsuba as mi
@@ -44,99 +44,6 @@ if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsu
     from holocore.trace.radiance_cache import RadianceCache
 
 __all__ = ["WavePaths", "trace_wave_paths"]
-
-
-@dataclass
-class WavePaths:
-    """Per-ray outcome (Dr.Jit arrays of one width, not yet evaluated: the caller's own per-ray work joins
-    the same kernel)."""
-
-    valid: object  # Bool: a finite image point at a positive apparent distance, finite radiance
-    d: object  # Float64 apparent distance of P along the first ray direction (m, world)
-    radiance: object  # Color3f radiance reaching the origin along the ray (>= 0, 0 where invalid)
-    n_delta: object  # UInt32 delta bounces before P
-    escaped: object  # Bool: left the scene before any image point
-    capped: object  # Bool: still on delta lobes after max_delta bounces
-    sampled: object  # Bool: P's radiance came from path tracing (``amp_spp`` samples), not from the cache
-    surface: dict | None = None  # with ``surface=True``: p, normal (shading), emission, albedo at P and the
-    # chain's throughput ``thr`` (radiance leaving P = radiance / thr)
-
-
-@dataclass
-class _PathState:
-    """The loop state: one lane per wave path. Dr.Jit traverses the fields in this order (a ``None`` field is
-    not part of the loop) and evaluates their annotations, hence ``object`` and the array type in the comment."""
-
-    # The incoherent path, as in Mitsuba's ``path`` integrator.
-    ray: object  # mi.Ray3f: the segment traced next (float32, world)
-    active: object  # mi.Bool: the lane is still tracing
-    beta: object  # mi.Color3f throughput: the chain's Fresnel weights, then BSDF weight / pdf, / RR survival
-    L: object  # mi.Color3f: radiance gathered so far, towards the ray's origin
-    eta: object  # mi.Float: product of the sampled relative indices of refraction (for Russian roulette)
-    depth: object  # mi.UInt32: vertices counted from P on (Mitsuba's depth for a ray arriving at P; 0 before P)
-    si_prev: object  # mi.Interaction3f: the previous vertex, for MIS of the emission the BSDF sample reaches
-    pdf_prev: object  # mi.Float: solid-angle pdf (sr^-1) of the BSDF sample that left it
-    delta_prev: object  # mi.Bool: that sample was a delta lobe (its emission takes no MIS)
-    # The coherent chain (Sec. 4.2), float64: differentials per unit shift of O (m/m) or per radian of v.
-    chain: object  # mi.Bool: still on delta vertices: P not reached yet
-    D: object  # mi.Vector3d: unit direction of the current segment
-    dP: object  # 4 x mi.Vector3d: position differentials (shift along e1, e2; angle along e1, e2)
-    dD: object  # 4 x mi.Vector3d: direction differentials (same order)
-    frame: object  # 2 x mi.Vector3d: the lateral frame (e1, e2) of v, carried through the delta vertices
-    n_cur: object  # mi.Float64: index of refraction of the current medium relative to the start
-    medium: object  # mi.MediumPtr: the medium the current segment travels in (null: vacuum; None: no media)
-    nd: object  # mi.UInt32: delta bounces so far
-    # The outcome.
-    d: object  # mi.Float64: apparent distance of P along v (m, world), set at P
-    done: object  # mi.Bool: P reached
-    bad: object  # mi.Bool: a grazing delta vertex made the transfer singular: the ray is dropped
-    capped: object  # mi.Bool: still on delta lobes after max_delta bounces
-    escaped: object  # mi.Bool: left the scene before P
-    cached: object  # mi.Bool: P's radiance came from the ambient cache
-    # What the caller asked to keep of P.
-    thr: object | None = None  # mi.Color3f: the chain's throughput at P (amp_spp > 1, or surface)
-    fin: object | None = None  # mi.Ray3f: the segment that reached P (amp_spp > 1: more samples from it)
-    surf: object | None = None  # dict (surface=True): p (m), shading normal, emission, albedo at P
-
-
-class _Settings(NamedTuple):
-    """What the loop body reads besides its state. The depths are kernel parameters (opaque), not constants:
-    one compiled kernel serves every setting; the Python switches each select their own kernel."""
-
-    ctx: mi.BSDFContext
-    max_delta: mi.UInt32  # delta bounces allowed before P
-    max_depth: mi.UInt32  # path depth counted from P (1: emission at P only)
-    rr_depth: mi.UInt32  # Russian roulette from this depth on
-    any_mixed: bool  # the scene has a BSDF with delta and smooth lobes
-    media: bool  # the scene holds absorbing media (a shape's interior or exterior, or the sensor's)
-    cache: RadianceCache | None  # the fast variant's ambient cache
-    keep_thr: bool  # record the chain's throughput at P
-    keep_ray: bool  # record the segment that reached P
-    keep_surface: bool  # record P's surface
-
-
-class _Vertex(NamedTuple):
-    """What one iteration knows of the vertex its segment reached."""
-
-    ray: mi.Ray3f  # the segment that reached it
-    pi: mi.PreliminaryIntersection3f
-    si: mi.SurfaceInteraction3f
-    hit: mi.Bool  # an active lane that hit a surface
-    bsdf: mi.BSDFPtr
-    flags: mi.UInt32  # the BSDF's lobes (mi.BSDFFlags)
-    chain0: mi.Bool  # the path was still coherent on this segment
-    in_chain: mi.Bool  # a coherent path hit a surface here: a delta vertex or P
-    is_emitter: mi.Bool  # the surface emits (the chain stops at emitters)
-
-
-class _Lobes(NamedTuple):
-    """The vertex's samples (:func:`_sample_lobes`)."""
-
-    bs: mi.BSDFSample3f  # the BSDF sample (direction wo in the local frame, pdf, lobe, relative eta)
-    w: mi.Color3f  # its weight f cos / pdf
-    Lr: mi.Color3f  # the emitter sample's radiance, MIS-weighted, times the throughput (0 where unused)
-    go_on: mi.Bool  # a delta lobe on a chain: the chain goes on (before the max_delta cap)
-    at_p: mi.Bool  # the chain ends here: this vertex is P
 
 
 def trace_wave_paths(
@@ -165,43 +72,17 @@ def trace_wave_paths(
 
     if max_depth < 1:
         raise ValueError(f"max_depth must be >= 1, got {max_depth}")
-    F64, V3d = mi.Float64, mi.Vector3d
-    R = dr.width(o64)
     extra = amp_spp > 1 and integrator is not None
     any_mixed, media = has_mixed_delta(scene), has_media(scene)
     # Kernel parameters, not constants: one compiled kernel for every depth setting.
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
-    s = _Settings(ctx=mi.BSDFContext(), max_delta=op_delta, max_depth=op_depth, rr_depth=op_rr,
+    s = KernelSettings(ctx=mi.BSDFContext(), max_delta=op_delta, max_depth=op_depth, rr_depth=op_rr,
                   any_mixed=any_mixed, media=media, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
                   keep_surface=surface)
 
-    # The chain starts with A = I, B = 0 (docs/design.md §4): two lateral shifts of O along e1, e2 (dP = e_i, dD = 0)
-    # and two angular perturbations of v along them (dP = 0, dD = e_i).
-    helper = dr.select(dr.abs(v64.z) < 0.9, V3d(0, 0, 1), V3d(1, 0, 0))
-    e1 = dr.normalize(dr.cross(v64, helper))
-    e2 = dr.cross(v64, e1)
-    zero3 = dr.zeros(V3d, R)
-    p = _PathState(
-        ray=mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64)), active=dr.full(mi.Bool, True, R),
-        beta=dr.full(mi.Color3f, 1.0, R), L=dr.zeros(mi.Color3f, R), eta=dr.full(mi.Float, 1.0, R),
-        depth=dr.zeros(mi.UInt32, R), si_prev=dr.zeros(mi.Interaction3f, R), pdf_prev=dr.full(mi.Float, 1.0, R),
-        delta_prev=dr.full(mi.Bool, True, R),
-        chain=dr.full(mi.Bool, True, R), D=V3d(v64), dP=[V3d(e1), V3d(e2), V3d(zero3), V3d(zero3)],
-        dD=[V3d(zero3), V3d(zero3), V3d(e1), V3d(e2)], frame=[V3d(e1), V3d(e2)], n_cur=dr.full(F64, 1.0, R),
-        medium=sensor_medium(scene, R) if media else None, nd=dr.zeros(mi.UInt32, R),
-        d=dr.zeros(F64, R), done=dr.full(mi.Bool, False, R), bad=dr.full(mi.Bool, False, R),
-        capped=dr.full(mi.Bool, False, R), escaped=dr.full(mi.Bool, False, R), cached=dr.full(mi.Bool, False, R))
-    if media:
-        p.si_prev.p = mi.Point3f(o64)  # the first segment's start, for its length in a medium (MIS ignores it)
-    if s.keep_thr:
-        p.thr = dr.full(mi.Color3f, 1.0, R)
-    if s.keep_ray:
-        p.fin = mi.Ray3f(mi.Point3f(o64), mi.Vector3f(v64))
-    if s.keep_surface:
-        p.surf = {"p": dr.zeros(mi.Point3f, R), "normal": dr.zeros(mi.Vector3f, R),
-                  "emission": dr.zeros(mi.Color3f, R), "albedo": dr.zeros(mi.Color3f, R)}
+    p = start_state(scene, o64, v64, s)
 
-    def body(p: _PathState, sampler: mi.Sampler) -> tuple[_PathState, mi.Sampler]:
+    def body(p: PathState, sampler: mi.Sampler) -> tuple[PathState, mi.Sampler]:
         v = _intersect(scene, p)  # 1. the vertex this segment reaches
         if s.media:
             absorb(p, v)  # 1'. Beer-Lambert along the segment, before anything it carries is counted
@@ -219,15 +100,7 @@ def trace_wave_paths(
     p, sampler = dr.while_loop((p, sampler), lambda p, sampler: p.active, body, label="wave paths")
 
     ok = p.done & ~p.bad & ~p.capped & (p.d > 0) & dr.isfinite(p.d)
-    L = p.L
-    if extra:  # amp_spp - 1 more radiance samples of Mitsuba's integrator from the segment that reached P
-        need = ok & ~p.cached
-        rd = mi.RayDifferential3f(p.fin)
-        L_more = dr.zeros(mi.Color3f, R)
-        for _ in range(amp_spp - 1):
-            spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
-            L_more += dr.select(valid & need, spec, 0.0)
-        L = dr.select(need, (L + p.thr * L_more) / amp_spp, L)
+    L = _more_radiance(scene, p, ok, sampler, integrator, amp_spp) if extra else p.L
     ok &= dr.isfinite(L[0]) & dr.isfinite(L[1]) & dr.isfinite(L[2])
     L = dr.select(ok, dr.maximum(L, 0.0), 0.0)
     d = dr.select(ok, p.d, 0.0)
@@ -236,10 +109,26 @@ def trace_wave_paths(
                      sampled=ok & ~p.cached, surface=surf)
 
 
+def _more_radiance(scene: mi.Scene, p: PathState, ok, sampler: mi.Sampler, integrator: mi.Integrator,
+                   amp_spp: int):
+    """P's radiance averaged with ``amp_spp - 1`` more samples of Mitsuba's integrator from the segment that
+    reached P (where P's radiance did not come from the cache)."""
+    mi = mitsuba()
+    import drjit as dr
+
+    need = ok & ~p.cached
+    rd = mi.RayDifferential3f(p.fin)
+    L_more = dr.zeros(mi.Color3f, dr.width(ok))
+    for _ in range(amp_spp - 1):
+        spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
+        L_more += dr.select(valid & need, spec, 0.0)
+    return dr.select(need, (p.L + p.thr * L_more) / amp_spp, p.L)
+
+
 # ---- the steps of one iteration ------------------------------------------------------------------------------
 
 
-def _intersect(scene: mi.Scene, p: _PathState) -> _Vertex:
+def _intersect(scene: mi.Scene, p: PathState) -> Vertex:
     """Step 1: the vertex the current segment reaches, and what kind of vertex it is for the chain."""
     mi = mitsuba()
 
@@ -247,11 +136,11 @@ def _intersect(scene: mi.Scene, p: _PathState) -> _Vertex:
     si = pi.compute_surface_interaction(p.ray, mi.RayFlags.All, p.active)
     hit = p.active & si.is_valid()
     bsdf = si.bsdf(p.ray)
-    return _Vertex(ray=p.ray, pi=pi, si=si, hit=hit, bsdf=bsdf, flags=bsdf.flags(), chain0=p.chain,
+    return Vertex(ray=p.ray, pi=pi, si=si, hit=hit, bsdf=bsdf, flags=bsdf.flags(), chain0=p.chain,
                    in_chain=hit & p.chain, is_emitter=si.shape.is_emitter())
 
 
-def _emission(scene: mi.Scene, p: _PathState, v: _Vertex) -> mi.Color3f:
+def _emission(scene: mi.Scene, p: PathState, v: Vertex) -> mi.Color3f:
     """Step 2: the emitted radiance L_e of Eq. 1 that the previous BSDF sample reached (an area light or the
     environment), times the throughput, MIS-weighted (power heuristic) against emitter sampling at the
     previous vertex. Whether it counts (from P on only) is the incoherent step's decision."""
@@ -260,7 +149,7 @@ def _emission(scene: mi.Scene, p: _PathState, v: _Vertex) -> mi.Color3f:
     return p.beta * _mis(p.pdf_prev, em_pdf) * ds.emitter.eval(v.si, p.active)
 
 
-def _cached_radiance(scene: mi.Scene, p: _PathState, v: _Vertex, Le: mi.Color3f,
+def _cached_radiance(scene: mi.Scene, p: PathState, v: Vertex, Le: mi.Color3f,
                      cache: RadianceCache) -> tuple[mi.Color3f, mi.Bool]:
     """Step 2, fast variant (Sec. 4.2, the ambient cache): a chain vertex without delta lobes (or an emitter)
     is P for sure; where the cache holds P's cell, P's radiance is one lookup and the path ends there. The
@@ -278,8 +167,8 @@ def _cached_radiance(scene: mi.Scene, p: _PathState, v: _Vertex, Le: mi.Color3f,
     return dr.select(cached, p.beta * L_c, Le), cached
 
 
-def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sampler, s: _Settings,
-                  cached: mi.Bool) -> _Lobes:
+def _sample_lobes(scene: mi.Scene, p: PathState, v: Vertex, sampler: mi.Sampler, s: KernelSettings,
+                  cached: mi.Bool) -> Lobes:
     """Step 3: emitter sampling and one BSDF sample in one call (as Mitsuba's ``path`` does), the two halves
     of Eq. 1's integral combined by MIS. The BSDF sample's lobe also decides the chain (Sec. 4.2): a delta
     lobe goes on coherently, anything else (or an emitter) makes this vertex the real image point P. A lane
@@ -301,10 +190,10 @@ def _sample_lobes(scene: mi.Scene, p: _PathState, v: _Vertex, sampler: mi.Sample
         shadow = dr.select(v.si.is_medium_transition(), v.si.target_medium(ds.d), p.medium)
         em_w = em_w * transmittance(extinction(shadow, p.ray, v.si, em_on & (shadow != None)), ds.dist)  # noqa: E711
     Lr = dr.select(em_on & ~go_on, p.beta * mis_em * val * em_w, 0.0)
-    return _Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
+    return Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
 
 
-def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi.Bool:
+def _coherent_step(p: PathState, v: Vertex, lobes: Lobes, s: KernelSettings) -> mi.Bool:
     """Step 4, the coherent part (Sec. 4.2, docs/design.md §4 "Virtual image point"), float64 and only in the lanes
     that need it (a real branch per packet): through a delta vertex, the differentials and the frame are
     carried on (:func:`igehy_transfer`); at a P behind delta vertices, d = 2 / tr(B^-1 A) is read from them
@@ -336,7 +225,7 @@ def _coherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, s: _Settings) -> mi
     return go_on
 
 
-def _record_image_point(scene: mi.Scene, p: _PathState, v: _Vertex, at_p: mi.Bool, s: _Settings) -> None:
+def _record_image_point(scene: mi.Scene, p: PathState, v: Vertex, at_p: mi.Bool, s: KernelSettings) -> None:
     """At P, keep what the caller asked for: the chain's throughput, the segment that reached P, P's surface."""
     import drjit as dr
 
@@ -350,8 +239,8 @@ def _record_image_point(scene: mi.Scene, p: _PathState, v: _Vertex, at_p: mi.Boo
         p.surf = {k: dr.select(at_p, here[k], p.surf[k]) for k in here}
 
 
-def _incoherent_step(p: _PathState, v: _Vertex, lobes: _Lobes, Le: mi.Color3f, go_on: mi.Bool,
-                     cached: mi.Bool, sampler: mi.Sampler, s: _Settings) -> None:
+def _incoherent_step(p: PathState, v: Vertex, lobes: Lobes, Le: mi.Color3f, go_on: mi.Bool,
+                     cached: mi.Bool, sampler: mi.Sampler, s: KernelSettings) -> None:
     """Step 5, the incoherent part from P on: Eq. 1 by Monte Carlo, as Mitsuba's ``path`` (depth counted
     from P). Nothing counts before P: delta vertices neither emit (the chain stops at emitters) nor sample
     lights. Adds this vertex's emission and emitter sample, follows the BSDF sample (or the chain), and plays
