@@ -89,7 +89,6 @@ def trace_chain(
         z = np.zeros(0)
         z3 = np.zeros((0, 3), np.float32)
         return ChainResult(z.astype(bool), z, z3, z.astype(np.int32), z, z.astype(bool), z.astype(bool))
-    F64 = mi.Float64
     o = np.ascontiguousarray(origins, dtype=np.float64)
     v = np.ascontiguousarray(directions, dtype=np.float64)
     ray0 = mi.Ray3f(mi.Point3f(*[mi.Float(aligned(o[:, i])) for i in range(3)]),
@@ -98,86 +97,85 @@ def trace_chain(
     sampler.seed(seed, R)
     ctx = mi.BSDFContext()
     flags = mi.RayFlags.All | mi.RayFlags.dNSdUV
-
-    # ---- first hit, every ray: most paths end here (P = first hit, d = t) -----------------------------
-    si = scene.ray_intersect(ray0, flags, False, True)
-    hit = si.is_valid()
-    bs, w = si.bsdf(ray0).sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
-    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
-    stop = hit & (~is_delta | si.shape.is_emitter())
-    cont = hit & ~stop
-    d_out = dr.select(stop, F64(si.t), dr.zeros(F64, R))
-    fin_o, fin_d = mi.Point3f(ray0.o), mi.Vector3f(ray0.d)
-    # Scatter targets must have the full width R (a literal of width 1 would be written out of bounds).
-    thr = dr.full(mi.Color3f, 1.0, R)
-    n_delta = dr.zeros(mi.UInt32, R)
-    opl = dr.select(hit, F64(si.t), dr.zeros(F64, R))
-    escaped = mi.Bool(~hit)
-    done = mi.Bool(stop)
-    capped = dr.full(mi.Bool, False, R)
-    bad = dr.full(mi.Bool, False, R)
-    dr.eval(d_out, opl, done, cont, escaped, thr, n_delta, capped, bad, fin_o, fin_d)
-
+    st, cont = _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R)
     lanes = dr.compress(cont)
     if dr.width(lanes) > 0 and max_delta > 0:
-        # Differentials 0, 1: lateral shifts of O along e1, e2; 2, 3: angular perturbations of v along e1, e2.
-        idx = np.asarray(lanes, dtype=np.int64)
-        oo, vv = o[idx], v[idx]
-        helper = np.where(np.abs(vv[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-        e1 = np.cross(vv, helper)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(vv, e1)
-        sub = _DeltaChain(mi, scene, ctx, flags, oo, vv, e1, e2, seed)
-        sub.run(max_delta)
-        L = mi.UInt32(aligned(idx, np.uint32))
-        dr.scatter(d_out, sub.d_out, L)
-        dr.scatter(fin_o, sub.fin_o, L)
-        dr.scatter(fin_d, sub.fin_d, L)
-        dr.scatter(thr, sub.thr, L)
-        dr.scatter(n_delta, sub.n_delta, L)
-        dr.scatter(opl, sub.opl, L)
-        dr.scatter(escaped, sub.escaped, L)
-        dr.scatter(done, sub.done, L)
-        dr.scatter(capped, sub.capped, L)
-        dr.scatter(bad, sub.bad, L)
+        _delta_chains(mi, dr, scene, ctx, flags, o, v, np.asarray(lanes, dtype=np.int64), st, max_delta, seed)
     else:
-        capped = mi.Bool(cont)
-    final_ray = mi.Ray3f(fin_o, fin_d)
-    dr.eval(d_out, fin_o, fin_d, thr, n_delta, opl, escaped, done, capped, bad)
-
-    # ---- radiance leaving P towards the previous vertex --------------------------------------------
-    ok = done & ~bad & ~capped & (d_out > 0)
-    need = mi.Bool(ok)
-    L_int = mi.Color3f(0.0)
-    rd = mi.RayDifferential3f(final_ray)
-    for _ in range(max(1, amp_spp)):
-        spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
-        L_int += dr.select(valid & need, spec, 0.0)
-        dr.eval(L_int)
-    L = dr.select(need, L_int / max(1, amp_spp), 0.0) * thr
-    n_need = int(dr.count(need)[0]) if dr.width(need) > 1 else (R if bool(need[0]) else 0)
-    dr.eval(L, d_out, ok)
+        st["capped"] = mi.Bool(cont)
+    dr.eval(*st.values())
+    L, ok, n_need = _radiance_at_p(mi, dr, scene, sampler, integrator, st, amp_spp, R)
 
     def _np1(x, dtype):
         return np.broadcast_to(np.asarray(x, dtype=dtype).reshape(-1), (R,)).copy()
 
-    def _np3(x, dtype=np.float32):
-        return np.stack([_np1(x[i], dtype) for i in range(3)], axis=1)
-
-    rad = _np3(L)
-    d_np = _np1(d_out, np.float64)
+    rad = np.stack([_np1(L[i], np.float32) for i in range(3)], axis=1)
+    d_np = _np1(st["d_out"], np.float64)
     ok_np = _np1(ok, bool) & np.isfinite(d_np) & np.all(np.isfinite(rad), axis=1)
     rad = np.where(ok_np[:, None], np.maximum(rad, 0.0), 0.0).astype(np.float32)
     return ChainResult(
         valid=ok_np,
         d=np.where(ok_np, d_np, 0.0),
         radiance=rad,
-        n_delta=_np1(n_delta, np.int32),
-        opl_m=_np1(opl, np.float64),
-        escaped=_np1(escaped, bool),
-        capped=_np1(capped, bool),
+        n_delta=_np1(st["n_delta"], np.int32),
+        opl_m=_np1(st["opl"], np.float64),
+        escaped=_np1(st["escaped"], bool),
+        capped=_np1(st["capped"], bool),
         path_samples=n_need * max(1, amp_spp),
     )
+
+
+def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int) -> tuple[dict, object]:
+    """Every ray's first hit, where most paths end (P = first hit, d = t): the chain's state of every ray (each
+    array of the full width R, which scatters need: a literal of width 1 would be written out of bounds) and
+    which rays go on through a delta lobe."""
+    F64 = mi.Float64
+    si = scene.ray_intersect(ray0, flags, False, True)
+    hit = si.is_valid()
+    bs, w = si.bsdf(ray0).sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
+    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
+    stop = hit & (~is_delta | si.shape.is_emitter())
+    cont = hit & ~stop
+    st = {"d_out": dr.select(stop, F64(si.t), dr.zeros(F64, R)), "fin_o": mi.Point3f(ray0.o),
+          "fin_d": mi.Vector3f(ray0.d), "thr": dr.full(mi.Color3f, 1.0, R), "n_delta": dr.zeros(mi.UInt32, R),
+          "opl": dr.select(hit, F64(si.t), dr.zeros(F64, R)), "escaped": mi.Bool(~hit), "done": mi.Bool(stop),
+          "capped": dr.full(mi.Bool, False, R), "bad": dr.full(mi.Bool, False, R)}
+    dr.eval(cont, *st.values())
+    return st, cont
+
+
+def _delta_chains(mi, dr, scene, ctx, flags, o: np.ndarray, v: np.ndarray, idx: np.ndarray, st: dict,
+                  max_delta: int, seed: int) -> None:
+    """Carry the rays ``idx`` that go on through delta vertices with their float64 differentials (0, 1: lateral
+    shifts of O along e1, e2; 2, 3: angular perturbations of v along them) and scatter what they end with into
+    ``st``."""
+    oo, vv = o[idx], v[idx]
+    helper = np.where(np.abs(vv[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(vv, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(vv, e1)
+    sub = _DeltaChain(mi, scene, ctx, flags, oo, vv, e1, e2, seed)
+    sub.run(max_delta)
+    lanes = mi.UInt32(aligned(idx, np.uint32))
+    for name in ("d_out", "fin_o", "fin_d", "thr", "n_delta", "opl", "escaped", "done", "capped", "bad"):
+        dr.scatter(st[name], getattr(sub, name), lanes)
+
+
+def _radiance_at_p(mi, dr, scene, sampler, integrator, st: dict, amp_spp: int, R: int):
+    """(the radiance leaving P towards the previous vertex times the chain's throughput, which paths are
+    valid, how many needed the integrator)."""
+    ok = st["done"] & ~st["bad"] & ~st["capped"] & (st["d_out"] > 0)
+    need = mi.Bool(ok)
+    L_int = mi.Color3f(0.0)
+    rd = mi.RayDifferential3f(mi.Ray3f(st["fin_o"], st["fin_d"]))
+    for _ in range(max(1, amp_spp)):
+        spec, valid, _aov = integrator.sample(scene, sampler, rd, None, need)
+        L_int += dr.select(valid & need, spec, 0.0)
+        dr.eval(L_int)
+    L = dr.select(need, L_int / max(1, amp_spp), 0.0) * st["thr"]
+    n_need = int(dr.count(need)[0]) if dr.width(need) > 1 else (R if bool(need[0]) else 0)
+    dr.eval(L, st["d_out"], ok)
+    return L, ok, n_need
 
 
 class _DeltaChain:
