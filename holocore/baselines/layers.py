@@ -101,8 +101,9 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     put on the farthest plane). ``z_range_m`` (far, near): hologram depths outside it (pixels that mix a
     surface and the void) are clipped into it. Planes must lie below the WRP (z_k < ``z_wrp_m``). ``frame_phases``:
     the renderer's frame-phase mode (:mod:`holocore.trace.frame_phases`): its bank and amplitude, and per plane
-    its depth part where it has one (directional frames' Eq. B1), one phase per frame. ``eyebox_sine``: every colour's WRP field
-    cut to the directions of sine <= this (:meth:`holocore.display.optics.OpticsConfig.eyebox_sine`; None: not).
+    its depth part where it has one (directional frames' Eq. B1), one phase per frame. ``eyebox_sine``: every
+    colour's WRP field cut to the directions of sine <= this
+    (:meth:`holocore.display.optics.OpticsConfig.eyebox_sine`; None: not).
     """
     import torch
 

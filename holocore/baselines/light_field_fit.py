@@ -1,8 +1,8 @@
 """The light-field baseline as the paper runs it (Table 1, "SGD-based w/ light fields"; Choi et al. 2022): phase-only
 SGD of F frames on the light field, instead of encoding a stereogram.
 
-Model (per colour c): frame m's SLM field exp(i phi_m) goes by band-limited ASM (docs/design.md §5, 2x padding) from the
-SLM (z = 0) to the ray-sampling plane z_rs; there it is cut into the stereogram's hogels (B x B pixels,
+Model (per colour c): frame m's SLM field exp(i phi_m) goes by band-limited ASM (docs/design.md §5, 2x padding)
+from the SLM (z = 0) to the ray-sampling plane z_rs; there it is cut into the stereogram's hogels (B x B pixels,
 :mod:`holocore.baselines.light_field`) and each hogel's spectrum on the same B x B frequency grid is taken,
 
     S_m(hogel, f) = DFT_B{ v_m(hogel) exp(i pi (B - 1) (r + s) / B) },

@@ -110,7 +110,8 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
     ``scene``: a Mitsuba scene; ``sensor_to_world``: its perspective sensor's 4x4 to_world matrix (the eye's
     pose); ``focal_length_m``, ``z_inf_m``, ``pitch_m`` (m) and ``shape_hw`` describe the display (a render's
     meta); focus at hologram depth ``focus_z_m`` (m), pupil ``pupil_diameter_m`` (m), eye offset
-    ``view_offset_m`` (m). ``integrator``: default the scene's own (else ``path`` with 12 bounces). ``spp`` samples per pixel (1..65536).
+    ``view_offset_m`` (m). ``integrator``: default the scene's own (else ``path`` with 12 bounces). ``spp``
+    samples per pixel (1..65536).
     """
     from holocore.runtime.mitsuba_env import mitsuba
 

@@ -30,8 +30,9 @@ def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float =
               memory_budget_bytes: Optional[int] = None) -> list[np.ndarray]:
     """Frame-averaged intensity [H, W, 3] seen with the eye focused at each hologram depth of ``focus_z_m``.
 
-    ``slm_field``: a complex [F, C, H, W] array or a chunked source (:func:`holocore.optics.fieldsource.open_slm_field`),
-    read in chunks of frames that fit ``memory_budget_bytes``; ``device``: where the FFTs run."""
+    ``slm_field``: a complex [F, C, H, W] array or a chunked source
+    (:func:`holocore.optics.fieldsource.open_slm_field`), read in chunks of frames that fit
+    ``memory_budget_bytes``; ``device``: where the FFTs run."""
     meta = parse_view_meta(meta)
     import torch
 

@@ -177,7 +177,8 @@ def _chain(mi, dr, scene, ray, active, key):
         sky |= missed
         ended |= missed | stop
         u1 = mi.sample_tea_float32(key, mi.UInt32(3 * b))
-        u2 = mi.Point2f(mi.sample_tea_float32(key, mi.UInt32(3 * b + 1)), mi.sample_tea_float32(key, mi.UInt32(3 * b + 2)))
+        u2 = mi.Point2f(mi.sample_tea_float32(key, mi.UInt32(3 * b + 1)),
+                        mi.sample_tea_float32(key, mi.UInt32(3 * b + 2)))
         bs, weight = bsdf.sample(ctx, si, u1, u2, follow)
         follow &= dr.any(mi.unpolarized_spectrum(weight) > 0.0)
         throughput = dr.select(follow, throughput * weight, throughput)

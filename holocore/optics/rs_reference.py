@@ -29,7 +29,8 @@ __all__ = ["rs_direct", "grid_coordinates"]
 _CHUNK_ELEMENTS = 1 << 21  # kernel entries per chunk (~32 MiB of complex128 plus temporaries)
 
 
-def grid_coordinates(shape_hw: tuple[int, int], pitch_m: Union[float, Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
+def grid_coordinates(shape_hw: tuple[int, int],
+                     pitch_m: Union[float, Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre coordinates (x [W], y [H]) in m of a centred grid (docs/design.md §3: y up, rows down)."""
     h, w = (int(s) for s in shape_hw)
     if h < 1 or w < 1:
