@@ -4,7 +4,8 @@ parses anything (the service runs it on every upload; `holo` runs it before ever
 The check sees what Mitsuba will do, with Mitsuba's own rules, probed against Mitsuba 3.9:
 - ``<default>`` parameters form one ordered namespace over the entry and its includes, the first definition
   wins; we refuse a name defined twice, and a value holding ``$``. ``$name`` is substituted in every attribute
-  of every element (types, names, values, file names), the longest name first, in one pass (``holocore.scene.bundle_xml.Params``);
+  of every element (types, names, values, file names), the longest name first, in one pass
+  (``holocore.scene.bundle_xml.Params``);
   anything left with a ``$`` is refused (Mitsuba would call it an undefined parameter), and so is an attribute
   Mitsuba's replace-in-turn could read otherwise.
 - Every relative reference (``filename`` attributes and strings, ``<include>``, in the entry or in an include)

@@ -16,7 +16,7 @@ import numpy as np
 
 __all__ = ["write_demo_scene", "write_cbox_scene"]
 
-_XML = """<scene version="3.0.0">
+_XML = ("""<scene version="3.0.0">
     <!-- A table-top scene 0.3 to 1.5 m from the eye, seen through a narrow field of view: a small SLM
          (a few hundred pixels) can only show a few degrees with depth cues larger than its depth of field. -->
     <integrator type="path"><integer name="max_depth" value="6"/></integrator>
@@ -39,7 +39,8 @@ _XML = """<scene version="3.0.0">
         <ref id="checker"/>
     </shape>
     <shape type="rectangle" id="table">
-        <transform name="to_world"><scale x="0.5" y="1.0"/><rotate x="1" angle="-90"/><translate y="-0.055" z="-0.9"/></transform>
+        <transform name="to_world"><scale x="0.5" y="1.0"/><rotate x="1" angle="-90"/>"""
+        """<translate y="-0.055" z="-0.9"/></transform>
         <ref id="table_bsdf"/>
     </shape>
     <shape type="sphere" id="clay_sphere">
@@ -55,12 +56,13 @@ _XML = """<scene version="3.0.0">
         <ref id="glass"/>
     </shape>
     <shape type="rectangle" id="light">
-        <transform name="to_world"><scale x="0.3" y="0.3"/><rotate x="1" angle="90"/><translate y="0.8" z="-0.6"/></transform>
+        <transform name="to_world"><scale x="0.3" y="0.3"/><rotate x="1" angle="90"/>"""
+        """<translate y="0.8" z="-0.6"/></transform>
         <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>
         <emitter type="area"><rgb name="radiance" value="12, 11.5, 11"/></emitter>
     </shape>
 </scene>
-"""
+""")
 
 
 def _checker_png(path: Path, *, n: int = 8, size: int = 256) -> None:
@@ -94,7 +96,7 @@ _CBOX_QUADS: dict[str, tuple[tuple[float, float, float], ...]] = {
     "luminaire": ((0.25, 1, -0.25), (0.25, 1, 0.25), (-0.25, 1, 0.25), (-0.25, 1, -0.25)),
 }
 
-_CBOX_XML = """<scene version="3.0.0">
+_CBOX_XML = ("""<scene version="3.0.0">
     <!-- A Cornell-style room with a mirror sphere and a glass sphere, written by holocore.scene.demo. -->
     <integrator type="path"><integer name="max_depth" value="6"/></integrator>
     <sensor type="perspective" id="sensor">
@@ -120,7 +122,8 @@ _CBOX_XML = """<scene version="3.0.0">
     <shape type="obj" id="floor"><string name="filename" value="meshes/cbox_floor.obj"/><ref id="white"/></shape>
     <shape type="obj" id="ceiling"><string name="filename" value="meshes/cbox_ceiling.obj"/><ref id="white"/></shape>
     <shape type="obj" id="back"><string name="filename" value="meshes/cbox_back.obj"/><ref id="white"/></shape>
-    <shape type="obj" id="greenwall"><string name="filename" value="meshes/cbox_greenwall.obj"/><ref id="green"/></shape>
+    <shape type="obj" id="greenwall"><string name="filename" value="meshes/cbox_greenwall.obj"/>"""
+    """<ref id="green"/></shape>
     <shape type="obj" id="redwall"><string name="filename" value="meshes/cbox_redwall.obj"/><ref id="red"/></shape>
 
     <shape type="sphere" id="mirrorsphere">
@@ -132,7 +135,7 @@ _CBOX_XML = """<scene version="3.0.0">
         <ref id="glass"/>
     </shape>
 </scene>
-"""
+""")
 
 
 def write_cbox_scene(folder: str | Path, *, fov_deg: float = 39.3, res_px: int = 256,

@@ -248,11 +248,12 @@ def _rect(sid: str, *, center: tuple[float, float, float], half: tuple[float, fl
           rotate_y_deg: float = 0.0, inner: str = "") -> str:
     rot = f'<rotate y="1" angle="{_f(rotate_y_deg)}"/>' if rotate_y_deg else ""
     ref = f'<ref id="{bsdf_ref}"/>' if bsdf_ref else ""
-    return f"""    <shape type="rectangle" id="{sid}">
-        <transform name="to_world"><scale x="{_f(half[0])}" y="{_f(half[1])}"/>{rot}<translate x="{_f(center[0])}" y="{_f(center[1])}" z="{_f(center[2])}"/></transform>
+    return (f"""    <shape type="rectangle" id="{sid}">
+        <transform name="to_world"><scale x="{_f(half[0])}" y="{_f(half[1])}"/>{rot}"""
+            f"""<translate x="{_f(center[0])}" y="{_f(center[1])}" z="{_f(center[2])}"/></transform>
         {ref}{inner}
     </shape>
-"""
+""")
 
 
 def _far_wall() -> str:
@@ -324,13 +325,17 @@ def _glossy_xml() -> str:
         _far_wall(),
         f"""    <bsdf type="roughplastic" id="plate_bsdf">
         <string name="distribution" value="ggx"/><float name="alpha" value="{_f(g['alpha'])}"/>
-        <texture type="bitmap" name="diffuse_reflectance"><string name="filename" value="textures/checker.png"/></texture>
+        <texture type="bitmap" name="diffuse_reflectance">"""
+        """<string name="filename" value="textures/checker.png"/></texture>
     </bsdf>
 """,
         _rect("glossy_plate", center=tuple(c), half=g["half"], bsdf_ref="plate_bsdf", rotate_y_deg=TILT_DEG),
         f"""    <shape type="sphere" id="light">
-        <point name="center" x="{_f(light[0])}" y="{_f(light[1])}" z="{_f(light[2])}"/><float name="radius" value="{_f(g['light_radius'])}"/>
-        <emitter type="area"><rgb name="radiance" value="{_f(g['light_radiance'])}, {_f(g['light_radiance'])}, {_f(g['light_radiance'])}"/></emitter>
+        <point name="center" x="{_f(light[0])}" y="{_f(light[1])}" z="{_f(light[2])}"/>"""
+        f"""<float name="radius" value="{_f(g['light_radius'])}"/>
+        <emitter type="area">"""
+        f"""<rgb name="radiance" value="{_f(g['light_radiance'])}, {_f(g['light_radiance'])}, """
+        f"""{_f(g['light_radiance'])}"/></emitter>
     </shape>
 """,
     ])
