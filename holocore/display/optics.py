@@ -2,8 +2,9 @@
 
 Public fields carry their unit in the name and are converted to SI once, by the ``*_m`` properties.
 Defaults follow the paper's display (Sec. 5): 640.0 / 516.5 / 455.4 nm, 8 µm pitch, virtual infinity at 80 mm and
-an eyepiece of f = 50 mm. f belongs to the display, not to the scene (docs/design.md §3): deriving it from the scene camera's
-field of view is the explicit choice ``fit_camera_fov=True`` (or a given ``fov_x_deg``), never the default. Named
+an eyepiece of f = 50 mm. f belongs to the display, not to the scene (docs/design.md §3): deriving it from the
+scene camera's field of view is the explicit choice ``fit_camera_fov=True`` (or a given ``fov_x_deg``), never the
+default. Named
 display profiles (:mod:`holocore.display.profiles`) build an OpticsConfig; this model stays the numerics contract.
 """
 
@@ -24,7 +25,8 @@ MAX_SIDE_PX = 16384
 MAX_FRAMES = 256
 """Largest number of time-multiplexed frames accepted."""
 DISPLAY_FOCAL_LENGTH_MM = 50.0
-"""The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm; docs/design.md §3)."""
+"""The paper's eyepiece f in mm (its 8 µm, 80 mm display shows 0.5, 0.9 and 10 m at 85, 82.8, 80.25 mm;
+docs/design.md §3)."""
 
 MAX_CONE_HALF_ANGLE_RAD = math.radians(89.0)
 """The recording cone's half-angle as the tracer and every estimate use it (rad): rays are kept off exactly grazing,
@@ -83,8 +85,8 @@ class OpticsConfig(BaseModel):
     )
     focal_length_mm: Optional[float] = Field(
         default=DISPLAY_FOCAL_LENGTH_MM, gt=0.0, le=10_000.0, allow_inf_nan=False,
-        description="Eyepiece focal length f in mm, the display's (default: the paper's 50 mm; docs/design.md §3). None "
-                    "only with fit_camera_fov or fov_x_deg, which then determine f.",
+        description="Eyepiece focal length f in mm, the display's (default: the paper's 50 mm; docs/design.md §3). "
+                    "None only with fit_camera_fov or fov_x_deg, which then determine f.",
     )
     fit_camera_fov: bool = Field(
         default=False,

@@ -40,7 +40,8 @@ class FramePhases:
     summary: ClassVar[str] = ""  # one line for the CLI's help and the docs
     noise_aware: ClassVar[bool] = True  # the cone equaliser may use Eq. C4 (its gain divided by the noise) over C3
     rim_ripple: ClassVar[bool] = True  # False: the rays carry their points' ideal spectrum, the equaliser only B
-    stereogram_coded: ClassVar[bool] = True  # the light-field stereogram's per-plane-wave phases: coded, else independent
+    # the light-field stereogram's per-plane-wave phases: coded, else independent
+    stereogram_coded: ClassVar[bool] = True
 
     def gain(self, wavelength_m: float, *, pitch_m: float, wavelengths_m: Sequence[float]) -> float:
         """Amplitude factor of colour ``wavelength_m`` (m) in every frame (1: none)."""

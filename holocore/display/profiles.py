@@ -92,15 +92,16 @@ class DisplayProfile(BaseModel):
 
     def field_of_view_x_deg(self) -> float:
         """Horizontal field of view the display shows, 2 atan(W p / 2f), degrees."""
-        return math.degrees(2.0 * math.atan(self.resolution_hw[1] * self.pitch_um * 1e-3 / (2.0 * self.focal_length_mm)))
+        return math.degrees(2.0 * math.atan(self.resolution_hw[1] * self.pitch_um * 1e-3
+                                            / (2.0 * self.focal_length_mm)))
 
 
 PAPER = DisplayProfile(
     name="paper", resolution_hw=(1080, 1920), pitch_um=8.0, wavelengths_nm=(640.0, 516.5, 455.4), z_inf_mm=80.0,
     focal_length_mm=DISPLAY_FOCAL_LENGTH_MM, frames=24, fourier_filter=True,
     description="The paper's display (Sec. 5): 1080x1920 px at 8 µm, 640.0/516.5/455.4 nm, virtual infinity at "
-                "80 mm; f = 50 mm puts 10 m, 0.9 m and 0.5 m at 80.25, 82.8 and 85 mm (docs/design.md §3); 24 frames; a "
-                "Fourier filter passes only the recording cone.",
+                "80 mm; f = 50 mm puts 10 m, 0.9 m and 0.5 m at 80.25, 82.8 and 85 mm (docs/design.md §3); 24 frames; "
+                "a Fourier filter passes only the recording cone.",
 )
 BUILTIN_DISPLAYS: dict[str, DisplayProfile] = {PAPER.name: PAPER}
 DEFAULT_DISPLAY = PAPER.name

@@ -1,6 +1,7 @@
 """RESULT.npz (from `holo render`): ``slm_field``, ``wrp_field`` complex64 ``[F, C, H, W]`` and ``meta``, a JSON
 string whose top level holds at least ``focal_length_m``, ``z_inf_m``, ``z_wrp_m``, ``pitch_m``,
-``wavelengths_m`` (:class:`holocore.formats.meta.ResultMeta`). Written whole here (:func:`save_result`) or streamed (``holocore.formats.npz.NpzWriter``)."""
+``wavelengths_m`` (:class:`holocore.formats.meta.ResultMeta`). Written whole here (:func:`save_result`) or
+streamed (``holocore.formats.npz.NpzWriter``)."""
 
 from __future__ import annotations
 
