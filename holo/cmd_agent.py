@@ -176,7 +176,8 @@ def capture(
         player = Player(dev, rate_hz=rate_hz, laser_hook=None if laser is None else (lambda c: laser(color=c)))
         steps = run_capture(player=player, stack_id=stack_id, focus=ctl,
                             planes=None if pos_list else list(range(planes)), positions=pos_list, passes=passes,
-                            trigger=trig, trigger_at=trigger_at, settle_timeout_s=settle_timeout_s,  # type: ignore[arg-type]
+                            trigger=trig, trigger_at=trigger_at,  # type: ignore[arg-type]
+                            settle_timeout_s=settle_timeout_s,
                             sequence_log=sequence_log)
     except (FocusError, HookError, SLMError) as exc:
         fail(f"capture failed: {exc}", code=1)

@@ -25,8 +25,9 @@ def serve(
                                                      "else 1)."),
     engine: Optional[str] = typer.Option(None, help="local (subprocesses) | ray (default: ray when --ray-address "
                                                     "or HOLO_RAY_ADDRESS is set)."),
-    ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address, e.g. ray://head:10001 "
-                                                                          "or auto; its workers must share --data-dir."),
+    ray_address: Optional[str] = typer.Option(
+        None, "--ray-address", help="Ray cluster address, e.g. ray://head:10001 or auto; its workers must share "
+                                    "--data-dir."),
     ray_gpus: Optional[float] = typer.Option(None, "--ray-gpus", help="GPUs each job asks Ray for (0..64)."),
     max_attempts: Optional[int] = typer.Option(None, "--max-attempts", help="Runs of a job before a crash fails it "
                                                                             "(1..100; default: HOLO_MAX_ATTEMPTS, "

@@ -16,7 +16,8 @@ from typing import Annotated, Any, Literal, Mapping, Optional, Union, get_args, 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 __all__ = ["HologramOptions", "PresetName", "RenderMethod", "MAX_WRP_PLANES", "Encoder", "ENCODERS", "WrpPlanes",
-           "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP", "MAX_ITERATIONS", "QUALITY_DB_RANGE", "bounds", "choices", "explain", "check", "option_table"]
+           "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP", "MAX_ITERATIONS", "QUALITY_DB_RANGE", "bounds", "choices", "explain",
+           "check", "option_table"]
 
 PresetName = Literal["fast", "balanced", "reference"]  # their settings: holocore.plan.presets.PRESETS
 # "wrp": trace to the wave recording plane(s), then ASM to the SLM; "direct": trace straight to the SLM.

@@ -44,7 +44,8 @@ def _render_into(sink_factory, loaded, optics: OpticsConfig, options: RenderOpti
     setup = prepare_render(loaded, optics, options, memory_budget_bytes=memory_budget_bytes, in_memory=in_memory,
                            timings=timings, t0=t0, progress=progress)
     direct = setup.direct
-    sink = sink_factory(setup.shape_fchw, "slm_field" if direct else "wrp_field", "wrp_field" if direct else "slm_field")
+    sink = sink_factory(setup.shape_fchw, "slm_field" if direct else "wrp_field",
+                        "wrp_field" if direct else "slm_field")
     stats = trace_passes(setup, sink, timings=timings, progress=progress)
     propagate_other(setup, sink, timings=timings, progress=progress)
     timings["total_s"] = time.perf_counter() - t0

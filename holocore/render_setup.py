@@ -29,8 +29,10 @@ class RenderOptions:
     method: RenderMethod = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
-    wrp_planes: Union[int, Literal["auto"]] = "auto"  # recording planes (holocore.plan.wrp_planes); "auto": from the depth
-    stratified: bool = True  # each pixel's rays stratified over the cone (holocore.trace.hologram_rays); False: independent
+    # recording planes (holocore.plan.wrp_planes); "auto": from the depth
+    wrp_planes: Union[int, Literal["auto"]] = "auto"
+    # each pixel's rays stratified over the cone (holocore.trace.hologram_rays); False: independent
+    stratified: bool = True
     ray_seed: Optional[int] = None  # seed of the traced rays alone (None: the optics' seed, which also seeds the
     # random-phase bank): two ray seeds give independent Monte Carlo estimates of one field
     cone_equaliser: bool = True  # flatten each recording plane's spectrum (holocore.optics.cone_equaliser)
@@ -188,7 +190,8 @@ def prepare_render(loaded, optics: OpticsConfig, options: RenderOptions, *, memo
         timings["propagation_reserve_s"] = reserve
     integrator = mitsuba().load_dict({"type": "path", "max_depth": max(1, plan.gi_depth)})
     return RenderSetup(loaded=loaded, optics=optics, options=options, scene=pl, lit_idx=lit_idx,
-                       frames_per_pass=ft, frames_per_chunk=fp, peak_bytes=peak, budget_bytes=budget, in_memory=in_memory,
+                       frames_per_pass=ft, frames_per_chunk=fp, peak_bytes=peak, budget_bytes=budget,
+                       in_memory=in_memory,
                        equalisers=equalisers, settings=settings, integrator=integrator, cache=cache,
                        ray_seed=optics.seed if options.ray_seed is None else int(options.ray_seed),
                        passes=passes, schedule=schedule, device=dev)

@@ -78,7 +78,8 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
         _, e_t = inner_energy(tb, tb)
         e_t = e_t.real.double()
         black_t = (e_t == 0) | (peak == 0)
-        norm = torch.where(black_t, torch.zeros_like(e_t), 1.0 / torch.sqrt(torch.where(black_t, torch.ones_like(e_t), e_t)))
+        norm = torch.where(black_t, torch.zeros_like(e_t),
+                           1.0 / torch.sqrt(torch.where(black_t, torch.ones_like(e_t), e_t)))
         t_unit = tb * norm.to(torch.float32)[:, None, None]
         del tb, t
         if init is not None:

@@ -186,7 +186,8 @@ def _block(t: ArrayLike, f0: int, f1: int, c: int, device) -> torch.Tensor:
 
 def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,
          fourier_filter: bool, device, chunk_frames: Optional[int], init: Optional[ArrayLike] = None,
-         sgd: Optional[dict] = None, progress: Optional[ProgressFn] = None, options: Optional[dict] = None) -> EncodeResult:
+         sgd: Optional[dict] = None, progress: Optional[ProgressFn] = None,
+         options: Optional[dict] = None) -> EncodeResult:
     t0 = time.perf_counter()
     t = _check_target(target_wrp)
     z = validate.bounded("z_wrp_m", z_wrp_m, low=0.0, low_inclusive=False, unit="m (WRP in front of the SLM)")
@@ -303,7 +304,8 @@ def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence
     block (default all; the result does not depend on it). ``progress(stage, done, total)``.
     """
     sgd = sgd_options(iterations, lr, tol, stop_db, efficiency_weight)
-    opts = {"lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"], "efficiency_weight": sgd["efficiency_weight"],
+    opts = {"lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"],
+            "efficiency_weight": sgd["efficiency_weight"],
             "max_iterations": sgd["iterations"], "init": "naive" if init is None else "given",
             "device": str(device if device is not None else (target_wrp.device if isinstance(target_wrp, torch.Tensor)
                                                              else "cpu"))}

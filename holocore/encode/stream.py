@@ -84,7 +84,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                 fourier_filter: Optional[bool] = None, memory_limit_bytes: int = 8 * 2**30,
                 block_frames: Optional[int] = None, device: Union[str, torch.device] = "cpu",
                 lut: Optional[np.ndarray] = None, lut_source: Optional[str] = None,
-                progress: Optional[Callable[[str, int, int], None]] = None, init_path: Optional[Union[str, Path]] = None,
+                progress: Optional[Callable[[str, int, int], None]] = None,
+                init_path: Optional[Union[str, Path]] = None,
                 **sgd: Any) -> tuple[EncodeResult, dict]:
     """Encode ``result_path``'s ``wrp_field`` into STACK.npz at ``out_path`` block by block; returns the result
     (``phase`` left empty: it is in the file) and the stack's meta. ``fourier_filter`` None: the RESULT meta's

@@ -3,8 +3,8 @@
 The calibrated model (``holocore.plan.estimate``) knows this machine's rates on the calibration scene; a scene it
 has never seen differs in what a ray costs (delta depth, glossy share, BVH size, texture lookups), and a
 command also pays its start-up and the first kernel compilation. So before predicting, the probe renders the
-scene (``holocore.calibration.probe_scene``, above the pipeline) three times with the job's preset, spp and method and one frame: small (cold), small (warm) and with
-twice the sides (warm):
+scene (``holocore.calibration.probe_scene``, above the pipeline) three times with the job's preset, spp and
+method and one frame: small (cold), small (warm) and with twice the sides (warm):
 
     compile_s  = t_cold - t_warm                                    (the first render compiles the kernels)
     ray_s      = (work_big - work_small) / ((rays_big - rays_small) C)   (warm seconds per ray and color;

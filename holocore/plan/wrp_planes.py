@@ -8,8 +8,9 @@ Plane k records the image points with hologram depth z in (z_k+1 - margin, z_k -
 z_wrp, the last plane: everything behind).
 
 Placement minimises the mean squared distance of the image points (the analysis' depth
-samples, luminance-weighted quantiles) to their planes: the best plane for a group of points lies one margin in front of the group's
-frontmost point, so the candidates are the samples themselves and a small dynamic programme is exact.
+samples, luminance-weighted quantiles) to their planes: the best plane for a group of points lies one margin in
+front of the group's frontmost point, so the candidates are the samples themselves and a small dynamic programme
+is exact.
 The rays still start on the WRP (one trace for all planes): each ray's contribution is recorded where it
 crosses the plane that records its image point, so K planes cost one trace and K - 1 ASMs, and ``auto`` adds
 planes while they cut the noise.

@@ -5,8 +5,9 @@ abort the process on BSDF sampling, so we point Dr.Jit at libLLVM 19 before Mits
 machine uses ``cuda_ad_rgb``. ``scalar_rgb`` is the (about 40x slower) fallback, never chosen silently.
 
 Which one: ``HOLO_MI_VARIANT`` names it outright; otherwise ``HOLO_DEVICE`` (``--device``, see
-:mod:`holocore.runtime.device`) decides: ``cuda`` -> ``cuda_ad_rgb``, ``cpu`` -> ``llvm_ad_rgb``, ``auto`` (default) -> CUDA
-when torch sees a GPU and Mitsuba has the variant. :func:`compute_device` is the torch device that matches.
+:mod:`holocore.runtime.device`) decides: ``cuda`` -> ``cuda_ad_rgb``, ``cpu`` -> ``llvm_ad_rgb``, ``auto``
+(default) -> CUDA when torch sees a GPU and Mitsuba has the variant. :func:`compute_device` is the torch device
+that matches.
 """
 
 from __future__ import annotations

@@ -202,7 +202,8 @@ def beam_phase_frames(frames: int, shape_hw: tuple[int, int], wavelength_m: floa
                       bank_frames: int | None = None) -> Iterator[np.ndarray]:
     """The lateral part of (B1) on the cell lattice, k u_m . x (x the cell centre), float32 [H, W] in [0, 2 pi) per
     frame m = first_frame .. first_frame + frames - 1 of a bank of ``bank_frames`` (default: frames) directions.
-    u_m / lambda is rounded to the lattice's DFT grid, so the map is periodic on H x W (cells wrap, docs/design.md §4)."""
+    u_m / lambda is rounded to the lattice's DFT grid, so the map is periodic on H x W (cells wrap,
+    docs/design.md §4)."""
     F = int(bank_frames if bank_frames is not None else frames)
     if not (0 <= int(first_frame) and int(first_frame) + int(frames) <= F):
         raise ValueError(f"frames {first_frame}..{first_frame + frames - 1} are not in a bank of {F} directions")
@@ -248,8 +249,8 @@ class BeamDepthTerms:
             # table is the same for every pass; the pass takes its frames' rows
             all_u = _directions(bank_frames, all_wavelengths_m or wavelengths_m, pitch_m)
             dirs = tuple(((round(float(x), 12), round(float(y), 12)),) for x, y in all_u)
-            kr = np.stack([_ratio_table(float(lam), float(pitch_m), dirs, float(taper))[first_frame:first_frame + frames]
-                           for lam in wavelengths_m])
+            kr = np.stack([_ratio_table(float(lam), float(pitch_m), dirs, float(taper))
+                           [first_frame:first_frame + frames] for lam in wavelengths_m])
             mag = np.maximum(np.abs(kr), 1.0 / MAX_BEAM_GAIN)
             gains = np.conj(kr) / (mag * mag)
             nf_per_m = tuple(math.tan(min(theta_max_rad(float(lam), pitch_m), MAX_CONE_HALF_ANGLE_RAD)) ** 2

@@ -22,7 +22,8 @@ One iteration of the loop (:func:`trace_wave_paths`) is five named steps, in thi
    or, in the fast variant, :func:`_cached_radiance`: P's radiance from the ambient cache;
 3. :func:`_sample_lobes`: emitter sampling and one BSDF sample; the lobe decides chain or P (Sec. 4.2);
 4. :func:`_coherent_step`: on a delta lobe, the float64 ray-differential transfer (Igehy 1999,
-   :func:`holocore.trace.differentials.igehy_transfer`); at P behind delta vertices, the apparent distance d (docs/design.md §4, docs/physics.md);
+   :func:`holocore.trace.differentials.igehy_transfer`); at P behind delta vertices, the apparent distance d
+   (docs/design.md §4, docs/physics.md);
 5. :func:`_incoherent_step`: from P on, Eq. 1's Monte Carlo estimate as Mitsuba's ``path`` (radiance, next ray, RR).
 
 Units: world metres (positions, distances, d), unit direction vectors, radiance in the scene's units.

@@ -248,7 +248,8 @@ class _DeltaChain:
 
         self.lane, self.D, self.n_cur = take(self.lane), take(self.D), take(self.n_cur)
         self.opl_w, self.thr_w, self.nd_w = take(self.opl_w), take(self.thr_w), take(self.nd_w)
-        self.dP, self.dD, self.frame = [take(x) for x in self.dP], [take(x) for x in self.dD], [take(x) for x in self.frame]
+        self.dP, self.dD = [take(x) for x in self.dP], [take(x) for x in self.dD]
+        self.frame = [take(x) for x in self.frame]
         self.ray = mi.Ray3f(take(self.ray.o), take(self.ray.d))
         return True
 

@@ -109,7 +109,8 @@ def _opaque(mi, g: TileGeometry) -> SimpleNamespace:
                                                             "cos_max", "omega", "depth_step")})
     u32 = lambda v: dr.opaque(mi.UInt32, int(v))  # noqa: E731
     o.planes = tuple((f64(z), f64(lo), f64(hi), f64(g.H + 2 * b), f64(g.W + 2 * b), u32(g.W + 2 * b),
-                      u32(g.ring_heights[k]), u32(g.ring_offsets[k])) for k, (z, lo, hi, b) in enumerate(g.planes or ()))
+                      u32(g.ring_heights[k]), u32(g.ring_offsets[k]))
+                     for k, (z, lo, hi, b) in enumerate(g.planes or ()))
     o.Hf, o.Wf, o.W, o.N = f64(g.H), f64(g.W), dr.opaque(mi.UInt32, g.W), dr.opaque(mi.UInt32, g.spp)
     o.rot, o.rot_inv = tuple(map(f64, g.rot)), tuple(map(f64, g.rot_inv))
     o.origin, o.ks, o.cos_lim = tuple(map(f64, g.origin)), tuple(map(f64, g.ks)), tuple(map(f64, g.cos_lim))

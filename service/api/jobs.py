@@ -45,7 +45,8 @@ def job_out(row: dict) -> dict:
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
     if row["state"] == "succeeded" and spec.get("evaluate"):
         links["evaluation"] = f"/v1/jobs/{jid}/evaluation"
-    return {"id": jid, "name": spec.get("name"), "state": row["state"], "display": row["display"], "scene_id": row["scene_id"],
+    return {"id": jid, "name": spec.get("name"), "state": row["state"], "display": row["display"],
+            "scene_id": row["scene_id"],
             "created_at": iso(row["created_at"]), "started_at": iso(row["started_at"]),
             "finished_at": iso(row["finished_at"]), "stack_sha256": row["stack_sha256"],
             "stack_bytes": row["stack_bytes"], "options": row["spec"], "progress": row["progress"],

@@ -33,7 +33,8 @@ from service.job_rules import binding_max_spp, job_limit_errors, optics_sanity_e
 from service.models import JobRequest, cache_key, effective_optics
 from service.settings import JobLimits
 
-__all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec", "submit_job", "Submitted",
+__all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec",
+           "submit_job", "Submitted",
            "IDEMPOTENCY_KEY", "output_bytes", "owner_stored_bytes", "storage_error"]
 
 IDEMPOTENCY_KEY = re.compile(r"^[\x21-\x7e]{1,200}$")

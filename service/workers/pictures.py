@@ -185,7 +185,8 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
              "sweep": {"pupil_mm": pupil_mm, "order": "far to near", "depth_of_field_mm": round(dof * 1e3, 4),
                        "widened": widened, "pictures": rows},
              "grid": {"rows": GRID, "cols": GRID, "pupil_mm": round(g_pupil * 1e3, 4), "focus_mm": round(mid * 1e3, 4),
-                      "focus_words": depth_words(mid, meta), "eye_box_mm": round(2 * half_box * 1e3, 4), "eye_step_mm": round(step * 1e3, 4),
+                      "focus_words": depth_words(mid, meta), "eye_box_mm": round(2 * half_box * 1e3, 4),
+                      "eye_step_mm": round(step * 1e3, 4),
                       "pictures": grows},
              "seconds": round(time.monotonic() - t0, 3)}
     (tmp / "index.json").write_text(json.dumps(index, indent=1))
