@@ -1,6 +1,6 @@
 // The results page: sign in with a token, then the home page (the job list, the submit form) or one job's page,
 // chosen by the URL's hash. Everything the service says is shown with textContent (dom.js); nothing is parsed
-// as HTML. The parts: jobs_list.js, submit_form.js, job_page.js, compare.js (state.js holds what
+// as HTML. The parts: jobs_list.js, submit_form.js, job_page.js, compare.js, sweep.js (state.js holds what
 // they share).
 
 import { ApiError, getJSON, setUnauthorizedHandler, token } from "./api.js";
@@ -10,6 +10,7 @@ import { leaveJobPage, showJob } from "./job_page.js";
 import { refreshHome } from "./jobs_list.js";
 import { estimateSoon, initForm, loadProfiles, prefillRerun, resetForm } from "./submit_form.js";
 import { forgetPictures } from "./scene_picture.js";
+import { initSweep, leaveSweep, showSweep } from "./sweep.js";
 import { aborted, show, state, status } from "./state.js";
 
 // ---- sign in / out -------------------------------------------------------------------------------------------
@@ -18,7 +19,8 @@ function signedOut(message = "") {
   state.me = null;
   stopAll();
   forgetUser();
-  show("signin", true); show("home", false); show("job", false); show("compare", false); show("signout", false);
+  show("signin", true); show("home", false); show("job", false); show("compare", false); show("sweep", false);
+  show("signout", false);
   setText($("who"), "");
   setText($("signin-error"), message);
   $("token").focus();
@@ -69,15 +71,20 @@ function stopAll() {
   state.streams.clear();
   leaveJobPage();
   leaveCompare();
+  leaveSweep();
   if (state.timer) { clearInterval(state.timer); state.timer = null; }
 }
 
 function route() {
   if (!state.me) return;
   const m = /^#\/jobs\/([A-Za-z0-9_-]{1,64})$/.exec(location.hash);
+  const sw = /^#\/sweeps\/([A-Za-z0-9_-]{1,64})$/.exec(location.hash);
   stopAll();
-  show("compare", false);
-  if (location.hash.startsWith("#/compare")) {
+  show("compare", false); show("sweep", false);
+  if (sw) {
+    show("home", false); show("job", false); show("sweep", true);
+    showSweep(sw[1]).catch((err) => { if (!aborted(err)) status(`Could not show the sweep: ${err.message}`, true); });
+  } else if (location.hash.startsWith("#/compare")) {
     show("home", false); show("job", false); show("compare", true);
     if (!routeCompare(location.hash)) status("That compare address names no two jobs.", true);
   } else if (m) {
@@ -101,6 +108,7 @@ function init() {
   $("signout").addEventListener("click", () => signedOut());
   $("refresh").addEventListener("click", refreshHome);
   initForm();
+  initSweep();
   window.addEventListener("hashchange", route);
   if (token.get()) start().catch(() => signedOut("Please sign in again.")); else signedOut();
 }

@@ -8,6 +8,7 @@ import { jobName, loadText } from "./job_facts.js";
 import { plural, show, state } from "./state.js";
 import { clearFormPicture, refuseFormBox, showFormPicture } from "./scene_picture.js";
 import { refreshQueue } from "./job_filters.js";
+import { showSweepChoice, sweepChoice } from "./sweep.js";
 
 // The boxes the service's option limits bound (GET /v1/job-options: the options model's limits tightened by the
 // service's), so that a box turns red exactly where the service would refuse: option -> the boxes' ids.
@@ -306,11 +307,25 @@ async function submit(ev) {
   ev.preventDefault();
   if (!planReady() || $("submit-button").disabled) return;  // only what the estimate just accepted goes out
   $("submit-button").disabled = true;
+  const sweep = sweepChoice();
+  if (sweep) return submitSweep(sweep);
   try {
     const resp = await request("/v1/jobs", { method: "POST", json: jobBody() });
     const job = await resp.json();
     state.jobs.set(job.id, job);
     location.hash = `#/jobs/${job.id}`;
+  } catch (err) {
+    setText($("submit-error"), `Not submitted: ${err.message}`);
+    $("submit-button").disabled = false;
+  }
+}
+
+// The form's sweep (sweep.js): one job per value of one option, the sweep's page next.
+async function submitSweep(sweep) {
+  try {
+    if (sweep.error) throw new Error(sweep.error);
+    const s = await postJSON("/v1/sweeps", { job: jobBody(), option: sweep.option, values: sweep.values });
+    location.hash = `#/sweeps/${s.id}`;
   } catch (err) {
     setText($("submit-error"), `Not submitted: ${err.message}`);
     $("submit-button").disabled = false;
@@ -366,6 +381,7 @@ export function resetForm() {
   clear($("scene-info"));
   $("upload-form").reset();
   $("job-form").reset();
+  showSweepChoice();
   if (state.profiles) { $("profile").value = state.profiles.default; applyProfile(); }
 }
 

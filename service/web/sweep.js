@@ -1,0 +1,172 @@
+// Sweeps: the form's "Sweep" row (one option, several values: Submit then sends POST /v1/sweeps, one job per
+// value) and a sweep's page (#/sweeps/ID): its jobs, live, with Cancel all, the chart of quality and time per
+// value (sweep_chart.js), and actions on the jobs ticked in its list (cancel, delete, compare two).
+
+import { getJSON, request } from "./api.js";
+import { $, clear, el, fmtSeconds, setText } from "./dom.js";
+import { pct } from "./job_facts.js";
+import { sweepChart } from "./sweep_chart.js";
+import { FINAL, aborted, plural, status } from "./state.js";
+
+const WORDS = new Set(["encoder", "preset", "method"]);  // the options whose values are words, not numbers
+
+// The form's sweep: null without one, {error} when its values cannot be read, else {option, values}.
+export function sweepChoice() {
+  const option = $("sweep-option").value;
+  if (!option) return null;
+  const parts = $("sweep-values").value.split(",").map((s) => s.trim()).filter(Boolean);
+  if (parts.length < 2 || parts.length > 12) return { error: `Sweep values: give 2 to 12 values of ${option}, `
+    + "separated by commas (e.g. 1, 2, 4, 8)." };
+  const values = [];
+  for (const p of parts) {
+    if (WORDS.has(option) || (option === "wrp_planes" && p === "auto")) { values.push(p); continue; }
+    const n = Number(p);
+    if (!isFinite(n)) return { error: `Sweep values: "${p}" is not a number (${option} takes numbers).` };
+    values.push(n);
+  }
+  return { option, values };
+}
+
+// What Submit will do, beside the button.
+export function showSweepChoice() {
+  const s = sweepChoice();
+  setText($("submit-button"), s && !s.error ? `Submit sweep (${plural(s.values.length, "job")})` : "Submit job");
+  $("sweep-values").disabled = !$("sweep-option").value;
+  setText($("sweep-note"), !s ? "" : s.error || `One job per value: ${s.option} = ${s.values.join(", ")}; `
+    + "every other option as above.");
+  $("sweep-note").classList.toggle("error", !!(s && s.error));
+}
+
+// ---- a sweep's page ---------------------------------------------------------------------------------------------
+let view = null; // {id, abort, timer, sweep}
+
+export function leaveSweep() {
+  if (!view) return;
+  view.abort.abort();
+  clearTimeout(view.timer);
+  view = null;
+}
+
+export async function showSweep(id) {
+  leaveSweep();
+  view = { id, abort: new AbortController(), timer: null, sweep: null };
+  clear($("sweep-jobs").tBodies[0]);
+  clear($("sweep-chart"));
+  setText($("sweep-title"), ""); setText($("sweep-note-page"), "");
+  await refresh(view);
+}
+
+async function refresh(v) {
+  let sweep;
+  try {
+    sweep = await getJSON(`/v1/sweeps/${encodeURIComponent(v.id)}`, { signal: v.abort.signal });
+  } catch (err) {
+    if (aborted(err) || view !== v) return;
+    status(`Could not show the sweep: ${err.message}`, true);
+    return;
+  }
+  if (view !== v) return;
+  v.sweep = sweep;
+  render(sweep);
+  const live = sweep.jobs.some((j) => !FINAL.has(j.state));
+  if (live) v.timer = setTimeout(() => refresh(v), 1500);
+}
+
+function render(sweep) {
+  const done = sweep.jobs.filter((j) => FINAL.has(j.state)).length;
+  setText($("sweep-title"), `${sweep.option} = ${sweep.values.join(", ")}`);
+  setText($("sweep-summary"), `${plural(sweep.jobs.length, "job")}, ${done} finished`
+    + (sweep.jobs.length < sweep.values.length ? ` (${sweep.values.length - sweep.jobs.length} deleted)` : ""));
+  const evaluated = sweep.jobs.some((j) => typeof j.measured_psnr_db === "number");
+  setText($("sweep-note-page"), evaluated ? "" : "Measured quality appears for jobs submitted with \"Evaluate "
+    + "against ground truth\" once they have finished; the hollow points are the service's prediction.");
+  $("sweep-cancel").disabled = !sweep.jobs.some((j) => !FINAL.has(j.state));
+  clear($("sweep-chart")).append(sweepChart(sweep));
+  renderRows(sweep);
+  selectionChanged();
+}
+
+function renderRows(sweep) {
+  const body = $("sweep-jobs").tBodies[0];
+  const ticked = new Set([...body.querySelectorAll("input:checked")].map((b) => b.value));
+  clear(body);
+  const db = (v) => (typeof v === "number" ? v.toFixed(1) : "–");
+  for (const j of sweep.jobs) {
+    const box = el("input", { type: "checkbox", value: j.id, "aria-label": `select ${j.id}` });
+    box.checked = ticked.has(j.id);
+    const frac = pct(j);
+    body.append(el("tr", { dataset: { id: j.id, state: j.state } },
+      el("td", {}, box),
+      el("td", { class: "num" }, String(j.value)),
+      el("td", { class: "job-name" }, el("a", { href: `#/jobs/${j.id}` }, j.name || j.id)),
+      el("td", {}, el("span", { class: `badge ${j.state}` }, j.state),
+         j.error ? el("div", { class: "error" }, j.error) : null),
+      el("td", {}, el("progress", { max: 1, value: frac }), ` ${Math.round(frac * 100)} %`),
+      el("td", { class: "num" }, `${fmtSeconds(j.estimate_s)} / ${j.run_s === null ? "–" : fmtSeconds(j.run_s)}`),
+      el("td", { class: "num" }, `${db(j.predicted_psnr_db)} / ${db(j.measured_psnr_db)}`)));
+  }
+}
+
+function selected() { return [...$("sweep-jobs").tBodies[0].querySelectorAll("input:checked")].map((b) => b.value); }
+
+function selectionChanged() {
+  const ids = selected();
+  const rows = new Map(((view && view.sweep) || { jobs: [] }).jobs.map((j) => [j.id, j]));
+  const states = ids.map((id) => (rows.get(id) || {}).state);
+  $("sweep-cancel-selected").disabled = !states.some((s) => s && !FINAL.has(s));
+  $("sweep-delete-selected").disabled = !states.some((s) => FINAL.has(s));
+  $("sweep-compare").disabled = ids.length !== 2 || !states.every((s) => s === "succeeded");
+  setText($("sweep-selected"), ids.length ? `${plural(ids.length, "job")} selected` : "");
+}
+
+// Runs `act` on each of `ids`, then says how many it did and the first refusal.
+async function eachJob(ids, act, words) {
+  let ok = 0, first = null;
+  for (const id of ids) {
+    try { await act(id); ok++; } catch (err) { first = first || `${id}: ${err.message}`; }
+  }
+  status(`${words} ${plural(ok, "job")}` + (first ? `; not all: ${first}` : ""), !!first);
+  if (view) { clearTimeout(view.timer); await refresh(view); }
+}
+
+async function cancelAll() {
+  if (!view) return;
+  $("sweep-cancel").disabled = true;
+  try {
+    await request(`/v1/sweeps/${encodeURIComponent(view.id)}`, { method: "DELETE" });
+    status("Cancelled the sweep's unfinished jobs.");
+  } catch (err) { status(`Could not cancel: ${err.message}`, true); }
+  if (view) { clearTimeout(view.timer); await refresh(view); }
+}
+
+// Delete asks twice: the first click arms the button for five seconds.
+function deleteSelected() {
+  const btn = $("sweep-delete-selected");
+  const done = selected().filter((id) => FINAL.has(((view.sweep.jobs.find((j) => j.id === id)) || {}).state));
+  if (!btn.dataset.armed) {
+    btn.dataset.armed = "1";
+    setText(btn, `Click again to delete ${plural(done.length, "finished job")} and their files`);
+    setTimeout(() => { delete btn.dataset.armed; setText(btn, "Delete selected"); }, 5000);
+    return;
+  }
+  delete btn.dataset.armed;
+  setText(btn, "Delete selected");
+  eachJob(done, (id) => request(`/v1/jobs/${id}/delete`, { method: "POST" }), "Deleted");
+}
+
+export function initSweep() {
+  $("sweep-option").addEventListener("change", showSweepChoice);
+  $("sweep-values").addEventListener("input", showSweepChoice);
+  $("sweep-cancel").addEventListener("click", cancelAll);
+  $("sweep-jobs").addEventListener("change", selectionChanged);
+  $("sweep-cancel-selected").addEventListener("click", () => {
+    const live = selected().filter((id) => !FINAL.has(((view.sweep.jobs.find((j) => j.id === id)) || {}).state));
+    eachJob(live, (id) => request(`/v1/jobs/${id}`, { method: "DELETE" }), "Cancelled");
+  });
+  $("sweep-delete-selected").addEventListener("click", deleteSelected);
+  $("sweep-compare").addEventListener("click", () => {
+    const ids = selected();
+    if (ids.length === 2) location.hash = `#/compare/${ids[0]}/${ids[1]}`;
+  });
+  showSweepChoice();
+}
