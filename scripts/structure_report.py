@@ -6,8 +6,7 @@ columns. Run: ``.venv/bin/python scripts/structure_report.py``; it exits 1 when 
 The rules: no import cycle; an option is declared only in holocore.options (or where :data:`OPTION_COPIES`
 says why); no module over 400 lines, no function over 80, no line over 120 columns, except those
 :data:`KNOWN_LONG` lists, which may only shrink; function-level imports of the project's own modules at most
-:data:`MOST_OWN_LATE_IMPORTS` and lines over 120 columns at most :data:`MOST_WIDE_LINES` (each number may only go
-down). ``tests/test_structure.py`` runs it.
+:data:`MOST_OWN_LATE_IMPORTS` (the number may only go down), and no line over 120 columns. ``tests/test_structure.py`` runs it.
 """
 
 from __future__ import annotations
@@ -30,7 +29,7 @@ OPTION_COPIES = {
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG: set[str] = set()  # none left: every module within 400 lines, every function within 80
 MOST_OWN_LATE_IMPORTS = 225
-MOST_WIDE_LINES = 22  # lines over 120 columns when the limit was checked; may only go down
+MOST_WIDE_LINES = 0  # no line over 120 columns
 
 
 def _files() -> list[Path]:
