@@ -13,7 +13,7 @@ import secrets
 import time
 from typing import Any, Optional
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Query
 from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
@@ -166,13 +166,13 @@ def sweep_out(ctx: ServiceContext, row: dict) -> dict:
 
 
 @router.get("/v1/sweeps", response_model=SweepList, responses=PROBLEM_RESPONSES)
-def list_sweeps(ctx: Ctx, principal: ReadScope):
-    """The owner's sweeps, newest first (at most 50), each with its jobs as ``GET /v1/sweeps/{id}`` gives them."""
+def list_sweeps(ctx: Ctx, principal: ReadScope, limit: int = Query(default=20, ge=1, le=50)):
+    """The owner's sweeps, newest first, each with its jobs as ``GET /v1/sweeps/{id}`` gives them."""
     if principal.is_admin:
-        rows = ctx.db.query("SELECT * FROM sweeps ORDER BY created_at DESC LIMIT 50")
+        rows = ctx.db.query("SELECT * FROM sweeps ORDER BY created_at DESC, rowid DESC LIMIT ?", (limit,))
     else:
-        rows = ctx.db.query("SELECT * FROM sweeps WHERE owner = ? ORDER BY created_at DESC LIMIT 50",
-                            (principal.owner,))
+        rows = ctx.db.query("SELECT * FROM sweeps WHERE owner = ? ORDER BY created_at DESC, rowid DESC LIMIT ?",
+                            (principal.owner, limit))
     return JSONResponse({"sweeps": [sweep_out(ctx, {**r, "doc": json.loads(r["doc"])}) for r in rows]})
 
 

@@ -10,7 +10,7 @@ import { leaveJobPage, showJob } from "./job_page.js";
 import { refreshHome } from "./jobs_list.js";
 import { estimateSoon, initForm, loadProfiles, prefillRerun, resetForm } from "./submit_form.js";
 import { forgetPictures } from "./scene_picture.js";
-import { initSweep, leaveSweep, showSweep } from "./sweep.js";
+import { initSweep, leaveSweep, refreshSweepsLine, showSweep } from "./sweep.js";
 import { aborted, show, state, status } from "./state.js";
 
 // ---- sign in / out -------------------------------------------------------------------------------------------
@@ -35,6 +35,7 @@ function forgetUser() {
   for (const m of [state.scenes, state.jobs, state.shown, state.thumbs]) m.clear();
   state.rerun = null; state.rerunPending = null;
   for (const id of ["jobs", "displays"]) clear($(id).tBodies[0]);
+  clear($("sweeps-line")); show("sweeps-line", false);
   const queue = $("queue-line");
   if (queue) setText(queue, "");
   status("");
@@ -92,7 +93,7 @@ function route() {
     showJob(m[1]).catch((err) => { if (!aborted(err)) status(`Could not show the job: ${err.message}`, true); });
   } else {
     show("job", false); show("home", true);
-    refreshHome();
+    refreshHome(); refreshSweepsLine();
     state.timer = setInterval(refreshHome, 10000);
     const again = state.rerunPending;
     state.rerunPending = null;
@@ -106,7 +107,7 @@ function init() {
   setUnauthorizedHandler(() => signedOut("Signed out: the token is no longer accepted."));
   $("signin-form").addEventListener("submit", signIn);
   $("signout").addEventListener("click", () => signedOut());
-  $("refresh").addEventListener("click", refreshHome);
+  $("refresh").addEventListener("click", () => { refreshHome(); refreshSweepsLine(); });
   initForm();
   initSweep();
   window.addEventListener("hashchange", route);

@@ -37,6 +37,22 @@ export function showSweepChoice() {
   $("sweep-note").classList.toggle("error", !!(s && s.error));
 }
 
+// The home page's line of the owner's latest sweeps, each a link to its page.
+export async function refreshSweepsLine() {
+  const line = $("sweeps-line");
+  let sweeps = [];
+  try { ({ sweeps } = await getJSON("/v1/sweeps?limit=5")); } catch (_) { /* the line stays as it was */ return; }
+  clear(line);
+  line.hidden = !sweeps.length;
+  if (!sweeps.length) return;
+  line.append("Sweeps: ");
+  sweeps.forEach((s, i) => {
+    const live = s.jobs.filter((j) => !FINAL.has(j.state)).length;
+    line.append(i ? " · " : "", el("a", { href: `#/sweeps/${s.id}` }, `${s.option} = ${s.values.join(", ")}`),
+                live ? ` (${live} to finish)` : "");
+  });
+}
+
 // ---- a sweep's page ---------------------------------------------------------------------------------------------
 let view = null; // {id, abort, timer, sweep}
 

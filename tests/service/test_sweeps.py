@@ -39,6 +39,8 @@ def test_a_frames_sweep_makes_one_job_per_value_with_its_estimate(svc):
             assert job["run_s"] is None and job["measured_psnr_db"] is None
             assert c.get(f"/v1/jobs/{job['id']}").json()["options"]["optics"]["frames"] == frames
         assert [s["id"] for s in c.get("/v1/sweeps").json()["sweeps"]] == [made["id"]]
+        later = c.post("/v1/sweeps", json=_sweep(sid, option="preset", values=("fast", "balanced"))).json()
+        assert [s["id"] for s in c.get("/v1/sweeps?limit=1").json()["sweeps"]] == [later["id"]]
 
 
 def test_a_refused_value_refuses_the_sweep_before_any_job(svc):

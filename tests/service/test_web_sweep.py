@@ -43,6 +43,7 @@ def test_a_frames_sweep_from_the_form_and_its_chart(page, files):  # noqa: F811
     assert "frames = 1, 2, 4" in page.text("sweep-note")
     page.d.find_element(By.ID, "submit-button").click()
     page.until(lambda: "#/sweeps/w" in page.d.current_url, what="the sweep's page")
+    sweep_hash = "#" + page.d.current_url.split("#", 1)[1]
     page.until(lambda: len(_circles(page, "sweep-quality", "predicted")) == 3, what="three predicted points")
     rows = page.js("return [...document.querySelectorAll('#sweep-jobs tbody tr')].map((r) => r.innerText)")
     assert len(rows) == 3 and all("lab-demo · frames=" in r for r in rows), rows
@@ -56,6 +57,9 @@ def test_a_frames_sweep_from_the_form_and_its_chart(page, files):  # noqa: F811
                timeout=120, what="the three jobs to finish")
     page.until(lambda: len(_circles(page, "sweep-time", "actual")) == 3, what="the actual times")
     assert page.js("return document.getElementById('sweep-cancel').disabled")
+    page.go("#/")  # the home page links the sweep
+    page.until(lambda: "frames = 1, 2, 4" in page.text("sweeps-line"), what="the home page's sweeps line")
+    assert page.js("return document.querySelector('#sweeps-line a').getAttribute('href')") == sweep_hash
 
 
 def test_cancel_all_on_a_sweep(page, server, scene):  # noqa: F811
