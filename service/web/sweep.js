@@ -6,7 +6,7 @@ import { getJSON, request } from "./api.js";
 import { $, clear, el, fmtSeconds, setText } from "./dom.js";
 import { pct } from "./job_facts.js";
 import { sweepChart } from "./sweep_chart.js";
-import { FINAL, aborted, plural, status } from "./state.js";
+import { FINAL, aborted, plural, state, status } from "./state.js";
 
 const WORDS = new Set(["encoder", "preset", "method"]);  // the options whose values are words, not numbers
 
@@ -97,6 +97,8 @@ function render(sweep) {
   setText($("sweep-note-page"), evaluated ? "" : "Measured quality appears for jobs submitted with \"Evaluate "
     + "against ground truth\" once they have finished; the hollow points are the service's prediction.");
   $("sweep-cancel").disabled = !sweep.jobs.some((j) => !FINAL.has(j.state));
+  const may = !!(state.me && state.me.may_submit);  // a read-only token watches; it cancels and deletes nothing
+  for (const id of ["sweep-cancel", "sweep-cancel-selected", "sweep-delete-selected"]) $(id).hidden = !may;
   clear($("sweep-chart")).append(sweepChart(sweep));
   renderRows(sweep);
   selectionChanged();

@@ -1,7 +1,8 @@
 """A sweep on the results page, in headless Chromium against a real `holo serve`: a person sweeps frames 1, 2, 4
 of a small job from the submit form, lands on the sweep's page, sees its three jobs and a chart whose predicted
 quality points lie left to right with the frames, watches the jobs finish until the time panel holds their
-actual run times, and Cancel all on a second sweep leaves its jobs cancelled."""
+actual run times, and Cancel all on a second sweep leaves its jobs cancelled (then one is deleted from the
+list, and a read-only token sees the sweep without those buttons)."""
 
 from __future__ import annotations
 
@@ -78,3 +79,16 @@ def test_cancel_all_on_a_sweep(page, server, scene):  # noqa: F811
                what="both jobs cancelled")
     with server.client("submit") as c:
         assert [j["state"] for j in c.get(f"/v1/sweeps/{sweep['id']}").json()["jobs"]] == ["cancelled"] * 2
+    # tick the first job and delete it (two clicks): the sweep keeps the other
+    page.d.find_element(By.CSS_SELECTOR, f"#sweep-jobs input[value={sweep['jobs'][0]}]").click()
+    page.until(lambda: page.enabled("sweep-delete-selected"), what="Delete selected")
+    page.d.find_element(By.ID, "sweep-delete-selected").click()
+    page.d.find_element(By.ID, "sweep-delete-selected").click()
+    page.until(lambda: page.js("return document.querySelectorAll('#sweep-jobs tbody tr').length") == 1,
+               what="the deleted job gone from the list")
+    assert "(1 deleted)" in page.text("sweep-summary")
+    # a read-only token watches the sweep; it has nothing to cancel or delete with
+    page.sign_in("reader")
+    page.go(f"#/sweeps/{sweep['id']}")
+    page.until(lambda: page.js("return document.querySelectorAll('#sweep-jobs tbody tr').length") == 1)
+    assert not page.visible("sweep-cancel") and not page.visible("sweep-delete-selected")
