@@ -106,8 +106,10 @@ def submit_sweep(body: SweepRequest, ctx: Ctx, principal: SubmitScope):
             made.append(job["id"])
     except ApiError as err:  # a limit that only the jobs made before it reach (storage): none of them stays
         _cancel(ctx, made)
+        for jid in made:
+            ctx.db.delete_job(jid, where_state=FINAL_STATES)
         raise ApiError(err.status, f"{body.option}={_label(body.values[len(made)])} is refused: {err.detail}; "
-                                   "the sweep's other jobs were cancelled", headers=err.headers) from None
+                                   "the sweep made no job", headers=err.headers) from None
     sid = "w" + secrets.token_hex(10)
     doc = {"option": body.option, "values": body.values, "jobs": made}
     ctx.db.execute("INSERT INTO sweeps (id, owner, doc, created_at) VALUES (?, ?, ?, ?)",

@@ -1,7 +1,7 @@
 """Sweeps over the API, in process (no workers, no renders: a finished job is a row and files written here): one
 job per value through the submission of POST /v1/jobs, a value that would be refused refuses the whole sweep
-before any job exists, the predicted and measured quality and time per value, cancelling a sweep, and another
-owner's sweep is not there."""
+before any job exists (and one refused at its own submit takes the jobs made before it), the predicted and
+measured quality and time per value, cancelling a sweep, and another owner's sweep is not there."""
 
 from __future__ import annotations
 
@@ -95,3 +95,26 @@ def test_cancel_a_sweep_and_read_its_measured_time_and_quality(svc):
         # a deleted job leaves its sweep
         assert c.post(f"/v1/jobs/{made['jobs'][1]}/delete").status_code == 204
         assert [j["value"] for j in c.get(f"/v1/sweeps/{made['id']}").json()["jobs"]] == [1, 4]
+
+
+def test_a_value_refused_at_its_submit_leaves_no_job_of_the_sweep(svc, monkeypatch):
+    """A limit only the sweep's earlier jobs reach (what the owner stores) refuses a later value at its submit:
+    the jobs made before it go too."""
+    from service.api import submission
+    from service.api.problems import ApiError
+
+    real, calls = submission.submit_job, []
+
+    def third_refused(ctx, req, principal, key=None):
+        calls.append(req.frames)
+        if len(calls) == 3:
+            raise ApiError(403, "past what one owner may store")
+        return real(ctx, req, principal, key)
+
+    monkeypatch.setattr(submission, "submit_job", third_refused)
+    tok = svc.token("submit", owner="alice")
+    sid = svc.scene("alice")
+    with svc.client(tok) as c:
+        r = c.post("/v1/sweeps", json=_sweep(sid))
+        assert r.status_code == 403 and "frames=4 is refused: past what one owner may store" in r.json()["detail"]
+        assert c.get("/v1/jobs").json()["jobs"] == [] and c.get("/v1/sweeps").json()["sweeps"] == []
