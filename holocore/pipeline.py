@@ -24,9 +24,12 @@ import numpy as np
 
 from holocore.display.optics import OpticsConfig
 from holocore.display.profiles import DisplayProfile
+from holocore.formats.meta import parse_result_meta
+from holocore.io import NpzWriter
 from holocore.render_meta import RenderResult, display_meta_fields, result_meta, software_versions
 from holocore.render_passes import frame_banks, propagate_other, sampled_plan, sampling_meta, trace_passes
 from holocore.render_setup import RenderOptions, RenderSetup, plan_scene, prepare_render
+from holocore.scene.load import load_scene
 from holocore.sinks import FileSink, MemorySink
 
 __all__ = ["RenderOptions", "RenderResult", "render", "render_loaded", "render_to_file", "plan_scene",
@@ -94,8 +97,6 @@ def render(scene_path: str | Path, optics: OpticsConfig, options: RenderOptions 
            progress: Optional[ProgressFn] = None, display: Optional[DisplayProfile] = None,
            memory_budget_bytes: Optional[int] = None) -> RenderResult:
     """Check and load a scene bundle, then :func:`render_loaded`."""
-    from holocore.scene.load import load_scene
-
     return render_loaded(load_scene(scene_path), optics, options, progress=progress, display=display,
                          memory_budget_bytes=memory_budget_bytes)
 
@@ -105,10 +106,6 @@ def render_to_file(scene, out_path: str | Path, optics: OpticsConfig, options: R
                    memory_budget_bytes: Optional[int] = None) -> dict:
     """Render ``scene`` (a bundle path or a loaded scene) straight into RESULT.npz at ``out_path`` in bounded
     memory (the same file :func:`holocore.io.save_result` writes, equal fields); returns the meta."""
-    from holocore.formats.meta import parse_result_meta
-    from holocore.io import NpzWriter
-    from holocore.scene.load import load_scene
-
     loaded = load_scene(scene) if isinstance(scene, (str, Path)) else scene
     with NpzWriter(out_path) as writer:
         sink, meta = _render_into(lambda shape, t, o: FileSink(writer, shape, t, o), loaded, optics, options,

@@ -13,8 +13,11 @@ from typing import Optional
 
 from holocore.display.optics import OpticsConfig
 from holocore.optics.plane_chain import chain_planes
+from holocore.optics.propagation import asm
 from holocore.plan.time_budget import SppSchedule
 from holocore.render_setup import RenderOptions, RenderSetup
+from holocore.trace.hologram_rays import RecordingGrid, trace_field
+from holocore.trace.hologram_rays import TraceStats
 
 __all__ = ["frame_banks", "frame_depth_terms", "trace_passes", "propagate_other", "sampled_plan", "sampling_meta"]
 
@@ -54,8 +57,6 @@ def frame_depth_terms(optics: OpticsConfig, *, first_frame: int, frames: int, wa
 def trace_passes(setup: RenderSetup, sink, *, timings: dict, progress=None):
     """Trace every pass of frames into the sink's traced field (the WRP's, or the SLM's with the direct method),
     the recording planes chained to it; returns the first pass's TraceStats."""
-    from holocore.trace.hologram_rays import TraceStats
-
     stats = TraceStats()
     timings["bank_s"] = 0.0
     timings["trace_s"] = 0.0
@@ -68,8 +69,6 @@ def trace_passes(setup: RenderSetup, sink, *, timings: dict, progress=None):
 
 def _trace_pass(setup: RenderSetup, sink, k: int, f0: int, stats, *, timings: dict, progress) -> None:
     """Pass k: frames f0.. with their phase bank (random phases), every recording plane traced and chained."""
-    from holocore.trace.hologram_rays import RecordingGrid, trace_field
-
     optics, plan, z_wrp = setup.optics, setup.scene.plan, setup.scene.analysis.z_wrp_m
     H, W = optics.resolution_hw
     n_chunk = setup.trace_chunks
@@ -119,8 +118,6 @@ def propagate_other(setup: RenderSetup, sink, *, timings: dict, progress=None) -
     both fields of every colour are first cut to its disc of directions (docs/physics.md)."""
     import numpy as np
     import torch
-
-    from holocore.optics.propagation import asm
 
     optics = setup.optics
     F, C, H, W = setup.shape_fchw

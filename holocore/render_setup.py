@@ -11,12 +11,26 @@ import time
 from dataclasses import dataclass
 from typing import Any, Literal, Optional, Union
 
+import torch
+
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
+from holocore.display.profiles import field_of_view_report
 from holocore.optics.cone_equaliser import plane_equalisers
+from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
+from holocore.plan.analysis import analyze
+from holocore.plan.effects import inventory, make_plan
 from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
+from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
+from holocore.runtime.membudget import frames_per_chunk
+from holocore.runtime.membudget import memory_budget_bytes as _budget
+from holocore.runtime.mitsuba_env import compute_device, mitsuba
+from holocore.scene.load import sensor_film_hw
+from holocore.trace.hologram_rays import TraceSettings
+from holocore.trace.mapping import HologramMap
+from holocore.trace.radiance_cache import build_cache
 
 __all__ = ["RenderOptions", "RenderSetup", "plan_scene", "prepare_render"]
 
@@ -57,13 +71,6 @@ class RenderOptions:
 def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> ScenePlan:
     """The effect plan and the analysis of a loaded scene, without tracing the hologram. ``field_of_view``
     compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it."""
-    from holocore.display.profiles import field_of_view_report
-    from holocore.plan.analysis import analyze
-    from holocore.plan.effects import inventory, make_plan
-    from holocore.plan.wrp_planes import WrpPlanes, choose_planes, place_planes
-    from holocore.scene.load import sensor_film_hw
-    from holocore.trace.mapping import HologramMap
-
     f = optics.focal_length_m(loaded.fov_x_deg)
     fov = field_of_view_report(optics, loaded.fov_x_deg, camera_film_hw=sensor_film_hw(loaded.sensor))
     hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m)
@@ -100,7 +107,6 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
 class RenderSetup:
     """A render's decisions before its first ray (:func:`prepare_render`); ``schedule`` records the passes of a
     time-limited render as they run (its one mutable part)."""
-
     loaded: Any  # the loaded scene (holocore.scene.load)
     optics: OpticsConfig
     options: RenderOptions
@@ -143,12 +149,6 @@ def prepare_render(loaded, optics: OpticsConfig, options: RenderOptions, *, memo
                    in_memory: bool, timings: dict, t0: float, progress=None) -> RenderSetup:
     """Plan the scene and size the render (:class:`RenderSetup`); ``timings`` gets analysis_s and cache_s (s),
     ``t0`` (time.perf_counter) is the render's start, from which a time limit counts."""
-    from holocore.optics.propagation import padded_shape
-    from holocore.runtime.membudget import memory_budget_bytes as _budget
-    from holocore.runtime.mitsuba_env import compute_device, mitsuba
-    from holocore.trace.hologram_rays import TraceSettings
-    from holocore.trace.radiance_cache import build_cache
-
     dev = compute_device()
     budget = _budget(memory_budget_bytes)
     pl = plan_scene(loaded, optics, options)
@@ -206,8 +206,6 @@ _ASM_GRIDS = 3
 
 def _chunk_plan(H, W, C, C_lit, F, budget, random_phase, in_memory, pad_hw):
     """(frames per trace pass, frames per propagation chunk, estimated peak bytes)."""
-    from holocore.runtime.membudget import frames_per_chunk
-
     hp, wp = pad_hw
     plane = 8 * H * W  # one complex64 frame of one color
     held = 2 * F * C * plane if in_memory else 0  # the in-memory result holds both fields
@@ -233,9 +231,7 @@ def _after_trace_seconds(optics: OpticsConfig, lit_idx, z_wrp: float, planes, eq
     and caches the colour's transfer function, is not the one timed), counted in frame-sized ASMs per frame and
     lit colour: the final propagation, each plane's equaliser and each deeper plane's ASM to the plane in
     front, on grids wider by their borders (holocore.optics.plane_chain), with a margin for their files."""
-    import torch
 
-    from holocore.optics.propagation import asm
 
     H, W = optics.resolution_hw
     u = torch.zeros((1, H, W), dtype=torch.complex64, device=dev)

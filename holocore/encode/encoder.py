@@ -45,6 +45,7 @@ from holocore.encode.core import (
 from holocore.encode.output import load_lut, quantize, save_encoded
 from holocore.encode.sgd import encoder_grid, spread_px
 from holocore.optics.propagation import PitchLike
+from holocore.plan.estimate import stop_iterations
 
 __all__ = ["EncodeResult", "encode_sgd", "encode_naive", "encode_dpac", "encode", "METHODS", "SUPERVISIONS",
            "ideal_slm_field", "propagate_to_wrp", "passband_filter", "field_error", "reach_margin_px", "wrap_phase",
@@ -250,8 +251,6 @@ def small_ops_on_one_thread(method: str, dev, elements: int):
 
 def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init, sgd, progress, total,
                    n_blocks, phase, acc) -> None:
-    from holocore.plan.estimate import stop_iterations
-
     # The progress counts the iterations expected to run: with a stop rule, its median at this size (not the cap
     # of 500, which made a 3-colour encode count to 1500 and jump); a block that runs longer raises the total.
     stops = bool(sgd.get("stop_db")) or bool(sgd.get("tol"))

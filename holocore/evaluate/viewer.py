@@ -39,6 +39,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore.display.optics import common_cone_sine, cone_sine
+from holocore.display.optics import channel_of
+from holocore.evaluate.metrics import psnr, ssim
 from holocore.evaluate.parallax import image_shift_px, parallax_shifts
 from holocore.evaluate.scoring import eye_view, focus_planes_m
 from holocore.evaluate.wave_truth import band_share
@@ -177,8 +179,6 @@ class ViewerScore:
 
 
 def _lum_weights(wavelengths_m: Sequence[float]) -> np.ndarray:
-    from holocore.display.optics import channel_of
-
     rgb_w = (0.2126, 0.7152, 0.0722)
     w = np.array([rgb_w[channel_of(float(lam))] for lam in wavelengths_m], dtype=np.float64)
     return w / w.sum() if w.sum() > 0 else np.full(len(wavelengths_m), 1.0 / max(1, len(wavelengths_m)))
@@ -264,8 +264,6 @@ def _score_cells(views: list, eyes: list, pupils: list[float], zs: list[float], 
                  ) -> tuple[list[ViewerCell], dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]]]:
     """Pass 2: (the cells scored at the one scale, the luminance images (recon, truth) of each cell by (pupil,
     focus, eye) index)."""
-    from holocore.evaluate.metrics import psnr, ssim
-
     C = len(whites)
     wv = np.asarray(whites)[:, None, None]
     cells: list[ViewerCell] = []

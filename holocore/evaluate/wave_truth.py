@@ -51,6 +51,7 @@ from holocore.evaluate.scoring import view_shift_px
 from holocore.formats.meta import MetaLike, parse_view_meta
 from holocore.optics.propagation import ifft2, padded_shape, transfer_function
 from holocore.optics.viewing import eye_mask
+from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import reference_integrator
 
@@ -90,8 +91,6 @@ def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: flo
     """The scene's radiance split over depth layers (module docstring, step 1). Layers start at z_inf and are
     ``spacing_m`` apart up to the nearest image found (or ``z_max_m``; at most :data:`MAX_LAYERS`, the spacing
     widened to fit)."""
-    from holocore.runtime.mitsuba_env import mitsuba
-
     import drjit as dr
 
     mi = mitsuba()

@@ -53,6 +53,8 @@ from holocore.optics.propagation import (
     transfer_function,
 )
 from holocore.display.optics import theta_max_rad
+from holocore.runtime.membudget import frames_per_chunk
+from holocore.runtime.membudget import memory_budget_bytes as _budget
 
 __all__ = ["simulate_view", "view_intensities", "pupil_mask", "eye_mask", "stack_to_field", "depth_of_field_m",
            "orders_factor"]
@@ -208,9 +210,6 @@ def _view_layout(shape: tuple[int, int, int, int], lams: list[float], n_planes: 
     """(m, padded shape (hp, wp), diffraction orders k per colour, frames per chunk): the border m (px) a shift
     needs on each side, the FFT grid of the view padded by it, and the chunk that keeps the working set within the
     memory budget."""
-    from holocore.runtime.membudget import frames_per_chunk
-    from holocore.runtime.membudget import memory_budget_bytes as _budget
-
     F, C, h, w = shape
     a_row, a_col = shift_px
     m = int(math.ceil(max(abs(a_col), abs(a_row)))) + 2 if (abs(a_col) > 1e-9 or abs(a_row) > 1e-9) else 0

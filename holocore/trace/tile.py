@@ -20,6 +20,7 @@ import torch
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
+from holocore.trace.kernel import trace_wave_paths
 from holocore.trace.mapping import HologramMap, camera_to_holo_xyz, holo_to_camera_xyz
 
 if TYPE_CHECKING:
@@ -182,8 +183,6 @@ def trace_tile(scene, g: TileGeometry, r0: int, r1: int, settings: TraceSettings
     The steps below build one Dr.Jit kernel, evaluated once: the helpers only name its parts."""
     mi = mitsuba()
     import drjit as dr
-
-    from holocore.trace.kernel import trace_wave_paths
 
     N = settings.spp
     R = (r1 - r0) * g.W * N
