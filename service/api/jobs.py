@@ -19,6 +19,7 @@ from service.api import submission
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope, owned_job
 from service.api.files import file_response
+from service.api.job_live import live_doc
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
 from service.auth import Principal
@@ -202,6 +203,15 @@ def job_log(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_P
     return PlainTextResponse(text, headers={"Cache-Control": "no-cache"})
 
 
+@router.get("/v1/jobs/{job_id}/live", responses=PROBLEM_RESPONSES)
+def job_live(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(pattern=ID_PATTERN)):
+    """What the job is doing: its effect plan as soon as there is one (``source`` "render": its render's, also
+    while the later steps run; else the scene's plan at the job's options), each step's estimated and actual
+    seconds and state, the running step, the seconds run and left, the running step's last 40 log lines and the
+    worker's CPU seconds and resident memory (its process group's). The event stream sends it as ``live``."""
+    return JSONResponse(live_doc(ctx, owned_job(ctx, job_id, principal)), headers={"Cache-Control": "no-cache"})
+
+
 def _sse(event: str, data: dict) -> str:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
 
@@ -210,8 +220,9 @@ def _sse(event: str, data: dict) -> str:
                                                          "description": "Server-sent events"}, **PROBLEM_RESPONSES})
 async def job_events(request: Request, ctx: Ctx, principal: ReadScope,
                      job_id: str = PathParam(pattern=ID_PATTERN)):
-    """Server-sent events: ``progress`` while running, ``state`` on every change; the stream ends when the
-    job reaches succeeded, failed or cancelled."""
+    """Server-sent events: ``progress`` while running, ``state`` on every change, ``live`` (what
+    ``GET /v1/jobs/{id}/live`` answers) at the start and about every second while it runs, and once more at the
+    end; the stream ends when the job reaches succeeded, failed or cancelled."""
     await run_in_threadpool(owned_job, ctx, job_id, principal)
     held = _Held(ctx.streams_open, principal.owner, ctx.settings.max_streams_per_owner, job_id)
 
@@ -252,7 +263,7 @@ class _Held:
 
 async def _events(request: Request, ctx: ServiceContext, job_id: str):
     """A job's events until it reaches a final state or the client goes."""
-    last_state, last_progress, last_sent = None, None, time.monotonic()
+    last_state, last_progress, last_sent, last_live = None, None, time.monotonic(), 0.0
     while True:
         row = await run_in_threadpool(ctx.db.get_job, job_id)
         if row is None:
@@ -264,6 +275,9 @@ async def _events(request: Request, ctx: ServiceContext, job_id: str):
             out.append(_sse("state", job_out(row)))
         if row["progress"] != last_progress and row["state"] in ("running", "succeeded"):
             out.append(_sse("progress", {"id": job_id, "state": row["state"], **(row["progress"] or {})}))
+        if state_changed or (row["state"] == "running" and time.monotonic() - last_live >= 1.0):
+            last_live = time.monotonic()
+            out.append(_sse("live", await run_in_threadpool(live_doc, ctx, row)))
         if state_changed and final:
             out.append(_sse("state", job_out(row)))
         last_state, last_progress = row["state"], row["progress"]

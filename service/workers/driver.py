@@ -47,7 +47,8 @@ from service.jobfiles import (
 )
 from service.workers.limits import ProcessLimits, current_limits, explain_limit
 
-__all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "frames_zip", "preview_focus_mm", "run_job"]
+__all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "write_render_plan", "frames_zip",
+           "preview_focus_mm", "run_job"]
 
 EXIT_FAILED = 3
 EXIT_RETRY = 75
@@ -195,6 +196,21 @@ def write_options(spec: JobFile, job_dir: Path) -> None:
     write_json_atomic(job_dir / "options.json", spec.hologram_options().model_dump(mode="json"))
 
 
+def write_render_plan(job_dir: Path) -> None:
+    """``job_dir/plan.json``: the effect plan the render made (its summary and warnings), written as soon as the
+    render ends, so a running job's page shows it through the later steps (and a job stopped after its render
+    still has it). Only the result's meta member is read."""
+    import numpy as np
+
+    try:
+        with np.load(job_dir / "result.npz", allow_pickle=False) as z:
+            plan = json.loads(str(z["meta"])).get("plan") or {}
+        write_json_atomic(job_dir / "plan.json", {"summary": list(plan.get("summary") or []),
+                                                  "warnings": list(plan.get("warnings") or [])})
+    except (OSError, ValueError, KeyError, AttributeError, TypeError):
+        pass  # the page falls back on the plan render.log lists
+
+
 def render_args(spec: JobFile, progress_path: str, job_dir: Path = Path(".")) -> list[str]:
     """The job's `holo render` command line (after ``holo``), its files in ``job_dir`` (``options.json``:
     :func:`write_options`)."""
@@ -210,6 +226,7 @@ def run_job(job_dir: Path) -> RunStatus:
     prog = {s: str(job_dir / f"progress-{s}.jsonl") for s in STEPS}
     write_options(spec, job_dir)
     timings["render_s"] = _run("render", render_args(spec, prog["render"], job_dir), job_dir)
+    write_render_plan(job_dir)
     encode = ["encode", str(job_dir / "result.npz"), "--out", str(job_dir / "stack.npz"), "--options-json",
               str(job_dir / "options.json"), "--progress-jsonl", prog["encode"]]
     timings["encode_s"] = _run("encode", encode, job_dir)

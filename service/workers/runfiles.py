@@ -18,7 +18,7 @@ __all__ = ["ARTIFACTS", "RUN_FILES", "STEP_WEIGHTS", "EVALUATE_WEIGHT", "RENDER_
            "read_progress", "step_weights", "remove_partials"]
 
 ARTIFACTS = ("stack.npz", "frames.zip", "preview.png")
-RUN_FILES = ("status.json", "step.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
+RUN_FILES = ("status.json", "step.json", "plan.json", "driver.log", *(f"progress-{s}.jsonl" for s in STEPS),
              *(f"{s}.log" for s in STEPS))
 # Share of the whole run of each step with progress (the preview step makes the pictures too).
 STEP_WEIGHTS: dict[Step, float] = {"render": 0.75, "encode": 0.15, "package": 0.03, "preview": 0.07}
