@@ -15,6 +15,7 @@ from typing import Any, Callable, Optional
 from holocore.display.optics import OpticsConfig
 from holocore.plan.estimate import CALIBRATION_VERSION, encode_work, features, machine_load
 from holocore.plan.estimate_probe import PROBE_HW, Probe
+from holocore.scene.load import load_scene
 
 __all__ = ["calibrate", "probe_scene"]
 
@@ -65,8 +66,6 @@ def calibrate(*, scene: Optional[str | Path] = None, quick: bool = False, repeat
         base.pop(k, None)
     OpticsConfig(**base)  # refuse bad optics before anything runs
     import tempfile
-
-    from holocore.scene.load import load_scene
 
     with tempfile.TemporaryDirectory() as tmp:
         if scene is None:

@@ -17,6 +17,7 @@ from typing import Any, Optional
 import numpy as np
 
 from holocore import __version__
+from holocore.runtime.mitsuba_env import variant
 
 __all__ = ["RenderResult", "result_meta", "display_meta_fields", "software_versions"]
 
@@ -35,8 +36,6 @@ def result_meta(*, method: str, preset: Optional[str], loaded: Any, optics: Any,
     """The meta of one result. ``scene_plan``: the :class:`holocore.plan.scene_plan.ScenePlan` the method used;
     ``plan``: the renderer's EffectPlan as JSON, or None for a baseline, whose ``summary`` lines (the field of view
     line appended) stand for it; ``extra``: the method's own fields, added last."""
-    from holocore.runtime.mitsuba_env import variant
-
     ana = scene_plan.analysis
     if plan is None:
         plan = {"summary": [*(summary or []), scene_plan.field_of_view["summary"]]}

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from holocore.io import ScratchArray
+
 __all__ = ["MemorySink", "FileSink"]
 
 
@@ -34,8 +36,6 @@ class FileSink:
     """The traced field in a scratch file, the propagated one streamed straight into RESULT.npz."""
 
     def __init__(self, writer, shape, traced_name, other_name):
-        from holocore.io import ScratchArray
-
         self.writer, self.shape, self.traced_name = writer, shape, traced_name
         self.scratch_dir = writer.path.parent
         self.scratch = ScratchArray(shape, np.complex64, dir=writer.path.parent)

@@ -11,6 +11,7 @@ from typing import Any, Optional
 from pydantic import BaseModel, Field
 
 from holocore.display.optics import OpticsConfig
+from holocore.display.profiles import field_of_view_box
 
 __all__ = ["FieldOfViewBox", "field_of_view_box_for", "scene_field_of_view_box"]
 
@@ -40,8 +41,6 @@ def _deg(v: float) -> str:
 def field_of_view_box_for(optics: OpticsConfig, plan: Any) -> Optional[FieldOfViewBox]:
     """The box at ``optics`` for the scene whose stored plan is ``plan``; None when the plan does not give the
     camera's view and film (pending, failed, or from before the plan recorded the film)."""
-    from holocore.display.profiles import field_of_view_box
-
     try:
         fov = plan["field_of_view"]
         cam_fov = float(fov["camera_fov_x_deg"])

@@ -6,6 +6,8 @@ import logging
 import os
 
 from service.settings import ServiceSettings
+from service.workers.engine import resolve_sandbox
+from service.workers.ray_engine import RayEngine
 
 __all__ = ["serve", "close_data_dir"]
 
@@ -39,8 +41,6 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
     logging.basicConfig(level=getattr(logging, log_level.upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from service.http_timeouts import header_timeout_protocol
-    from service.workers.engine import resolve_sandbox
-
     # What the server creates is its own (the database, scenes, artifacts); folders sandbox users enter are
     # opened explicitly. Without the sandbox nobody else needs to read any of it either.
     os.umask(0o077)
@@ -53,7 +53,6 @@ def serve(settings: ServiceSettings, *, log_level: str = "info") -> None:
                         "this service")
     engine = None
     if settings.engine == "ray":  # connected before serving, so an unreachable cluster is a one-line error
-        from service.workers.ray_engine import RayEngine
 
         engine = RayEngine(settings)
     app = create_app(settings, engine=engine)

@@ -7,6 +7,8 @@ import hashlib
 from functools import lru_cache
 from pathlib import Path
 
+from holocore import __version__
+
 __all__ = ["code_version", "SERVICE_VERSION"]
 
 SERVICE_VERSION = "0.1.0"
@@ -19,8 +21,6 @@ _SOURCES = ("holocore", "holo/cmd_render.py", "holo/cmd_encode.py", "holo/cmd_vi
 @lru_cache(maxsize=1)
 def code_version() -> str:
     """``<holocore version>+<first 12 hex of sha256 over the sources above>`` (computed once per process)."""
-    from holocore import __version__
-
     h = hashlib.sha256()
     for item in _SOURCES:
         p = _ROOT / item

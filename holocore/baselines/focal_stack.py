@@ -62,6 +62,8 @@ from holocore.baselines.adam_budget import MAX_ITERATIONS, AdamFitOptions, torch
 from holocore.baselines.focal_stack_fit import FocalStackFit, optimise_focal_stack
 from holocore.baselines.registry import Baseline, register_baseline
 from holocore.display.optics import OpticsConfig
+from holocore.evaluate.scoring import default_pupil_m
+from holocore.render_meta import RenderResult, result_meta
 
 __all__ = ["DEFAULT_PLANES", "DEFAULT_SPACING_M", "MAX_PLANES", "MAX_ITERATIONS", "FITS", "DEFAULT_FIT_EYE_GRID",
            "FIT_EYE_SEED", "stack_plane_depths", "depth_of_focus_m", "default_stack_planes", "optimise_focal_stack",
@@ -286,8 +288,6 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     render per plane.
     """
     from holocore.evaluate.truths import ground_truth
-    from holocore.evaluate.scoring import default_pupil_m
-    from holocore.render_meta import RenderResult, result_meta
     from holocore.render_setup import RenderOptions, plan_scene
 
     gt_spp, fit_eye_grid, wp = _check_fit_args(gt_spp, fit, fit_eye_grid, white_percentile)

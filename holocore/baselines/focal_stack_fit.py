@@ -12,6 +12,7 @@ import numpy as np
 
 from holocore import validate
 from holocore.baselines.adam_budget import AdamOptions, StepBudget
+from holocore.evaluate.scoring import view_shift_px
 
 __all__ = ["FocalStackFit", "optimise_focal_stack"]
 
@@ -209,7 +210,6 @@ def _optimise_pupil_aware(T: np.ndarray, plane_z_m: Sequence[float], views: Sequ
     function, not a re-derivation of it, so that what the fit sees is exactly what the score will see."""
     import torch
 
-    from holocore.evaluate.scoring import view_shift_px
     from holocore.evaluate.viewer import aperture_share
 
     if T.ndim != 5:

@@ -30,9 +30,13 @@ from pydantic import Field
 
 from holocore import validate
 from holocore.baselines.registry import Baseline, BaselineOptions, register_baseline
+from holocore.display.optics import channel_of
 from holocore.display.optics import OpticsConfig
+from holocore.render_meta import RenderResult, result_meta
+from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import reference_integrator
+from holocore.trace.frame_phases import get_frame_phases
 
 __all__ = ["MAX_PLANES", "rgbd", "plane_depths", "layer_fields", "render_layers", "LayersOptions", "LayersBaseline"]
 
@@ -48,8 +52,6 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
     A pinhole camera at the eye with the hologram's pixel grid (x = f tan, docs/design.md §3), box filter,
     ``spp`` samples per pixel, Mitsuba's ``path`` integrator with ``max_depth`` inside ``aov``.
     """
-    from holocore.runtime.mitsuba_env import mitsuba
-
     mi = mitsuba()
     H, W = (int(s) for s in shape_hw)
     spp = validate.integer("spp", spp, 1, MAX_SPP)
@@ -107,10 +109,7 @@ def layer_fields(rgb: np.ndarray, zc: np.ndarray, *, focal_length_m: float, z_in
     """
     import torch
 
-    from holocore.display.optics import channel_of
     from holocore.optics.propagation import asm
-    from holocore.trace.frame_phases import get_frame_phases
-
     img = np.asarray(rgb, dtype=np.float64)
     depth = np.asarray(zc, dtype=np.float64)
     if img.ndim != 3 or img.shape[0] != 3 or depth.shape != img.shape[1:]:
@@ -170,7 +169,6 @@ def render_layers(loaded: Any, optics: OpticsConfig, *, planes: int = 8, spp: in
     colors, pitch, seed and the WRP come from ``optics`` and the renderer's own scene analysis; ``display`` (a
     :class:`holocore.display.profiles.DisplayProfile`) is recorded in the meta as the renderer does.
     """
-    from holocore.render_meta import RenderResult, result_meta
     from holocore.render_setup import RenderOptions, plan_scene
 
     planes = validate.integer("planes", planes, 1, MAX_PLANES)

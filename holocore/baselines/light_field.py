@@ -39,10 +39,15 @@ from pydantic import Field
 
 from holocore import validate
 from holocore.baselines.adam_budget import AdamFitOptions, torch_device
+from holocore.baselines.light_field_fit import optimise_light_field
 from holocore.baselines.registry import Baseline, register_baseline
+from holocore.display.optics import channel_of
 from holocore.display.optics import OpticsConfig
+from holocore.render_meta import RenderResult, result_meta
+from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import has_media, reference_integrator
+from holocore.trace.reference_chain import aligned
 
 __all__ = ["DEFAULT_HOGEL_PX", "MAX_HOGEL_PX", "MAX_SPP", "rs_plane_depth", "hogel_rays", "trace_light_field",
            "hogel_amplitudes", "stereogram_fields", "stereogram_colours",
@@ -144,9 +149,6 @@ def trace_light_field(scene: Any, hmap: Any, shape_hw: tuple[int, int], *, hogel
                       integrator: Optional[Any] = None) -> np.ndarray:
     """Linear RGB radiance float32 [C, 3, Hh B, Wb B] of each colour's hogel rays (:func:`hogel_rays`), ``spp``
     jittered rays each, traced by Mitsuba with ``integrator`` (default the scene's, else ``path``)."""
-    from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.trace.reference_chain import aligned
-
     mi = mitsuba()
     import drjit as dr
 
@@ -197,8 +199,6 @@ def hogel_amplitudes(radiance: np.ndarray, *, shape_hw: tuple[int, int], hogel_p
                      wavelengths_m: Sequence[float]) -> np.ndarray:
     """Each plane wave's amplitude, float32 [C, Hh B, Wh B] on the hogel-major grid: B^2 sqrt(L_c / n) a_c inside the
     cone, 0 outside (step 3 of the module docstring); L_c the RGB channel that holds the colour's laser line."""
-    from holocore.display.optics import channel_of
-
     Hh, Wh, B = _hogel_grid(shape_hw, hogel_px)
     rad = np.asarray(radiance)
     if rad.shape != (len(wavelengths_m), 3, Hh * B, Wh * B):
@@ -307,7 +307,6 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     ``device``, stopped early to keep the whole baseline within ``time_limit_s``; the SLM field is then
     sqrt(P_c) exp(i phi), P_c the colour's laser power).
     """
-    from holocore.render_meta import RenderResult, result_meta
     from holocore.render_setup import RenderOptions, plan_scene
 
     hogel_px = validate.integer("hogel_px", hogel_px, 1, MAX_HOGEL_PX)
@@ -335,8 +334,6 @@ def render_light_field(loaded: Any, optics: OpticsConfig, *, hogel_px: int = DEF
     geometry = dict(shape_hw=(H, W), hogel_px=hogel_px, z_rs_m=z_rs_m, lams=lams, optics=optics)
     fit_meta: dict[str, Any] = {"fit": fit}
     if fit == "sgd":
-        from holocore.baselines.light_field_fit import optimise_light_field
-
         target = hogel_amplitudes(rad, shape_hw=(H, W), hogel_px=hogel_px, pitch_m=optics.pitch_m,
                                   wavelengths_m=lams).astype(np.float64) ** 2
         del rad

@@ -32,9 +32,12 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore import validate
+from holocore.display.optics import channel_of
 from holocore.formats.meta import MetaLike, parse_view_meta
+from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.scene.features import has_media, reference_integrator
+from holocore.scene.load import sensor_film_hw
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["focus_distance_m", "thinlens_sensor", "render_ground_truth", "camera_picture", "channels_for_wavelengths",
@@ -64,8 +67,6 @@ def thinlens_sensor(hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: fl
                     pupil_diameter_m: float, view_offset_m: tuple[float, float] = (0.0, 0.0),
                     spp: int = 256, near_clip_m: float = 1e-3) -> Any:
     """A Mitsuba ``thinlens`` sensor for one eye (pose, pupil, focus, view; see the module docstring)."""
-    from holocore.runtime.mitsuba_env import mitsuba
-
     mi = mitsuba()
     try:
         H, W = (int(s) for s in shape_hw)
@@ -113,8 +114,6 @@ def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length
     ``view_offset_m`` (m). ``integrator``: default the scene's own (else ``path`` with 12 bounces). ``spp``
     samples per pixel (1..65536).
     """
-    from holocore.runtime.mitsuba_env import mitsuba
-
     mi = mitsuba()
     hmap = HologramMap(cam_to_world=np.asarray(sensor_to_world, dtype=np.float64),
                        focal_length_m=validate.positive("focal_length_m", focal_length_m),
@@ -143,9 +142,6 @@ def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed:
     samples per pixel.
     A picture a person recognises the scene by, not a ground truth: the display's optics play no part, so the
     hologram's view can be drawn over it (holocore.display.profiles.field_of_view_box)."""
-    from holocore.runtime.mitsuba_env import mitsuba
-    from holocore.scene.load import sensor_film_hw
-
     mi = mitsuba()
     if not 8 <= int(max_width_px) <= 4096:
         raise ValueError(f"max_width_px must be in 8..4096, got {max_width_px!r}")
@@ -176,8 +172,6 @@ def camera_picture(loaded: Any, *, max_width_px: int = 320, spp: int = 32, seed:
 
 def channels_for_wavelengths(rgb: np.ndarray, wavelengths_m: Sequence[float]) -> np.ndarray:
     """[C, H, W]: for each laser line the RGB channel that holds it (R >= 590 nm, G 490-590 nm, B below)."""
-    from holocore.display.optics import channel_of
-
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[0] != 3:
         raise ValueError(f"rgb must be [3, H, W], got shape {a.shape}")

@@ -10,6 +10,7 @@ import numpy as np
 
 from holocore.display.optics import channel_of
 from holocore.formats.meta import MetaLike, parse_view_meta
+from holocore.optics.fieldsource import SlmFieldSource
 
 __all__ = ["view_rgb", "views_rgb", "focal_sweep_png", "to_png8", "depth_words"]
 
@@ -36,7 +37,6 @@ def views_rgb(slm_field, meta: MetaLike, *, focus_z_m, pupil_diameter_m: float =
     meta = parse_view_meta(meta)
     import torch
 
-    from holocore.optics.fieldsource import SlmFieldSource
     from holocore.optics.viewing import view_intensities
 
     if isinstance(slm_field, SlmFieldSource):

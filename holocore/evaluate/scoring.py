@@ -31,6 +31,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from holocore.formats.meta import MetaLike, ViewMeta, parse_view_meta
+from holocore.io import load_result, load_stack
+from holocore.optics.fieldsource import SlmFieldSource
 
 __all__ = ["CellScore", "Cell", "Evaluation", "load_slm_field", "focus_planes_m", "view_offsets_m",
            "default_pupil_m", "lit_margin_px", "view_shift_px", "eye_view", "compare", "evaluate", "VIEWS_AT"]
@@ -91,8 +93,6 @@ def load_slm_field(path: str | Path) -> tuple[np.ndarray, ViewMeta, str]:
     A stack is exp(i phase) lit with the encoder's relative laser power per frame and color
     (``meta["encoder"]["illumination"]``), which carries the scene's colour balance.
     """
-    from holocore.io import load_result, load_stack
-
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"input not found: {p}")
@@ -244,7 +244,6 @@ def eye_view(field_slm, meta: MetaLike, *, focus_z_m: float, pupil_diameter_m: f
     None: exactly then; False: an ideal SLM of point-like pixels, as the ground truth assumes).
     """
     meta = parse_view_meta(meta)
-    from holocore.optics.fieldsource import SlmFieldSource
     from holocore.optics.viewing import view_intensities
 
     if isinstance(field_slm, SlmFieldSource):

@@ -14,6 +14,9 @@ from typing import Optional, Union
 
 import numpy as np
 
+from holocore.io import NpyMember, npz_members, read_npz_meta
+from holocore.io import phase_to_u8
+
 __all__ = ["SlmFieldSource", "open_slm_field"]
 
 
@@ -45,7 +48,6 @@ class SlmFieldSource:
         else:
             phase = raw
             if self._quantized:  # the 8-bit SLM levels of docs/design.md §2, without a lookup table
-                from holocore.io import phase_to_u8
 
                 phase = phase_to_u8(phase).astype(np.float32) * np.float32(2 * np.pi / 256)
             out = np.exp(1j * phase.astype(np.float32)).astype(np.complex64)
@@ -67,8 +69,6 @@ class SlmFieldSource:
 def open_slm_field(path: Union[str, Path], *, quantized: bool = False, equal_power: bool = False) -> SlmFieldSource:
     """A STACK.npz (phase) or RESULT.npz (slm_field) as a chunked source, reading nothing but the meta yet."""
     from holocore.formats.meta import parse_view_meta
-    from holocore.io import NpyMember, npz_members, read_npz_meta
-
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"input not found: {p}")

@@ -9,6 +9,8 @@ import time
 
 import numpy as np
 
+from holocore.io import ScratchArray
+
 __all__ = ["chain_planes"]
 
 
@@ -91,8 +93,6 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
     passes (a time-limited render adds its passes' sums and divides by their rays here). ``equalisers``: one
     :class:`holocore.optics.cone_equaliser.PlaneEqualiser` per plane (None: none), applied to each plane's own
     recording before anything is added to it."""
-    from holocore.io import ScratchArray
-
     H, W = optics.resolution_hw
     lams = [optics.wavelengths_m[c] for c in lit_idx]
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)

@@ -42,6 +42,8 @@ from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
 from holocore.optics.grids import encoder_grid
+from holocore.plan.effects import choose_spp
+from holocore.plan.presets import PRESETS
 
 __all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_work", "load_slowdown", "machine_load",
            "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
@@ -205,9 +207,6 @@ def encode_work(optics: OpticsConfig, z_wrp_m: Optional[float] = None) -> float:
 
 
 def _plan_numbers(optics: OpticsConfig, options: Any, subhologram_radius_px: Optional[float]) -> dict:
-    from holocore.plan.effects import choose_spp
-    from holocore.plan.presets import PRESETS
-
     if options.preset not in PRESETS:
         raise ValueError(f"options.preset must be one of {sorted(PRESETS)}, got {options.preset!r}")
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
+from holocore.plan.estimate import estimate_breakdown, features, load_calibration
 
 __all__ = ["Probe", "PROBE_HW", "process_age_s", "estimate_with_probe"]
 
@@ -62,8 +63,6 @@ def estimate_with_probe(optics: OpticsConfig, options: Any, probe: Probe, *, sce
                         subhologram_radius_px: Optional[float], calibration: Optional[dict] = None) -> dict:
     """Predicted seconds of ``holo render`` by stage (``startup``, ``compile``, the calibrated stages with the
     probe's ray cost) and ``total``."""
-    from holocore.plan.estimate import estimate_breakdown, features, load_calibration
-
     cal = calibration if calibration is not None else load_calibration()
     out = estimate_breakdown(optics, options, scene_primitives=scene_primitives,
                              subhologram_radius_px=subhologram_radius_px, calibration=cal)

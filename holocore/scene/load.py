@@ -20,6 +20,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.scene.bundle import entry_source, validate_bundle
+from holocore.scene.bundle import film_size_error
 from holocore.scene.errors import scrub_message
 from holocore.scene.features import shape_name
 
@@ -123,8 +125,6 @@ def sensor_film_hw(sensor) -> tuple[int, int]:
     """The sensor's film size (rows, columns) in pixels: with its field of view, the camera's image. ValueError
     past the bound a bundle's film is held to (holocore.scene.bundle.film_size_error): a scene loaded without
     the bundle check, or stored before the bound, is held to it too."""
-    from holocore.scene.bundle import film_size_error
-
     w, h = (int(v) for v in sensor.film().size())
     why = film_size_error(h, w)
     if why is not None:
@@ -213,8 +213,6 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
     mi = mitsuba()
     preload_plugins()
     if check_bundle:
-        from holocore.scene.bundle import entry_source, validate_bundle
-
         report = validate_bundle(root, entry=entry_name)
         entry = Path(report.entry)
         why = unsupported_reason(report.plugins)

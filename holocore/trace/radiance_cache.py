@@ -18,6 +18,8 @@ import numpy as np
 
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
+from holocore.trace.kernel import trace_wave_paths
+from holocore.trace.mapping import camera_grid
 from holocore.trace.mapping import HologramMap
 
 __all__ = ["RadianceCache", "build_cache"]
@@ -83,9 +85,6 @@ def build_cache(scene, hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m:
     """
     mi = mitsuba()
     import drjit as dr
-
-    from holocore.trace.mapping import camera_grid
-    from holocore.trace.kernel import trace_wave_paths
 
     rng = np.random.default_rng([seed, 4242])
     dirs_c = camera_grid(hmap, shape_hw, pitch_m, n_side, rng)

@@ -33,6 +33,7 @@ import numpy as np
 
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
+from holocore.trace.differentials import igehy_transfer
 
 __all__ = ["ChainResult", "trace_chain"]
 
@@ -255,8 +256,6 @@ class _DeltaChain:
 
     def run(self, max_delta: int) -> None:
         import drjit as dr
-
-        from holocore.trace.differentials import igehy_transfer
 
         mi = self.mi
         for bounce in range(max_delta + 1):

@@ -18,13 +18,17 @@ from service.api import display_sends, displays, evaluation, jobs, phase_frames,
 from service.api.context import ServiceContext
 from service.api.deps import PRINCIPAL_KEY, authenticate, require, scope_error
 from service.api.problems import ApiError, install_handlers, problem
-from service.db import Database
 from service.auth import Principal
+from service.db import Database
 from service.metrics import Metrics, owner_registry
 from service.models import Problem
 from service.settings import ServiceSettings
 from service.version import SERVICE_VERSION, code_version
+from service.workers.engine import LocalEngine
+from service.workers.planner import Planner
 from service.workers.private_tmp import can_make_private
+from service.workers.ray_engine import RayEngine
+from service.workers.scheduler import Scheduler
 
 __all__ = ["create_app"]
 
@@ -250,9 +254,6 @@ def _lifespan(ctx: ServiceContext, *, start_workers: bool, engine):
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         if start_workers:
-            from service.workers.planner import Planner
-            from service.workers.scheduler import Scheduler
-
             ctx.lock_data_dir()
             eng = engine if engine is not None else _make_engine(settings)
             ctx.scheduler = Scheduler(settings, db, eng, metrics=ctx.metrics)
@@ -336,10 +337,7 @@ def api_index_html(schema: dict) -> str:
 
 def _make_engine(settings: ServiceSettings):
     if settings.engine == "ray":
-        from service.workers.ray_engine import RayEngine
-
         return RayEngine(settings)
-    from service.workers.engine import LocalEngine
 
     return LocalEngine()
 

@@ -15,6 +15,8 @@ from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, PlainTextResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from holocore.display.optics import OpticsConfig
+from holocore.scene.errors import scrub_message
 from service.api import submission
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope, owned_job
@@ -110,8 +112,6 @@ async def get_job(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(patter
 
 def _job_fov_box(ctx: ServiceContext, row: dict) -> Optional[dict]:
     """Where the hologram's view lies in the scene's picture at the job's optics (its stored spec's)."""
-    from holocore.display.optics import OpticsConfig
-
     scene = ctx.db.get_scene(row["scene_id"])
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
     if scene is None or not isinstance(spec.get("optics"), dict):
@@ -161,8 +161,6 @@ _LOG_TAIL_BYTES = 64 * 1024
 def _log_text(path: Path, roots: list[str]) -> str:
     """The last 64 KiB of a step's log, each line with the job's folder shown relative and every other server
     path as ``<server path>`` (as the job's error says them)."""
-    from holocore.scene.errors import scrub_message
-
     # While a sandboxed run goes on, its folder is its uid's and this process is root: the log may be swapped for
     # a link, a fifo or a hard link at any time, so it is read as every file of a job's is (service/untrusted.py).
     tail, size = read_job_tail(path.parent, path.name, tail_bytes=_LOG_TAIL_BYTES)

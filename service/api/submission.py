@@ -32,6 +32,7 @@ from service.cost import (
 from service.job_rules import binding_max_spp, job_limit_errors, optics_sanity_errors, spp_cap
 from service.models import JobRequest, cache_key, effective_optics
 from service.settings import JobLimits
+from service.quality import resolve_quality_target
 
 __all__ = ["admit_job", "busy_threads", "resolve_target", "reusable_job", "scene_plane_border", "job_spec",
            "submit_job", "Submitted",
@@ -84,7 +85,6 @@ def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -
     the choice where the principal may read it; admission then checks the resolved request as any other."""
     if req.quality_db is None:
         return req, None
-    from service.quality import resolve_quality_target
 
     scene = ctx.db.get_scene(req.scene_id)
     mine = scene is not None and (principal.is_admin or ctx.db.scene_owned_by(req.scene_id, principal.owner))

@@ -36,13 +36,15 @@ from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
 from service.api.files import file_response
 from service.api.problems import PROBLEM_RESPONSES, ApiError
+from service.api.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
+from service.auth import allows
 from service.auth import Principal
-from service.integrity import artifact_intact
+from service.cost import evaluation_skipped
 from service.cost import estimate_cost
+from service.integrity import artifact_intact
 from service.job_rules import binding_max_spp, option_limits
 from service.models import ID_PATTERN, JobRequest, cache_key, effective_optics
 from service.scene_view import scene_field_of_view_box
-from service.api.submission import admit_job, busy_threads, resolve_target, reusable_job, scene_plane_border
 from service.untrusted import open_job_file, read_job_json
 
 __all__ = ["router", "SecurityHeaders", "WEB_DIR", "PAGE_CSP", "API_CSP"]
@@ -130,8 +132,6 @@ def web_file(request: Request, name: str) -> Response:
 @router.get("/v1/whoami", tags=["tokens"], responses=PROBLEM_RESPONSES)
 async def whoami(principal: ReadScope) -> dict:
     """The calling token's owner, name and scopes (what the page may offer)."""
-    from service.auth import allows
-
     return {"owner": principal.owner, "name": principal.name, "scopes": sorted(principal.scopes),
             "admin": principal.is_admin, "may_submit": allows(principal.scopes, "submit")}
 
@@ -187,8 +187,6 @@ def estimate_job(req: JobRequest, ctx: Ctx, principal: SubmitScope) -> dict:
 
 def _estimate_warnings(req: JobRequest, scene: dict) -> list[str]:
     """What the job would not give that it asks for (an evaluation on an SLM too small to score)."""
-    from service.cost import evaluation_skipped
-
     why = evaluation_skipped(req, scene.get("plan")) if req.evaluate else None
     return [why] if why else []
 

@@ -12,7 +12,9 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 from service.cost import output_bytes
+from service.cost import job_memory, memory_admission_error, plane_border_px
 from service.jobfiles import JobSpec
+from service.models import JobRequest
 
 __all__ = ["Admission", "admit", "peak_bytes", "largest_file_bytes"]
 
@@ -57,8 +59,6 @@ def admit(row: dict, scene: Optional[dict], settings: Any) -> Admission:
     mem = (row.get("estimate") or {}).get("memory") or {}
     if "plane_border_px" not in mem or mem["plane_border_px"] is not None or mem.get("planes_checked"):
         return Admission(peak_bytes(row))  # known at submit or checked already (or from before planes were counted)
-    from service.cost import job_memory, memory_admission_error, plane_border_px
-    from service.models import JobRequest
     try:
         spec = JobSpec.model_validate(row["spec"])
         req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, **spec.fields())

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Optional
 
 from service.settings import ServiceSettings
+from service.workers.engine import kill_group
 from service.workers.engine import Handle
 
 __all__ = ["RayEngine", "RayUnavailable", "connect", "run_driver"]
@@ -45,7 +46,6 @@ def run_driver(job_dir: str) -> int:
             except subprocess.TimeoutExpired:
                 continue
     except BaseException:  # ray.cancel raises KeyboardInterrupt here: stop the job's whole process group
-        from service.workers.engine import kill_group
 
         kill_group(proc.pid, grace_s=2.0, proc=proc)
         raise
