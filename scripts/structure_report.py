@@ -28,7 +28,7 @@ OPTION_COPIES = {
 }
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG: set[str] = set()  # none left: every module within 400 lines, every function within 80
-MOST_OWN_LATE_IMPORTS = 148
+MOST_OWN_LATE_IMPORTS = 144
 MOST_WIDE_LINES = 0  # no line over 120 columns
 
 

@@ -35,10 +35,11 @@ import time
 from pathlib import Path
 from typing import Callable, Optional
 
+from holocore.evaluate.preview import depth_words, focus_depths, to_png8, view_rgb
 from holocore.formats.hashing import file_sha256
-
-from holocore.evaluate.preview import depth_words
 from holocore.formats.meta import ViewMeta, parse_view_meta
+from holocore.io import load_stack
+from holocore.optics.viewing import depth_of_field_m
 
 __all__ = ["make_pictures", "write_preview", "picture_key", "PICTURES_VERSION", "depth_words"]
 
@@ -54,8 +55,6 @@ def picture_key(stack_sha256: str, params: dict) -> str:
 def _field(stack: Path):
     """(complex64 SLM field [F, C, H, W], meta): exp(i phase) lit with the encoder's laser powers."""
     import numpy as np
-
-    from holocore.io import load_stack
 
     phase, _, meta = load_stack(stack)
     field = np.exp(1j * phase.astype(np.float32)).astype(np.complex64)
@@ -95,8 +94,6 @@ def light_radius_m(field, meta: ViewMeta, *, share: float = 0.8) -> float:
 def _save(views, white: float, out: Path, names: list[str]) -> list[dict]:
     from PIL import Image
 
-    from holocore.evaluate.preview import to_png8
-
     rows = []
     for v, name in zip(views, names):
         Image.fromarray(to_png8(v, white=white)).save(out / name, optimize=True)
@@ -109,8 +106,6 @@ def write_preview(loaded, out_png: Path, *, focus_mm: float, pupil_mm: float = 4
     ``focus_mm`` (mm from the SLM) through a ``pupil_mm`` pupil, white at its 99.5th percentile, as
     ``holo view STACK --focus-mm F --pupil-mm P --out PNG`` writes it."""
     from PIL import Image
-
-    from holocore.evaluate.preview import to_png8, view_rgb
 
     field, meta = loaded
     rgb = view_rgb(field, meta, focus_z_m=focus_mm * 1e-3, pupil_diameter_m=pupil_mm * 1e-3)
@@ -126,9 +121,6 @@ def make_pictures(stack: Path, out: Path, *, sweep: int = 9, pupil_mm: float = 4
     view (the sweep's, then the grid's)."""
     tick = progress or (lambda stage, done, total: None)
     import numpy as np
-
-    from holocore.evaluate.preview import focus_depths, view_rgb
-    from holocore.optics.viewing import depth_of_field_m
 
     stack_sha = file_sha256(stack)
     params = {"sweep": sweep, "pupil_mm": pupil_mm, "grid": GRID}
