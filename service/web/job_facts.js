@@ -30,13 +30,19 @@ export function loadText(est) {
     + `threads on ${l.cores} cores: ${l.slowdown.toFixed(1)}x), ${fmtSeconds(est.seconds)} on an idle one`;
 }
 
-// What is left: the estimate (at the load it was made at) less the time run so far, blended, as the run goes,
-// into the pace measured so far (which carries the load the run actually meets); past the estimate, the pace.
-export function eta(job) {
+// What is left. With the job's live view (its steps' estimates, the pace its finished steps measured and the
+// running step's own pace: the server's left_s) that; else the estimate (at the load it was made at) less the
+// time run so far, blended, as the run goes, into the pace measured so far; past the estimate, the pace.
+export function eta(job, live = null) {
   const est = expectedSeconds(job.estimate);
   if (job.state === "queued") return est === null ? "waiting for a worker" : `waiting for a worker; about ${fmtSeconds(est)} once it starts`;
-  if (job.state !== "running" || est === null || !job.started_at) return "";
-  const ran = Math.max(0, (Date.now() - Date.parse(job.started_at)) / 1000);
+  if (job.state !== "running") return "";
+  const ran = actualSeconds(job, live);
+  if (live && live.state === "running" && typeof live.left_s === "number") {
+    return `about ${fmtSeconds(live.left_s)} left` + (est !== null && ran !== null && ran + live.left_s > 1.5 * est
+      ? ` (the estimate was ${fmtSeconds(est)}; this run goes slower)` : "");
+  }
+  if (est === null || ran === null) return "";
   const p = pct(job);
   const pace = p > 0.05 ? ran * (1 - p) / p : null;
   if (ran < est) return `about ${fmtSeconds(pace === null ? est - ran : p * pace + (1 - p) * (est - ran))} left`;
@@ -60,10 +66,16 @@ export function optionsText(job) {
     .filter(Boolean).join(" · ");
 }
 
-export function actualSeconds(job) {
+// The seconds the job has run: its run's (timings.run_s); while it runs, since it started (or what its live view
+// counted); a job stopped before it finished, from its start to its end.
+export function actualSeconds(job, live = null) {
   const t = job.timings || {};
   if (typeof t.run_s === "number") return t.run_s;
-  if (job.state === "running" && job.started_at) return (Date.now() - Date.parse(job.started_at)) / 1000;
+  if (job.state === "running" && job.started_at) return Math.max(0, (Date.now() - Date.parse(job.started_at)) / 1000);
+  if (job.started_at && job.finished_at) {
+    return Math.max(0, (Date.parse(job.finished_at) - Date.parse(job.started_at)) / 1000);
+  }
+  if (live && typeof live.elapsed_s === "number" && live.state !== "queued") return live.elapsed_s;
   return null;
 }
 

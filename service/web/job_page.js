@@ -7,6 +7,7 @@ import { offerCompare } from "./compare.js";
 import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
 import { actualSeconds, eta, jobName, loadText, noEvaluation, pct } from "./job_facts.js";
+import { renderLive } from "./job_live.js";
 import { sceneName } from "./jobs_list.js";
 import { clearJobPicture, showJobPicture } from "./scene_picture.js";
 import { FINAL, aborted, plural, show, state, status } from "./state.js";
@@ -22,17 +23,33 @@ function keep(url) { if (state.page) state.page.urls.push(url); return url; }
 
 function fact(dl, term, value) { dl.append(el("dt", {}, term), el("dd", {}, value)); }
 
-// The plan the job's own render made; a queued job holds only its scene's plan at the scene's default optics,
-// which is not this job's (other frames, resolution, recording planes), so that is never shown as its plan.
-function ownPlan(job) { return job.plan && !job.plan.source ? job.plan : null; }
+// The plan the job's own render made (stored when it ends; while it runs and after it stopped, its live view's,
+// from the render's own plan file or log). A queued job holds only its scene's plan at the scene's default optics,
+// which is not this job's (other frames, resolution, recording planes), so that is never shown as its plan: its
+// live view's plan at the job's own options is, said to be that.
+function ownPlan(job, live) {
+  if (job.plan && !job.plan.source) return job.plan;
+  return live && live.plan && live.plan.source === "render" ? live.plan : null;
+}
+
+function planNote(job, live) {
+  if (live && live.plan && live.plan.source !== "render" && !FINAL.has(job.state)) {
+    return "At this job's options, from its scene's plan; the render makes its own (and places the recording planes) "
+      + "when it starts.";
+  }
+  if (FINAL.has(job.state)) return job.state === "succeeded" ? "The render recorded no plan."
+    : `No effect plan: the job ${job.state === "failed" ? "failed" : "was cancelled"} before its render made one.`;
+  return "The effect plan at this job's options comes when it renders.";
+}
 
 function renderJob(job) {
+  const live = state.page && state.page.id === job.id ? state.page.live : null;
   setText($("job-id"), job.id);
   setText($("job-name-title"), jobName(job));
   const dl = clear($("job-facts"));
   const est = job.estimate || {};
   const t = job.timings || {};
-  const actual = actualSeconds(job);
+  const actual = actualSeconds(job, live);
   fact(dl, "State", el("span", { class: `badge ${job.state}`, id: "job-state" }, job.state));
   const sc = state.scenes.get(job.scene_id);
   fact(dl, "Scene", sc ? `${sc.entry} (${job.scene_id})` : job.scene_id);
@@ -61,7 +78,7 @@ function renderJob(job) {
   const p = pct(job);
   $("job-bar").style.width = `${(100 * p).toFixed(1)}%`;
   $("job-bar").dataset.fraction = String(p);
-  const left = eta(job);
+  const left = eta(job, live);
   // a queued job's time left already says it waits for a worker: that line alone, once
   setText($("job-stage"), FINAL.has(job.state) ? "" : `${Math.round(100 * p)}% · ${job.progress ? job.progress.step + " / "
     + job.progress.stage : left && job.state === "queued" ? left : "waiting for a worker"}`
@@ -70,13 +87,11 @@ function renderJob(job) {
   renderActions(job);
 
   const plan = clear($("plan"));
-  const own = ownPlan(job);
-  for (const line of (own && own.summary) || []) plan.append(el("li", {}, line));
-  if (!plan.firstChild) {
-    plan.append(el("li", { class: "muted", id: "plan-note" }, FINAL.has(job.state)
-      ? (job.state === "succeeded" ? "The render recorded no plan." : `No effect plan: the job ${job.state === "failed" ? "failed" : "was cancelled"} before its render made one.`)
-      : "The effect plan at this job's options comes when it renders."));
-  }
+  const own = ownPlan(job, live);
+  const lines = (own && own.summary) || (!FINAL.has(job.state) && live && live.plan && live.plan.summary) || [];
+  for (const line of lines) plan.append(el("li", {}, line));
+  plan.dataset.source = own ? "render" : lines.length ? "options" : "";
+  if (!own) plan.append(el("li", { class: "muted", id: "plan-note" }, planNote(job, live)));
   const warns = clear($("warnings"));
   const noEval = noEvaluation(job);  // said once, in the evaluation's card
   for (const w of (own && own.warnings) || (job.plan && job.plan.warnings) || []) {
@@ -91,9 +106,18 @@ function renderJob(job) {
   const none = !tb.firstChild;
   $("timings").hidden = none;
   setText($("timings-note"), !none ? "" : t.reused ? "Reused an earlier result: nothing ran."
-    : job.state === "queued" ? "Nothing has run yet." : job.state === "running" ? "The steps' seconds come when it finishes."
+    : job.state === "queued" ? "Nothing has run yet."
+    : job.state === "running" ? "The steps' measured seconds come when it finishes."
     : `No step timings: the job ${job.state === "failed" ? "failed" : "was cancelled"} before it finished.`);
   renderDownloads(job);
+  renderLive(live);
+}
+
+// The job's live view (what it is doing: plan, steps, worker, log tail), fetched at once; the stream then sends it.
+async function fetchLive(page) {
+  try {
+    page.live = await getJSON(`/v1/jobs/${encodeURIComponent(page.id)}/live`, { signal: page.abort.signal });
+  } catch (err) { if (aborted(err)) throw err; }
 }
 
 function renderActions(job) {
@@ -151,14 +175,20 @@ async function showLogs(job, page) {
       if (state.page === page) { setText($("log-text"), text || "(empty)"); $("log-text").dataset.step = entry.step; }
     } catch (err) { if (!aborted(err) && state.page === page) setText($("log-text"), `Could not read the log: ${err.message}`); }
   };
-  let first = null;
+  let first = null, ran = null;
+  const stepAt = page.live && page.live.steps ? (page.live.steps.find((s) => s.state === "stopped") || {}).step : null;
   for (const entry of logs) {
     const b = el("button", { type: "button", class: "small", "data-step": entry.step }, `${entry.step}.log (${fmtBytes(entry.bytes)})`);
     b.addEventListener("click", () => open(entry, b));
     tabs.append(b);
-    if (entry.step !== "driver") first = [entry, b];  // the last step that ran (the failing one on a failed job)
+    // the last step that ran with something in its log (the failing one on a failed job), the step the job
+    // stopped at first
+    if (entry.step !== "driver" && entry.bytes > 0) first = [entry, b];
+    if (entry.step === stepAt && entry.bytes > 0) ran = [entry, b];
   }
-  if (first) await open(...first);
+  delete $("log-text").dataset.live;
+  if (ran || first) await open(...(ran || first));
+  else setText($("log-text"), "");
 }
 
 function renderDownloads(job) {
@@ -188,8 +218,9 @@ function renderDownloads(job) {
 function resetJobPage() {
   for (const id of ["job-facts", "job-downloads", "plan", "warnings", "log-tabs", "grid"]) clear($(id));
   clear($("timings").tBodies[0]);
-  for (const id of ["job-id", "job-name-title", "job-stage", "job-error", "look-note", "timings-note", "log-text",
-                    "focus-label", "grid-label"]) setText($(id), "");
+  clear($("steps")); delete $("log-text").dataset.live;
+  for (const id of ["job-id", "job-name-title", "job-stage", "job-worker", "job-error", "look-note", "timings-note",
+                    "log-text", "focus-label", "grid-label"]) setText($(id), "");
   $("job-bar").style.width = "0"; $("job-bar").dataset.fraction = "0";
   $("sweep-img").removeAttribute("src"); $("preview-img").removeAttribute("src");
   for (const id of ["look", "logs-card", "job-cancel", "job-delete", "job-rerun", "job-compare"]) show(id, false);
@@ -200,7 +231,7 @@ function resetJobPage() {
 
 export async function showJob(id) {
   leaveJobPage();
-  const page = { id, abort: new AbortController(), urls: [] };
+  const page = { id, abort: new AbortController(), urls: [], live: null };
   state.page = page;
   resetJobPage();
   let job;
@@ -219,6 +250,8 @@ export async function showJob(id) {
   show("timings-card", true); show("plan-card", true);
   await sceneName(job.scene_id);
   if (state.page !== page) return;
+  await fetchLive(page);
+  if (state.page !== page) return;
   renderJob(job);
   showJobPicture(job, page.abort.signal).catch(() => {});
   if (!FINAL.has(job.state)) {
@@ -226,11 +259,14 @@ export async function showJob(id) {
       await streamEvents(`/v1/jobs/${id}/events`, (name, data) => {
         if (name === "state") job = data;
         else if (name === "progress") job = { ...job, state: data.state, progress: data };
+        else if (name === "live") page.live = data;
         renderJob(job);
       }, page.abort.signal);
     } catch (_) { if (page.abort.signal.aborted) return; }
     if (state.page !== page) return;
     job = await getJSON(`/v1/jobs/${id}`, { signal: page.abort.signal });
+    if (state.page !== page) return;
+    await fetchLive(page);
     if (state.page !== page) return;
     renderJob(job);
   }

@@ -329,7 +329,9 @@ def test_a_queued_or_running_job_shows_no_other_plan_and_can_be_cancelled_and_de
         jid = r.json()["id"]
     page.go(f"#/jobs/{jid}")
     page.until(lambda: page.text("job-state") in ("queued", "running"))
-    assert "24 frame(s)" not in page.text("plan") and "comes when it renders" in page.text("plan"), page.text("plan")
+    # never the scene's default-optics plan (24 frames): the plan at the job's own options, said to be that
+    page.until(lambda: "from its scene's plan" in page.text("plan"), what="the plan at the job's options")
+    assert "24 frame(s)" not in page.text("plan") and "2 frame(s)" in page.text("plan"), page.text("plan")
     assert page.enabled("job-cancel") and not page.visible("job-delete")
     page.d.find_element(By.ID, "job-cancel").click()
     page.until(lambda: page.text("job-state") == "cancelled", what="the cancel")

@@ -1,0 +1,115 @@
+"""A job's page shows what the job is doing, live, in headless Chromium against a real `holo serve`: a queued
+job's plan at its own options, a running job's step timeline, worker CPU and memory and the running step's log
+tail, its render's plan through the later steps; and a job stopped during encode keeps its render's plan, its
+run time and the step it stopped at.
+
+One server (one worker: a second job waits behind the first), one browser.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from service.db import Database
+from tests.service.helpers import planned_scene, wait_state
+from tests.service.test_live_api import RENDER_LOG
+from tests.service.test_web import _browser
+from tests.service.test_web_page import Page, files  # noqa: F401  (the module's bundles to upload)
+
+pytestmark = pytest.mark.slow
+
+# long enough to watch it run on 2 busy cores (the render alone takes several seconds)
+LONG_JOB = {"optics": {"resolution_hw": [192, 256]}, "frames": 2, "preset": "fast", "encoder": "sgd",
+            "iterations": 300, "name": "long one"}
+
+
+@pytest.fixture(scope="module")
+def scene(server, files) -> dict:  # noqa: F811
+    return planned_scene(server, files["demo"].read_bytes())
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = _browser()
+    yield driver
+    driver.quit()
+
+
+@pytest.fixture
+def page(browser, server, scene) -> Page:
+    browser.set_window_size(1280, 1500)
+    return Page(browser, server).sign_in()
+
+
+def _steps(page: Page) -> dict:
+    return page.js("const o = {}; for (const li of document.querySelectorAll('#steps li')) "
+                   "o[li.dataset.step] = {cls: li.className, text: li.innerText}; return o;")
+
+
+def test_a_job_cancelled_during_encode_keeps_its_plan_its_run_time_and_its_step(page, server, scene):
+    with server.client("submit") as c:
+        job = c.post("/v1/jobs", json={"scene_id": scene["id"], "name": "stopped in encode"}).json()
+        c.delete(f"/v1/jobs/{job['id']}")
+        job = c.get(f"/v1/jobs/{job['id']}").json()
+    assert job["state"] == "cancelled"
+    # as a run stopped during its encode leaves its folder and record: 39 s run, the render's plan in its log
+    db = Database(server.data_dir / "service.db")
+    row = db.get_job(job["id"])
+    db.update_job(job["id"], started_at=row["finished_at"] - 39.0)
+    folder = Path(row["artifact_dir"])
+    folder.mkdir(parents=True, exist_ok=True)
+    t0 = row["finished_at"] - 39.0
+    (folder / "render.log").write_text(RENDER_LOG)
+    (folder / "progress-render.jsonl").write_text(json.dumps({"stage": "propagate", "done": 1, "total": 1,
+                                                              "t": t0 + 30}) + "\n")
+    (folder / "step.json").write_text(json.dumps({"step": "encode", "index": 1, "t": t0 + 30.5}))
+    (folder / "encode.log").write_text("encoding 1 frame(s)\n")
+    page.go(f"#/jobs/{job['id']}")
+    page.until(lambda: page.text("job-state") == "cancelled" and page.visible("steps"), what="the cancelled job")
+    plan = page.text("plan")
+    assert "mirror reflection: 1 surface(s) (mirror_sphere)" in plan
+    assert "before its render made one" not in plan
+    assert "actual 39 s" in page.text("job-facts")
+    steps = _steps(page)
+    assert "done" in steps["render"]["cls"] and "actual 30 s" in steps["render"]["text"]
+    assert "current" in steps["encode"]["cls"] and "stopped here" in steps["encode"]["text"]
+    page.until(lambda: page.js("return document.getElementById('log-text').dataset.step") == "encode",
+               what="the encode log opened first")
+
+
+def test_a_running_job_shows_its_steps_worker_log_and_plan_live_and_a_queued_one_its_plan(page, server, scene):
+    with server.client("submit") as c:
+        long = c.post("/v1/jobs", json={"scene_id": scene["id"], **LONG_JOB}).json()
+        queued = c.post("/v1/jobs", json={"scene_id": scene["id"], "name": "behind it"}).json()
+        try:
+            page.go(f"#/jobs/{queued['id']}")
+            page.until(lambda: page.text("job-name-title") == "behind it", what="the queued job")
+            if page.text("job-state") == "queued":
+                page.until(lambda: "from its scene's plan" in page.text("plan"), what="the queued job's plan")
+                assert page.js("return document.getElementById('plan').dataset.source") == "options"
+                assert "frame(s)" in page.text("plan")
+            page.go(f"#/jobs/{long['id']}")
+            page.until(lambda: page.text("job-state") == "running" and "current" in _steps(page)
+                       .get("render", {}).get("cls", ""), what="the render running")
+            page.until(lambda: "of CPU time" in page.text("job-worker"), what="the worker's CPU and memory")
+            assert "resident memory" in page.text("job-worker")
+            page.until(lambda: page.js("return document.getElementById('log-text').dataset.live") == "1",
+                       what="the running step's log tail")
+            assert "left" in page.text("job-stage")
+            page.until(lambda: "current" in _steps(page).get("encode", {}).get("cls", ""), timeout=120,
+                       what="the encode running")
+            assert page.text("job-state") == "running"
+            assert page.js("return document.getElementById('plan').dataset.source") == "render"
+            assert "comes when it renders" not in page.text("plan")
+            render = _steps(page)["render"]
+            assert "done" in render["cls"] and "actual –" not in render["text"]
+            assert page.js("return document.getElementById('log-text').dataset.step") == "encode"
+        finally:
+            for j in (long, queued):
+                c.delete(f"/v1/jobs/{j['id']}")
+            wait_state(c, queued["id"], ("cancelled", "succeeded", "failed"))
+            time.sleep(0.2)
