@@ -18,6 +18,7 @@ import numpy as np
 
 from holocore import __version__
 from holocore.runtime.mitsuba_env import variant
+from holocore.display.profiles import display_meta
 
 __all__ = ["RenderResult", "result_meta", "display_meta_fields", "software_versions"]
 
@@ -67,8 +68,6 @@ def display_meta_fields(display: Any, optics: Any) -> dict:
     """``display_profile`` (None: optics given directly, no profile) and ``display`` for a result's meta."""
     if display is None:
         return {"display_profile": None, "display": None}
-    from holocore.display.profiles import display_meta
-
     return display_meta(display, optics)
 
 

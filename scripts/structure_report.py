@@ -6,7 +6,8 @@ columns. Run: ``.venv/bin/python scripts/structure_report.py``; it exits 1 when 
 The rules: no import cycle; an option is declared only in holocore.options (or where :data:`OPTION_COPIES`
 says why); no module over 400 lines, no function over 80 (:data:`KNOWN_LONG` would list exceptions; it is empty
 and may only stay so or shrink); no line over 120 columns; function-level imports of the project's own modules
-at most :data:`MOST_OWN_LATE_IMPORTS` (the number may only go down). ``tests/test_structure.py`` runs it.
+at most :data:`MOST_OWN_LATE_IMPORTS` (the number may only go down), and outside holo/ each of them only where
+at the top it would load a package of :data:`STARTUP_PACKAGES` its module does not load (the report names them). ``tests/test_structure.py`` runs it.
 """
 
 from __future__ import annotations
@@ -28,7 +29,12 @@ OPTION_COPIES = {
 }
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG: set[str] = set()  # none left: every module within 400 lines, every function within 80
-MOST_OWN_LATE_IMPORTS = 144
+MOST_OWN_LATE_IMPORTS = 133
+# Packages whose import a process pays for at start-up; a function-level import is kept only where, at the top, it
+# would load one of these that its module does not load already (holo's commands: where it would load holocore's
+# numerics into every `holo` command, `holo agent` on a lab PC included).
+STARTUP_PACKAGES = frozenset({"torch", "mitsuba", "drjit", "scipy", "numpy", "PIL", "skimage", "ray", "matplotlib",
+                              "fastapi", "httpx", "uvicorn", "pygame", "serial", "selenium"})
 MOST_WIDE_LINES = 0  # no line over 120 columns
 
 
@@ -74,6 +80,61 @@ def import_graph(files: list[Path], root: Path = REPO) -> tuple[dict[str, set[st
                 own_late += bool(dst)
             graph[src].update(d for d in dst if d != src)
     return graph, own_late, all_late
+
+
+def _top_imports(files: list[Path]) -> dict[str, tuple[set[str], set[str]]]:
+    """module -> (the project modules it imports at its top, outside ``if TYPE_CHECKING:``, its package parents
+    included; the start-up packages it imports there)."""
+    known = {_module(p) for p in files}
+    out = {}
+    for path in files:
+        mod = _module(path)
+        tree = ast.parse(path.read_text(), filename=str(path))
+        own = {".".join(mod.split(".")[:i]) for i in range(1, mod.count(".") + 1)} & known
+        ext: set[str] = set()
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                own |= set(_target(node.module, [a.name for a in node.names], known))
+                ext |= {node.module.split(".")[0]} & STARTUP_PACKAGES
+            elif isinstance(node, ast.Import):
+                own |= {a.name for a in node.names if a.name in known}
+                ext |= {a.name.split(".")[0] for a in node.names} & STARTUP_PACKAGES
+        out[mod] = (own, ext)
+    return out
+
+
+def late_imports_without_reason(files: list[Path]) -> tuple[list[str], dict[str, int]]:
+    """(``module:line -> target`` for each function-level import of a project module outside holo/ that would
+    load no start-up package at the top that its module does not load already, so nothing keeps it inside; how
+    many of the others defer each package)."""
+    top = _top_imports(files)
+    loads = {mod: set(ext) for mod, (_, ext) in top.items()}  # the start-up packages each module loads, closed
+    changed = True
+    while changed:
+        changed = False
+        for mod, (own, _) in top.items():
+            more = set().union(*(loads.get(m, set()) for m in own)) - loads[mod]
+            if more:
+                loads[mod] |= more
+                changed = True
+    known = set(top)
+    unneeded, deferred = [], {}
+    for path in files:
+        mod = _module(path)
+        if mod == "holo" or mod.startswith("holo."):
+            continue  # holo.app loads every command: tests/agent/test_config_hooks.py holds them light
+        for f in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(f):
+                if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    for target in _target(node.module, [a.name for a in node.names], known):
+                        extra = loads.get(target, set()) - loads[mod]
+                        if not extra:
+                            unneeded.append(f"{mod}:{node.lineno} -> {target}")
+                        for pkg in extra:
+                            deferred[pkg] = deferred.get(pkg, 0) + 1
+    return unneeded, deferred
 
 
 def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -168,6 +229,10 @@ def main() -> int:
         print(f"  {' <-> '.join(g)}")
     print(f"function-level imports: {all_late}, of the project's own modules {own_late} "
           f"(at most {MOST_OWN_LATE_IMPORTS})")
+    unneeded, deferred = late_imports_without_reason(files)
+    print("  outside holo/, each keeps a package out of its module's start-up: "
+          + ", ".join(f"{pkg} {n}" for pkg, n in sorted(deferred.items(), key=lambda kv: -kv[1]))
+          + (f"; {len(unneeded)} defer nothing: {', '.join(unneeded[:6])}" if unneeded else ""))
     print(f"modules over {MODULE_LINES} lines: {sum(n > MODULE_LINES for n, _ in modules)}; longest: "
           + ", ".join(f"{name} {n}" for n, name in modules[:5]))
     print(f"functions over {FUNCTION_LINES} lines: {sum(n > FUNCTION_LINES for n, _ in functions)}; longest: "
@@ -182,6 +247,8 @@ def main() -> int:
         broken.append(f"over the length limits and not known: {', '.join(new_long)}")
     if stale:
         broken.append(f"within the limits now, to be struck from KNOWN_LONG: {', '.join(stale)}")
+    if unneeded:
+        broken.append(f"{len(unneeded)} function-level imports that defer no start-up package: move them to the top")
     if own_late > MOST_OWN_LATE_IMPORTS:
         broken.append(f"{own_late} function-level imports of the project's modules, more than "
                       f"{MOST_OWN_LATE_IMPORTS}")

@@ -14,8 +14,8 @@ from typing import Optional, Union
 
 import numpy as np
 
-from holocore.io import NpyMember, npz_members, read_npz_meta
-from holocore.io import phase_to_u8
+from holocore.formats.meta import parse_view_meta
+from holocore.io import NpyMember, npz_members, phase_to_u8, read_npz_meta
 
 __all__ = ["SlmFieldSource", "open_slm_field"]
 
@@ -68,7 +68,6 @@ class SlmFieldSource:
 
 def open_slm_field(path: Union[str, Path], *, quantized: bool = False, equal_power: bool = False) -> SlmFieldSource:
     """A STACK.npz (phase) or RESULT.npz (slm_field) as a chunked source, reading nothing but the meta yet."""
-    from holocore.formats.meta import parse_view_meta
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"input not found: {p}")

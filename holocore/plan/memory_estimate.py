@@ -23,6 +23,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
+
 __all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
            "deepest_border_px", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
 
@@ -95,8 +97,6 @@ def plane_chain_bytes(height_px: int, width_px: int, border_px: int) -> int:
 def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> int:
     """The widest border a deeper plane can have when no plane lies more than ``depth_m`` behind the WRP:
     ``depth_m`` tan(theta_max) / p, as :meth:`holocore.plan.wrp_planes.WrpPlanes.border_px`."""
-    from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
-
     if not (math.isfinite(depth_m) and depth_m > 0):
         return 0
     t = math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD))

@@ -41,6 +41,9 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
+from holocore.plan.effects import noise_factor
+from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, features
+
 __all__ = ["QualityPrediction", "predict_quality", "predict_for", "recording_radius_px", "MIN_FITTED_SPP",
            "quality_model", "MODEL_PATH", "UNRECOGNISABLE_DB", "DEFAULT_IMAGE_Q", "PARTS"]
 
@@ -132,8 +135,6 @@ def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, e
     noise-to-signal power of its rays per pixel (:func:`holocore.plan.effects.noise_factor` rho^2 / N);
     ``iterations``: the SGD encoder's (None: its stop rule); ``image_q``: the scene's image statistic (None: a
     typical scene's); ``refracted_share``: the share of the light seen through glass (the plan's analysis)."""
-    from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS
-
     F = _check_count("frames", frames)
     if not (isinstance(noise_to_signal, (int, float)) and math.isfinite(noise_to_signal) and noise_to_signal >= 0):
         raise ValueError(f"noise_to_signal must be finite and >= 0, got {noise_to_signal!r}")
@@ -175,8 +176,6 @@ def recording_radius_px(*, noise_to_signal: float, spp: int, theta_max: float) -
     recording plane that records it (with several planes, smaller than the analysis' farthest point from the
     WRP), from the plan's noise-to-signal at its spp (holocore.plan.effects.make_plan's nsr = k rho^2 / N).
     Predictions read the noise as the jobs they were fitted on rendered it."""
-    from holocore.plan.effects import noise_factor
-
     return math.sqrt(max(0.0, float(noise_to_signal)) * max(1, int(spp)) / noise_factor(theta_max))
 
 
@@ -188,9 +187,6 @@ def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[i
     anything with ``preset``, ``spp``, ``max_spp``): the rays per pixel the preset picks for the scene's depth
     (its farthest sub-hologram radius, px; unknown: a shallow scene's, as the time estimate assumes) and their
     noise-to-signal, the optics' frames and frame-phase mode."""
-    from holocore.plan.effects import noise_factor
-    from holocore.plan.estimate import features
-
     x = features(optics, options, subhologram_radius_px=subhologram_radius_px)
     radius = optics.wrp_margin_px + 2.0 if subhologram_radius_px is None else float(subhologram_radius_px)
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Optional, Sequence
 
 from holocore.plan.quality import QualityPrediction, predict_for
+from holocore.plan.estimate import features
 
 __all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_quality", "choose_for_time",
            "alternatives_words", "FRAME_CHOICES", "SPP_CHOICES", "ITERATION_CHOICES"]
@@ -55,8 +56,6 @@ def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any,
     """Every mix of ``frames`` x ``spp`` x ``iterations`` (iterations only for SGD) with its predicted PSNR and
     ``seconds(optics, options, iterations)``. ``options`` is copied with each spp (a dataclass or a pydantic
     model or a namespace with ``spp``), ``optics`` (an OpticsConfig) with each frame count."""
-    from holocore.plan.estimate import features
-
     out = []
     its = list(iterations) if encoder == "sgd" else [None]
     for F in frames:

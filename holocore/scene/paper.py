@@ -42,6 +42,8 @@ from typing import Any
 
 import numpy as np
 
+from holocore.display.profiles import PAPER
+
 __all__ = ["PAPER_SCENES", "paper_fov_x_deg", "write_paper_scene", "scene_facts", "ball_lens_image_zc"]
 
 PAPER_SCENES = ("depth", "mirror", "glass", "glossy")
@@ -52,8 +54,6 @@ TILT_DEG = 12.0  # mirror and glossy plate: turned about y, so they reflect a po
 
 def paper_fov_x_deg() -> float:
     """The paper display's horizontal field of view, 2 atan(W p / 2f), in degrees (17.46)."""
-    from holocore.display.profiles import PAPER
-
     W = PAPER.resolution_hw[1]
     return math.degrees(2.0 * math.atan(W * PAPER.pitch_um * 1e-6 / (2.0 * PAPER.focal_length_mm * 1e-3)))
 

@@ -31,6 +31,7 @@ from fastapi import APIRouter, Request
 from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, Response
 
+from holocore.display.profiles import BUILTIN_DISPLAYS, DEFAULT_DISPLAY, OPTICS_FIELDS
 from holocore.plan import stored_plan
 from service.api.context import ServiceContext
 from service.api.deps import Ctx, ReadScope, SubmitScope
@@ -139,12 +140,6 @@ async def whoami(principal: ReadScope) -> dict:
 @router.get("/v1/display-profiles", tags=["displays"], responses=PROBLEM_RESPONSES)
 def display_profiles(principal: ReadScope) -> dict:  # noqa: ARG001
     """The built-in display profiles (holocore.display.profiles) and the optics each gives a job."""
-    from holocore.display.profiles import (
-        BUILTIN_DISPLAYS,
-        DEFAULT_DISPLAY,
-        OPTICS_FIELDS,
-    )
-
     out = []
     for p in BUILTIN_DISPLAYS.values():
         optics = {k: list(v) if isinstance(v, tuple) else v for k, v in
