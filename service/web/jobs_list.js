@@ -23,7 +23,7 @@ function estimateCells(job) {
   const est = job.estimate || {};
   const mem = est.memory || {};
   const t = job.timings || {};
-  const actual = actualSeconds(job);
+  const actual = actualSeconds(job, job.live);
   const reused = t.reused ? " (reused)" : "";
   return [
     el("td", { class: "num" }, `${fmtSeconds(est.seconds)} / ${actual === null ? "–" : fmtSeconds(actual)}${reused}`),
@@ -34,7 +34,7 @@ function estimateCells(job) {
 function progressCell(job) {
   const p = pct(job);
   const stage = job.progress && job.progress.stage ? job.progress.stage : "";
-  const left = eta(job);
+  const left = eta(job, job.live);
   return el("td", { class: "progress-cell" },
     el("progress", { max: "1", value: String(p) }),
     el("span", { class: "muted" }, ` ${Math.round(100 * p)}%${stage && !FINAL.has(job.state) ? " " + stage : ""}`),
@@ -108,8 +108,12 @@ function follow(id) {
   state.streams.set(id, ctl);
   streamEvents(`/v1/jobs/${id}/events`, (name, data) => {
     const job = state.jobs.get(id) || {};
-    if (name === "state") updateRow(data);
+    // the live view's time left (its steps' estimates at the measured pace) is kept with the job for its row
+    if (name === "state") updateRow({ ...data, live: job.live });
     else if (name === "progress") updateRow({ ...job, state: data.state, progress: data });
+    else if (name === "live") {
+      updateRow({ ...job, live: { id, state: data.state, left_s: data.left_s, elapsed_s: data.elapsed_s } });
+    }
   }, ctl.signal).catch(() => {}).finally(async () => {
     state.streams.delete(id);
     if (ctl.signal.aborted) return;

@@ -113,3 +113,22 @@ def test_a_running_job_shows_its_steps_worker_log_and_plan_live_and_a_queued_one
                 c.delete(f"/v1/jobs/{j['id']}")
             wait_state(c, queued["id"], ("cancelled", "succeeded", "failed"))
             time.sleep(0.2)
+
+
+def test_the_time_left_is_the_live_views_and_the_actual_time_never_a_dash_once_it_ran(page):
+    """A run far slower than its estimate of 40 s: the blend of estimate and overall pace said "about 28 s left"
+    where the steps still to come at the measured pace take two minutes."""
+    out = page.d.execute_async_script("""const done = arguments[arguments.length - 1];
+        import('/web/job_facts.js').then((m) => {
+          const start = new Date(Date.now() - 85000).toISOString();
+          const job = { id: 'jslow', state: 'running', started_at: start, estimate: { seconds: 40 },
+                        progress: { step: 'encode', stage: 'iterate', fraction: 0.75 } };
+          const live = { id: 'jslow', state: 'running', left_s: 120, elapsed_s: 85 };
+          const stopped = { id: 'jstop', state: 'cancelled', started_at: new Date(Date.now() - 39000).toISOString(),
+                            finished_at: new Date().toISOString(), timings: null };
+          done([m.eta(job, live), m.eta(job), m.actualSeconds(stopped),
+                m.actualSeconds({ ...job, started_at: null }, live)]);
+        }, (err) => done(String(err)));""")
+    assert out[0] == "about 2 min 0 s left (the estimate was 40 s; this run goes slower)", out
+    assert "28 s" in out[1]  # without the live view: the old blend, kept for a job no stream follows
+    assert 38.5 <= out[2] <= 40 and out[3] == 85, out
