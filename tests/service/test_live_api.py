@@ -11,7 +11,10 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
+
 from service.api.job_live import group_usage, live_doc, render_log_plan, time_left_s
+from service.workers.driver import write_render_plan
 
 RENDER_LOG = """rendered scene.xml for display paper: 1 frame(s) x 3 color(s) x 48x64, f = 50
 mm, 12,288 rays (100% with an image point), z_wrp = 82.790 mm, in 1.4 s on cpu
@@ -106,3 +109,15 @@ def test_the_workers_cpu_and_memory_are_its_process_groups():
     use = group_usage(os.getpgrp())
     assert use is not None and use["processes"] >= 1 and use["cpu_s"] > 0 and use["rss_bytes"] > 10 * 2**20
     assert group_usage(2**22 + 12345) is None
+
+
+def test_the_driver_writes_the_renders_plan_when_the_render_ends(tmp_path):
+    meta = {"plan": {"summary": ["refraction: glass_sphere"], "warnings": []}, "timings": {}}
+    np.savez(tmp_path / "result.npz", wrp_field=np.zeros((1, 1, 2, 2), np.complex64), meta=np.array(json.dumps(meta)))
+    write_render_plan(tmp_path)
+    assert json.loads((tmp_path / "plan.json").read_text()) == {"summary": ["refraction: glass_sphere"],
+                                                                "warnings": []}
+    doc = live_doc(_ctx(), _row(tmp_path, "running"))
+    assert doc["plan"]["summary"] == ["refraction: glass_sphere"] and doc["plan"]["source"] == "render"
+    (tmp_path / "result.npz").write_bytes(b"not a zip")
+    write_render_plan(tmp_path)  # a broken result leaves the plan file as it was, and fails nothing
