@@ -125,6 +125,8 @@ def step_times(row: dict, folder: Optional[Path], now: float) -> tuple[list[dict
     timings = row.get("timings") or {}
     evaluating = bool((row.get("spec") or {}).get("evaluate"))
     steps = [s for s in _STEPS if s != "evaluate" or evaluating]
+    if timings.get("reused"):
+        return [], None  # nothing ran: the result is an earlier job's
     current, current_t = _current_step(folder) if folder is not None and row.get("started_at") else (None, None)
     live = row["state"] == "running" or (row["state"] in ("failed", "cancelled") and "render_s" not in timings)
     end = now if row["state"] == "running" else (row.get("finished_at") or now)

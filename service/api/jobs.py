@@ -275,7 +275,10 @@ async def _events(request: Request, ctx: ServiceContext, job_id: str):
             out.append(_sse("progress", {"id": job_id, "state": row["state"], **(row["progress"] or {})}))
         if state_changed or (row["state"] == "running" and time.monotonic() - last_live >= 1.0):
             last_live = time.monotonic()
-            out.append(_sse("live", await run_in_threadpool(live_doc, ctx, row)))
+            try:
+                out.append(_sse("live", await run_in_threadpool(live_doc, ctx, row)))
+            except (OSError, ValueError, TypeError, KeyError):  # the job's folder mid-change: the next second's
+                pass
         if state_changed and final:
             out.append(_sse("state", job_out(row)))
         last_state, last_progress = row["state"], row["progress"]

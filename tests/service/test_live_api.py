@@ -121,3 +121,8 @@ def test_the_driver_writes_the_renders_plan_when_the_render_ends(tmp_path):
     assert doc["plan"]["summary"] == ["refraction: glass_sphere"] and doc["plan"]["source"] == "render"
     (tmp_path / "result.npz").write_bytes(b"not a zip")
     write_render_plan(tmp_path)  # a broken result leaves the plan file as it was, and fails nothing
+
+
+def test_a_reused_result_has_no_steps_of_its_own(tmp_path):
+    doc = live_doc(_ctx(), _row(tmp_path, "succeeded", timings={"reused": True}))
+    assert doc["steps"] == [] and doc["step"] is None and doc["left_s"] is None
