@@ -107,7 +107,7 @@ function renderJob(job) {
   $("timings").hidden = none;
   setText($("timings-note"), !none ? "" : t.reused ? "Reused an earlier result: nothing ran."
     : job.state === "queued" ? "Nothing has run yet."
-    : job.state === "running" ? "The steps' measured seconds come when it finishes."
+    : job.state === "running" ? "The run's own timings come when it finishes (the steps above are timed as it runs)."
     : `No step timings: the job ${job.state === "failed" ? "failed" : "was cancelled"} before it finished.`);
   renderDownloads(job);
   renderLive(live);
