@@ -45,6 +45,7 @@ from service.jobfiles import (
     Step,
     read_job_file,
 )
+from service.workers.evaluation import run_evaluation
 from service.workers.limits import ProcessLimits, current_limits, explain_limit
 
 __all__ = ["main", "EXIT_FAILED", "EXIT_RETRY", "write_json_atomic", "write_render_plan", "frames_zip",
@@ -258,8 +259,6 @@ def run_job(job_dir: Path) -> RunStatus:
     artifacts = {name: ArtifactInfo(sha256=file_sha256(job_dir / name), bytes=(job_dir / name).stat().st_size)
                  for name in ("stack.npz", "frames.zip", "preview.png") if (job_dir / name).is_file()}
     if spec.evaluate:  # the hologram stands without it: a failed evaluation is a warning unless it may be retried
-        from service.workers.evaluation import run_evaluation
-
         try:
             timings["evaluate_s"], more = run_evaluation(
                 job_dir, scene_path=spec.scene_path, meta=meta, shape_fchw=tuple(phase.shape),
