@@ -208,14 +208,29 @@ def _worker(row: dict, folder: Optional[Path]) -> Optional[dict]:
 
 
 def _tail(folder: Optional[Path], step: Optional[str], roots: list[str]) -> Optional[dict]:
+    """The running step's last log lines (``source`` "log"); while its log is still empty (a CLI prints its
+    summary at its end), its last progress lines instead, as "stage done/total" (``source`` "progress")."""
     if folder is None or step is None:
         return None
     try:
         data = read_job_tail(folder, f"{step}.log", tail_bytes=16 * 1024)[0].decode("utf-8", errors="replace")
     except OSError:
-        return None
-    lines = data.splitlines()[-TAIL_LINES:]
-    return {"step": step, "lines": [scrub_message(ln, roots=roots, limit=4000) for ln in lines]}
+        data = ""
+    lines = [ln for ln in data.splitlines() if ln.strip()][-TAIL_LINES:]
+    if lines:
+        return {"step": step, "source": "log", "lines": [scrub_message(ln, roots=roots, limit=4000) for ln in lines]}
+    try:
+        raw = read_job_tail(folder, f"progress-{step}.jsonl", tail_bytes=8192)[0].splitlines()
+    except OSError:
+        raw = []
+    out = []
+    for ln in raw[-TAIL_LINES:]:
+        try:
+            doc = json.loads(ln)
+            out.append(f"{str(doc['stage'])[:60]} {int(doc['done'])}/{int(doc['total'])}")
+        except (ValueError, KeyError, TypeError):
+            continue
+    return {"step": step, "source": "progress", "lines": out}
 
 
 def live_doc(ctx: ServiceContext, row: dict, within: Optional[float] = None) -> dict:

@@ -36,7 +36,9 @@ function renderTail(live) {
   show("logs-card", true);
   const tabs = $("log-tabs");
   if (!tabs.querySelector(`[data-live]`)) clear(tabs).append(el("span", { class: "muted", "data-live": "1" }, ""));
-  setText(tabs.querySelector("[data-live]"), `${tail.step}.log, its last ${tail.lines.length} lines, live`);
+  setText(tabs.querySelector("[data-live]"), tail.source === "progress"
+    ? `${tail.step}.log is empty so far (it is written at the step's end); its progress, live`
+    : `${tail.step}.log, its last ${tail.lines.length} lines, live`);
   const pre = $("log-text");
   const atEnd = pre.scrollTop + pre.clientHeight >= pre.scrollHeight - 4;
   setText(pre, tail.lines.length ? tail.lines.join("\n") : "(nothing yet)");

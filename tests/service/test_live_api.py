@@ -126,3 +126,13 @@ def test_the_driver_writes_the_renders_plan_when_the_render_ends(tmp_path):
 def test_a_reused_result_has_no_steps_of_its_own(tmp_path):
     doc = live_doc(_ctx(), _row(tmp_path, "succeeded", timings={"reused": True}))
     assert doc["steps"] == [] and doc["step"] is None and doc["left_s"] is None
+
+
+def test_a_step_whose_log_is_still_empty_shows_its_progress_lines(tmp_path):
+    _encoding(tmp_path / "j1", render_end_after_s=50, encode_for_s=10)
+    (tmp_path / "j1" / "encode.log").write_text("")  # `holo encode` prints its summary at its end
+    with open(tmp_path / "j1" / "progress-encode.jsonl", "a") as fh:
+        for i in (10, 20):
+            fh.write(json.dumps({"stage": "iterate", "done": i, "total": 300, "t": time.time()}) + "\n")
+    log = live_doc(_ctx(), _row(tmp_path / "j1", "running"))["log"]
+    assert log == {"step": "encode", "source": "progress", "lines": ["load 1/1", "iterate 10/300", "iterate 20/300"]}
