@@ -4,10 +4,11 @@ where the hologram is recognisable, re-run with changes, and compared side by si
 
     .venv/bin/python scripts/web_screenshots.py --out docs/screenshots [--resolution 540x960 --frames 8]
 
-Writes web-home.png (the list, the queue, the form with the scene and the estimate), web-job.png (a finished
-job's page), web-compare.png (two jobs side by side) and web-signin.png. Needs Debian's chromium and
-chromium-driver (scripts/setup.sh installs them). Takes about ten minutes on 2 cores (two renders and encodes); at 540x960 the hologram shows 8.8 degrees
-of the camera's 17.5: the mirror, its checker frame and the poster seen in it.
+Writes web-home.png (the list, the queue, the form with the scene and the estimate), web-job-running.png (the
+job's page while it runs: its plan, step timeline, worker and log tail), web-job.png (a finished job's page),
+web-compare.png (two jobs side by side) and web-signin.png. Needs Debian's chromium and chromium-driver
+(scripts/setup.sh installs them). Takes about ten minutes on 2 cores (two renders and encodes); at 540x960 the
+hologram shows 8.8 degrees of the camera's 17.5: the mirror, its checker frame and the poster seen in it.
 """
 
 from __future__ import annotations
@@ -85,7 +86,9 @@ class Shots:
     def snap(self, name: str) -> None:
         """The whole page (the window grown to the document's height), then the window put back."""
         time.sleep(0.5)  # the last pictures decoded
-        h = int(self.js("return Math.ceil(document.documentElement.scrollHeight)"))
+        # the window's height less its viewport's (headless Chromium keeps some): the page's foot is in the shot
+        h = int(self.js("return Math.ceil(document.documentElement.scrollHeight)"
+                        " + Math.max(0, window.outerHeight - window.innerHeight)"))
         self.d.set_window_size(self.width, min(max(h, 600), 4000))
         time.sleep(0.3)
         self.d.save_screenshot(str(self.out / name))
@@ -132,6 +135,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--preset", default="balanced", choices=("fast", "balanced", "reference"))
     ap.add_argument("--width", type=int, default=1440, help="the browser window's width, px")
+    ap.add_argument("--running-only", action="store_true",
+                    help="stop after web-job-running.png (and web-signin.png): the first job's render, not ten minutes")
     args = ap.parse_args(argv)
     res_hw = tuple(int(v) for v in args.resolution.lower().split("x"))
     args.out.mkdir(parents=True, exist_ok=True)
@@ -184,6 +189,15 @@ def main(argv=None) -> int:
             _options(s, res_hw, args.frames, args.preset)
             s.set("display", "lab-1")
             first = _submit(s)
+            # the job as it runs: its render's plan, the step timeline at encode, the worker, the log's tail
+            s.wait(lambda: s.js("const e = document.querySelector('#steps li.current');"
+                                "const log = document.getElementById('log-text');"
+                                "return !!e && e.dataset.step !== 'render' && !!document.getElementById("
+                                "'job-worker').innerText && log.dataset.live === '1' && log.innerText.split("
+                                "'\\n').length >= 3"), 1200)
+            s.snap("web-job-running.png")
+            if args.running_only:
+                return 0
             _finished(s)
             s.snap("web-job.png")
             # re-run with changes: half the frames (more speckle), no evaluation
