@@ -18,7 +18,7 @@ from service.api.context import ServiceContext
 from service.jobfiles import STEPS, JobSpec
 from service.untrusted import read_job_json, read_job_tail
 from service.workers.runfiles import step_weights
-from service.workers.scheduler import _pid_is_our_driver
+from service.workers.scheduler import pid_is_our_driver
 
 __all__ = ["live_doc", "render_log_plan", "group_usage", "step_times", "time_left_s", "TAIL_LINES"]
 
@@ -202,7 +202,7 @@ def group_usage(pgid: int) -> Optional[dict]:
 
 def _worker(row: dict, folder: Optional[Path]) -> Optional[dict]:
     pid = row.get("worker_pid")
-    if row["state"] != "running" or not pid or folder is None or not _pid_is_our_driver(pid, folder):
+    if row["state"] != "running" or not pid or folder is None or not pid_is_our_driver(pid, folder):
         return None
     return group_usage(pid)
 

@@ -49,14 +49,14 @@ from service.workers import admission
 from service.workers.limits import job_limits
 from service.workers.runfiles import RUN_FILES, hash_artifacts, read_progress, remove_partials
 
-__all__ = ["Scheduler"]
+__all__ = ["Scheduler", "pid_is_our_driver"]
 
 log = logging.getLogger("holo.service.scheduler")
 
 _SANDBOX_ONLY = ("scene", "home", "tmp")  # what a sandboxed run gets in its job dir, removed after it
 
 
-def _pid_is_our_driver(pid: int, job_dir: Path) -> bool:
+def pid_is_our_driver(pid: int, job_dir: Path) -> bool:
     try:
         cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
@@ -133,7 +133,7 @@ class Scheduler:
         for row in self.db.running_jobs():
             job_dir = Path(row["artifact_dir"] or self.settings.jobs_dir / row["id"])
             pid = row["worker_pid"]
-            if pid and _pid_is_our_driver(pid, job_dir):
+            if pid and pid_is_our_driver(pid, job_dir):
                 log.warning("job %s: killing the driver (pid %d) a previous server left behind", row["id"], pid)
                 kill_group(pid, grace_s=1.0)
             try:  # a sandboxed run's dir (its uids were killed in start): ours again before anything reads it

@@ -150,4 +150,4 @@ def test_agent_cli_refuses_bad_settings(tmp_path):
     assert r.returncode == 2 and "rate_hz" in r.stderr
     r = subprocess.run([*HOLO, "agent", "--server", "http://127.0.0.1:9", "--slm", "beamer"], env=env(),
                        capture_output=True, text=True, timeout=30)
-    assert r.returncode == 2 and "backend must be" in r.stderr
+    assert r.returncode == 2 and "slm driver must be one of" in r.stderr
