@@ -96,7 +96,11 @@ def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monk
         return asm(*a, **k)
 
     monkeypatch.setattr(passes, "frame_banks", tracked_banks)
-    monkeypatch.setattr(prop, "asm", spy_asm)
+    import holocore.render_setup as setup
+
+    for module in (prop, passes, setup):  # every module that holds the name
+        if hasattr(module, "asm"):
+            monkeypatch.setattr(module, "asm", spy_asm)
     optics = OpticsConfig(resolution_hw=(24, 32), frames=2, seed=3)
     pipeline.render_to_file(demo, tmp_path / "RESULT.npz", optics,
                             pipeline.RenderOptions(preset="fast", wrp_planes=1, cone_equaliser=False))
