@@ -160,6 +160,9 @@ def _picture_loaded(p: Page, prefix: str) -> bool:
 def test_the_scene_picture_and_its_fov_box_follow_the_form(page, files):  # noqa: F811
     page.upload(files["demo"])
     page.until(lambda: _picture_loaded(page, "form"), what="the scene's picture under the form")
+    # the whole display (the form starts at a preview of half its rows and columns)
+    page.js("const s = document.getElementById('size'); s.value = 'full'; "
+            "s.dispatchEvent(new Event('change', { bubbles: true }));")
     nat = page.js("const i = document.getElementById('form-scene-img'); return [i.naturalWidth, i.naturalHeight]")
     assert nat == [DEMO_FILM_HW[1], DEMO_FILM_HW[0]]  # the camera's own 256 x 192 (under 320 px wide)
     # the paper display (1920 px of 8 µm at 50 mm: 17.5 deg) sees more than the demo's 10 deg camera
