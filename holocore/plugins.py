@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import warnings
 from importlib.metadata import entry_points
-from typing import Any
+from typing import Any, Callable
 
-__all__ = ["FRAME_PHASES", "BASELINES", "discovered"]
+__all__ = ["FRAME_PHASES", "BASELINES", "discovered", "register_discovered"]
 
 FRAME_PHASES = "holocore.frame_phases"
 BASELINES = "holocore.baselines"
@@ -38,3 +38,15 @@ def discovered(group: str) -> list[tuple[str, Any]]:
             warnings.warn(f"plug-in {ep.name!r} ({ep.value}, group {group}) left out: {type(exc).__name__}: {exc}",
                           RuntimeWarning, stacklevel=2)
     return sorted(found, key=lambda item: not getattr(item[1], "__module__", "").startswith("holocore."))
+
+
+def register_discovered(group: str, register: Callable[[type], Any], base: type, what: str) -> None:
+    """Pass each class ``group``'s entry points name to ``register`` (a registry's own decorator); one that is
+    not a subclass of ``base``, or that the registry refuses (a clash of names), is left out with a warning."""
+    for name, cls in discovered(group):
+        try:
+            if not (isinstance(cls, type) and issubclass(cls, base)):
+                raise TypeError(f"{cls!r} is not a {base.__name__} subclass")
+            register(cls)
+        except (TypeError, ValueError) as exc:
+            warnings.warn(f"{what} plug-in {name!r} left out: {exc}", RuntimeWarning, stacklevel=3)

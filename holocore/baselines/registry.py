@@ -9,12 +9,11 @@ first lookup).
 
 from __future__ import annotations
 
-import warnings
 from typing import Any, ClassVar, Optional
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from holocore.plugins import BASELINES, discovered
+from holocore.plugins import BASELINES, register_discovered
 
 __all__ = ["Baseline", "BaselineOptions", "BaselineOptionsError", "register_baseline", "baseline_names",
            "get_baseline"]
@@ -92,13 +91,7 @@ def _discover() -> None:
     if _DISCOVERED:
         return
     _DISCOVERED.append(True)
-    for name, cls in discovered(BASELINES):
-        try:
-            if not isinstance(cls, type):
-                raise TypeError(f"{cls!r} is not a Baseline subclass")
-            register_baseline(cls)
-        except (TypeError, ValueError) as exc:
-            warnings.warn(f"baseline plug-in {name!r} left out: {exc}", RuntimeWarning, stacklevel=2)
+    register_discovered(BASELINES, register_baseline, Baseline, "baseline")
 
 
 def baseline_names() -> tuple[str, ...]:

@@ -20,10 +20,9 @@ nothing heavy.
 
 from __future__ import annotations
 
-import warnings
 from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
 
-from holocore.plugins import FRAME_PHASES, discovered
+from holocore.plugins import FRAME_PHASES, register_discovered
 
 if TYPE_CHECKING:  # numpy only in annotations: the API process and the agent import this module for its names
     import numpy as np
@@ -81,13 +80,7 @@ def _discover() -> None:
     if _DISCOVERED:
         return
     _DISCOVERED.append(True)  # first: a plug-in's import may ask for the modes again
-    for name, cls in discovered(FRAME_PHASES):
-        try:
-            if not (isinstance(cls, type) and issubclass(cls, FramePhases)):
-                raise TypeError(f"{cls!r} is not a FramePhases subclass")
-            register_frame_phases(cls)
-        except (TypeError, ValueError) as exc:
-            warnings.warn(f"frame-phase plug-in {name!r} left out: {exc}", RuntimeWarning, stacklevel=2)
+    register_discovered(FRAME_PHASES, register_frame_phases, FramePhases, "frame-phase")
 
 
 def frame_phase_modes() -> tuple[str, ...]:
