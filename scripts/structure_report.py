@@ -29,7 +29,7 @@ OPTION_COPIES = {
 }
 # Pieces over the limits when the limits were set; each is to be split, none may be added.
 KNOWN_LONG: set[str] = set()  # none left: every module within 400 lines, every function within 80
-MOST_OWN_LATE_IMPORTS = 133
+MOST_OWN_LATE_IMPORTS = 132
 # Packages whose import a process pays for at start-up; a function-level import is kept only where, at the top, it
 # would load one of these that its module does not load already (holo's commands: where it would load holocore's
 # numerics into every `holo` command, `holo agent` on a lab PC included).
