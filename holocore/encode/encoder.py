@@ -260,10 +260,8 @@ def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init,
     for c, lam in enumerate(lams):
         for f0 in range(0, F, chunk_frames):
             f1 = min(F, f0 + chunk_frames)
-            cb = None
-            if progress is not None and method == "sgd":
-                def cb(it, _ran=ran, _left=n_blocks - k - 1):  # noqa: E306
-                    progress("encode", _ran + it, _ran + max(expect, it) + _left * expect)
+            cb = None if progress is None or method != "sgd" else _block_progress(progress, ran, expect,
+                                                                                    left=n_blocks - k - 1)
             blk = encode_block(method, _block(t, f0, f1, c, dev), z_m=z, wavelength_m=lam, pitch_m=pitch_m,
                                supervision=sup, init=None if init is None else phi_init[f0:f1, c], progress=cb, **sgd)
             phase[f0:f1, c] = wrap_phase(blk.phase)
@@ -285,6 +283,12 @@ def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:
     if w > 1.0:
         raise ValueError(f"efficiency_weight must be in [0, 1], got {efficiency_weight!r}")
     return dict(iterations=int(iterations), lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=w)
+
+
+def _block_progress(progress: ProgressFn, ran: int, expect: int, *, left: int):
+    """A block's progress callback: its iterations after the ``ran`` of the blocks before, out of what the blocks
+    are expected to run (a block that runs longer raises the total)."""
+    return lambda it: progress("encode", ran + it, ran + max(expect, it) + left * expect)
 
 
 def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,
