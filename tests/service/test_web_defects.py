@@ -12,9 +12,7 @@ import time
 
 import pytest
 
-from tests.service.helpers import planned_scene
-from tests.service.test_web_page import Page, files  # noqa: F401  (the module's bundles to upload)
-from tests.service.test_web import _browser
+from tests.service.test_web_page import Page, browser, files, page, scene  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 
@@ -30,11 +28,6 @@ OPTION_KEYS = ("method", "wrp_planes", "preset", "frames", "spp", "render_time_l
 
 
 @pytest.fixture(scope="module")
-def scene(server, files) -> dict:  # noqa: F811
-    return planned_scene(server, files["demo"].read_bytes())
-
-
-@pytest.fixture(scope="module")
 def made_jobs(server, scene) -> dict[str, dict]:
     """The two jobs, made through the API and cancelled at once (their options are all a re-run needs)."""
     out = {}
@@ -45,19 +38,6 @@ def made_jobs(server, scene) -> dict[str, dict]:
             c.delete(f"/v1/jobs/{r.json()['id']}")
             out[key] = c.get(f"/v1/jobs/{r.json()['id']}").json()
     return out
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver = _browser()
-    yield driver
-    driver.quit()
-
-
-@pytest.fixture
-def page(browser, server, scene) -> Page:
-    browser.set_window_size(1280, 1500)
-    return Page(browser, server).sign_in()
 
 
 def _console_errors(p: Page) -> list[str]:

@@ -15,34 +15,15 @@ from pathlib import Path
 import pytest
 
 from service.db import Database
-from tests.service.helpers import planned_scene, wait_state
+from tests.service.helpers import wait_state
 from tests.service.test_live_api import RENDER_LOG
-from tests.service.test_web import _browser
-from tests.service.test_web_page import Page, files  # noqa: F401  (the module's bundles to upload)
+from tests.service.test_web_page import Page, browser, files, page, scene  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 
 # long enough to watch it run on 2 busy cores (the render alone takes several seconds)
 LONG_JOB = {"optics": {"resolution_hw": [192, 256]}, "frames": 2, "preset": "fast", "encoder": "sgd",
             "iterations": 300, "name": "long one"}
-
-
-@pytest.fixture(scope="module")
-def scene(server, files) -> dict:  # noqa: F811
-    return planned_scene(server, files["demo"].read_bytes())
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver = _browser()
-    yield driver
-    driver.quit()
-
-
-@pytest.fixture
-def page(browser, server, scene) -> Page:
-    browser.set_window_size(1280, 1500)
-    return Page(browser, server).sign_in()
 
 
 def _steps(page: Page) -> dict:

@@ -8,18 +8,12 @@ from __future__ import annotations
 
 import pytest
 
-from tests.service.test_web_page import Page, browser, files, scene  # noqa: F401 (fixtures)
+from tests.service.test_web_page import Page, browser, files, page, scene  # noqa: F401 (fixtures)
 
 # headless Chromium and three renders; tests/service/test_web_page.py drives the page
 pytestmark = pytest.mark.slow
 
 SMALL = {"optics": {"resolution_hw": [48, 64], "seed": 3}, "preset": "fast", "spp": 4, "encoder": "dpac"}
-
-
-@pytest.fixture
-def page(browser, server, scene) -> Page:  # noqa: F811
-    browser.set_window_size(1280, 1500)
-    return Page(browser, server).sign_in()
 
 
 def _circles(page: Page, panel: str, series: str) -> list[tuple[float, str]]:
