@@ -6,7 +6,7 @@
 #                                  under 4 minutes on 2 cores; the tests marked slow (@pytest.mark.slow in
 #                                  their own files) are left to the full run. Sets up only a missing environment.
 # The tests run on HOLO_TEST_WORKERS pytest-xdist workers (default 2, this project's machines' cores), a test module
-# per worker, the modules with slow tests first (tests/conftest.py); HOLO_TEST_WORKERS=0 runs them in this process.
+# per worker; HOLO_TEST_WORKERS=0 runs them in this process.
 # Other arguments go to pytest (e.g. a test file, -x, -k NAME). Output written by native code (Dr.Jit, LLVM,
 # Mitsuba) goes straight to the terminal (--capture=sys): when such code aborts the process, its own last message
 # is then in the log beside Python's traceback instead of lost with pytest's captured file descriptors.

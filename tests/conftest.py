@@ -52,13 +52,3 @@ def bundles_of(project_scene_bundles: SceneBundles) -> Callable[[str], SceneBund
                         "hidden by HOLO_NO_SHARED")
         return SceneBundles("shared", SHARED_SCENES)
     return of
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Across pytest-xdist's workers (scripts/test.sh) the test modules are handed out in collection order, a
-    module to one worker: the modules with slow tests go first, so that a long one does not start last and leave
-    the other workers idle while it runs."""
-    if not getattr(config.option, "numprocesses", None):
-        return
-    slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow)
