@@ -7,6 +7,7 @@ import { ApiError, getJSON, setUnauthorizedHandler, token } from "./api.js";
 import { $, clear, setText } from "./dom.js";
 import { leaveCompare, routeCompare } from "./compare.js";
 import { leaveJobPage, showJob } from "./job_page.js";
+import { initJobsBatch } from "./jobs_batch.js";
 import { refreshHome } from "./jobs_list.js";
 import { estimateSoon, initForm, loadProfiles, prefillRerun, resetForm } from "./submit_form.js";
 import { forgetPictures } from "./scene_picture.js";
@@ -32,7 +33,7 @@ function forgetUser() {
   resetForm();
   forgetPictures();
   for (const u of state.thumbs.values()) if (u) URL.revokeObjectURL(u);
-  for (const m of [state.scenes, state.jobs, state.shown, state.thumbs]) m.clear();
+  for (const m of [state.scenes, state.jobs, state.shown, state.thumbs, state.ticked]) m.clear();
   state.rerun = null; state.rerunPending = null;
   for (const id of ["jobs", "displays"]) clear($(id).tBodies[0]);
   clear($("sweeps-line")); show("sweeps-line", false);
@@ -87,7 +88,7 @@ function route() {
     showSweep(sw[1]).catch((err) => { if (!aborted(err)) status(`Could not show the sweep: ${err.message}`, true); });
   } else if (location.hash.startsWith("#/compare")) {
     show("home", false); show("job", false); show("compare", true);
-    if (!routeCompare(location.hash)) status("That compare address names no two jobs.", true);
+    if (!routeCompare(location.hash)) status("That compare address names no 2 to 4 jobs.", true);
   } else if (m) {
     show("home", false); show("job", true);
     showJob(m[1]).catch((err) => { if (!aborted(err)) status(`Could not show the job: ${err.message}`, true); });
@@ -110,6 +111,7 @@ function init() {
   $("refresh").addEventListener("click", () => { refreshHome(); refreshSweepsLine(); });
   initForm();
   initSweep();
+  initJobsBatch();
   window.addEventListener("hashchange", route);
   if (token.get()) start().catch(() => signedOut("Please sign in again.")); else signedOut();
 }

@@ -1,15 +1,17 @@
-// Two jobs side by side (#/compare/A/B): their focal sweeps under one focus slider, their previews, and the
-// options in which they differ. The slider runs over both sweeps' focus depths together (far to near); each
-// side shows its own picture nearest that depth, so two jobs whose sweeps differ (another scene, another
-// image volume) still compare at the same focus.
+// Two to four jobs side by side (#/compare/A/B, up to #/compare/A/B/C/D): their focal sweeps under one focus
+// slider, their previews, and the options in which they differ (one column per job). The slider runs over every
+// sweep's focus depths together (far to near); each job shows its own picture nearest that depth, so jobs whose
+// sweeps differ (another scene, another image volume) still compare at the same focus.
 
 import { blobURL, getJSON } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
 import { actualSeconds, jobName } from "./job_facts.js";
 import { sceneName } from "./jobs_list.js";
+import { COMPARE_MOST, compareHash } from "./selection.js";
 import { aborted, state, status } from "./state.js";
 
-const SIDES = ["a", "b"];
+const SIDES = ["a", "b", "c", "d"]; // the columns' id suffixes; COMPARE_MOST of them at most
+const IDS = "[A-Za-z0-9_-]{1,64}";
 // two sweeps' depths closer than this (mm), or than 1 % of the depths' span, are one slider position: a stop
 // between them would change neither side's picture
 const SAME_MM = 0.02;
@@ -41,16 +43,17 @@ function flatOptions(job) {
   return out;
 }
 
-// The rows in which the two jobs differ (an option only one of them has counts as differing), and how many
-// options they share.
-export function optionDiff(a, b) {
-  const fa = flatOptions(a), fb = flatOptions(b);
-  const keys = [...new Set([...fa.keys(), ...fb.keys()])].sort();
-  const rows = keys.filter((k) => fa.get(k) !== fb.get(k)).map((k) => [k, fa.get(k) ?? "–", fb.get(k) ?? "–"]);
+// The rows [option, value per job] in which the jobs differ (an option only some of them have counts as
+// differing), and how many options they all share.
+export function optionDiff(...jobs) {
+  const flat = jobs.map(flatOptions);
+  const keys = [...new Set(flat.flatMap((f) => [...f.keys()]))].sort();
+  const rows = keys.filter((k) => new Set(flat.map((f) => f.get(k))).size > 1)
+    .map((k) => [k, ...flat.map((f) => f.get(k) ?? "–")]);
   return { rows, same: keys.length - rows.length };
 }
 
-// The slider's positions: both sweeps' depths (mm from the SLM) in the sweeps' own order (far to near, which
+// The slider's positions: every sweep's depths (mm from the SLM) in the sweeps' own order (far to near, which
 // is falling or rising z as the display maps the scene), one position for depths closer than SAME_MM or
 // SAME_SPAN of the span.
 export function sliderDepths(sweeps) {
@@ -98,7 +101,8 @@ function renderSides(sides) {
   slider.value = String(Math.floor((depths.length - 1) / 2));
   const showFocus = () => {
     const z = depths[Number(slider.value)];
-    setText($("cmp-focus-label"), z === undefined ? "" : `both focused at ${z.toFixed(3)} mm from the SLM`);
+    const who = sides.length === 2 ? "both" : `all ${sides.length}`;
+    setText($("cmp-focus-label"), z === undefined ? "" : `${who} focused at ${z.toFixed(3)} mm from the SLM`);
     sides.forEach((side, k) => {
       const s = SIDES[k];
       if (!side.sweep.length) return;
@@ -113,42 +117,70 @@ function renderSides(sides) {
   showFocus();
 }
 
-function renderDiff(a, b) {
-  const { rows, same } = optionDiff(a, b);
+function renderDiff(jobs) {
+  const { rows, same } = optionDiff(...jobs);
+  const head = clear($("cmp-diff").tHead.rows[0]);
+  head.append(el("th", {}, "Option"),
+              ...jobs.map((j, k) => el("th", { title: j.id }, `${label(jobs.length, k)}: ${jobName(j)}`)));
   const body = clear($("cmp-diff").tBodies[0]);
-  for (const [k, va, vb] of rows) body.append(el("tr", { "data-option": k }, el("td", { class: "mono" }, k),
-                                                 el("td", {}, va), el("td", {}, vb)));
+  for (const [k, ...values] of rows) {
+    body.append(el("tr", { "data-option": k }, el("td", { class: "mono" }, k),
+                   ...values.map((v) => el("td", {}, v))));
+  }
   $("cmp-diff").hidden = rows.length === 0;
-  setText($("cmp-same"), rows.length ? `${same} other options are the same.`
-    : `The two jobs have the same options (${same}).`);
+  const all = jobs.length === 2 ? "The two jobs" : `The ${jobs.length} jobs`;
+  setText($("cmp-same"), rows.length ? `${same} other options are the same.` : `${all} have the same options (${same}).`);
+}
+
+const label = (n, k) => (n === 2 ? ["Left", "Right"][k] : `Job ${k + 1}`);
+
+// One column per job, each with its picker, name, facts, view at the slider's focus and preview.
+function buildSides(n) {
+  const box = clear($("cmp-sides"));
+  for (let k = 0; k < n; k++) {
+    const s = SIDES[k], words = label(n, k).toLowerCase();
+    box.append(el("div", { class: "compare-side", id: `cmp-side-${s}` },
+      el("label", {}, label(n, k), " ", el("select", { id: `cmp-pick-${s}` })),
+      el("h3", { id: `cmp-name-${s}` }), el("p", { id: `cmp-facts-${s}`, class: "muted" }),
+      el("p", { id: `cmp-error-${s}`, class: "error" }),
+      el("img", { id: `cmp-img-${s}`, class: "cmp-img", alt: `${words} job's view at the chosen focus` }),
+      el("p", { id: `cmp-z-${s}`, class: "muted" }),
+      n > 2 ? el("button", { type: "button", class: "small secondary", id: `cmp-drop-${s}` }, "Leave out") : null,
+      el("img", { id: `cmp-preview-${s}`, class: "cmp-img", alt: `${words} job's preview` })));
+  }
+  box.dataset.count = String(n);
 }
 
 function fillPickers(ids) {
   const jobs = [...state.jobs.values()].filter((j) => j.state === "succeeded");
   for (const id of ids) if (!jobs.some((j) => j.id === id) && state.jobs.has(id)) jobs.push(state.jobs.get(id));
-  SIDES.forEach((s, k) => {
-    const sel = clear($(`cmp-pick-${s}`));
+  const options = (sel) => {
     for (const j of jobs) sel.append(el("option", { value: j.id }, `${jobName(j)} (${j.id})`));
-    if (!jobs.some((j) => j.id === ids[k])) sel.append(el("option", { value: ids[k] }, ids[k]));
-    sel.value = ids[k];
-    sel.onchange = () => {
-      const next = [...ids];
-      next[k] = sel.value;
-      location.hash = `#/compare/${next[0]}/${next[1]}`;
-    };
+  };
+  ids.forEach((id, k) => {
+    const s = SIDES[k];
+    const sel = clear($(`cmp-pick-${s}`));
+    options(sel);
+    if (!jobs.some((j) => j.id === id)) sel.append(el("option", { value: id }, id));
+    sel.value = id;
+    sel.onchange = () => { location.hash = compareHash(ids.map((x, i) => (i === k ? sel.value : x))); };
+    const drop = $(`cmp-drop-${s}`);
+    if (drop) drop.onclick = () => { location.hash = compareHash(ids.filter((_, i) => i !== k)); };
   });
+  const add = clear($("cmp-add"));
+  add.append(el("option", { value: "" }, "choose a job"));
+  options(add);
+  add.onchange = () => { if (add.value) location.hash = compareHash([...ids, add.value]); };
+  $("cmp-more").hidden = ids.length >= COMPARE_MOST || !jobs.length;
 }
 
-// The compare page for jobs a and b; without ids, the two newest succeeded jobs.
+// The compare page for 2 to 4 jobs; without ids, the two newest succeeded jobs.
 export async function showCompare(ids) {
   leaveCompare();
   const here = { abort: new AbortController(), urls: [] };
   view = here;
-  for (const s of SIDES) {
-    $(`cmp-img-${s}`).removeAttribute("src"); $(`cmp-preview-${s}`).removeAttribute("src");
-    for (const id of ["name", "facts", "z", "error"]) setText($(`cmp-${id}-${s}`), "");
-  }
-  clear($("cmp-diff").tBodies[0]); setText($("cmp-same"), ""); setText($("cmp-focus-label"), "");
+  buildSides(ids ? ids.length : 2);
+  clear($("cmp-diff").tBodies[0]); $("cmp-more").hidden = true; setText($("cmp-same"), ""); setText($("cmp-focus-label"), "");
   if (!ids) {
     const { jobs } = await getJSON("/v1/jobs?state=succeeded&limit=100", { signal: here.abort.signal });
     for (const j of jobs) state.jobs.set(j.id, j);
@@ -175,15 +207,15 @@ export async function showCompare(ids) {
     if (side.preview) $(`cmp-preview-${s}`).src = side.preview;
   });
   const live = sides.filter(Boolean);
-  if (live.length === 2) renderDiff(live[0].job, live[1].job);
+  if (live.length >= 2) renderDiff(live.map((side) => side.job));
   renderSides(sides.map((s) => s || { sweep: [], urls: [] }));
   setText($("cmp-pupil"), live.length ? `Simulated views with a ${live[0].pupil_mm || 4} mm pupil; each job at its own white level.` : "");
 }
 
 export function routeCompare(hash) {
-  const m = /^#\/compare(?:\/([A-Za-z0-9_-]{1,64})\/([A-Za-z0-9_-]{1,64}))?$/.exec(hash);
+  const m = new RegExp(`^#/compare((?:/${IDS}){2,${COMPARE_MOST}})?$`).exec(hash);
   if (!m) return false;
-  showCompare(m[1] ? [m[1], m[2]] : null).catch((err) => { if (!aborted(err)) status(`Could not compare: ${err.message}`, true); });
+  showCompare(m[1] ? m[1].slice(1).split("/") : null).catch((err) => { if (!aborted(err)) status(`Could not compare: ${err.message}`, true); });
   return true;
 }
 

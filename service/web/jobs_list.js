@@ -4,6 +4,8 @@ import { ApiError, blobURL, getJSON, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtShortTime, fmtTime } from "./dom.js";
 import { actualSeconds, eta, jobName, optionsText, pct } from "./job_facts.js";
 import { applyJobFilters, refreshQueue } from "./job_filters.js";
+import { showJobsSelection } from "./jobs_batch.js";
+import { tickBox } from "./selection.js";
 import { FINAL, MAX_STREAMS, show, state, status } from "./state.js";
 
 export async function sceneName(id) {
@@ -51,6 +53,7 @@ function thumbCell(job) {
 function jobRow(job) {
   const scene = state.scenes.has(job.scene_id) ? state.scenes.get(job.scene_id).entry : job.scene_id;
   return el("tr", { "data-job-id": job.id, class: `state-${job.state}` },
+    el("td", { class: "pick" }, tickBox(job.id, state.ticked)),
     thumbCell(job),
     el("td", { class: "job-name" }, el("a", { href: `#/jobs/${job.id}` }, jobName(job)),
        el("div", { class: "mono muted" }, job.id)),
@@ -82,6 +85,7 @@ function updateRow(job) {
   const old = body.querySelector(`tr[data-job-id="${CSS.escape(job.id)}"]`);
   const row = jobRow(job);
   if (old) old.replaceWith(row); else body.prepend(row);
+  showJobsSelection();  // a ticked job that finished may now be deleted, no longer cancelled
 }
 
 export async function refreshHome() {
@@ -92,6 +96,7 @@ export async function refreshHome() {
     for (const j of jobs) { state.jobs.set(j.id, j); body.append(jobRow(j)); }
     show("jobs-empty", jobs.length === 0);
     applyJobFilters();
+    showJobsSelection();
     refreshQueue();
     for (const j of jobs) if (!FINAL.has(j.state)) follow(j.id);
     loadThumbs(jobs);

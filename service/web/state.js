@@ -19,6 +19,7 @@ export const state = {
   timer: null,
   shown: new Map(), // job id -> the largest fraction shown: progress never moves backwards on the page
   thumbs: new Map(), // job id -> object URL of its preview (the list's thumbnails)
+  ticked: new Set(), // the job list's ticked rows, kept while rows are redrawn (live progress, reloads)
 };
 
 export const plural = (n, one, many = `${one}s`) => `${n} ${n === 1 ? one : many}`;

@@ -1,10 +1,12 @@
 // Sweeps: the form's "Sweep" row (one option, several values: Submit then sends POST /v1/sweeps, one job per
 // value) and a sweep's page (#/sweeps/ID): its jobs, live, with Cancel all, the chart of quality and time per
-// value (sweep_chart.js), and actions on the jobs ticked in its list (cancel, delete, compare two).
+// value (sweep_chart.js), and actions on the jobs ticked in its list (selection.js: cancel, delete, compare).
 
 import { getJSON, request } from "./api.js";
 import { $, clear, el, fmtSeconds, setText } from "./dom.js";
 import { pct } from "./job_facts.js";
+import { cancelJob, compareHash, deleteJob, eachJob, secondClick, selectionActions, showSelection, skippedWords,
+         tickBox, tickedIds } from "./selection.js";
 import { sweepChart } from "./sweep_chart.js";
 import { FINAL, aborted, plural, state, status } from "./state.js";
 
@@ -106,12 +108,11 @@ function render(sweep) {
 
 function renderRows(sweep) {
   const body = $("sweep-jobs").tBodies[0];
-  const ticked = new Set([...body.querySelectorAll("input:checked")].map((b) => b.value));
+  const ticked = new Set(tickedIds($("sweep-jobs")));
   clear(body);
   const db = (v) => (typeof v === "number" ? v.toFixed(1) : "–");
   for (const j of sweep.jobs) {
-    const box = el("input", { type: "checkbox", value: j.id, "aria-label": `select ${j.id}` });
-    box.checked = ticked.has(j.id);
+    const box = tickBox(j.id, ticked);
     const frac = pct(j);
     body.append(el("tr", { dataset: { id: j.id, state: j.state } },
       el("td", {}, box),
@@ -125,25 +126,29 @@ function renderRows(sweep) {
   }
 }
 
-function selected() { return [...$("sweep-jobs").tBodies[0].querySelectorAll("input:checked")].map((b) => b.value); }
+const SELECTION = { cancel: "sweep-cancel-selected", remove: "sweep-delete-selected", compare: "sweep-compare",
+                    count: "sweep-selected" };
 
-function selectionChanged() {
-  const ids = selected();
+// The ticked jobs' records, in the table's order.
+function selectedJobs() {
   const rows = new Map(((view && view.sweep) || { jobs: [] }).jobs.map((j) => [j.id, j]));
-  const states = ids.map((id) => (rows.get(id) || {}).state);
-  $("sweep-cancel-selected").disabled = !states.some((s) => s && !FINAL.has(s));
-  $("sweep-delete-selected").disabled = !states.some((s) => FINAL.has(s));
-  $("sweep-compare").disabled = ids.length !== 2 || !states.every((s) => s === "succeeded");
-  setText($("sweep-selected"), ids.length ? `${plural(ids.length, "job")} selected` : "");
+  return tickedIds($("sweep-jobs")).map((id) => rows.get(id)).filter(Boolean);
 }
 
-// Runs `act` on each of `ids`, then says how many it did and the first refusal.
-async function eachJob(ids, act, words) {
-  let ok = 0, first = null;
-  for (const id of ids) {
-    try { await act(id); ok++; } catch (err) { first = first || `${id}: ${err.message}`; }
+function selectionChanged() { showSelection(selectedJobs(), SELECTION); }
+
+async function act(which) {
+  const jobs = selectedJobs();
+  const can = selectionActions(jobs);
+  if (which === "cancel") {
+    await eachJob(can.cancel.map((j) => j.id), cancelJob, "Cancelled",
+                  skippedWords(jobs, can.cancel, "already finished"));
+  } else {
+    const ask = `Click again to delete ${plural(can.remove.length, "finished job")} and their files`;
+    if (!secondClick($("sweep-delete-selected"), ask)) return;
+    await eachJob(can.remove.map((j) => j.id), deleteJob, "Deleted",
+                  skippedWords(jobs, can.remove, "not finished (cancel them first)"));
   }
-  status(`${words} ${plural(ok, "job")}` + (first ? `; not all: ${first}` : ""), !!first);
   if (view) { clearTimeout(view.timer); await refresh(view); }
 }
 
@@ -157,34 +162,16 @@ async function cancelAll() {
   if (view) { clearTimeout(view.timer); await refresh(view); }
 }
 
-// Delete asks twice: the first click arms the button for five seconds.
-function deleteSelected() {
-  const btn = $("sweep-delete-selected");
-  const done = selected().filter((id) => FINAL.has(((view.sweep.jobs.find((j) => j.id === id)) || {}).state));
-  if (!btn.dataset.armed) {
-    btn.dataset.armed = "1";
-    setText(btn, `Click again to delete ${plural(done.length, "finished job")} and their files`);
-    setTimeout(() => { delete btn.dataset.armed; setText(btn, "Delete selected"); }, 5000);
-    return;
-  }
-  delete btn.dataset.armed;
-  setText(btn, "Delete selected");
-  eachJob(done, (id) => request(`/v1/jobs/${id}/delete`, { method: "POST" }), "Deleted");
-}
-
 export function initSweep() {
   $("sweep-option").addEventListener("change", showSweepChoice);
   $("sweep-values").addEventListener("input", showSweepChoice);
   $("sweep-cancel").addEventListener("click", cancelAll);
   $("sweep-jobs").addEventListener("change", selectionChanged);
-  $("sweep-cancel-selected").addEventListener("click", () => {
-    const live = selected().filter((id) => !FINAL.has(((view.sweep.jobs.find((j) => j.id === id)) || {}).state));
-    eachJob(live, (id) => request(`/v1/jobs/${id}`, { method: "DELETE" }), "Cancelled");
-  });
-  $("sweep-delete-selected").addEventListener("click", deleteSelected);
+  $("sweep-cancel-selected").addEventListener("click", () => act("cancel"));
+  $("sweep-delete-selected").addEventListener("click", () => act("delete"));
   $("sweep-compare").addEventListener("click", () => {
-    const ids = selected();
-    if (ids.length === 2) location.hash = `#/compare/${ids[0]}/${ids[1]}`;
+    const jobs = selectedJobs();
+    if (selectionActions(jobs).compare) location.hash = compareHash(jobs.map((j) => j.id));
   });
   showSweepChoice();
 }
