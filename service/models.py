@@ -105,6 +105,13 @@ class Heartbeat(BaseModel):
     message: str = Field(default="", max_length=2000)
 
 
+class JobQuality(BaseModel):
+    psnr_db: float
+    source: Literal["measured", "predicted"]
+    floor_db: float = Field(description="Below this viewer-faithful PSNR a result is too poor to be useful.")
+    too_low: bool
+
+
 class JobOut(BaseModel):
     id: str
     name: Optional[str] = None
@@ -132,6 +139,12 @@ class JobOut(BaseModel):
     field_of_view_box: Optional[FieldOfViewBox] = Field(
         default=None, description="In GET /v1/jobs/{id} only: where the hologram's view lies in the scene's "
                                   "picture at the job's optics (None until the scene's plan is ready).")
+    sweep_id: Optional[str] = Field(default=None, description="In GET /v1/jobs/{id} only: the sweep that made "
+                                    "the job (GET /v1/sweeps/{id}), else None.")
+    quality: Optional[JobQuality] = Field(
+        default=None, description="The job's viewer-faithful PSNR against the level below which a hologram shows "
+                                  "speckle rather than the scene: measured once evaluated, else predicted; None for "
+                                  "a failed or cancelled job.")
     links: dict[str, str]
 
 

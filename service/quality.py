@@ -12,11 +12,13 @@ from __future__ import annotations
 from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.quality import predict_for, recording_radius_px
+from holocore.plan.quality import UNRECOGNISABLE_DB, predict_for, recording_radius_px
 from holocore.plan.quality_choice import alternatives_words, candidates, choose_for_quality, frames_upto
 from service.models import effective_optics
+from service.untrusted import read_job_json
 
-__all__ = ["job_quality", "recording_radius", "resolve_quality_target", "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
+__all__ = ["job_quality", "recording_radius", "resolve_quality_target", "measured_psnr", "quality_flag",
+           "CANDIDATE_SPP", "CANDIDATE_ITERATIONS"]
 
 # Fewer than the CLI's (holocore.plan.quality_choice): every estimate of the page's form, one per keystroke, prices
 # each candidate with the job estimate's time model.
@@ -109,3 +111,40 @@ def resolve_quality_target(req, *, scene_plan: Optional[dict], max_spp: Optional
     if not ok:
         return req.model_copy(update={"quality_db": None})
     return as_req(choose_for_quality(ok, req.quality_db))
+
+
+def measured_psnr(row: dict) -> tuple[Optional[float], Optional[str]]:
+    """(PSNR dB, "viewer" or "mean") of a succeeded job's evaluation: its viewer-faithful mean, else its mean;
+    (None, None) without one (or with one made for another stack)."""
+    spec = row["spec"] if isinstance(row["spec"], dict) else {}
+    if row["state"] != "succeeded" or not spec.get("evaluate") or not row["artifact_dir"]:
+        return None, None
+    try:
+        doc = read_job_json(row["artifact_dir"], "evaluation/index.json")
+    except (OSError, ValueError):
+        return None, None
+    if not isinstance(doc, dict) or doc.get("stack_sha256") != row["stack_sha256"]:
+        return None, None
+    viewer = doc.get("viewer") if isinstance(doc.get("viewer"), dict) else {}
+    for kind, value in (("viewer", viewer.get("mean_psnr_db")), ("mean", doc.get("mean_psnr_db"))):
+        if isinstance(value, (int, float)):
+            return float(value), kind
+    return None, None
+
+
+def quality_flag(row: dict) -> Optional[dict[str, Any]]:
+    """A job's quality against the level below which a hologram shows speckle and bands rather than the scene
+    (holocore.plan.quality.UNRECOGNISABLE_DB, the level the estimate's own warning names): the measured
+    viewer-faithful PSNR once evaluated, else the estimate's prediction; None for a job stopped before its
+    result (failed, cancelled) or without either number."""
+    if row["state"] not in ("queued", "running", "succeeded"):
+        return None
+    psnr, source = measured_psnr(row)
+    if psnr is None:
+        est = row["estimate"] if isinstance(row["estimate"], dict) else {}
+        q = est.get("quality") if isinstance(est.get("quality"), dict) else {}
+        psnr, source = (q.get("psnr_db"), "predicted") if isinstance(q.get("psnr_db"), (int, float)) else (None, None)
+    if psnr is None:
+        return None
+    return {"psnr_db": round(float(psnr), 2), "source": "measured" if source != "predicted" else "predicted",
+            "floor_db": UNRECOGNISABLE_DB, "too_low": bool(psnr < UNRECOGNISABLE_DB)}

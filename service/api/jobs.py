@@ -24,10 +24,12 @@ from service.api.files import file_response
 from service.api.job_live import live_doc
 from service.api.problems import PROBLEM_RESPONSES, ApiError
 from service.api.scenes import iso
+from service.api.sweeps import sweep_of
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.integrity import artifact_intact
 from service.models import ID_PATTERN, NAME_PATTERN, JobList, JobOut, JobRequest
+from service.quality import quality_flag
 from service.scene_view import scene_field_of_view_box
 from service.untrusted import read_job_tail
 
@@ -56,7 +58,7 @@ def job_out(row: dict) -> dict:
             "timings": row["timings"], "plan": row["plan"], "error": row["error"], "attempts": row["attempts"],
             "worker_pid": row["worker_pid"] if row["state"] == "running" else None, "estimate": row["estimate"],
             "reused_from": row["reused_from"], "cache_key": row["cache_key"], "sent_at": iso(row.get("sent_at")),
-            "links": links}
+            "quality": quality_flag(row), "links": links}
 
 
 def _accepted(row: dict, *, replayed: bool = False) -> JSONResponse:
@@ -107,7 +109,8 @@ async def get_job(ctx: Ctx, principal: ReadScope, job_id: str = PathParam(patter
     # Polled by clients and agents: answered on the event loop (indexed reads) without re-validating the
     # body against JobOut (job_out builds exactly that shape; the schema tests check it).
     row = owned_job(ctx, job_id, principal)
-    return JSONResponse({**job_out(row), "field_of_view_box": _job_fov_box(ctx, row)})
+    return JSONResponse({**job_out(row), "field_of_view_box": _job_fov_box(ctx, row),
+                         "sweep_id": sweep_of(ctx, row)})
 
 
 def _job_fov_box(ctx: ServiceContext, row: dict) -> Optional[dict]:

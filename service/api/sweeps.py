@@ -26,9 +26,9 @@ from service.api.scenes import iso
 from service.auth import Principal
 from service.db import FINAL_STATES
 from service.models import ID_PATTERN, JobRequest, SweepCreated, SweepList, SweepOut, SweepRequest
-from service.untrusted import read_job_json
+from service.quality import measured_psnr
 
-__all__ = ["router", "sweep_out"]
+__all__ = ["router", "sweep_out", "sweep_of"]
 
 router = APIRouter(tags=["sweeps"])
 _NAME_MOST = 120
@@ -125,35 +125,25 @@ def _owned(ctx: ServiceContext, sweep_id: str, principal: Principal) -> dict:
     return {**row, "doc": json.loads(row["doc"])}
 
 
-def _measured(row: dict) -> tuple[Optional[float], Optional[str]]:
-    """(PSNR dB, "viewer" or "mean") of the job's evaluation: its viewer-faithful mean, else its mean."""
-    spec = row["spec"] if isinstance(row["spec"], dict) else {}
-    if row["state"] != "succeeded" or not spec.get("evaluate") or not row["artifact_dir"]:
-        return None, None
-    try:
-        doc = read_job_json(row["artifact_dir"], "evaluation/index.json")
-    except (OSError, ValueError):
-        return None, None
-    if not isinstance(doc, dict) or doc.get("stack_sha256") != row["stack_sha256"]:
-        return None, None
-    viewer = doc.get("viewer") if isinstance(doc.get("viewer"), dict) else {}
-    for kind, value in (("viewer", viewer.get("mean_psnr_db")), ("mean", doc.get("mean_psnr_db"))):
-        if isinstance(value, (int, float)):
-            return float(value), kind
-    return None, None
-
-
 def _job_entry(row: dict, value: Any) -> dict:
     est = row["estimate"] if isinstance(row["estimate"], dict) else {}
     quality = est.get("quality") if isinstance(est.get("quality"), dict) else {}
     timings = row["timings"] if isinstance(row["timings"], dict) else {}
     spec = row["spec"] if isinstance(row["spec"], dict) else {}
-    measured, kind = _measured(row)
+    measured, kind = measured_psnr(row)
     return {"id": row["id"], "value": value, "name": spec.get("name"), "state": row["state"],
             "progress": row["progress"], "estimate_s": est.get("seconds"),
             "predicted_psnr_db": quality.get("psnr_db"), "predicted_uncertainty_db": quality.get("uncertainty_db"),
             "run_s": timings.get("run_s"), "measured_psnr_db": measured, "measured_kind": kind,
             "error": row["error"]}
+
+
+def sweep_of(ctx: ServiceContext, row: dict) -> Optional[str]:
+    """The id of the sweep that made the job (``row``), else None."""
+    # a sweep lists only jobs it made for its own owner: the job's id alone finds it
+    hit = ctx.db.one("SELECT s.id FROM sweeps s, json_each(s.doc, '$.jobs') j WHERE j.value = ? LIMIT 1",
+                     (row["id"],))
+    return hit["id"] if hit else None
 
 
 def sweep_out(ctx: ServiceContext, row: dict) -> dict:

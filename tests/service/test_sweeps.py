@@ -118,3 +118,14 @@ def test_a_value_refused_at_its_submit_leaves_no_job_of_the_sweep(svc, monkeypat
         r = c.post("/v1/sweeps", json=_sweep(sid))
         assert r.status_code == 403 and "frames=4 is refused: past what one owner may store" in r.json()["detail"]
         assert c.get("/v1/jobs").json()["jobs"] == [] and c.get("/v1/sweeps").json()["sweeps"] == []
+
+
+def test_a_job_names_the_sweep_that_made_it(svc):
+    tok = svc.token("submit", owner="alice")
+    sid = svc.scene("alice")
+    with svc.client(tok) as c:
+        made = c.post("/v1/sweeps", json=_sweep(sid, values=(1, 2))).json()
+        for jid in made["jobs"]:
+            assert c.get(f"/v1/jobs/{jid}").json()["sweep_id"] == made["id"]
+        alone = c.post("/v1/jobs", json=small(sid, frames=3)).json()
+        assert c.get(f"/v1/jobs/{alone['id']}").json()["sweep_id"] is None
