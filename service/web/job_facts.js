@@ -1,7 +1,7 @@
 // A job's facts as the list and the job page show them: its name, options, the progress shown (never moving
 // backwards) and what is left of it.
 
-import { fmtSeconds } from "./dom.js";
+import { el, fmtSeconds } from "./dom.js";
 import { plural, state } from "./state.js";
 
 // The fraction shown for a job: the largest one shown so far (a step's progress file starting over, or a
@@ -92,4 +92,17 @@ function evaluationWord(job) {
   if (noEvaluation(job)) return "no evaluation";
   return job.state === "succeeded" ? "evaluated" : job.state === "queued" || job.state === "running"
     ? "to be evaluated" : null;
+}
+
+// The flag on a result too poor to be useful: the job's viewer-faithful PSNR (the API's `quality`: measured once
+// evaluated, else predicted) below the service's one level for it (`quality.floor_db`). `long` gives the
+// words in full (the job page), else a short badge with the words in its title (the list). Null when it is fine.
+export function lowQualityFlag(job, long = false) {
+  const q = job.quality;
+  if (!q || !q.too_low) return null;
+  const measured = q.source === "measured";
+  const words = `${measured ? "measured" : "predicted"} ${q.psnr_db.toFixed(1)} dB viewer-faithful PSNR, below `
+    + `the ${q.floor_db} dB under which a hologram shows speckle and bands rather than the scene`;
+  return el("span", { class: "badge low-quality", title: words, dataset: { source: q.source } },
+    long ? `Quality too low to be useful: ${words}` : measured ? "quality too low" : "quality likely too low");
 }

@@ -6,7 +6,7 @@ import { $, clear, el, fmtBytes, fmtSeconds, fmtTime, setText } from "./dom.js";
 import { offerCompare } from "./compare.js";
 import { resetEvaluation, showEvaluation } from "./evaluation.js";
 import { offerSend, resetPhaseFrames, showPhaseFrames } from "./phase_frames.js";
-import { actualSeconds, eta, jobName, loadText, noEvaluation, pct } from "./job_facts.js";
+import { actualSeconds, eta, jobName, loadText, lowQualityFlag, noEvaluation, pct } from "./job_facts.js";
 import { renderLive } from "./job_live.js";
 import { sceneName } from "./jobs_list.js";
 import { clearJobPicture, showJobPicture } from "./scene_picture.js";
@@ -51,6 +51,13 @@ function renderJob(job) {
   const t = job.timings || {};
   const actual = actualSeconds(job, live);
   fact(dl, "State", el("span", { class: `badge ${job.state}`, id: "job-state" }, job.state));
+  const low = lowQualityFlag(job, true);
+  if (low) { low.id = "job-quality-flag"; fact(dl, "Result", low); }
+  // the sweep that made the job (GET /v1/jobs/{id} names it; the stream's updates do not repeat it)
+  const sweepId = job.sweep_id || (state.page && state.page.id === job.id ? state.page.sweepId : null);
+  if (sweepId) {
+    fact(dl, "Sweep", el("a", { href: `#/sweeps/${sweepId}`, id: "job-sweep-link" }, `made by the sweep ${sweepId}`));
+  }
   const sc = state.scenes.get(job.scene_id);
   fact(dl, "Scene", sc ? `${sc.entry} (${job.scene_id})` : job.scene_id);
   fact(dl, "Display", job.display || "–");
@@ -248,6 +255,7 @@ export async function showJob(id) {
     return;
   }
   show("timings-card", true); show("plan-card", true);
+  page.sweepId = job.sweep_id || null;
   await sceneName(job.scene_id);
   if (state.page !== page) return;
   await fetchLive(page);

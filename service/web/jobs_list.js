@@ -2,7 +2,7 @@
 
 import { ApiError, blobURL, getJSON, streamEvents } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, fmtShortTime, fmtTime } from "./dom.js";
-import { actualSeconds, eta, jobName, optionsText, pct } from "./job_facts.js";
+import { actualSeconds, eta, jobName, lowQualityFlag, optionsText, pct } from "./job_facts.js";
 import { applyJobFilters, refreshQueue } from "./job_filters.js";
 import { showJobsSelection } from "./jobs_batch.js";
 import { tickBox } from "./selection.js";
@@ -58,7 +58,8 @@ function jobRow(job) {
     el("td", { class: "job-name" }, el("a", { href: `#/jobs/${job.id}` }, jobName(job)),
        el("div", { class: "mono muted" }, job.id)),
     el("td", { class: "state" }, el("span", { class: `badge ${job.state}` }, job.state),
-       job.error ? el("div", { class: "error reason" }, job.error) : null),
+       job.error ? el("div", { class: "error reason" }, job.error) : null,
+       lowQualityFlag(job) ? el("div", { class: "quality-flag" }, lowQualityFlag(job)) : null),
     progressCell(job),
     el("td", { class: "scene-name", title: job.scene_id }, scene),
     el("td", { class: "options" }, optionsText(job)),
