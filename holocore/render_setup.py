@@ -20,6 +20,7 @@ from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
 from holocore.plan.effects import inventory, make_plan
+from holocore.plan.memory_estimate import recording_planes_bytes
 from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
@@ -68,9 +69,12 @@ class RenderOptions:
                    wrp_planes=options.wrp_planes, time_limit_s=options.render_time_limit_s, **kernel)
 
 
-def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions()) -> ScenePlan:
+def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOptions(), *,
+               memory_budget_bytes: Optional[int] = None) -> ScenePlan:
     """The effect plan and the analysis of a loaded scene, without tracing the hologram. ``field_of_view``
-    compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it."""
+    compares the hologram's view, 2 atan(W p / 2f), with the scene camera's; the plan's summary says it.
+    ``memory_budget_bytes`` (default: HOLO_MEMORY_BUDGET_MB, else 8 GiB) bounds the deeper recording planes'
+    grids: ``auto`` keeps the planes that fit, a count asked for that does not fit is a ValueError."""
     f = optics.focal_length_m(loaded.fov_x_deg)
     fov = field_of_view_report(optics, loaded.fov_x_deg, camera_film_hw=sensor_film_hw(loaded.sensor))
     hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m)
@@ -87,6 +91,7 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
         planes = choose_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin)
     else:
         planes = place_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
+    planes, planes_note = _admit_planes(planes, optics, options, theta_max, _budget(memory_budget_bytes))
     # The noise target is set by the farthest image point from the plane that records it.
     radius_px = ana.subhologram_radius_px if planes.count == 1 or not depths else \
         planes.farthest_distance_m(depths) * px_per_m
@@ -98,9 +103,39 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
-    plan = plan.model_copy(update={"summary": [*plan.summary, fov["summary"], *ignored]})
+    notes = [planes_note] if planes_note else []
+    plan = plan.model_copy(update={"summary": [*plan.summary, *notes, fov["summary"], *ignored]})
     return ScenePlan(hmap=hmap, inventory=inv, analysis=ana, plan=plan, focal_length_m=f, field_of_view=fov,
                      planes=planes)
+
+
+def _admit_planes(planes: WrpPlanes, optics: OpticsConfig, options: RenderOptions, theta_max: float,
+                  budget: int) -> tuple[WrpPlanes, Optional[str]]:
+    """The recording planes whose grids fit ``budget`` (bytes) and a line for the plan when some were dropped.
+    A deeper plane's grid grows by (z_0 - z_k) tan(theta_max) / p on each side, so a fine pitch (a wide cone,
+    a small pixel) can make it terabytes: ``auto`` drops the deepest planes until the rest fit (their points are
+    recorded on the deepest one kept, noisier but exact); a count asked for is refused with the figure."""
+    H, W = optics.resolution_hw
+
+    def need(p: WrpPlanes) -> tuple[int, int]:
+        borders = [p.border_px(k, pitch_m=optics.pitch_m, theta_max=theta_max) for k in range(p.count)]
+        return recording_planes_bytes(H, W, borders, colors=len(optics.wavelengths_m), frames=optics.frames,
+                                      ring_rows=min(H, max(1, options.tile_rays // W))), max(borders)
+
+    full, widest = need(planes)
+    if planes.count == 1 or full <= budget:
+        return planes, None
+    pitch = f"{optics.pitch_m * 1e6:g} µm"
+    if options.wrp_planes != "auto":
+        raise ValueError(f"{planes.count} wave recording planes at {pitch} pitch need about {full / 1e9:.3g} GB "
+                         f"(the deepest plane's grid is {H + 2 * widest}x{W + 2 * widest} px), more than the memory "
+                         f"budget of {budget / 2**20:.0f} MiB: use --wrp-planes auto or 1, or a coarser pitch")
+    kept = planes
+    while kept.count > 1 and need(kept)[0] > budget:
+        kept = WrpPlanes(kept.z_m[:-1], kept.margin_m)
+    return kept, (f"recording planes cut to {kept.count} of the {planes.count} auto placed: at {pitch} pitch the "
+                  f"deeper planes' grids need about {full / 1e9:.3g} GB, more than the memory budget of "
+                  f"{budget / 2**20:.0f} MiB (the points behind are recorded on the deepest plane kept)")
 
 
 @dataclass(frozen=True)
@@ -151,7 +186,7 @@ def prepare_render(loaded, optics: OpticsConfig, options: RenderOptions, *, memo
     ``t0`` (time.perf_counter) is the render's start, from which a time limit counts."""
     dev = compute_device()
     budget = _budget(memory_budget_bytes)
-    pl = plan_scene(loaded, optics, options)
+    pl = plan_scene(loaded, optics, options, memory_budget_bytes=budget)
     plan, ana, planes = pl.plan, pl.analysis, pl.planes
     timings["analysis_s"] = time.perf_counter() - t0
     if progress:

@@ -26,7 +26,7 @@ from typing import Literal
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 
 __all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
-           "deepest_border_px", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
+           "deepest_border_px", "recording_planes_bytes", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
 
 Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
@@ -92,6 +92,20 @@ def plane_chain_bytes(height_px: int, width_px: int, border_px: int) -> int:
         return 0
     grid = (height_px + 2 * border_px) * (width_px + 2 * border_px)
     return int(ASM_COPIES * 4 * grid * 8)
+
+
+def recording_planes_bytes(height_px: int, width_px: int, borders_px, *, colors: int, frames: int,
+                           ring_rows: int) -> int:
+    """Bytes the deeper recording planes hold beyond the one-plane render: the tracer's ring buffers (every
+    deeper plane's ``ring_rows`` + 2b + 1 rows of its W + 2b columns, complex64, per colour and frame of a pass;
+    holocore.trace.hologram_rays) and the chaining of the widest plane (:func:`plane_chain_bytes`). Counted
+    before anything is allocated, so that a pitch whose cone is wide (b grows as tan(theta_max) / p) is refused
+    or given fewer planes instead of asking for terabytes."""
+    deeper = [int(b) for b in list(borders_px)[1:]]
+    if not deeper:
+        return 0
+    ring = sum((ring_rows + 2 * b + 1) * (width_px + 2 * b) for b in deeper) * colors * frames * 8
+    return int(ring + plane_chain_bytes(height_px, width_px, max(deeper)))
 
 
 def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> int:
