@@ -49,6 +49,7 @@ class OpticsOptions:
     focal_length_mm: Optional[float] = None
     frames: Optional[int] = None
     fit_camera_fov: bool = False
+    scene_scale: Optional[float] = None
     seed: Optional[int] = None
     frame_phases: Optional[str] = None
     eyebox: Optional[str] = None
@@ -69,7 +70,8 @@ class OpticsOptions:
         given = {"resolution_hw": parse_hw(self.resolution) if self.resolution else None,
                  "pitch_um": self.pitch_um, "wavelengths_nm": _parse_wavelengths(self.wavelengths_nm),
                  "z_inf_mm": self.z_inf_mm, "focal_length_mm": self.focal_length_mm, "frames": self.frames,
-                 "fit_camera_fov": True if self.fit_camera_fov else None, "seed": self.seed,
+                 "fit_camera_fov": True if self.fit_camera_fov else None, "scene_scale": self.scene_scale,
+                 "seed": self.seed,
                  "frame_phases": self.frame_phases, "eyebox": self.eyebox}
         defaults = {k: v for k, v in command_defaults.items() if given.get(k) is None}
         if "resolution_hw" in defaults and isinstance(defaults["resolution_hw"], str):
@@ -125,6 +127,10 @@ OPTICS_OPTIONS: tuple[tuple[str, Any, Any], ...] = (
                                                                     "display's).")),
     ("fit_camera_fov", bool, typer.Option(False, "--fit-camera-fov", help="Derive f from the scene camera's "
                                           "field of view filling the SLM width, instead of the display's f.")),
+    ("scene_scale", Optional[float], typer.Option(None, "--scene-scale", help="Render the scene as if scaled by "
+                                                  "this about its camera (0.1: every distance a tenth), so that "
+                                                  "content modelled metres away sits where an eye focuses; the "
+                                                  "plan suggests one (docs/design.md §3).")),
     ("seed", Optional[int], typer.Option(None, "--seed", help="Seed of rays and random-phase bank.")),
     ("frame_phases", Optional[str], typer.Option(None, "--frame-phases", help="How the frames phase the image "
                                                  "points: coded (default), independent, directional, or a mode "

@@ -21,6 +21,7 @@ from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
 from holocore.plan.effects import inventory, make_plan
 from holocore.plan.memory_estimate import recording_planes_bytes
+from holocore.plan.focus_depth import focus_depth
 from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
 from holocore.plan.time_budget import SppSchedule
@@ -77,7 +78,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     grids: ``auto`` keeps the planes that fit, a count asked for that does not fit is a ValueError."""
     f = optics.focal_length_m(loaded.fov_x_deg)
     fov = field_of_view_report(optics, loaded.fov_x_deg, camera_film_hw=sensor_film_hw(loaded.sensor))
-    hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m)
+    hmap = HologramMap.from_sensor(loaded.sensor, focal_length_m=f, z_inf_m=optics.z_inf_m,
+                                  scene_scale=optics.scene_scale)
     inv = inventory(loaded.scene)
     ana = analyze(loaded.scene, hmap, wavelengths_m=list(optics.wavelengths_m), pitch_m=optics.pitch_m,
                   shape_hw=optics.resolution_hw, margin_px=optics.wrp_margin_px,
@@ -103,10 +105,12 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
+    focus = focus_depth(image_depths_holo_m=depths, z_inf_m=optics.z_inf_m, focal_length_m=f,
+                        wavelengths_m=optics.wavelengths_m, scene_scale=optics.scene_scale)
     notes = [planes_note] if planes_note else []
-    plan = plan.model_copy(update={"summary": [*plan.summary, *notes, fov["summary"], *ignored]})
+    plan = plan.model_copy(update={"summary": [*plan.summary, *notes, fov["summary"], focus.summary, *ignored]})
     return ScenePlan(hmap=hmap, inventory=inv, analysis=ana, plan=plan, focal_length_m=f, field_of_view=fov,
-                     planes=planes)
+                     planes=planes, focus=focus)
 
 
 def _admit_planes(planes: WrpPlanes, optics: OpticsConfig, options: RenderOptions, theta_max: float,

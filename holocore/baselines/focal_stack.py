@@ -298,7 +298,7 @@ def render_focal_stack(loaded: Any, optics: OpticsConfig, *, planes: Optional[in
     f = pl.focal_length_m
     timings["analysis_s"] = time.perf_counter() - t0
     base_meta = {"focal_length_m": f, "z_inf_m": optics.z_inf_m, "pitch_m": optics.pitch_m,
-                 "wavelengths_m": list(optics.wavelengths_m)}
+                 "wavelengths_m": list(optics.wavelengths_m), "scene_scale": optics.scene_scale}
     D = float(pupil_diameter_m) if pupil_diameter_m is not None else default_pupil_m(base_meta, view_deg=0.5)
     D = validate.positive("pupil_diameter_m", D, unit="")
     zs = _plane_depths(optics, ana, f, D, planes=planes, spacing_m=spacing_m, plane_z_m=plane_z_m)

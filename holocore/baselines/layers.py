@@ -78,7 +78,7 @@ def rgbd(scene: Any, hmap: Any, *, shape_hw: tuple[int, int], pitch_m: float, sp
     t = np.where(alpha > 1e-6, img[..., 4].clip(min=0.0) / np.maximum(alpha, 1e-6), 0.0)
     cols = (np.arange(W) - (W - 1) / 2.0) * p / f
     rows = ((H - 1) / 2.0 - np.arange(H)) * p / f
-    zc = t / np.sqrt(1.0 + cols[None, :] ** 2 + rows[:, None] ** 2)
+    zc = hmap.camera_length(t / np.sqrt(1.0 + cols[None, :] ** 2 + rows[:, None] ** 2))  # world t -> eye frame
     return np.ascontiguousarray(np.moveaxis(rgb, -1, 0).astype(np.float32)), zc
 
 

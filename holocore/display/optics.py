@@ -18,10 +18,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from holocore.display.phase_modes import frame_phase_modes, get_frame_phases
 
 __all__ = ["OpticsConfig", "MAX_SIDE_PX", "MAX_FRAMES", "DISPLAY_FOCAL_LENGTH_MM", "theta_max_rad", "cone_sine",
-           "common_cone_sine", "channel_of"]
+           "common_cone_sine", "channel_of", "MIN_SCENE_SCALE", "MAX_SCENE_SCALE"]
 
 MAX_SIDE_PX = 16384
 """Largest SLM or WRP side accepted, in pixels (a 16k×16k complex64 field is 2 GiB)."""
+MIN_SCENE_SCALE, MAX_SCENE_SCALE = 1e-4, 1e4
+"""The scene scales accepted (dimensionless): a metre-sized scene brought to 0.1 mm or pushed 10 km away."""
 MAX_FRAMES = 256
 """Largest number of time-multiplexed frames accepted."""
 DISPLAY_FOCAL_LENGTH_MM = 50.0
@@ -97,6 +99,12 @@ class OpticsConfig(BaseModel):
         default=None, gt=0.0, lt=180.0, allow_inf_nan=False,
         description="Horizontal field of view in degrees that fills the SLM width and so determines f; "
                     "None: f is focal_length_mm (or the camera's view with fit_camera_fov).",
+    )
+    scene_scale: float = Field(
+        default=1.0, ge=MIN_SCENE_SCALE, le=MAX_SCENE_SCALE, allow_inf_nan=False,
+        description="The scene as if scaled by this factor about its camera (0.1: every distance a tenth): depth "
+                    "in hologram space goes as 1 / scale, the view is unchanged. Brings content modelled metres "
+                    "away to where an eye accommodates (docs/design.md §3, 'Scene scale'); the plan suggests one.",
     )
     frames: int = Field(default=8, ge=1, le=MAX_FRAMES, description=f"Time-multiplexed frames (1..{MAX_FRAMES}).")
     seed: int = Field(default=0, ge=0, lt=2**63, description="Seed of every random choice (rays, phase bank).")

@@ -84,16 +84,18 @@ def thinlens_sensor(hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: fl
     f = hmap.focal_length_m
     focus = focus_distance_m(focus_z_m, focal_length_m=f, z_inf_m=hmap.z_inf_m)
     fov_deg = 2.0 * math.degrees(math.atan(W * p / (2.0 * f)))
-    # The eye moved by e in the eye-camera frame (x right, y up): a world translation, rotation unchanged.
+    # The eye moved by e in the eye-camera frame (x right, y up): a world translation, rotation unchanged. The
+    # pupil and the focus are eye-frame lengths: 1 / scene_scale of them in the world Mitsuba renders.
     m = np.array(hmap.cam_to_world, dtype=np.float64)
     m[:3, 3] = hmap.camera_to_world(np.array([ex, ey, 0.0]))
+    to_world = 1.0 / hmap.scene_scale
     return mi.load_dict({
         "type": "thinlens",
         "fov": fov_deg,
         "fov_axis": "x",
-        "aperture_radius": d / 2.0,
-        "focus_distance": focus,
-        "near_clip": float(near_clip_m),
+        "aperture_radius": d / 2.0 * to_world,
+        "focus_distance": focus * to_world,
+        "near_clip": float(near_clip_m) * min(1.0, to_world),
         "to_world": mi.ScalarTransform4f(m.tolist()),
         "sampler": {"type": "independent", "sample_count": int(spp)},
         "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"},
@@ -105,19 +107,20 @@ def thinlens_sensor(hmap: HologramMap, *, shape_hw: tuple[int, int], pitch_m: fl
 def render_ground_truth(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: float, z_inf_m: float,
                         pitch_m: float, shape_hw: tuple[int, int], focus_z_m: float, pupil_diameter_m: float,
                         view_offset_m: tuple[float, float] = (0.0, 0.0), spp: int = 256, seed: int = 0,
-                        integrator: Optional[Any] = None) -> np.ndarray:
+                        integrator: Optional[Any] = None, scene_scale: float = 1.0) -> np.ndarray:
     """Linear RGB radiance float32 [3, H, W] an eye sees (docs/design.md §7), rendered by Mitsuba.
 
     ``scene``: a Mitsuba scene; ``sensor_to_world``: its perspective sensor's 4x4 to_world matrix (the eye's
     pose); ``focal_length_m``, ``z_inf_m``, ``pitch_m`` (m) and ``shape_hw`` describe the display (a render's
     meta); focus at hologram depth ``focus_z_m`` (m), pupil ``pupil_diameter_m`` (m), eye offset
     ``view_offset_m`` (m). ``integrator``: default the scene's own (else ``path`` with 12 bounces). ``spp``
-    samples per pixel (1..65536).
+    samples per pixel (1..65536). ``scene_scale``: the render's (docs/design.md §3), from its meta.
     """
     mi = mitsuba()
     hmap = HologramMap(cam_to_world=np.asarray(sensor_to_world, dtype=np.float64),
                        focal_length_m=validate.positive("focal_length_m", focal_length_m),
-                       z_inf_m=validate.positive("z_inf_m", z_inf_m))
+                       z_inf_m=validate.positive("z_inf_m", z_inf_m),
+                       scene_scale=validate.positive("scene_scale", scene_scale))
     sensor = thinlens_sensor(hmap, shape_hw=shape_hw, pitch_m=pitch_m, focus_z_m=focus_z_m,
                              pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, spp=spp)
     if not 0 <= int(seed) < 2**31:
@@ -222,6 +225,7 @@ class GroundTruth:
         self.sensor_to_world = np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
         self.focal_length_m = meta.focal_length_m
         self.z_inf_m = meta.z_inf_m
+        self.scene_scale = meta.scene_scale
         self.pitch_m = float(meta.pitch_m)
         self.wavelengths_m = list(meta.wavelengths_m)
         self.shape_hw = (int(shape_hw[0]), int(shape_hw[1]))
@@ -245,7 +249,7 @@ class GroundTruth:
                 self.scene, sensor_to_world=self.sensor_to_world, focal_length_m=self.focal_length_m,
                 z_inf_m=self.z_inf_m, pitch_m=self.pitch_m, shape_hw=self.shape_hw, focus_z_m=focus_z_m,
                 pupil_diameter_m=pupil_diameter_m, view_offset_m=view_offset_m, spp=self.spp, seed=self.seed,
-                integrator=self.integrator)
+                integrator=self.integrator, scene_scale=self.scene_scale)
             self.seconds += time.perf_counter() - t0
         return self._cache[key]
 

@@ -87,10 +87,10 @@ def layer_spacing_m(*, pitch_m: float, wavelength_m: float) -> float:
 @recording_kernels()
 def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: float, z_inf_m: float,
                  pitch_m: float, shape_hw: tuple[int, int], spacing_m: float, z_max_m: Optional[float] = None,
-                 spp: int = 64, seed: int = 0, max_depth: int = 12) -> DepthLayers:
+                 spp: int = 64, seed: int = 0, max_depth: int = 12, scene_scale: float = 1.0) -> DepthLayers:
     """The scene's radiance split over depth layers (module docstring, step 1). Layers start at z_inf and are
     ``spacing_m`` apart up to the nearest image found (or ``z_max_m``; at most :data:`MAX_LAYERS`, the spacing
-    widened to fit)."""
+    widened to fit). ``scene_scale``: the render's (docs/design.md §3): world lengths times it for the eye."""
     import drjit as dr
 
     mi = mitsuba()
@@ -100,6 +100,7 @@ def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: flo
     p = validate.positive("pitch_m", pitch_m)
     f = validate.positive("focal_length_m", focal_length_m)
     zi = validate.positive("z_inf_m", z_inf_m)
+    scale = validate.positive("scene_scale", scene_scale)
     dz = validate.positive("spacing_m", spacing_m)
     spp = validate.integer("spp", spp, 1, MAX_GT_SPP)
     sensor = mi.load_dict({
@@ -115,7 +116,7 @@ def depth_layers(scene: Any, *, sensor_to_world: np.ndarray, focal_length_m: flo
     for first in range(0, spp, per_pass):
         n = min(per_pass, spp - first)
         z, rgb, pix, n_lost = _trace_pass(mi, dr, scene, sensor, integrator, H=H, W=W, n=n, p=p, f=f, zi=zi,
-                                          seed=int(seed) * 7919 + first)
+                                          seed=int(seed) * 7919 + first, scale=scale)
         lost += n_lost
         if out is None:  # the layers span z_inf to the nearest image the first pass saw (later ones clamp, and
             # so does the nearest 0.05 % of its samples: a grazing pencil's stray depth must not stretch the layers)
@@ -191,7 +192,7 @@ def _chain(mi, dr, scene, ray, active, key):
 
 
 def _trace_pass(mi, dr, scene, sensor, integrator, *, H: int, W: int, n: int, p: float, f: float, zi: float,
-                seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                seed: int, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """One pass of ``n`` samples per pixel: (hologram depth [S], linear RGB [3, S], pixel index [S], lost).
 
     A sample's image distance s along its first ray is where the pencil of rays that ends on its scattering
@@ -257,7 +258,7 @@ def _trace_pass(mi, dr, scene, sensor, integrator, *, H: int, W: int, n: int, p:
         far_s = pencil & (vergence <= 0.0)
         dr.scatter(zc, zc_s, sel)
         dr.scatter(far, far_s, sel)
-    zi_o, f2 = dr.opaque(mi.Float, zi), dr.opaque(mi.Float, f * f)
+    zi_o, f2 = dr.opaque(mi.Float, zi), dr.opaque(mi.Float, f * f / scale)  # zc is in world lengths here
     z = dr.select(far | (zc <= 0.0), zi_o, zi_o + f2 / dr.maximum(zc, 1e-30))
     dr.eval(rgb, z)
     rgb_np = np.array(rgb, dtype=np.float64)  # Dr.Jit gives the colour axis first: [3, S]
@@ -349,6 +350,7 @@ class WaveGroundTruth:
         self.scene = loaded.scene
         self.sensor_to_world = np.array(loaded.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
         self.focal_length_m, self.z_inf_m, self.pitch_m = m.focal_length_m, m.z_inf_m, float(m.pitch_m)
+        self.scene_scale = m.scene_scale
         self.wavelengths_m = list(m.wavelengths_m)
         self.shape_hw = (int(shape_hw[0]), int(shape_hw[1]))
         self.spp = validate.integer("spp", spp, 1, MAX_GT_SPP)
@@ -368,7 +370,7 @@ class WaveGroundTruth:
                 self.scene, sensor_to_world=self.sensor_to_world, focal_length_m=self.focal_length_m,
                 z_inf_m=self.z_inf_m, pitch_m=self.pitch_m, shape_hw=self.shape_hw,
                 spacing_m=layer_spacing_m(pitch_m=self.pitch_m, wavelength_m=min(self.wavelengths_m)),
-                spp=self.spp, seed=self.seed, max_depth=self.max_depth)
+                spp=self.spp, seed=self.seed, max_depth=self.max_depth, scene_scale=self.scene_scale)
             self.seconds += time.perf_counter() - t0
         return self._layers
 

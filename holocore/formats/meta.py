@@ -108,6 +108,8 @@ class ViewMeta(_Meta):
     z_inf_m: float = Field(ge=0, description="virtual infinity: where a point at infinity images")
     pitch_m: Union[float, tuple[float, float]] = Field(description="SLM pixel pitch, or (pitch_y, pitch_x)")
     z_wrp_m: Optional[float] = Field(default=None, gt=0)
+    scene_scale: float = Field(default=1.0, gt=0, description="the scene as if scaled by this about its camera "
+                               "(docs/design.md §3): a world length is this many times as long for the eye")
 
     @property
     def pitch_yx_m(self) -> tuple[float, float]:

@@ -161,9 +161,10 @@ def analyze(
     v = hmap.camera_dir_to_world(dirs_c)
 
     zc_first, hit = _first_surfaces(mi, scene, o, v, dirs_c)
+    zc_first = hmap.camera_length(zc_first)  # world lengths along the rays -> eye-camera depths
     integ = mi.load_dict({"type": "path", "max_depth": 4})
     res = trace_chain(scene, o, v, max_delta=max_delta, amp_spp=4, integrator=integ, seed=seed + 17)
-    zc_img_all = res.d * dirs_c[:, 2]
+    zc_img_all = hmap.camera_length(res.d) * dirs_c[:, 2]
     good = res.valid
     behind = int(np.count_nonzero(good & (zc_img_all <= 0)))
     zc_img = zc_img_all[good & (zc_img_all > 0)]

@@ -2,8 +2,8 @@
 options without loading the scene: the one answer to "the plan at these options" that a service gives before a
 job runs (its estimate, its memory, its page).
 
-Hologram depth is z_inf + f^2 / z_c (docs/design.md §3), so every depth beyond z_inf scales with (f / f_plan)^2
-(:func:`depth_scale`, written once here); a sub-hologram's radius in pixels scales with that depth and with
+Hologram depth is z_inf + f^2 / (s z_c) (docs/design.md §3, s the scene scale), so every depth beyond z_inf
+scales with (f / f_plan)^2 s_plan / s (:func:`depth_scale`, written once here); a sub-hologram's radius in pixels scales with that depth and with
 tan(theta) / pitch. Each reader returns None when the stored plan does not say (a plan from before a field was
 stored, or a plan that failed).
 
@@ -19,6 +19,7 @@ from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.display.profiles import field_of_view_report
 from holocore.options import HologramOptions
 from holocore.plan.effects import SceneInventory, make_plan
+from holocore.plan.focus_depth import focus_depth
 
 __all__ = ["stored", "depth_scale", "wrp_distance_m", "scene_depth_m", "subhologram_radius_px", "plan_at_options"]
 
@@ -36,9 +37,11 @@ def _camera_fov(plan: dict) -> Optional[float]:
 
 
 def depth_scale(plan: dict, optics: OpticsConfig) -> float:
-    """(f / f_plan)^2: how depths beyond z_inf in the plan scale to ``optics`` (KeyError, TypeError, ValueError
-    when the plan does not hold its focal length)."""
-    return (optics.focal_length_m(_camera_fov(plan)) / float(plan["focal_length_m"])) ** 2
+    """(f / f_plan)^2 s_plan / s: how depths beyond z_inf in the plan scale to ``optics`` (KeyError, TypeError,
+    ValueError when the plan does not hold its focal length; a plan from before the scene scale was at 1)."""
+    s_plan = float((plan.get("optics") or {}).get("scene_scale", 1.0))
+    return (optics.focal_length_m(_camera_fov(plan)) / float(plan["focal_length_m"])) ** 2 * s_plan / \
+        optics.scene_scale
 
 
 def _margin_m(optics: OpticsConfig) -> float:
@@ -110,10 +113,26 @@ def plan_at_options(plan: Optional[dict], optics: OpticsConfig, options: Hologra
         words += _planes_words(options)
         if _camera_fov(plan) is not None:
             words.append(field_of_view_report(optics, float(_camera_fov(plan)))["summary"])
+        words += _focus_words(plan, optics)
         words += [w for w in plan.get("summary") or [] if isinstance(w, str) and w.startswith("ignored:")]
     except _UNREADABLE:
         return None
     return {"summary": words, "source": "the scene's plan at these options"}
+
+
+def _focus_words(plan: dict, optics: OpticsConfig) -> list[str]:
+    """The plan's focus line (holocore.plan.focus_depth) with its image depths rescaled to ``optics``; none from a
+    plan that stored no depths."""
+    ana, z_inf_plan = plan.get("analysis") or {}, float(plan["optics"]["z_inf_mm"]) * 1e-3
+    depths = ana.get("image_depths_holo_m")
+    if not isinstance(depths, list):
+        return []
+    k = depth_scale(plan, optics)
+    f = optics.focal_length_m(_camera_fov(plan))
+    focus = focus_depth(image_depths_holo_m=[optics.z_inf_m + k * (float(z) - z_inf_plan) for z in depths],
+                        z_inf_m=optics.z_inf_m, focal_length_m=f, wavelengths_m=optics.wavelengths_m,
+                        scene_scale=optics.scene_scale)
+    return [focus.summary]
 
 
 def _planes_words(options: HologramOptions) -> list[str]:

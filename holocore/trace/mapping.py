@@ -36,11 +36,17 @@ def holo_to_camera_xyz(x, y, z, *, f, z_inf):
 
 @dataclass(frozen=True)
 class HologramMap:
-    """T for one sensor pose. ``cam_to_world`` is the sensor's 4x4 to_world matrix (Mitsuba convention)."""
+    """T for one sensor pose. ``cam_to_world`` is the sensor's 4x4 to_world matrix (Mitsuba convention).
+
+    ``scene_scale`` s places the scene as if scaled by s about the eye (docs/design.md §3, "Scene scale"): eye-camera
+    coordinates are s times the world's offsets from the eye, so hologram depth goes as 1 / s and the view is
+    unchanged. The world (and what Mitsuba renders in it) stays as modelled: only the map knows s. A world length
+    along a ray is s times as long in the eye-camera frame (:meth:`camera_length`)."""
 
     cam_to_world: np.ndarray
     focal_length_m: float
     z_inf_m: float
+    scene_scale: float = 1.0
 
     def __post_init__(self) -> None:
         m = np.asarray(self.cam_to_world, dtype=np.float64)
@@ -50,11 +56,14 @@ class HologramMap:
             raise ValueError(f"focal_length_m must be finite and > 0, got {self.focal_length_m}")
         if not (np.isfinite(self.z_inf_m) and self.z_inf_m > 0):
             raise ValueError(f"z_inf_m must be finite and > 0, got {self.z_inf_m}")
+        s = float(self.scene_scale)
+        if not (np.isfinite(s) and s > 0):
+            raise ValueError(f"scene_scale must be finite and > 0, got {self.scene_scale}")
         rot = m[:3, :3]
-        # Rotation part may carry a uniform scale; keep it general with a true inverse.
+        # A sensor's pose is a rotation (Mitsuba refuses scaled cameras); inverted in general all the same.
         object.__setattr__(self, "cam_to_world", m)
-        object.__setattr__(self, "_rot", rot @ _FLIP_X)  # eye-camera (xc right) -> world, linear part
-        object.__setattr__(self, "_rot_inv", np.linalg.inv(rot @ _FLIP_X))
+        object.__setattr__(self, "_rot", rot @ _FLIP_X / s)  # eye-camera (xc right) -> world, linear part
+        object.__setattr__(self, "_rot_inv", np.linalg.inv(rot @ _FLIP_X) * s)
         object.__setattr__(self, "_origin", m[:3, 3].copy())
 
     @property
@@ -73,10 +82,14 @@ class HologramMap:
         return self._origin.copy()
 
     @classmethod
-    def from_sensor(cls, sensor, *, focal_length_m: float, z_inf_m: float) -> "HologramMap":
+    def from_sensor(cls, sensor, *, focal_length_m: float, z_inf_m: float, scene_scale: float = 1.0) -> "HologramMap":
         """Build T from a Mitsuba sensor (its to_world transform)."""
         mat = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
-        return cls(cam_to_world=mat, focal_length_m=focal_length_m, z_inf_m=z_inf_m)
+        return cls(cam_to_world=mat, focal_length_m=focal_length_m, z_inf_m=z_inf_m, scene_scale=scene_scale)
+
+    def camera_length(self, world_m):
+        """A world length (m) as a length in the eye-camera frame: s times it (``scene_scale``)."""
+        return world_m * self.scene_scale
 
     # ---- eye-camera frame -----------------------------------------------------------------------------
     def world_to_camera(self, p: np.ndarray) -> np.ndarray:
