@@ -4,8 +4,8 @@ job runs (its estimate, its memory, its page).
 
 Hologram depth is z_inf + f^2 / (s z_c) (docs/design.md §3, s the scene scale), so every depth beyond z_inf
 scales with (f / f_plan)^2 s_plan / s (:func:`depth_scale`, written once here); a sub-hologram's radius in pixels
-scales with that depth and with tan(theta) / pitch. Each reader returns None when the stored plan does not say (a plan from before a field was
-stored, or a plan that failed).
+scales with that depth and with tan(theta) / pitch. Each reader returns None when the stored plan does not say
+(a plan from before a field was stored, or a plan that failed).
 
 Light: no numpy, Mitsuba or torch (the API process reads plans).
 """
