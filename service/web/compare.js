@@ -180,7 +180,8 @@ export async function showCompare(ids) {
   const here = { abort: new AbortController(), urls: [] };
   view = here;
   buildSides(ids ? ids.length : 2);
-  clear($("cmp-diff").tBodies[0]); $("cmp-more").hidden = true; setText($("cmp-same"), ""); setText($("cmp-focus-label"), "");
+  clear($("cmp-diff").tBodies[0]); $("cmp-more").hidden = true;
+  setText($("cmp-same"), ""); setText($("cmp-focus-label"), "");
   if (!ids) {
     const { jobs } = await getJSON("/v1/jobs?state=succeeded&limit=100", { signal: here.abort.signal });
     for (const j of jobs) state.jobs.set(j.id, j);

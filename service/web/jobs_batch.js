@@ -59,9 +59,12 @@ async function act(which) {
 
 export function initJobsBatch() {
   $("jobs").addEventListener("change", ticked);
-  // a filter's change hides or shows ticked rows: the buttons count the shown ones only
+  // a filter's change hides or shows ticked rows: the buttons count the shown ones only (a tick box's own input
+  // event, which comes before its change, is left to `ticked`)
   const card = $("jobs").closest("section");
-  for (const kind of ["change", "input"]) card.addEventListener(kind, () => showJobsSelection());
+  for (const kind of ["change", "input"]) {
+    card.addEventListener(kind, (ev) => { if (!$("jobs").contains(ev.target)) showJobsSelection(); });
+  }
   $(BUTTONS.cancel).addEventListener("click", () => act("cancel"));
   $(BUTTONS.remove).addEventListener("click", () => act("delete"));
   $(BUTTONS.compare).addEventListener("click", () => {
