@@ -170,6 +170,10 @@ def _print_result(m: dict, scene_name: str, profile, out: Path, console) -> None
     if mem["estimated_peak_bytes"] > mem["budget_bytes"]:
         console.print(f"  - note: the chunk plan estimates a peak of {mem['estimated_peak_bytes'] / 2**20:.0f} "
                       f"MiB, more than the budget of {mem['budget_bytes'] / 2**20:.0f} MiB")
+    dc = m.get("delta_capped") or {}
+    if dc.get("rays_capped"):
+        console.print(f"  - {dc['rays_capped_share']:.1%} of the rays ({dc['rays_capped']:,}) ran past the cap of "
+                      f"{dc['max_delta']} delta bounces (mirrors, glass) and were dropped: their light is missing")
     for line in m["plan"]["summary"]:
         console.print(f"  - {line}")
 

@@ -20,7 +20,7 @@ from holocore import __version__
 from holocore.runtime.mitsuba_env import variant
 from holocore.display.profiles import display_meta
 
-__all__ = ["RenderResult", "result_meta", "display_meta_fields", "software_versions"]
+__all__ = ["RenderResult", "result_meta", "delta_capped_meta", "display_meta_fields", "software_versions"]
 
 
 @dataclass
@@ -59,11 +59,24 @@ def result_meta(*, method: str, preset: Optional[str], loaded: Any, optics: Any,
         "focus": None if scene_plan.focus is None else json.loads(scene_plan.focus.model_dump_json()),
         **display_meta_fields(display, optics),
         "stats": stats or {},
+        "delta_capped": delta_capped_meta(stats or {}, plan),
         "timings": timings,
         "versions": software_versions(variant()),
     }
     meta.update(extra or {})
     return meta
+
+
+def delta_capped_meta(stats: dict, plan: dict) -> Optional[dict]:
+    """The rays whose delta chain (mirrors, glass) ran past the cap and were dropped: their count and share of the
+    traced rays, and the share the plan's pre-pass predicted at its cap (None: a method without the trace's
+    counts). Their share of the radiance is not known: a dropped chain never reaches the surface that lights it."""
+    if "capped" not in stats:
+        return None
+    rays = int(stats.get("rays") or 0)
+    return {"max_delta": plan.get("max_delta"), "rays_capped": int(stats["capped"]),
+            "rays_capped_share": float(stats["capped"]) / rays if rays else 0.0,
+            "prepass_capped_share": plan.get("delta_capped_share")}
 
 
 def display_meta_fields(display: Any, optics: Any) -> dict:

@@ -19,7 +19,7 @@ from holocore.optics.cone_equaliser import plane_equalisers
 from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
-from holocore.plan.effects import inventory, make_plan
+from holocore.plan.effects import capped_share, inventory, make_plan
 from holocore.plan.memory_estimate import recording_planes_bytes
 from holocore.plan.focus_depth import focus_depth
 from holocore.plan.presets import PresetName, RenderMethod
@@ -45,6 +45,7 @@ class RenderOptions:
     method: RenderMethod = "wrp"
     force_all_effects: bool = False
     tile_rays: int = 1 << 19
+    max_delta: Optional[int] = None  # the delta-bounce cap (None: the plan's), to measure what a cap drops
     # recording planes (holocore.plan.wrp_planes); "auto": from the depth
     wrp_planes: Union[int, Literal["auto"]] = "auto"
     # each pixel's rays stratified over the cone (holocore.trace.hologram_rays); False: independent
@@ -101,12 +102,16 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      colors_lit=ana.colors_lit, spp=options.spp, max_spp=options.max_spp,
                      force_all=options.force_all_effects,
                      max_delta_seen=ana.max_delta_seen, prepass_capped=ana.prepass_capped,
+                     delta_bounces=ana.delta_bounces,
                      subhologram_radius_px=radius_px, theta_max=theta_max, wrp_planes_m=list(planes.z_m),
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     focus = focus_depth(image_depths_holo_m=depths, z_inf_m=optics.z_inf_m, focal_length_m=f,
                         wavelengths_m=optics.wavelengths_m, scene_scale=optics.scene_scale)
+    if options.max_delta is not None and plan.coherent_delta:  # a cap asked for: the plan says what it drops
+        plan = plan.model_copy(update={"max_delta": int(options.max_delta),
+                                       "delta_capped_share": capped_share(ana.delta_bounces, int(options.max_delta))})
     notes = [planes_note] if planes_note else []
     plan = plan.model_copy(update={"summary": [*plan.summary, *notes, fov["summary"], focus.summary, *ignored]})
     return ScenePlan(hmap=hmap, inventory=inv, analysis=ana, plan=plan, focal_length_m=f, field_of_view=fov,

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, channel_of, theta_max_rad
+from holocore.plan.effects import DELTA_CAP_LIMIT as DELTA_PROBE_CAP
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.trace.mapping import HologramMap, camera_grid
@@ -33,6 +34,9 @@ class SceneAnalysis(BaseModel):
     image_points_behind_viewer: int
     max_delta_seen: int
     prepass_capped: int  # pre-pass rays still in a delta chain at the probe cap (a mirror hall)
+    # pre-pass rays by the delta bounces their chain needed (index k: k bounces; the last: still bouncing at the probe
+    # cap): the share a delta cap c drops is the rays past index c (holocore.plan.effects)
+    delta_bounces: list[int] = []
     colors_lit: list[bool]
     z_wrp_m: float
     z_near_holo_m: Optional[float]  # hologram depth of the nearest surface or image point
@@ -147,7 +151,7 @@ def analyze(
     shape_hw: tuple[int, int],
     margin_px: float,
     max_wrp_distance_m: float,
-    max_delta: int = 16,
+    max_delta: int = DELTA_PROBE_CAP,
     n_side: int = 64,
     seed: int = 0,
 ) -> SceneAnalysis:
@@ -194,6 +198,7 @@ def analyze(
         image_points_behind_viewer=behind,
         max_delta_seen=int(res.n_delta[res.valid].max()) if res.valid.any() else 0,
         prepass_capped=int(np.count_nonzero(res.capped)),
+        delta_bounces=_delta_bounces(res, max_delta),
         colors_lit=colors_lit,
         z_wrp_m=float(z_wrp),
         z_near_holo_m=z_near,
@@ -203,6 +208,12 @@ def analyze(
         margin_m=float(margin),
         image_depths_holo_m=depth_q,
     )
+
+
+def _delta_bounces(res, cap: int) -> list[int]:
+    """Pre-pass rays by delta bounces needed, the rays still bouncing at ``cap`` in the last bin (index cap + 1)."""
+    k = np.where(res.capped, cap + 1, np.minimum(res.n_delta, cap)).astype(np.int64)
+    return [int(v) for v in np.bincount(k, minlength=cap + 2)]
 
 
 def _first_surfaces(mi, scene, o: np.ndarray, v: np.ndarray, dirs_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

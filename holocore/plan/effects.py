@@ -21,7 +21,10 @@ from holocore.scene.features import absorbing_media, is_mixed_delta, shape_name
 
 __all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor"]
 
-MAX_DELTA_CAP = 16
+MAX_DELTA_CAP = 16  # the delta-bounce cap the surfaces' count may ask for, and a forced plan's
+DELTA_CAP_LIMIT = 32  # the most a pre-pass that sees longer chains (a mirror hall) raises it to; also its probe cap
+DELTA_LOSS_OK = 0.005  # share of rays a cap may drop before it is raised: each bounce more costs only the rays
+# still bouncing, so the cap goes up until the pre-pass's loss is below this
 
 def noise_factor(theta_max: float) -> float:
     """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
@@ -61,6 +64,8 @@ class EffectPlan(BaseModel):
 
     coherent_delta: bool
     max_delta: int
+    # share of the pre-pass rays whose delta chain runs past max_delta (dropped: their light never reaches P)
+    delta_capped_share: float = 0.0
     view_dependent: bool
     gi_depth: int
     use_cache: bool
@@ -118,18 +123,24 @@ def make_plan(
     force_all: bool = False,
     max_delta_seen: Optional[int] = None,
     prepass_capped: int = 0,
+    delta_bounces: Optional[list[int]] = None,
     subhologram_radius_px: float = 0.0,
     theta_max: float = 0.05,
     wrp_planes_m: Optional[list[float]] = None,
     wrp_planes_asked: object = 1,
     z_inf_m: float = 0.0,
 ) -> EffectPlan:
-    """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met."""
+    """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met; ``delta_bounces``:
+    its rays by the delta bounces they needed (holocore.plan.analysis), from which the cap's loss is told."""
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     p = PRESETS[preset]
     coherent, cap, words = _delta_chain(inv, force_all=force_all, max_delta_seen=max_delta_seen,
                                         prepass_capped=prepass_capped)
+    lost = capped_share(delta_bounces, cap) if coherent else 0.0
+    if coherent and delta_bounces and not force_all:
+        cap, lost, line = _raise_cap(delta_bounces, cap)
+        words.append(line)
     # Mitsuba's integrators cannot continue a path that sits inside a medium where the kernel found P: the
     # extra radiance samples are the kernel's own one sample then.
     amp_spp = 1 if inv.absorbing_media else p.amp_spp
@@ -166,7 +177,8 @@ def make_plan(
                  f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
                  f"Monte Carlo noise about {ratio:.2g}x its signal power; {amp_spp} radiance sample(s) per "
                  f"image point" + (" (absorbing media: the tracer's own)" if amp_spp < p.amp_spp else ""))
-    return EffectPlan(coherent_delta=coherent, max_delta=cap, view_dependent=view_dep, gi_depth=gi,
+    return EffectPlan(coherent_delta=coherent, max_delta=cap, delta_capped_share=lost, view_dependent=view_dep,
+                      gi_depth=gi,
                       use_cache=use_cache, cache_exact=cache_exact, colors_lit=lit, random_phase=random_phase,
                       spp=n, amp_spp=amp_spp, noise_to_signal=ratio, forced=force_all,
                       wrp_planes_m=[float(z) for z in planes],
@@ -192,7 +204,6 @@ def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Option
             cap = max(cap, max_delta_seen + 1)  # Mitsuba merges meshes that share a BSDF: trust the pre-pass
         if prepass_capped:
             cap = MAX_DELTA_CAP
-            words.append(f"mirror hall: some paths exceed {MAX_DELTA_CAP} delta bounces; they are dropped")
         cap = min(MAX_DELTA_CAP, cap)
     if inv.mirrors:
         words.append(f"mirror reflection: {len(inv.mirrors)} surface(s) ({', '.join(inv.mirrors[:4])})")
@@ -209,6 +220,26 @@ def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Option
     elif force_all and n_delta_shapes == 0:
         words.append(f"coherent delta loop forced on (cap {cap}) although the scene has no delta surface")
     return coherent, cap, words
+
+
+def capped_share(delta_bounces: Optional[list[int]], cap: int) -> float:
+    """The share of the pre-pass rays a delta cap ``cap`` drops: those that needed more bounces (0 unknown)."""
+    n = sum(delta_bounces or [])
+    return float(sum(delta_bounces[cap + 1:]) / n) if n else 0.0
+
+
+def _raise_cap(delta_bounces: list[int], cap: int) -> tuple[int, float, str]:
+    """(the cap, the share of rays it drops, the plan's line): the cap is raised while the pre-pass shows it
+    dropping more than DELTA_LOSS_OK of the rays, up to DELTA_CAP_LIMIT."""
+    lost0 = capped_share(delta_bounces, cap)
+    new = cap
+    while new < DELTA_CAP_LIMIT and capped_share(delta_bounces, new) > DELTA_LOSS_OK:
+        new += 1
+    lost = capped_share(delta_bounces, new)
+    raised = f" (raised from {cap}, which drops {lost0:.1%})" if new > cap else ""
+    tail = f"{lost:.1%} of the rays still bounce past it and are dropped (their light is lost)" if lost > 0 else \
+        "no pre-pass ray runs past it"
+    return new, lost, f"delta chains capped at {new} bounces{raised}: {tail}"
 
 
 def _planes_words(planes: list[float], *, wrp_planes_asked: object, z_inf_m: float) -> list[str]:

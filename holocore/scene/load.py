@@ -36,6 +36,11 @@ class SceneLoadError(ValueError):
     """Mitsuba could not load a checked bundle; the message names the file and line, relative to the bundle."""
 
 
+# Mitsuba's load optimisation merges the meshes that share a BSDF into one shape without an id: the plan could
+# then neither count a scene's mirrors and glass per shape nor name them by their ids, so the shapes are kept.
+_MERGE_SHAPES = False
+
+
 def preload_plugins() -> list[str]:
     """Load every plugin of Mitsuba's installation (once per process) so that no plugin name is ever resolved
     through a search path that holds a scene's folder; returns their names. The plugins are looked up with a
@@ -220,7 +225,7 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
             raise SceneLoadError(f"{_rel_name(root, entry)}: {why}")
         try:
             with _resolver_for(entry.parent):
-                scene = mi.load_string(entry_source(report))
+                scene = mi.load_string(entry_source(report), optimize=_MERGE_SHAPES)
         except RuntimeError as exc:
             raise SceneLoadError(scrub_message(f"Mitsuba could not load the scene: {exc}", roots=[entry.parent],
                                                entry_name=_rel_name(root, entry))) from None
@@ -231,7 +236,7 @@ def load_scene(path: str | Path, *, check_bundle: bool = True) -> LoadedScene:
                 raise ValueError(f"{root} holds {len(xmls)} XML files; name the scene file")
             entry_name = xmls[0].name
         entry = root / entry_name
-        scene = mi.load_file(str(entry))
+        scene = mi.load_file(str(entry), optimize=_MERGE_SHAPES)
     sensors = scene.sensors()
     if not sensors:
         raise ValueError(f"{entry} has no sensor: the hologram needs the scene's camera")
