@@ -144,14 +144,16 @@ def _grid_freqs(shape_hw: tuple[int, int], pitch_m: float) -> tuple[np.ndarray, 
 def mean_sheet_spectrum(distances_m: Sequence[float], wavelength_m: float,
                         pitch_m: float) -> Optional[np.ndarray]:
     """S of Eq. C3 on an M x M DFT grid of the lattice (float32, m^2) for image points at ``distances_m`` (m,
-    equal weights) from their plane; None when there are none or the nearest is more than ``MAX_FRESNEL`` zones
-    away (Weyl's spectrum times B, computed where it is used)."""
+    equal weights) from their plane; None when there are none or the nearest (or every distance quantile) is more
+    than ``MAX_FRESNEL`` zones away (Weyl's spectrum times B, computed where it is used)."""
     d = np.asarray(distances_m, dtype=np.float64).reshape(-1)
     d = d[np.isfinite(d) & (d > 0)]
     if d.size == 0 or _fresnel_zones(d.min(), wavelength_m, pitch_m) > MAX_FRESNEL:
         return None
     qs = np.quantile(d, (np.arange(_MAX_DISTANCES) + 0.5) / _MAX_DISTANCES)
     far = _fresnel_zones(qs, wavelength_m, pitch_m) > MAX_FRESNEL  # these count with Weyl's spectrum times B
+    if far.all():  # the nearest point alone is near (a wide cone makes every zone count huge): all far
+        return None
     size = max(_grid_size(dj, wavelength_m, pitch_m) for dj in qs[~far])
     total = np.zeros((size, size), dtype=np.float64)
     if far.any():

@@ -24,7 +24,7 @@ def _optics(pitch_um: float, resolution_hw=(16, 24)) -> OpticsConfig:
                         focal_length_mm=20.0)
 
 
-@pytest.mark.parametrize("pitch_um", [0.2, 0.25, 0.5])
+@pytest.mark.parametrize("pitch_um", [0.05, 0.2, 0.25, 0.5, 100.0])
 def test_sub_wavelength_pitch_renders_finite(pitch_um):
     res = render_loaded(scene(**DEEP), _optics(pitch_um), RenderOptions(preset="fast", spp=2))
     for arr in (res.slm_field, res.wrp_field):
@@ -37,6 +37,13 @@ def test_sub_wavelength_pitch_renders_finite(pitch_um):
 def test_extreme_pitch_plans_without_nan(pitch_um):
     pl = plan_scene(scene(**DEEP), _optics(pitch_um), RenderOptions(preset="fast"))
     assert pl.plan.spp >= 1 and np.isfinite(pl.plan.noise_to_signal)
+
+
+def test_equaliser_spectrum_with_one_near_point_among_far_ones():
+    # at 0.2 um every distance quantile lies beyond the Fresnel limit although the nearest point does not
+    from holocore.optics.cone_equaliser import mean_sheet_spectrum
+
+    assert mean_sheet_spectrum([1e-9] + [1e-3] * 99, 455e-9, 0.2e-6) is None
 
 
 def test_auto_planes_at_quarter_micron_fit_the_budget():
@@ -70,3 +77,19 @@ def test_cli_refuses_in_one_line_with_status_2(tmp_path):
     lines = [ln for ln in r.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and "GB" in lines[0], r.output
     assert not (tmp_path / "r.npz").exists()
+
+
+@pytest.mark.slow
+def test_cli_estimate_at_quarter_micron_gives_a_finite_figure(tmp_path):
+    import re
+
+    from holo.app import app
+    from holocore.scene.paper import write_paper_scene
+
+    xml = write_paper_scene("mirror", tmp_path / "mirror")
+    r = CliRunner().invoke(app, ["render", str(xml), "--out", str(tmp_path / "r.npz"), "--pitch-um", "0.25",
+                                 "--resolution", "16x24", "--frames", "1", "--estimate"],
+                           env={"HOLO_MEMORY_BUDGET_MB": "1024"})
+    assert r.exit_code == 0, r.output
+    m = re.search(r"estimated peak memory: render ([0-9.]+) GB", r.output)
+    assert m and float(m.group(1)) < 2.0, r.output
