@@ -108,7 +108,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      z_inf_m=optics.z_inf_m)
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     focus = focus_depth(image_depths_holo_m=depths, z_inf_m=optics.z_inf_m, focal_length_m=f,
-                        wavelengths_m=optics.wavelengths_m, scene_scale=optics.scene_scale)
+                        wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m,
+                        scene_scale=optics.scene_scale)
     if options.max_delta is not None and plan.coherent_delta:  # a cap asked for: the plan says what it drops
         plan = plan.model_copy(update={"max_delta": int(options.max_delta),
                                        "delta_capped_share": capped_share(ana.delta_bounces, int(options.max_delta))})

@@ -131,7 +131,7 @@ def _focus_words(plan: dict, optics: OpticsConfig) -> list[str]:
     f = optics.focal_length_m(_camera_fov(plan))
     focus = focus_depth(image_depths_holo_m=[optics.z_inf_m + k * (float(z) - z_inf_plan) for z in depths],
                         z_inf_m=optics.z_inf_m, focal_length_m=f, wavelengths_m=optics.wavelengths_m,
-                        scene_scale=optics.scene_scale)
+                        pitch_m=optics.pitch_m, scene_scale=optics.scene_scale)
     return [focus.summary]
 
 

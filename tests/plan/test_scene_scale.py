@@ -18,7 +18,7 @@ from tests.trace.scenes import T, camera
 pytestmark = pytest.mark.slow
 
 FAR_M = (20.0, 60.0)  # a card and a wall, metres from the camera: a fraction of one depth of field for the eye
-F_M = 5e-3  # an eyepiece that shows 4.4 degrees on this small SLM, so that card, wall and mirror are all in view
+F_M = 0.05  # the paper's eyepiece: 0.44 degrees on this small SLM, so the scene below is 10 cm across
 OPT = OpticsConfig(resolution_hw=(32, 48), frames=1, seed=3, focal_length_mm=F_M * 1e3)
 
 
@@ -33,10 +33,10 @@ def _world(k: float):
                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": rgb}}}
 
     mirror = {"type": "rectangle", "bsdf": {"type": "conductor"},
-              "to_world": T().translate([-0.8 * k, 0, -30.0 * k]).rotate([0, 1, 0], 20.0).scale(0.45 * k)}
+              "to_world": T().translate([-0.08 * k, 0, -30.0 * k]).rotate([0, 1, 0], 20.0).scale(0.045 * k)}
     return from_mitsuba_scene(mi.load_dict({
         "type": "scene", "sensor": camera(fov=10.0),
-        "card": glow(FAR_M[0], 0.4, 0.5, [1.0, 0.6, 0.3]), "wall": glow(FAR_M[1], 20.0, 0.0, [0.2, 0.4, 0.9]),
+        "card": glow(FAR_M[0], 0.04, 0.05, [1.0, 0.6, 0.3]), "wall": glow(FAR_M[1], 20.0, 0.0, [0.2, 0.4, 0.9]),
         "back": glow(-10.0, 40.0, 0.0, [0.3, 0.9, 0.3], turn=180.0), "mirror": mirror}))
 
 
@@ -62,7 +62,7 @@ def test_the_plan_says_the_depth_and_suggests_the_scale_that_brings_focus(scaled
     _s, big, _small = scaled_pair
     pl = plan_scene(big, OPT, RenderOptions(preset="fast"))
     f, lam, D = F_M, 516.5e-9, 4e-3
-    dof = lam / (D / (2 * f)) ** 2
+    dof = lam / min(D / (2 * f), 455.4e-9 / (2 * OPT.pitch_m)) ** 2  # the blue cone limits it, not the pupil
     # the light lies beyond the card (the panel seen in the mirror farther than the wall): f^2 / 20 m at most
     assert f * f * (1 / FAR_M[0] - 1 / FAR_M[1]) * 0.99 <= pl.focus.span_mm * 1e-3 <= f * f / FAR_M[0]
     assert pl.focus.depths_of_field == pytest.approx(pl.focus.span_mm * 1e-3 / dof, rel=1e-6)
@@ -83,7 +83,7 @@ def test_the_hologram_at_a_scale_is_the_hologram_of_the_scene_built_at_it(scaled
     assert a.meta["scene_scale"] == s and b.meta["scene_scale"] == 1.0
     fa, fb = np.asarray(a.slm_field), np.asarray(b.slm_field)
     assert np.isfinite(fa).all() and np.abs(fb).max() > 0
-    assert np.linalg.norm(fa - fb) <= 2e-3 * np.linalg.norm(fb)
+    assert np.linalg.norm(fa - fb) <= 1e-2 * np.linalg.norm(fb)  # float32 intersections at 60 m against 1.5 m
     # and not the hologram of the unscaled scene, whose image points lie 40 times nearer to infinity
     c = np.asarray(render_loaded(big, OPT, opts).slm_field)
     assert np.linalg.norm(c - fb) > 0.3 * np.linalg.norm(fb)
@@ -107,15 +107,20 @@ def test_focus_depth_words_for_deep_flat_and_empty_scenes():
     f, zi = 0.05, 0.08
     deep = [zi + f * f / z for z in np.linspace(0.5, 2.0, 64)]
     r = focus_depth(image_depths_holo_m=deep, z_inf_m=zi, focal_length_m=f, wavelengths_m=[516.5e-9],
-                    scene_scale=1.0)
+                    pitch_m=8e-6, scene_scale=1.0)
     assert r.depths_of_field > 5 and r.suggested_scene_scale is None and "--scene-scale" not in r.summary
     near_flat = [zi + f * f / 0.4 + 1e-6 * k for k in range(64)][::-1]  # a card 0.4 m away: no scale helps
     r = focus_depth(image_depths_holo_m=near_flat, z_inf_m=zi, focal_length_m=f, wavelengths_m=[516.5e-9],
-                    scene_scale=1.0)
+                    pitch_m=8e-6, scene_scale=1.0)
     assert r.depths_of_field < 1 and r.suggested_scene_scale is None and "nearly flat" in r.summary
     r = focus_depth(image_depths_holo_m=[], z_inf_m=zi, focal_length_m=f, wavelengths_m=[516.5e-9],
-                    scene_scale=1.0)
+                    pitch_m=8e-6, scene_scale=1.0)
     assert r.depths_of_field == 0 and "no light" in r.summary
+    # an eyepiece fitted to a wide camera (f = 5 mm): 0.5 m is not enough, the eye's near point is suggested
+    far = [zi + 25e-6 / z for z in np.linspace(3.0, 12.0, 64)]
+    r = focus_depth(image_depths_holo_m=far, z_inf_m=zi, focal_length_m=5e-3, wavelengths_m=[516.5e-9],
+                    pitch_m=8e-6, scene_scale=1.0)
+    assert r.suggested_scene_scale == pytest.approx(0.25 / r.near_m, rel=0.05) and "flat for this display" in r.summary
 
 
 @pytest.mark.parametrize("bad", ["0", "-1", "nan", "1e9"])
