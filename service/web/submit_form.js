@@ -4,7 +4,7 @@
 
 import { ApiError, getJSON, postJSON, request } from "./api.js";
 import { $, clear, el, fmtBytes, fmtSeconds, setText } from "./dom.js";
-import { jobName, loadText } from "./job_facts.js";
+import { loadText } from "./job_facts.js";
 import { plural, show, state } from "./state.js";
 import { clearFormPicture, refuseFormBox, showFormPicture } from "./scene_picture.js";
 import { refreshQueue } from "./job_filters.js";
@@ -75,6 +75,7 @@ function jobBody() {
   const o = { ...profile().optics };
   delete o.frames;
   o.resolution_hw = [Number($("res-h").value), Number($("res-w").value)];
+  if ($("scene-scale").value) o.scene_scale = Number($("scene-scale").value);  // else the profile's (1: as modelled)
   const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
                  encoder: $("encoder").value };
   if ($("spp").value) body.spp = Number($("spp").value);
@@ -102,6 +103,7 @@ export function forgetScene() {
   show("job-form", false); show("rerun-note", false); show("form-plan-box", false);
   $("submit-button").disabled = true;
   setText($("estimate"), ""); setText($("quality"), ""); setText($("submit-error"), "");
+  $("scene-scale").value = "";  // a scale is one scene's: the next scene's plan suggests its own
   const sel = $("profile");
   for (const o of [...sel.options]) if (o.value.startsWith("job:")) o.remove();
   if (!sel.value && state.profiles) { sel.value = state.profiles.default; applyProfile(); }
@@ -148,6 +150,10 @@ export function showScene(sc) {
        + `${(r.plugins || []).join(", ") || "–"}; effect plan: ${sc.plan_state}`));
   for (const w of [...(r.warnings || []), ...(r.ignored || [])]) info.append(el("p", { class: "warning" }, String(w)));
   if (sc.plan_error) info.append(el("p", { class: "error" }, sc.plan_error));
+  const focus = (sc.plan || {}).focus;  // holocore.plan.focus_depth: a scale that brings the scene to an eye's focus
+  const suggested = focus && focus.suggested_scene_scale;
+  $("scene-scale").placeholder = suggested ? `1 (as modelled); suggested ${suggested}` : "1 (as modelled)";
+  if (focus) info.append(el("p", { id: "scene-focus", class: suggested ? "warning" : "muted" }, focus.summary));
   showFormPicture(sc, null);
 }
 
@@ -332,45 +338,6 @@ async function submitSweep(sweep) {
   }
 }
 
-// Re-run with changes: the form takes the job's scene, optics (as a "profile" of its own) and options.
-export async function prefillRerun(job) {
-  forgetScene();
-  const sc = await getJSON(`/v1/scenes/${encodeURIComponent(job.scene_id)}`);
-  state.scenes.set(sc.id, sc);
-  state.scene = sc;
-  state.rerun = job;
-  showScene(sc);
-  const o = job.options || {};
-  const optics = o.optics || {};
-  const sel = $("profile");
-  sel.prepend(el("option", { value: `job:${job.id}` }, `as job ${jobName(job)} (${(optics.resolution_hw || []).join("x")}, `
-    + `${optics.pitch_um} µm, ${plural((optics.wavelengths_nm || []).length, "color")})`));
-  sel.value = `job:${job.id}`;
-  $("res-h").value = optics.resolution_hw[0];
-  $("res-w").value = optics.resolution_hw[1];
-  // every option the job was made with, as it was stored: submitted unchanged, the job comes out the same
-  $("frames").value = o.frames ?? optics.frames;
-  $("preset").value = o.preset;
-  $("encoder").value = o.encoder;
-  $("method").value = o.method || "wrp";
-  $("time-limit").value = o.render_time_limit_s ?? "";
-  $("spp").value = o.spp ?? "";  // a time-limited job's is its cap of rays per pixel
-  $("iterations").value = o.iterations ?? "";
-  $("quality-db").value = "";  // a target was resolved into the options above when the job was made
-  $("wrp-planes").value = String(o.wrp_planes ?? "auto");
-  $("evaluate").checked = !!o.evaluate;
-  $("display").value = job.display || "";
-  $("job-name").value = `${jobName(job)} (re-run)`.slice(0, 120);
-  setText($("rerun-note"), `Re-run of job ${jobName(job)} (${job.id}) on its scene: change what you want and submit.`);
-  show("rerun-note", true);
-  show("job-form", true);
-  $("submit").scrollIntoView();
-  if (sc.plan_state !== "ready" && sc.plan_state !== "failed") waitForPlan(sc.id);
-  estimateSoon();
-}
-
-
-// No estimate goes out after this (signing out), and none that was out comes back in.
 export function cancelEstimate() { clearTimeout(estimateTimer); estimateSeq++; }
 
 // Signing out: the form as a fresh page has it, so the next person sees nothing of this one's scene or options.
