@@ -20,7 +20,7 @@ from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
 from holocore.plan.effects import capped_share, inventory, make_plan
-from holocore.plan.memory_estimate import recording_planes_bytes
+from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, admit_planes
 from holocore.plan.focus_depth import focus_depth
 from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
@@ -44,7 +44,7 @@ class RenderOptions:
     max_spp: Optional[int] = None  # without spp: the most rays per pixel the preset may choose (a service's cap)
     method: RenderMethod = "wrp"
     force_all_effects: bool = False
-    tile_rays: int = 1 << 19
+    tile_rays: int = DEFAULT_TILE_RAYS
     max_delta: Optional[int] = None  # the delta-bounce cap (None: the plan's), to measure what a cap drops
     # recording planes (holocore.plan.wrp_planes); "auto": from the depth
     wrp_planes: Union[int, Literal["auto"]] = "auto"
@@ -121,31 +121,16 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
 
 def _admit_planes(planes: WrpPlanes, optics: OpticsConfig, options: RenderOptions, theta_max: float,
                   budget: int) -> tuple[WrpPlanes, Optional[str]]:
-    """The recording planes whose grids fit ``budget`` (bytes) and a line for the plan when some were dropped.
-    A deeper plane's grid grows by (z_0 - z_k) tan(theta_max) / p on each side, so a fine pitch (a wide cone,
-    a small pixel) can make it terabytes: ``auto`` drops the deepest planes until the rest fit (their points are
-    recorded on the deepest one kept, noisier but exact); a count asked for is refused with the figure."""
+    """The recording planes whose grids fit ``budget`` (bytes) and a line for the plan when some were dropped
+    (holocore.plan.memory_estimate.admit_planes, the rule the service admits jobs by)."""
     H, W = optics.resolution_hw
-
-    def need(p: WrpPlanes) -> tuple[int, int]:
-        borders = [p.border_px(k, pitch_m=optics.pitch_m, theta_max=theta_max) for k in range(p.count)]
-        return recording_planes_bytes(H, W, borders, colors=len(optics.wavelengths_m), frames=optics.frames,
-                                      ring_rows=min(H, max(1, options.tile_rays // W))), max(borders)
-
-    full, widest = need(planes)
-    if planes.count == 1 or full <= budget:
-        return planes, None
-    pitch = f"{optics.pitch_m * 1e6:g} µm"
-    if options.wrp_planes != "auto":
-        raise ValueError(f"{planes.count} wave recording planes at {pitch} pitch need about {full / 1e9:.3g} GB "
-                         f"(the deepest plane's grid is {H + 2 * widest}x{W + 2 * widest} px), more than the memory "
-                         f"budget of {budget / 2**20:.0f} MiB: use --wrp-planes auto or 1, or a coarser pitch")
-    kept = planes
-    while kept.count > 1 and need(kept)[0] > budget:
-        kept = WrpPlanes(kept.z_m[:-1], kept.margin_m)
-    return kept, (f"recording planes cut to {kept.count} of the {planes.count} auto placed: at {pitch} pitch the "
-                  f"deeper planes' grids need about {full / 1e9:.3g} GB, more than the memory budget of "
-                  f"{budget / 2**20:.0f} MiB (the points behind are recorded on the deepest plane kept)")
+    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta_max) for k in range(planes.count)]
+    adm = admit_planes(borders, height_px=H, width_px=W, colors=len(optics.wavelengths_m), frames=optics.frames,
+                       pitch_m=optics.pitch_m, budget_bytes=budget, auto=options.wrp_planes == "auto",
+                       tile_rays=options.tile_rays)
+    if adm.kept == planes.count:
+        return planes, adm.note
+    return WrpPlanes(planes.z_m[:adm.kept], planes.margin_m), adm.note
 
 
 @dataclass(frozen=True)

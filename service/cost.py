@@ -17,9 +17,11 @@ from holocore.plan.estimate import (
     stop_iterations,
 )
 from holocore.plan.estimate_probe import Probe, estimate_with_probe
-from holocore.plan.memory_estimate import MemoryEstimate, deepest_border_px, estimate_memory
+from holocore.plan.memory_estimate import MemoryEstimate, admit_planes, deepest_border_px, estimate_memory
 from holocore.plan.presets import MAX_WRP_PLANES, PRESETS
 from holocore.plan.stored_plan import scene_depth_m, wrp_distance_m
+from holocore.plan.stored_planes import admitted_planes
+from holocore.runtime.membudget import memory_budget_bytes
 from service.evaluation_rules import evaluation_output_bytes, evaluation_seconds, evaluation_too_small
 from service.models import JobRequest, effective_optics
 from service.quality import job_quality, recording_radius
@@ -175,25 +177,39 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
 
 def plane_border_px(req: JobRequest, *, scene_plan: Optional[dict], plan_state: str = "ready",
                     limits: Optional[JobLimits] = None) -> Optional[int]:
-    """The widest border (px) a deeper recording plane of the job can have: 0 with one plane; from the scene's
-    depth at the job's optics when its plan is ready, bounded by the plane distance limit
-    (optics.max_wrp_distance_mm, at most the service's), that bound alone when the plan failed; None while the
-    plan is pending (the scheduler asks again before the job runs) or when it does not say the depth."""
+    """The widest border (px) of the job's deeper recording planes: 0 with one plane; when its scene's plan is
+    ready, that of the planes its render will keep (holocore.plan.stored_planes: placed on the plan's image
+    depths at the job's optics, the deepest cut while they do not fit the render's memory budget,
+    HOLO_MEMORY_BUDGET_MB, which the workers inherit); a ValueError, with the CLI's line, when the plane count it
+    asks for cannot fit. A plan from before it stored its depths: bounded from the scene's depth and the plane
+    distance limit (optics.max_wrp_distance_mm, at most the service's), that bound alone when the plan failed;
+    None while the plan is pending (the scheduler asks again before the job runs) or when it does not say the
+    depth."""
     if req.method == "direct" or req.wrp_planes == 1:
         return 0
+    if plan_state in ("pending", "running"):
+        return None
     o = effective_optics(req)
+    budget = memory_budget_bytes()
+    if plan_state == "ready":
+        kept = admitted_planes(scene_plan, o, wrp_planes=req.wrp_planes, budget_bytes=budget)
+        if kept is not None:
+            return kept.widest_border_px
     bound_m = o.max_wrp_distance_mm * 1e-3
     if limits is not None:
         bound_m = min(bound_m, limits.max_wrp_distance_mm * 1e-3)
-    if plan_state in ("pending", "running"):
-        return None
     theta = max(o.theta_max(lam) for lam in o.wavelengths_m)
     if plan_state != "ready":  # the plan failed: nothing is known of the scene but the bound
         return deepest_border_px(bound_m, pitch_m=o.pitch_m, theta_max=theta)
     depth = scene_depth_m(scene_plan, o)
     if depth is None:  # a plan without the analysis (from before it was stored): not known
         return None
-    return deepest_border_px(min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
+    # where the planes' depths are not known, every deeper plane is taken at the deepest border
+    widest = deepest_border_px(min(depth, bound_m), pitch_m=o.pitch_m, theta_max=theta)
+    count = _MOST_PLANES if req.wrp_planes == "auto" else int(req.wrp_planes)
+    return admit_planes([0] + [widest] * (count - 1), height_px=o.height, width_px=o.width,
+                        colors=len(o.wavelengths_nm), frames=o.frames, pitch_m=o.pitch_m, budget_bytes=budget,
+                        auto=req.wrp_planes == "auto").widest_border_px
 
 
 def job_memory(req: JobRequest, *, plane_border: Optional[int] = 0) -> MemoryEstimate:

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Optional, Sequence
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 
 __all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
-           "deepest_border_px", "recording_planes_bytes", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
+           "deepest_border_px", "recording_planes_bytes", "admit_planes", "PlaneAdmission", "DEFAULT_TILE_RAYS",
+           "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
 
 Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
@@ -106,6 +107,55 @@ def recording_planes_bytes(height_px: int, width_px: int, borders_px, *, colors:
         return 0
     ring = sum((ring_rows + 2 * b + 1) * (width_px + 2 * b) for b in deeper) * colors * frames * 8
     return int(ring + plane_chain_bytes(height_px, width_px, max(deeper)))
+
+
+# Rays a tracer pass holds (holocore.render_setup.RenderOptions.tile_rays): the ring buffers of the deeper planes
+# hold one pass's rows of the SLM and their borders.
+DEFAULT_TILE_RAYS = 1 << 19
+
+
+@dataclass(frozen=True)
+class PlaneAdmission:
+    """The recording planes that fit a memory budget (:func:`admit_planes`): the first ``kept`` of those placed,
+    the widest border (px) among them, their bytes, and a line for the plan when planes were dropped."""
+
+    kept: int
+    widest_border_px: int
+    bytes: int
+    note: Optional[str] = None
+
+
+def admit_planes(borders_px: Sequence[int], *, height_px: int, width_px: int, colors: int, frames: int,
+                 pitch_m: float, budget_bytes: int, auto: bool, tile_rays: int = DEFAULT_TILE_RAYS) -> PlaneAdmission:
+    """The recording planes placed front to back with these borders (plane 0, the WRP, first) that fit
+    ``budget_bytes``, by :func:`recording_planes_bytes`. A deeper plane's grid grows by (z_0 - z_k) tan(theta_max)
+    / p on each side, so a fine pitch (a wide cone, a small pixel) can make it terabytes: ``auto`` drops the
+    deepest planes until the rest fit (their points are recorded on the deepest one kept, noisier but exact); a
+    count asked for (``auto`` False) that does not fit is a ValueError with the figure, in one line. The CLI's
+    render and the service's admission both ask this, so they keep and refuse the same planes."""
+    borders = [int(b) for b in borders_px]
+    ring_rows = min(height_px, max(1, tile_rays // width_px))
+
+    def need(n: int) -> int:
+        return recording_planes_bytes(height_px, width_px, borders[:n], colors=colors, frames=frames,
+                                      ring_rows=ring_rows)
+
+    full = need(len(borders))
+    if len(borders) <= 1 or full <= budget_bytes:
+        return PlaneAdmission(len(borders), max(borders, default=0), full)
+    pitch, widest = f"{pitch_m * 1e6:g} µm", max(borders)
+    if not auto:
+        raise ValueError(f"{len(borders)} wave recording planes at {pitch} pitch need about {full / 1e9:.3g} GB "
+                         f"(the deepest plane's grid is {height_px + 2 * widest}x{width_px + 2 * widest} px), more "
+                         f"than the memory budget of {budget_bytes / 2**20:.0f} MiB: use --wrp-planes auto or 1, "
+                         "or a coarser pitch")
+    kept = len(borders)
+    while kept > 1 and need(kept) > budget_bytes:
+        kept -= 1
+    note = (f"recording planes cut to {kept} of the {len(borders)} auto placed: at {pitch} pitch the deeper "
+            f"planes' grids need about {full / 1e9:.3g} GB, more than the memory budget of "
+            f"{budget_bytes / 2**20:.0f} MiB (the points behind are recorded on the deepest plane kept)")
+    return PlaneAdmission(kept, max(borders[:kept]), need(kept), note)
 
 
 def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> int:

@@ -21,7 +21,8 @@ from holocore.options import HologramOptions
 from holocore.plan.effects import SceneInventory, make_plan
 from holocore.plan.focus_depth import focus_depth
 
-__all__ = ["stored", "depth_scale", "wrp_distance_m", "scene_depth_m", "subhologram_radius_px", "plan_at_options"]
+__all__ = ["stored", "depth_scale", "wrp_distance_m", "wrp_margin_m", "scene_depth_m", "image_depths_m",
+           "subhologram_radius_px", "plan_at_options"]
 
 _UNREADABLE = (KeyError, TypeError, ValueError, ZeroDivisionError)
 
@@ -44,7 +45,7 @@ def depth_scale(plan: dict, optics: OpticsConfig) -> float:
         optics.scene_scale
 
 
-def _margin_m(optics: OpticsConfig) -> float:
+def wrp_margin_m(optics: OpticsConfig) -> float:
     """How far the WRP keeps from the nearest image point (holocore.plan.analysis): a fixed number of pixels of
     the narrowest colour's cone, so it does not scale with depth."""
     theta_min = min(optics.theta_max(lam) for lam in optics.wavelengths_m)
@@ -60,7 +61,7 @@ def wrp_distance_m(plan: Optional[dict], optics: OpticsConfig) -> Optional[float
         if near is None:
             z = optics.z_inf_m + depth_scale(plan, optics) * (float(ana["z_wrp_m"]) - z_inf_plan)
         else:
-            z = optics.z_inf_m + depth_scale(plan, optics) * (float(near) - z_inf_plan) + _margin_m(optics)
+            z = optics.z_inf_m + depth_scale(plan, optics) * (float(near) - z_inf_plan) + wrp_margin_m(optics)
     except _UNREADABLE:
         return None
     return z if math.isfinite(z) and z > 0 else None
@@ -77,8 +78,21 @@ def scene_depth_m(plan: Optional[dict], optics: OpticsConfig) -> Optional[float]
         return None
     if near is None or far is None:  # nothing visible: one plane will do
         return 0.0
-    depth = scale * abs(float(near) - float(far)) + _margin_m(optics)
+    depth = scale * abs(float(near) - float(far)) + wrp_margin_m(optics)
     return depth if math.isfinite(depth) and depth >= 0 else None
+
+
+def image_depths_m(plan: Optional[dict], optics: OpticsConfig) -> Optional[list[float]]:
+    """The analysis' image depth samples (hologram z, m) rescaled to ``optics``; None from a plan that stored
+    none."""
+    try:
+        depths, z_inf_plan = plan["analysis"]["image_depths_holo_m"], float(plan["optics"]["z_inf_mm"]) * 1e-3
+        if not isinstance(depths, list):
+            return None
+        k = depth_scale(plan, optics)
+        return [optics.z_inf_m + k * (float(z) - z_inf_plan) for z in depths]
+    except _UNREADABLE:
+        return None
 
 
 def subhologram_radius_px(plan: dict, optics: OpticsConfig) -> float:
@@ -108,6 +122,7 @@ def plan_at_options(plan: Optional[dict], optics: OpticsConfig, options: Hologra
                           n_colors=len(optics.wavelengths_nm), colors_lit=lit, spp=options.spp, max_spp=max_spp,
                           max_delta_seen=ana.get("max_delta_seen"),
                           prepass_capped=int(ana.get("prepass_capped") or 0),
+                          delta_bounces=_delta_bounces(ana),
                           subhologram_radius_px=subhologram_radius_px(plan, optics), theta_max=theta,
                           wrp_planes_asked=1, z_inf_m=optics.z_inf_m).summary
         words += _planes_words(options)
@@ -120,16 +135,23 @@ def plan_at_options(plan: Optional[dict], optics: OpticsConfig, options: Hologra
     return {"summary": words, "source": "the scene's plan at these options"}
 
 
+def _delta_bounces(ana: dict) -> Optional[list[int]]:
+    """The pre-pass's rays by the delta bounces they need, as stored; None from a plan stored before it counted
+    them (the cap then keeps the rule without them) or one whose counts are not such a list."""
+    counts = ana.get("delta_bounces")
+    if not isinstance(counts, list) or not all(isinstance(n, int) and n >= 0 for n in counts):
+        return None
+    return counts
+
+
 def _focus_words(plan: dict, optics: OpticsConfig) -> list[str]:
     """The plan's focus line (holocore.plan.focus_depth) with its image depths rescaled to ``optics``; none from a
     plan that stored no depths."""
-    ana, z_inf_plan = plan.get("analysis") or {}, float(plan["optics"]["z_inf_mm"]) * 1e-3
-    depths = ana.get("image_depths_holo_m")
-    if not isinstance(depths, list):
+    depths = image_depths_m(plan, optics)
+    if depths is None:
         return []
-    k = depth_scale(plan, optics)
     f = optics.focal_length_m(_camera_fov(plan))
-    focus = focus_depth(image_depths_holo_m=[optics.z_inf_m + k * (float(z) - z_inf_plan) for z in depths],
+    focus = focus_depth(image_depths_holo_m=depths,
                         z_inf_m=optics.z_inf_m, focal_length_m=f, wavelengths_m=optics.wavelengths_m,
                         pitch_m=optics.pitch_m, scene_scale=optics.scene_scale)
     return [focus.summary]

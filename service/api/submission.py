@@ -104,9 +104,13 @@ def resolve_target(ctx: ServiceContext, req: JobRequest, principal: Principal) -
 
 def scene_plane_border(ctx: ServiceContext, req: JobRequest, scene: dict) -> Optional[int]:
     """The widest border of the job's deeper recording planes on this scene (None while its plan is pending:
-    the scheduler checks the memory again before the job runs)."""
-    return plane_border_px(req, scene_plan=scene["plan"], plan_state=scene["plan_state"],
-                           limits=ctx.settings.job_limits)
+    the scheduler checks the memory again before the job runs). ApiError (422) when the plane count the job asks
+    for cannot fit the render's memory budget (the CLI's line, with the figure)."""
+    try:
+        return plane_border_px(req, scene_plan=scene["plan"], plan_state=scene["plan_state"],
+                               limits=ctx.settings.job_limits)
+    except ValueError as exc:
+        raise ApiError(422, str(exc)) from None
 
 
 def reusable_job(ctx: ServiceContext, key: str, owner: str, *, fresh: bool = False) -> Optional[dict]:

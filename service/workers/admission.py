@@ -62,11 +62,14 @@ def admit(row: dict, scene: Optional[dict], settings: Any) -> Admission:
     try:
         spec = JobSpec.model_validate(row["spec"])
         req = JobRequest(scene_id=row["scene_id"], optics=spec.optics, **spec.fields())
-        border = plane_border_px(req, scene_plan=(scene or {}).get("plan"),
-                                 plan_state=(scene or {}).get("plan_state", "failed"), limits=settings.job_limits)
     except ValueError as exc:  # a spec this version cannot read: the run will say what is wrong
         log.warning("job %s: memory not re-estimated (%s)", row["id"], exc)
         return Admission(peak_bytes(row))
+    try:
+        border = plane_border_px(req, scene_plan=(scene or {}).get("plan"),
+                                 plan_state=(scene or {}).get("plan_state", "failed"), limits=settings.job_limits)
+    except ValueError as exc:  # a plane count that cannot fit the render's memory budget: the render would refuse
+        return Admission(-1, refusal=f"refused before it ran: {exc}")
     too_big = memory_admission_error(req, settings.worker_memory_bytes, plane_border=border)
     if too_big:
         return Admission(-1, refusal=f"refused before it ran: {too_big}")

@@ -42,3 +42,15 @@ def test_the_plan_in_words_follows_the_options_and_a_broken_plan_gives_none(scen
     assert any("direct method" in w for w in direct)
     assert stored_plan.plan_at_options({"inventory": "no"}, BASE, HologramOptions()) is None
     assert stored_plan.wrp_distance_m({}, BASE) is None and stored_plan.scene_depth_m(None, BASE) is None
+
+
+def test_a_stored_plan_raises_the_delta_cap_from_its_stored_bounces_and_an_older_plan_still_reads(scene):
+    stored = stored_plan.stored(plan_scene(scene, BASE, RenderOptions()), BASE)
+    # half the pre-pass rays need 12 delta bounces: the cap is raised to keep them, as a fresh plan does
+    bounces = [50] + [0] * 11 + [50]
+    deep = {**stored, "analysis": {**stored["analysis"], "delta_bounces": bounces}}
+    words = stored_plan.plan_at_options(deep, BASE, HologramOptions(preset="fast"))["summary"]
+    assert any(w.startswith("delta chains capped at 12 bounces (raised from") for w in words), words
+    older = {**stored, "analysis": {k: v for k, v in stored["analysis"].items() if k != "delta_bounces"}}
+    words = stored_plan.plan_at_options(older, BASE, HologramOptions(preset="fast"))["summary"]
+    assert not any("raised from" in w for w in words)
