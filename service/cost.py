@@ -1,7 +1,8 @@
 """What a job costs before it runs: its seconds (render, encode, process starts, pictures, evaluation; at an idle
 machine and at the present load), its peak memory and what its deeper recording planes add to it, and the
 quality its options buy (service/quality.py). Shown at submit, stored with the job, and what admission checks.
-Light imports only: the API process estimates with it (holocore.plan's models need no numpy)."""
+Light imports only: the API process estimates with it (holocore.plan's models need no numpy; placing a job's
+recording planes loads numpy when a multi-plane job is first estimated)."""
 
 from __future__ import annotations
 

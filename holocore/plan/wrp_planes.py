@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING, Sequence
 
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 from holocore.plan.presets import MAX_WRP_PLANES  # one limit for the CLI, the API and the planner
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["WrpPlanes", "place_planes", "choose_planes", "MAX_WRP_PLANES"]
 
@@ -70,6 +71,7 @@ class WrpPlanes:
     def noise_energy(self, depths_m: Sequence[float]) -> list[float]:
         """Per plane, sum of r^2 over the (luminance-quantile) depth samples it records, r their distance to
         it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (docs/design.md §4)."""
+        import numpy as np  # placement only: the API process reads this module without numpy
         k, r = self._assign(depths_m)
         return [float(v) for v in np.bincount(k, np.maximum(r, self.margin_m) ** 2, minlength=self.count)]
 
@@ -85,6 +87,7 @@ class WrpPlanes:
 
     def _assign(self, depths_m: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
         """For the depths inside some slab: the plane that records each, and its distance to that plane."""
+        import numpy as np  # placement only: the API process reads this module without numpy
         d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
         ks, rs = [], []
         for k, z in enumerate(self.z_m):
@@ -100,6 +103,7 @@ def place_planes(depths_m: Sequence[float], *, z_wrp_m: float, margin_m: float, 
 
     depths_m: hologram depths of image points (m), luminance-weighted quantiles (so each counts once). Fewer
     planes come back when the samples cannot use more (a plane needs points behind it, and distinct positions)."""
+    import numpy as np  # placement only: the API process reads this module without numpy
     if not 1 <= count <= MAX_WRP_PLANES:
         raise ValueError(f"wrp planes must be 1..{MAX_WRP_PLANES}, got {count}")
     d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
