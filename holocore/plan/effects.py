@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
 from holocore.plan.presets import PRESETS, PresetName
 from holocore.runtime.mitsuba_env import mitsuba
-from holocore.scene.features import absorbing_media, is_mixed_delta, shape_name
+from holocore.scene.features import absorbing_media, is_mixed_delta, near_smooth_bsdfs, shape_name
 
 __all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor"]
 
@@ -50,7 +50,9 @@ class SceneInventory(BaseModel):
     primitives: int
     mirrors: list[str] = Field(default_factory=list)  # shapes with a delta reflection-only BSDF
     dielectrics: list[str] = Field(default_factory=list)  # shapes with delta transmission
-    glossy: list[str] = Field(default_factory=list)  # shapes with glossy lobes
+    glossy: list[str] = Field(default_factory=list)  # shapes with glossy lobes where the image point can sit
+    # rough conductors and dielectrics that keep an image: the chain goes on through them (holocore.trace.near_smooth)
+    near_smooth: dict[str, float] = Field(default_factory=dict)  # name -> roughness alpha
     mixed_delta: list[str] = Field(default_factory=list)  # delta and non-delta lobes together (plastic...)
     emitters: list[str] = Field(default_factory=list)
     environment: bool = False
@@ -83,7 +85,7 @@ class EffectPlan(BaseModel):
 def inventory(scene) -> SceneInventory:
     mi = mitsuba()
     F = mi.BSDFFlags
-    inv = SceneInventory(shapes=0, primitives=0)
+    inv = SceneInventory(shapes=0, primitives=0, near_smooth=near_smooth_bsdfs(scene))
     types: Counter = Counter()
     for i, sh in enumerate(scene.shapes()):
         inv.shapes += 1
@@ -103,7 +105,7 @@ def inventory(scene) -> SceneInventory:
             inv.mirrors.append(name)
         if is_mixed_delta(fl):
             inv.mixed_delta.append(name)
-        if has(F.Glossy):
+        if has(F.Glossy) and name not in inv.near_smooth:
             inv.glossy.append(name)
     inv.environment = scene.environment() is not None
     inv.absorbing_media = absorbing_media(scene)
@@ -190,7 +192,7 @@ def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Option
     """(whether the coherent delta loop runs, its cap on delta bounces, the plan's words on mirrors, glass, coated
     surfaces and absorbing media)."""
     words: list[str] = []
-    n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta)
+    n_delta_shapes = len(inv.mirrors) + len(inv.dielectrics) + len(inv.mixed_delta) + len(inv.near_smooth)
     n_delta_shapes += int(bool(max_delta_seen))
     coherent = force_all or n_delta_shapes > 0
     if force_all:
@@ -199,7 +201,7 @@ def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Option
         cap = 0
     else:
         # Each dielectric: entry, exit and up to two internal reflections; each mirror: a couple of visits.
-        cap = 4 * len(inv.dielectrics) + 2 * (len(inv.mirrors) + len(inv.mixed_delta))
+        cap = 4 * (len(inv.dielectrics) + len(inv.near_smooth)) + 2 * (len(inv.mirrors) + len(inv.mixed_delta))
         if max_delta_seen is not None:
             cap = max(cap, max_delta_seen + 1)  # Mitsuba merges meshes that share a BSDF: trust the pre-pass
         if prepass_capped:
@@ -211,6 +213,10 @@ def _delta_chain(inv: SceneInventory, *, force_all: bool, max_delta_seen: Option
         words.append(f"refraction: {', '.join(inv.dielectrics[:4])}, up to {cap} delta interfaces per path")
     if inv.mixed_delta:
         words.append(f"coated surfaces with a delta layer: {', '.join(inv.mixed_delta[:4])}")
+    if inv.near_smooth:
+        named = ", ".join(f"{k} (alpha {a:.2g})" for k, a in list(inv.near_smooth.items())[:4])
+        words.append(f"near-smooth surfaces carry the coherent chain through sampled micro-normals (a blurred image "
+                     f"at the apparent depth of what they show): {named}")
     for where, sig in inv.absorbing_media.items():
         words.append(f"absorbing medium in {where}: sigma_t = ({', '.join(f'{x:.3g}' for x in sig)}) /m per "
                      "colour, every path segment inside it attenuated by exp(-sigma_t d / 2) in amplitude "

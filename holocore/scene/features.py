@@ -4,10 +4,13 @@ scene's inventory and its plan in words are ``holocore.plan.effects``."""
 
 from __future__ import annotations
 
+from typing import Optional
+
 from holocore.runtime.mitsuba_env import mitsuba
 
 __all__ = ["shape_name", "is_mixed_delta", "has_mixed_delta", "has_media", "reference_integrator",
-           "sigma_t_per_m", "absorbing_media"]
+           "sigma_t_per_m", "absorbing_media", "NEAR_SMOOTH_MAX_ALPHA", "bsdf_alpha", "all_glossy",
+           "near_smooth_bsdfs"]
 
 
 def shape_name(shape, i: int) -> str:
@@ -69,4 +72,44 @@ def absorbing_media(scene) -> dict[str, list[float]]:
         for side, medium in (("interior", sh.interior_medium()), ("exterior", sh.exterior_medium())):
             if medium is not None:
                 out[f"{shape_name(sh, i)} ({side})"] = sigma_t_per_m(medium)
+    return out
+
+
+NEAR_SMOOTH_MAX_ALPHA = 0.1  # GGX / Beckmann alpha up to which a surface still carries an image
+"""Rough conductors and dielectrics (every lobe glossy) up to this roughness continue the coherent chain
+(holocore.trace.near_smooth)."""
+
+
+def bsdf_alpha(bsdf) -> Optional[float]:
+    """The largest roughness alpha a BSDF declares (alpha, alpha_u, alpha_v, also inside a wrapper such as
+    ``twosided``; a texture's largest texel), or None where it has none."""
+    import numpy as np
+
+    mi = mitsuba()
+    names = (["alpha", "value"], ["alpha_u", "value"], ["alpha_v", "value"], ["alpha", "data"],
+             ["alpha_u", "data"], ["alpha_v", "data"])
+    vals = [np.asarray(v, dtype=np.float64).ravel() for k, v in mi.traverse(bsdf).items()
+            if k.split(".")[-2:] in names]
+    vals = [v for v in vals if v.size]
+    return float(max(v.max() for v in vals)) if vals else None
+
+
+def all_glossy(bsdf) -> bool:
+    """Whether every lobe of a BSDF is glossy (no diffuse base, no delta lobe)."""
+    F = mitsuba().BSDFFlags
+    not_glossy = int(F.Diffuse) | int(F.Delta)
+    lobes = [int(bsdf.flags(i)) for i in range(bsdf.component_count())]
+    return bool(lobes) and all(fl & int(F.Glossy) and not fl & not_glossy for fl in lobes)
+
+
+def near_smooth_bsdfs(scene) -> dict[str, float]:
+    """The scene's shapes whose BSDF is near-smooth (holocore.trace.near_smooth), by name, with their alpha."""
+    out: dict[str, float] = {}
+    for i, sh in enumerate(scene.shapes()):
+        b = sh.bsdf()
+        if b is None or not all_glossy(b):
+            continue
+        a = bsdf_alpha(b)
+        if a is not None and a <= NEAR_SMOOTH_MAX_ALPHA:
+            out[shape_name(sh, i)] = a
     return out

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from holocore.runtime.mitsuba_env import mitsuba
+from holocore.trace.near_smooth import micro_normal
 
 if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
     import mitsuba as mi
@@ -69,11 +70,14 @@ def _normal_differentials(si: mi.SurfaceInteraction3f, N: mi.Vector3d, dPh: list
 
 
 def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.Bool, D: mi.Vector3d,
-                    dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32) -> tuple:
+                    dP: list, dD: list, frame: list, n_cur: mi.Float64, nd: mi.UInt32, micro: mi.Bool | None = None
+                    ) -> tuple:
     """At a chain vertex, in float64: the apparent distance d (m) read from the differentials (used where the
     chain ends here, at P), and, on ``go_on``, the differentials and the frame carried through the delta
     vertex (Igehy 1999). Returns (d, singular, D, dP, dD, frame, n_cur, nd); ``singular``: the ray grazes the
-    surface (|cos| < 1e-7), the transfer does not exist and the ray is dropped."""
+    surface (|cos| < 1e-7), the transfer does not exist and the ray is dropped. ``micro``: lanes whose vertex is
+    a near-smooth surface (holocore.trace.near_smooth): the direction and its differentials turn about the
+    sampled micro-normal, while the differentials still land on the surface's own tangent plane."""
     mi = mitsuba()
     import drjit as dr
 
@@ -102,6 +106,9 @@ def igehy_transfer(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, go_on: mi.B
     dN = _normal_differentials(si, N, dPh)
     D_new = dr.normalize(V3d(si.to_world(bs.wo)))
     is_refl = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Reflection)
+    if micro is not None:  # the micro-normal turns the ray; the surface's curvature turns the micro-normal
+        N = dr.select(micro, micro_normal(D, D_new, F64(bs.eta), is_refl), N)
+        cosD = dr.dot(D, N)
     # Reflection: D' = D - 2 (D.N) N.  Refraction (N facing the ray): D' = eta D + mu N, mu = eta c1 - c2.
     sgn = dr.select(cosD < 0, 1.0, -1.0)
     Nf = N * sgn

@@ -37,6 +37,7 @@ from holocore.scene.features import has_media, has_mixed_delta
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.trace.differentials import igehy_transfer
 from holocore.trace.media import absorb, extinction, transmittance
+from holocore.trace.near_smooth import is_near_smooth, near_smooth_table
 from holocore.trace.path_state import KernelSettings, Lobes, PathState, Vertex, WavePaths, start_state
 
 if TYPE_CHECKING:  # annotations only: the variant's array types come from mitsuba() at run time
@@ -79,7 +80,7 @@ def trace_wave_paths(
     op_delta, op_depth, op_rr = (dr.opaque(mi.UInt32, v) for v in (max_delta, max_depth, rr_depth))
     s = KernelSettings(ctx=mi.BSDFContext(), max_delta=op_delta, max_depth=op_depth, rr_depth=op_rr,
                   any_mixed=any_mixed, media=media, cache=radiance_cache, keep_thr=extra or surface, keep_ray=extra,
-                  keep_surface=surface)
+                  keep_surface=surface, near_smooth=near_smooth_table(scene))
 
     p = start_state(scene, o64, v64, s)
 
@@ -184,14 +185,20 @@ def _sample_lobes(scene: mi.Scene, p: PathState, v: Vertex, sampler: mi.Sampler,
     smp = v.hit & ~cached
     val, pdf, bs, w = v.bsdf.eval_pdf_sample(s.ctx, v.si, v.si.to_local(ds.d), sampler.next_1d(smp),
                                              sampler.next_2d(smp), smp)
-    go_on = v.in_chain & mi.has_flag(bs.sampled_type, Delta) & (bs.pdf > 0) & ~v.is_emitter
+    chain_lobe = mi.has_flag(bs.sampled_type, Delta)
+    micro = None
+    if s.near_smooth is not None:  # a near-smooth surface's glossy lobe carries the chain too (its micro-normal)
+        micro = (v.in_chain & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
+                 & is_near_smooth(s.near_smooth, v.bsdf, v.in_chain))
+        chain_lobe |= micro
+    go_on = v.in_chain & chain_lobe & (bs.pdf > 0) & ~v.is_emitter
     at_p = v.in_chain & ~go_on
     mis_em = dr.select(ds.delta, 1.0, _mis(ds.pdf, pdf))
     if s.media:  # the shadow segment's own medium: the side of a medium boundary it leaves into, else the ray's
         shadow = dr.select(v.si.is_medium_transition(), v.si.target_medium(ds.d), p.medium)
         em_w = em_w * transmittance(extinction(shadow, p.ray, v.si, em_on & (shadow != None)), ds.dist)  # noqa: E711
     Lr = dr.select(em_on & ~go_on, p.beta * mis_em * val * em_w, 0.0)
-    return Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p)
+    return Lobes(bs=bs, w=w, Lr=Lr, go_on=go_on, at_p=at_p, micro=micro)
 
 
 def _coherent_step(p: PathState, v: Vertex, lobes: Lobes, s: KernelSettings) -> mi.Bool:
@@ -211,7 +218,7 @@ def _coherent_step(p: PathState, v: Vertex, lobes: Lobes, s: KernelSettings) -> 
     def transfer(D, dP, dD, frame, n_cur, nd):
         # The shading normal's derivatives (curved mirrors and lenses), only where a chain goes on or ends.
         si_d = v.pi.compute_surface_interaction(v.ray, mi.RayFlags.All | mi.RayFlags.dNSdUV, go_on | deep)
-        return igehy_transfer(si_d, lobes.bs, go_on, D, dP, dD, frame, n_cur, nd)
+        return igehy_transfer(si_d, lobes.bs, go_on, D, dP, dD, frame, n_cur, nd, micro=lobes.micro)
 
     def keep(D, dP, dD, frame, n_cur, nd):
         return mi.Float64(0.0), mi.Bool(False), D, dP, dD, frame, n_cur, nd
@@ -271,7 +278,8 @@ def _incoherent_step(p: PathState, v: Vertex, lobes: Lobes, Le: mi.Color3f, go_o
     p.eta = dr.select(step, p.eta * bs.eta, p.eta)
     p.si_prev = dr.select(step, mi.Interaction3f(v.si), p.si_prev)
     p.pdf_prev = dr.select(step, bs.pdf, p.pdf_prev)
-    p.delta_prev = dr.select(step, mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta), p.delta_prev)
+    # a chain step is a delta step for MIS: its vertex sampled no light, so what the chain reaches counts whole
+    p.delta_prev = dr.select(step, mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) | go_on, p.delta_prev)
     # Russian roulette, Mitsuba's ``path``: depth counted after this vertex, survival max(beta) eta^2 <= 0.95.
     b_max = dr.max(p.beta)
     rr = more & (p.depth + 1 >= s.rr_depth)

@@ -86,6 +86,7 @@ class KernelSettings(NamedTuple):
     keep_thr: bool  # record the chain's throughput at P
     keep_ray: bool  # record the segment that reached P
     keep_surface: bool  # record P's surface
+    near_smooth: object | None = None  # mi.Bool by BSDF registry id (holocore.trace.near_smooth); None: none here
 
 
 class Vertex(NamedTuple):
@@ -110,6 +111,7 @@ class Lobes(NamedTuple):
     Lr: mi.Color3f  # the emitter sample's radiance, MIS-weighted, times the throughput (0 where unused)
     go_on: mi.Bool  # a delta lobe on a chain: the chain goes on (before the max_delta cap)
     at_p: mi.Bool  # the chain ends here: this vertex is P
+    micro: mi.Bool | None = None  # the chain goes on through a near-smooth surface's sampled micro-normal
 
 
 def start_state(scene: mi.Scene, o64: mi.Point3d, v64: mi.Vector3d, s: KernelSettings) -> PathState:

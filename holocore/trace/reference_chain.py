@@ -34,6 +34,7 @@ import numpy as np
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.runtime.recording import recording_kernels
 from holocore.trace.differentials import igehy_transfer
+from holocore.trace.near_smooth import is_near_smooth, near_smooth_table
 
 __all__ = ["ChainResult", "trace_chain"]
 
@@ -133,8 +134,13 @@ def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int) -> tuple[dict,
     F64 = mi.Float64
     si = scene.ray_intersect(ray0, flags, False, True)
     hit = si.is_valid()
-    bs, w = si.bsdf(ray0).sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
-    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
+    bsdf = si.bsdf(ray0)
+    bs, w = bsdf.sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
+    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    table = near_smooth_table(scene)
+    if table is not None:  # near-smooth surfaces carry the chain too (holocore.trace.near_smooth)
+        is_delta |= mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy) & is_near_smooth(table, bsdf, hit)
+    is_delta &= bs.pdf > 0
     stop = hit & (~is_delta | si.shape.is_emitter())
     cont = hit & ~stop
     st = {"d_out": dr.select(stop, F64(si.t), dr.zeros(F64, R)), "fin_o": mi.Point3f(ray0.o),
@@ -195,6 +201,7 @@ class _DeltaChain:
 
         F64, V3d = mi.Float64, mi.Vector3d
         self.mi, self.scene, self.ctx, self.flags = mi, scene, ctx, flags
+        self.near_smooth = near_smooth_table(scene)
         n = oo.shape[0]
         # Working state of the lanes still in the chain (compacted after every bounce); lane: their output slot.
         self.lane = dr.arange(mi.UInt32, n)
@@ -266,7 +273,13 @@ class _DeltaChain:
             u = self.rng.random((3, dr.width(active)), dtype=np.float32)
             bs, w = bsdf.sample(self.ctx, si, mi.Float(aligned(u[0])), mi.Point2f(mi.Float(aligned(u[1])),
                                                                              mi.Float(aligned(u[2]))), active)
-            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) & (bs.pdf > 0)
+            micro = None
+            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            if self.near_smooth is not None:  # near-smooth surfaces carry the chain too (holocore.trace.near_smooth)
+                micro = (active & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
+                         & is_near_smooth(self.near_smooth, bsdf, active))
+                is_delta |= micro
+            is_delta &= bs.pdf > 0
             stop = active & (~is_delta | si.shape.is_emitter())
             cont = active & ~stop
             if bounce == max_delta:
@@ -276,7 +289,7 @@ class _DeltaChain:
             # The image point (where the chain stops) and the transfer through the vertex (where it goes on):
             # the same code as the fused kernel's.
             d_here, singular, D, dP, dD, frame, n_cur, _nd = igehy_transfer(
-                si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w)
+                si, bs, cont_here, self.D, self.dP, self.dD, self.frame, self.n_cur, self.nd_w, micro=micro)
             self.opl_w = dr.select(active, self.opl_w + self.n_cur * mi.Float64(si.t), self.opl_w)
             self._put("d_out", d_here, stop)
             self._put("fin_o", self.ray.o, stop)
