@@ -1,8 +1,8 @@
 """Focal sweeps of scenes before and after the scene scale their plan suggests (docs/scene_scale.md).
 
 For each scene: `holo plan --json` says how many depths of field its light spans and which scale would bring its
-near content to 0.5 m; the scene is rendered at scale 1 and at that scale (the whole camera view, fit_camera_fov,
-a small preview), and `holo view --sweep` writes each focal sweep as a contact sheet. The focus lines of both plans
+near content to 0.5 m; the scene is rendered at scale 1 and at that scale (the paper's display at half its rows and
+columns, 8 frames, the fast preset), and `holo view --sweep` writes each focal sweep as a contact sheet. The focus lines of both plans
 go to the markdown table this prints.
 
     .venv/bin/python scripts/scene_scale_pictures.py SCENE [SCENE ...] --out docs/pictures/scene_scale
@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 HOLO = [sys.executable, "-m", "holo"]
-RENDER = ["--resolution", "270x480", "--fit-camera-fov", "--frames", "2", "--preset", "fast"]
+RENDER = ["--resolution", "540x960", "--frames", "8", "--preset", "fast"]
 
 
 def _run(*args: str) -> str:
@@ -33,11 +33,24 @@ def _focus(scene: str, scale: float) -> dict:
 
 
 def _sweep(scene: str, scale: float, out: Path, name: str, work: Path) -> Path:
+    """The focal sweep's farthest and nearest views side by side, half size, 256 colours (the sheet of five views
+    `holo view --sweep 5` writes is 3 x 2 tiles, each with a caption strip above it)."""
+    from PIL import Image
+
     result = work / f"{name}-{scale:g}.npz"
     _run("render", scene, "--out", str(result), *RENDER, "--scene-scale", str(scale))
-    sheet = out / f"{name}-scale-{scale:g}.png"
+    sheet = work / f"{name}-scale-{scale:g}-sheet.png"
     _run("view", str(result), "--sweep", "5", "--out", str(sheet))
-    return sheet
+    im = Image.open(sheet).convert("RGB")
+    tw, th = im.size[0] // 3, im.size[1] // 2
+    far, near = im.crop((0, 0, tw, th)), im.crop((tw, th, 2 * tw, 2 * th))
+    pair = Image.new("RGB", (2 * tw + 8, th))
+    pair.paste(far, (0, 0))
+    pair.paste(near, (tw + 8, 0))
+    pair = pair.resize((pair.size[0] // 2, pair.size[1] // 2), Image.LANCZOS)
+    path = out / f"{name}-scale-{scale:g}.png"
+    pair.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(path, optimize=True)
+    return path
 
 
 def main() -> None:

@@ -6,8 +6,10 @@ where the hologram is recognisable, re-run with changes, and compared side by si
 
 Writes web-home.png (the list, the queue, the form with the scene and the estimate), web-job-running.png (the
 job's page while it runs: its plan, step timeline, worker and log tail), web-job.png (a finished job's page),
-web-compare.png (two jobs side by side) and web-signin.png. Needs Debian's chromium and chromium-driver
-(scripts/setup.sh installs them). Takes about ten minutes on 2 cores (two renders and encodes); at 540x960 the
+web-compare.png (two jobs side by side), web-sweep.png (a frames sweep of the same scene, 1 to 24 frames at a
+quarter of the size, evaluated: its jobs and the chart of quality and time against frames) and web-signin.png. Needs Debian's chromium and chromium-driver
+(scripts/setup.sh installs them). Takes about half an hour on 2 cores (two renders and encodes, the sweep's five
+evaluated jobs); at 540x960 the
 hologram shows 8.8 degrees of the camera's 17.5: the mirror, its checker frame and the poster seen in it.
 """
 
@@ -128,6 +130,29 @@ def _finished(s: Shots) -> None:
         s.wait(lambda: s.js("const i = document.getElementById('eval-truth'); return !!i.src && i.complete"), 120)
 
 
+SWEEP_FRAMES = "1, 2, 4, 8, 24"
+
+
+def _sweep(s: Shots, url: str, bundle: Path, res_hw: tuple[int, int]) -> None:
+    """A frames sweep from the form, evaluated, and its page once every job has its measured quality."""
+    s.d.get(url + "/#/")
+    s.d.find_element("id", "bundle").send_keys(str(bundle))
+    s.click("upload-button")
+    s.wait(lambda: s.has("job-form"), 120)
+    _options(s, res_hw, 1, "fast")
+    s.choose("sweep-option", "frames")
+    s.set("sweep-values", SWEEP_FRAMES)
+    s.wait(lambda: s.js("const b = document.getElementById('submit-button');"
+                        "return !b.disabled && b.innerText.startsWith('Submit sweep')"), 120)
+    s.click("submit-button")
+    s.wait(lambda: s.js("return location.hash").startswith("#/sweeps/"), 60)
+    n = len(SWEEP_FRAMES.split(","))
+    s.wait(lambda: s.js("return document.querySelectorAll('#sweep-jobs tr[data-state=succeeded]').length") == n, 3600)
+    s.wait(lambda: s.js("return document.querySelectorAll('#sweep-quality circle[data-series=measured]').length") == n,
+           300)
+    s.snap("web-sweep.png")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "screenshots")
@@ -212,6 +237,7 @@ def main(argv=None) -> int:
             s.wait(lambda: s.js("return ['a', 'b'].every(k => { const i = document.getElementById('cmp-img-' + k);"
                                 "return !!i.src && i.complete; })"), 120)
             s.snap("web-compare.png")
+            _sweep(s, url, bundle, (res_hw[0] // 2, res_hw[1] // 2))
             driver.get(url + "/#/")
             s.wait(lambda: s.js("return document.querySelectorAll('#jobs tbody tr img.thumb').length") >= 2, 60)
             driver.find_element("id", "bundle").send_keys(str(bundle))
