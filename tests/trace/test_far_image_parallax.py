@@ -1,0 +1,112 @@
+"""Parallax of an image point far behind its recording plane (docs/design.md §3-4, §7).
+
+A small glowing ball 1.5 m away, seen in a plane mirror 0.5 m away turned 12 degrees: its image lies 4.5 mm (in
+hologram space) behind the WRP that the mirror puts in front of it, 5.7 mm in front of the SLM that the direct
+method records on. Seen through a 1 mm pupil focused on it from eye positions 0.8 mm left and right, the ball must
+move as the thin-lens ground truth says (-e / zc).
+
+The traced field is a Monte Carlo estimate: each pixel's rays sample the ball's random-phase cells sparsely, and
+the error is independent from pixel to pixel, a white field on the recording plane that the eye sees as a glow
+*on that plane*, with its parallax. Far from the plane the rays per cell fall as 1 / d^2 and at 256 rays per pixel
+the glow carries more light than the point (1.5x on one plane, 2x on the SLM), so the single render's centroid
+moves towards the plane's parallax (several pixels). What the geometry must get right is the field's mean: the
+eye's intensity of the mean field, estimated without the glow from K renders of independent ray seeds,
+(I(sum U_k) - sum I(U_k)) / (K (K - 1)) (the eye's intensity is quadratic in the field; cross terms of independent
+errors average out).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from holocore.display.optics import OpticsConfig
+from holocore.evaluate.groundtruth import GroundTruth
+from holocore.evaluate.scoring import eye_view
+from holocore.pipeline import RenderOptions, render_loaded
+from holocore.scene.load import from_mitsuba_scene
+from tests.trace.optics_probe import fov_deg
+from tests.trace.scenes import T, camera
+
+pytestmark = pytest.mark.slow
+
+H, W, P, F_M, Z_INF = 96, 128, 8e-6, 0.05, 4e-3
+TILT_DEG = 12.0
+Z_BALL = Z_INF + F_M * F_M / 1.5  # the ball's image depth in hologram space (1.5 m of path)
+EYES = (-0.8e-3, 0.8e-3)
+SEEDS = (44, 55, 66, 77, 88)  # five: the glow's own cross terms leave about 0.4 px of scatter (three: 0.8)
+TOL_PX = 0.7
+CASES = {"one_plane": {"wrp_planes": 1}, "two_planes": {"wrp_planes": 2}, "direct": {"method": "direct"}}
+
+
+def _scene():
+    from holocore.runtime.mitsuba_env import mitsuba
+
+    mi = mitsuba()
+    ang = math.radians(2 * TILT_DEG)  # the mirror turned by TILT turns the line of sight by twice it
+    return mi.load_dict({
+        "type": "scene", "sensor": camera(fov=fov_deg(W, P, F_M)),
+        "mirror": {"type": "rectangle", "bsdf": {"type": "conductor"},
+                   "to_world": T().translate([0, 0, -0.5]).rotate([0, 1, 0], TILT_DEG).scale(0.05)},
+        "ball": {"type": "sphere", "center": [math.sin(ang), 0, -0.5 + math.cos(ang)], "radius": 0.0015,
+                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 50.0}}},
+    })
+
+
+def _centroid_x(img: np.ndarray, ref: np.ndarray) -> float:
+    """Column centroid of ``img`` (summed over colours) in a 49 px window about ``ref``'s brightest spot, above
+    the window's 10th percentile."""
+    from scipy.ndimage import gaussian_filter
+
+    py, px = np.unravel_index(np.argmax(gaussian_filter(ref.sum(0), 2.0)), ref.shape[1:])
+    y0, x0 = max(0, py - 24), max(0, px - 24)
+    win = img.sum(0)[y0:py + 25, x0:px + 25]
+    win = np.clip(win - np.percentile(win, 10), 0.0, None)
+    return float((win.sum(0) * (x0 + np.arange(win.shape[1]))).sum() / win.sum())
+
+
+@pytest.fixture(scope="module")
+def views():
+    """Per case: (the first render's eye views, the glow-free eye views, the ground truth's), one per eye."""
+    loaded = from_mitsuba_scene(_scene())
+    optics = OpticsConfig(resolution_hw=(H, W), pitch_um=P * 1e6, frames=8, focal_length_mm=F_M * 1e3,
+                          z_inf_mm=Z_INF * 1e3, seed=1)
+    gt, out = None, {}
+    for name, kw in CASES.items():
+        # No cone equaliser: it fits its filter to each render's own spectrum, and the glow-free estimate needs
+        # the renders to differ by their rays alone.
+        fields = [render_loaded(loaded, optics, RenderOptions(preset="fast", spp=256, ray_seed=s,
+                                                              cone_equaliser=False, **kw))
+                  for s in SEEDS]
+        if gt is None:
+            gt = GroundTruth(loaded, fields[0].meta, shape_hw=(H, W), spp=64)
+        meta, total = fields[0].meta, sum(r.slm_field for r in fields)
+        K = len(fields)
+        row = []
+        for e in EYES:
+            kw_view = dict(focus_z_m=Z_BALL, pupil_diameter_m=1e-3, view_offset_m=(e, 0.0))
+            each = [eye_view(r.slm_field, meta, **kw_view) for r in fields]
+            mean_field = (eye_view(total, meta, **kw_view) - sum(each)) / (K * (K - 1))
+            row.append((each[0], mean_field, gt.channels(**kw_view)))
+        out[name] = row
+    return out
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_mean_field_parallax_matches_ground_truth(views, case):
+    """The traced field's mean shows the ball where the ground truth does from both eye positions, recorded on
+    one plane 4.5 mm in front of it, on a second plane nearer it, or on the SLM 5.7 mm behind it."""
+    for e, (_single, mean_field, truth) in zip(EYES, views[case]):
+        ours, want = _centroid_x(mean_field, truth), _centroid_x(truth, truth)
+        assert abs(ours - want) < TOL_PX, f"{case}, eye {e * 1e3:+.1f} mm: column {ours:.2f}, ground truth {want:.2f}"
+
+
+@pytest.mark.xfail(strict=True, reason="Monte Carlo glow on the recording plane: at 256 rays per pixel a point "
+                                       "4.5 mm behind one plane gets more glow than signal, and a single render's "
+                                       "ball moves about 2.9x as far as the ground truth's between the eyes "
+                                       "(columns 73.4 / 54.4 against 66.9 / 60.3)")
+def test_single_render_parallax_one_plane(views):
+    for _e, (single, _mean, truth) in zip(EYES, views["one_plane"]):
+        assert abs(_centroid_x(single, truth) - _centroid_x(truth, truth)) < TOL_PX
