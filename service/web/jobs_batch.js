@@ -4,9 +4,8 @@
 
 import { $ } from "./dom.js";
 import { refreshHome } from "./jobs_list.js";
-import { cancelJob, compareHash, deleteJob, eachJob, secondClick, selectionActions, showSelection, skippedWords,
-         tickedIds } from "./selection.js";
-import { plural, state } from "./state.js";
+import { actOnSelected, compareHash, selectionActions, showSelection, tickedIds } from "./selection.js";
+import { state } from "./state.js";
 
 const BUTTONS = { cancel: "jobs-cancel-selected", remove: "jobs-delete-selected", compare: "jobs-compare-selected",
                   count: "jobs-selected" };
@@ -42,18 +41,9 @@ function ticked(ev) {
 }
 
 async function act(which) {
-  const jobs = selectedJobs();
-  const can = selectionActions(jobs);
-  if (which === "cancel") {
-    await eachJob(can.cancel.map((j) => j.id), cancelJob, "Cancelled",
-                  skippedWords(jobs, can.cancel, "already finished"));
-  } else {
-    const ask = `Click again to delete ${plural(can.remove.length, "finished job")} and their files`;
-    if (!secondClick($(BUTTONS.remove), ask)) return;
-    await eachJob(can.remove.map((j) => j.id), deleteJob, "Deleted",
-                  skippedWords(jobs, can.remove, "not finished (cancel them first)"));
-    for (const j of can.remove) state.ticked.delete(j.id);
-  }
+  const removed = await actOnSelected(which, selectedJobs(), $(BUTTONS.remove));
+  if (removed === null) return;  // Delete waits for its second click
+  for (const j of removed) state.ticked.delete(j.id);
   await refreshHome();
 }
 

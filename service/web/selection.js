@@ -84,4 +84,21 @@ function disarm(btn) {
   if (btn.dataset.label) setText(btn, btn.dataset.label);
 }
 
+// Cancel Selected or Delete Selected (``which``: "cancel" or "remove") on the ticked ``jobs``; Delete asks for a
+// second click on ``button`` first. Returns the jobs it deleted ([] for Cancel), or null while Delete waits.
+export async function actOnSelected(which, jobs, button) {
+  const can = selectionActions(jobs);
+  if (which === "cancel") {
+    await eachJob(can.cancel.map((j) => j.id), cancelJob, "Cancelled",
+                  skippedWords(jobs, can.cancel, "already finished"));
+    return [];
+  }
+  if (!secondClick(button, `Click again to delete ${plural(can.remove.length, "finished job")} and their files`)) {
+    return null;
+  }
+  await eachJob(can.remove.map((j) => j.id), deleteJob, "Deleted",
+                skippedWords(jobs, can.remove, "not finished (cancel them first)"));
+  return can.remove;
+}
+
 export const compareHash = (ids) => `#/compare/${ids.join("/")}`;

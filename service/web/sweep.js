@@ -5,8 +5,7 @@
 import { getJSON, request } from "./api.js";
 import { $, clear, el, fmtSeconds, setText } from "./dom.js";
 import { pct } from "./job_facts.js";
-import { cancelJob, compareHash, deleteJob, eachJob, secondClick, selectionActions, showSelection, skippedWords,
-         tickBox, tickedIds } from "./selection.js";
+import { actOnSelected, compareHash, selectionActions, showSelection, tickBox, tickedIds } from "./selection.js";
 import { sweepChart } from "./sweep_chart.js";
 import { FINAL, aborted, plural, state, status } from "./state.js";
 
@@ -138,17 +137,7 @@ function selectedJobs() {
 function selectionChanged() { showSelection(selectedJobs(), SELECTION); }
 
 async function act(which) {
-  const jobs = selectedJobs();
-  const can = selectionActions(jobs);
-  if (which === "cancel") {
-    await eachJob(can.cancel.map((j) => j.id), cancelJob, "Cancelled",
-                  skippedWords(jobs, can.cancel, "already finished"));
-  } else {
-    const ask = `Click again to delete ${plural(can.remove.length, "finished job")} and their files`;
-    if (!secondClick($("sweep-delete-selected"), ask)) return;
-    await eachJob(can.remove.map((j) => j.id), deleteJob, "Deleted",
-                  skippedWords(jobs, can.remove, "not finished (cancel them first)"));
-  }
+  if ((await actOnSelected(which, selectedJobs(), $("sweep-delete-selected"))) === null) return;
   if (view) { clearTimeout(view.timer); await refresh(view); }
 }
 

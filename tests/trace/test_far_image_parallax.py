@@ -38,7 +38,9 @@ Z_BALL = Z_INF + F_M * F_M / 1.5  # the ball's image depth in hologram space (1.
 EYES = (-0.8e-3, 0.8e-3)
 SEEDS = (44, 55, 66, 77, 88)  # five: the glow's own cross terms leave about 0.4 px of scatter (three: 0.8)
 TOL_PX = 0.7
-CASES = {"one_plane": {"wrp_planes": 1}, "two_planes": {"wrp_planes": 2}, "direct": {"method": "direct"}}
+# the point behind its recording plane and in front of it (the SLM): the two signs of the plane's parallax; a
+# second plane nearer the point lies between them (about 0.3 px short of the ground truth when last measured)
+CASES = {"one_plane": {"wrp_planes": 1}, "direct": {"method": "direct"}}
 
 
 def _scene():
@@ -97,7 +99,7 @@ def views():
 @pytest.mark.parametrize("case", list(CASES))
 def test_mean_field_parallax_matches_ground_truth(views, case):
     """The traced field's mean shows the ball where the ground truth does from both eye positions, recorded on
-    one plane 4.5 mm in front of it, on a second plane nearer it, or on the SLM 5.7 mm behind it."""
+    one plane 4.5 mm in front of it or on the SLM 5.7 mm behind it."""
     for e, (_single, mean_field, truth) in zip(EYES, views[case]):
         ours, want = _centroid_x(mean_field, truth), _centroid_x(truth, truth)
         assert abs(ours - want) < TOL_PX, f"{case}, eye {e * 1e3:+.1f} mm: column {ours:.2f}, ground truth {want:.2f}"
