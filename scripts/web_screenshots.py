@@ -160,6 +160,18 @@ def _sweep(s: Shots, url: str, bundle: Path, res_hw: tuple[int, int]) -> None:
     s.snap("web-sweep.png")
 
 
+def _home(s: Shots, url: str, bundle: Path, res_hw: tuple[int, int], args) -> None:
+    """The list with its finished jobs' thumbnails, and the form with the scene and its estimate."""
+    s.d.get(url + "/#/")
+    s.wait(lambda: s.js("return document.querySelectorAll('#jobs tbody tr img.thumb').length") >= 2, 60)
+    s.d.find_element("id", "bundle").send_keys(str(bundle))
+    s.click("upload-button")
+    s.wait(lambda: s.has("job-form"), 120)
+    _options(s, res_hw, args.frames, args.preset)
+    s.wait(lambda: "Estimate:" in s.js("return document.getElementById('estimate').innerText"), 60)
+    s.snap("web-home.png")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "screenshots")
@@ -167,7 +179,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--preset", default="balanced", choices=("fast", "balanced", "reference"))
     ap.add_argument("--width", type=int, default=1440, help="the browser window's width, px")
-    ap.add_argument("--sweep-only", action="store_true", help="only web-sweep.png (the frames sweep, about 10 minutes)")
+    ap.add_argument("--sweep-only", action="store_true",
+                    help="only web-sweep.png and web-home.png (the frames sweep and the list it leaves, 10 minutes)")
     ap.add_argument("--running-only", action="store_true",
                     help="stop after web-job-running.png (and web-signin.png): the first job's render, not ten minutes")
     args = ap.parse_args(argv)
@@ -218,6 +231,7 @@ def main(argv=None) -> int:
             s.wait(lambda: s.has("home"))
             if args.sweep_only:
                 _sweep(s, url, bundle, (res_hw[0] // 2, res_hw[1] // 2))
+                _home(s, url, bundle, res_hw, args)
                 return 0
             driver.find_element("id", "bundle").send_keys(str(bundle))
             s.click("upload-button")
@@ -249,14 +263,7 @@ def main(argv=None) -> int:
                                 "return !!i.src && i.complete; })"), 120)
             s.snap("web-compare.png")
             _sweep(s, url, bundle, (res_hw[0] // 2, res_hw[1] // 2))
-            driver.get(url + "/#/")
-            s.wait(lambda: s.js("return document.querySelectorAll('#jobs tbody tr img.thumb').length") >= 2, 60)
-            driver.find_element("id", "bundle").send_keys(str(bundle))
-            s.click("upload-button")
-            s.wait(lambda: s.has("job-form"), 120)
-            _options(s, res_hw, args.frames, args.preset)
-            s.wait(lambda: "Estimate:" in s.js("return document.getElementById('estimate').innerText"), 60)
-            s.snap("web-home.png")
+            _home(s, url, bundle, res_hw, args)
         finally:
             if driver is not None:
                 driver.quit()
