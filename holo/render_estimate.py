@@ -57,7 +57,7 @@ def print_estimate(scene: Path, loaded, optics_cfg, options, profile, console) -
     for line in estimate_lines(qctx, optics_cfg, options, most_frames=max(optics_cfg.frames, profile.frames)):
         console.print(line)
     theta = max(optics_cfg.theta_max(lam) for lam in optics_cfg.wavelengths_m)
-    border = max(pl.planes.border_px(k, pitch_m=optics_cfg.pitch_m, theta_max=theta) for k in range(pl.planes.count))
+    border = max(pl.planes.borders_px(pitch_m=optics_cfg.pitch_m, theta_max=theta))
     mem = estimate_memory(height_px=optics_cfg.height, width_px=optics_cfg.width,
                           colors=len(optics_cfg.wavelengths_nm), frames=optics_cfg.frames, plane_border_px=border)
     console.print(f"estimated peak memory: render {mem.render_bytes / 1e9:.2f} GB, encode (sgd) "

@@ -20,7 +20,7 @@ from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
 from holocore.plan.effects import capped_share, inventory, make_plan
-from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, admit_planes
+from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, admit_placed_planes
 from holocore.plan.focus_depth import focus_depth
 from holocore.plan.presets import PresetName, RenderMethod
 from holocore.plan.scene_plan import ScenePlan
@@ -94,7 +94,8 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
         planes = choose_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin)
     else:
         planes = place_planes(depths, z_wrp_m=ana.z_wrp_m, margin_m=margin, count=options.wrp_planes)
-    planes, planes_note = _admit_planes(planes, optics, options, theta_max, _budget(memory_budget_bytes))
+    planes, admission = admit_placed_planes(planes, optics, auto=options.wrp_planes == "auto",
+                                            budget_bytes=_budget(memory_budget_bytes), tile_rays=options.tile_rays)
     # The noise target is set by the farthest image point from the plane that records it.
     radius_px = ana.subhologram_radius_px if planes.count == 1 or not depths else \
         planes.farthest_distance_m(depths) * px_per_m
@@ -113,24 +114,10 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
     if options.max_delta is not None and plan.coherent_delta:  # a cap asked for: the plan says what it drops
         plan = plan.model_copy(update={"max_delta": int(options.max_delta),
                                        "delta_capped_share": capped_share(ana.delta_bounces, int(options.max_delta))})
-    notes = [planes_note] if planes_note else []
+    notes = [admission.note] if admission.note else []
     plan = plan.model_copy(update={"summary": [*plan.summary, *notes, fov["summary"], focus.summary, *ignored]})
     return ScenePlan(hmap=hmap, inventory=inv, analysis=ana, plan=plan, focal_length_m=f, field_of_view=fov,
                      planes=planes, focus=focus)
-
-
-def _admit_planes(planes: WrpPlanes, optics: OpticsConfig, options: RenderOptions, theta_max: float,
-                  budget: int) -> tuple[WrpPlanes, Optional[str]]:
-    """The recording planes whose grids fit ``budget`` (bytes) and a line for the plan when some were dropped
-    (holocore.plan.memory_estimate.admit_planes, the rule the service admits jobs by)."""
-    H, W = optics.resolution_hw
-    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta_max) for k in range(planes.count)]
-    adm = admit_planes(borders, height_px=H, width_px=W, colors=len(optics.wavelengths_m), frames=optics.frames,
-                       pitch_m=optics.pitch_m, budget_bytes=budget, auto=options.wrp_planes == "auto",
-                       tile_rays=options.tile_rays)
-    if adm.kept == planes.count:
-        return planes, adm.note
-    return WrpPlanes(planes.z_m[:adm.kept], planes.margin_m), adm.note
 
 
 @dataclass(frozen=True)

@@ -96,7 +96,7 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
     H, W = optics.resolution_hw
     lams = [optics.wavelengths_m[c] for c in lit_idx]
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta) for k in range(planes.count)]
+    borders = planes.borders_px(pitch_m=optics.pitch_m, theta_max=theta)
     spec = [(planes.z_m[k], *planes.slab(k), borders[k]) for k in range(planes.count)]
     scratch = [None] + [ScratchArray((n_f, len(lams), H + 2 * b, W + 2 * b), np.complex64,
                                      dir=getattr(sink, "scratch_dir", None)) for b in borders[1:]]

@@ -23,11 +23,12 @@ import math
 from dataclasses import dataclass
 from typing import Literal, Optional, Sequence
 
-from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD
+from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
+from holocore.plan.wrp_planes import WrpPlanes
 
 __all__ = ["MemoryEstimate", "estimate_memory", "STAGES", "MEASURED_PEAKS", "plane_chain_bytes",
-           "deepest_border_px", "recording_planes_bytes", "admit_planes", "PlaneAdmission", "DEFAULT_TILE_RAYS",
-           "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
+           "deepest_border_px", "recording_planes_bytes", "admit_planes", "admit_placed_planes", "PlaneAdmission",
+           "DEFAULT_TILE_RAYS", "ASM_COPIES", "evaluation_bytes", "EVAL_MAX_CELLS"]
 
 Stage = Literal["render", "encode", "view"]
 STAGES: tuple[Stage, ...] = ("render", "encode", "view")
@@ -156,6 +157,19 @@ def admit_planes(borders_px: Sequence[int], *, height_px: int, width_px: int, co
             f"planes' grids need about {full / 1e9:.3g} GB, more than the memory budget of "
             f"{budget_bytes / 2**20:.0f} MiB (the points behind are recorded on the deepest plane kept)")
     return PlaneAdmission(kept, max(borders[:kept]), need(kept), note)
+
+
+def admit_placed_planes(planes: WrpPlanes, optics: OpticsConfig, *, auto: bool, budget_bytes: int,
+                        tile_rays: int = DEFAULT_TILE_RAYS) -> tuple[WrpPlanes, PlaneAdmission]:
+    """:func:`admit_planes` for planes placed at ``optics``: (the planes kept, the deepest dropped; the admission).
+    The render's plan and the service's admission both ask this."""
+    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+    h, w = optics.resolution_hw
+    adm = admit_planes(planes.borders_px(pitch_m=optics.pitch_m, theta_max=theta), height_px=h, width_px=w,
+                       colors=len(optics.wavelengths_m), frames=optics.frames, pitch_m=optics.pitch_m,
+                       budget_bytes=budget_bytes, auto=auto, tile_rays=tile_rays)
+    kept = planes if adm.kept == planes.count else WrpPlanes(planes.z_m[:adm.kept], planes.margin_m)
+    return kept, adm
 
 
 def deepest_border_px(depth_m: float, *, pitch_m: float, theta_max: float) -> int:

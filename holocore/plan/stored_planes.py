@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Optional, Union
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, PlaneAdmission, admit_planes
+from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, PlaneAdmission, admit_placed_planes
 from holocore.plan.stored_plan import image_depths_m, wrp_distance_m, wrp_margin_m
 from holocore.plan.wrp_planes import choose_planes, place_planes
 
@@ -30,9 +30,5 @@ def admitted_planes(plan: Optional[dict], optics: OpticsConfig, *, wrp_planes: U
         planes = choose_planes(depths, z_wrp_m=z_wrp, margin_m=margin)
     else:
         planes = place_planes(depths, z_wrp_m=z_wrp, margin_m=margin, count=int(wrp_planes))
-    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    borders = [planes.border_px(k, pitch_m=optics.pitch_m, theta_max=theta) for k in range(planes.count)]
-    h, w = optics.resolution_hw
-    return admit_planes(borders, height_px=h, width_px=w, colors=len(optics.wavelengths_m), frames=optics.frames,
-                        pitch_m=optics.pitch_m, budget_bytes=budget_bytes, auto=wrp_planes == "auto",
-                        tile_rays=tile_rays)
+    return admit_placed_planes(planes, optics, auto=wrp_planes == "auto", budget_bytes=budget_bytes,
+                               tile_rays=tile_rays)[1]

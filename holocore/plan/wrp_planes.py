@@ -68,6 +68,10 @@ class WrpPlanes:
         t = math.tan(min(theta_max, MAX_CONE_HALF_ANGLE_RAD))
         return int(math.ceil((self.z_m[0] - self.z_m[k]) * t / pitch_m - 1e-9))
 
+    def borders_px(self, *, pitch_m: float, theta_max: float) -> list[int]:
+        """:meth:`border_px` of every plane, front to back (the WRP's is 0)."""
+        return [self.border_px(k, pitch_m=pitch_m, theta_max=theta_max) for k in range(self.count)]
+
     def noise_energy(self, depths_m: Sequence[float]) -> list[float]:
         """Per plane, sum of r^2 over the (luminance-quantile) depth samples it records, r their distance to
         it, floored at one margin: the Monte Carlo noise energy of that plane per ray and pixel (docs/design.md §4)."""

@@ -4,13 +4,13 @@ scene's inventory and its plan in words are ``holocore.plan.effects``."""
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Iterator, Optional
 
 from holocore.runtime.mitsuba_env import mitsuba
 
 __all__ = ["shape_name", "is_mixed_delta", "has_mixed_delta", "has_media", "reference_integrator",
            "sigma_t_per_m", "absorbing_media", "NEAR_SMOOTH_MAX_ALPHA", "bsdf_alpha", "all_glossy",
-           "near_smooth_bsdfs"]
+           "near_smooth_shapes", "near_smooth_bsdfs"]
 
 
 def shape_name(shape, i: int) -> str:
@@ -102,14 +102,16 @@ def all_glossy(bsdf) -> bool:
     return bool(lobes) and all(fl & int(F.Glossy) and not fl & not_glossy for fl in lobes)
 
 
-def near_smooth_bsdfs(scene) -> dict[str, float]:
-    """The scene's shapes whose BSDF is near-smooth (holocore.trace.near_smooth), by name, with their alpha."""
-    out: dict[str, float] = {}
+def near_smooth_shapes(scene) -> Iterator[tuple[int, Any, float]]:
+    """(index, shape, alpha) of each shape whose BSDF is near-smooth (holocore.trace.near_smooth): every lobe
+    glossy, alpha at most NEAR_SMOOTH_MAX_ALPHA. The one test of it, for the plan and the tracer."""
     for i, sh in enumerate(scene.shapes()):
         b = sh.bsdf()
-        if b is None or not all_glossy(b):
-            continue
-        a = bsdf_alpha(b)
+        a = None if b is None or not all_glossy(b) else bsdf_alpha(b)
         if a is not None and a <= NEAR_SMOOTH_MAX_ALPHA:
-            out[shape_name(sh, i)] = a
-    return out
+            yield i, sh, a
+
+
+def near_smooth_bsdfs(scene) -> dict[str, float]:
+    """The scene's near-smooth shapes by name, with their alpha (the plan's inventory)."""
+    return {shape_name(sh, i): a for i, sh, a in near_smooth_shapes(scene)}

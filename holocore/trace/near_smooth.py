@@ -22,9 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from holocore.runtime.mitsuba_env import mitsuba
-from holocore.scene.features import NEAR_SMOOTH_MAX_ALPHA, all_glossy, bsdf_alpha
+from holocore.scene.features import near_smooth_shapes
 
 __all__ = ["near_smooth_table", "is_near_smooth", "micro_normal"]
+
 
 def near_smooth_table(scene):
     """A Dr.Jit Bool array indexed by a BSDF's registry id: True for the near-smooth BSDFs of ``scene``; None when
@@ -32,12 +33,7 @@ def near_smooth_table(scene):
     mi = mitsuba()
     import drjit as dr
 
-    ids = []
-    for sh in scene.shapes():
-        b = sh.bsdf()
-        a = None if b is None or not all_glossy(b) else bsdf_alpha(b)
-        if a is not None and a <= NEAR_SMOOTH_MAX_ALPHA:
-            ids.append(int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b))[0]))
+    ids = [int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(sh.bsdf()))[0]) for _i, sh, _a in near_smooth_shapes(scene)]
     if not ids:
         return None
     table = np.zeros(max(ids) + 1, dtype=bool)

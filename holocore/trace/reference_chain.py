@@ -99,10 +99,12 @@ def trace_chain(
     sampler.seed(seed, R)
     ctx = mi.BSDFContext()
     flags = mi.RayFlags.All | mi.RayFlags.dNSdUV
-    st, cont = _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R)
+    near_smooth = near_smooth_table(scene)  # near-smooth surfaces carry the chain too (holocore.trace.near_smooth)
+    st, cont = _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R, near_smooth)
     lanes = dr.compress(cont)
     if dr.width(lanes) > 0 and max_delta > 0:
-        _delta_chains(mi, dr, scene, ctx, flags, o, v, np.asarray(lanes, dtype=np.int64), st, max_delta, seed)
+        _delta_chains(mi, dr, scene, ctx, flags, o, v, np.asarray(lanes, dtype=np.int64), st, max_delta, seed,
+                      near_smooth)
     else:
         st["capped"] = mi.Bool(cont)
     dr.eval(*st.values())
@@ -127,7 +129,7 @@ def trace_chain(
     )
 
 
-def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int) -> tuple[dict, object]:
+def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int, near_smooth) -> tuple[dict, object]:
     """Every ray's first hit, where most paths end (P = first hit, d = t): the chain's state of every ray (each
     array of the full width R, which scatters need: a literal of width 1 would be written out of bounds) and
     which rays go on through a delta lobe."""
@@ -137,9 +139,8 @@ def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int) -> tuple[dict,
     bsdf = si.bsdf(ray0)
     bs, w = bsdf.sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
     is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-    table = near_smooth_table(scene)
-    if table is not None:  # near-smooth surfaces carry the chain too (holocore.trace.near_smooth)
-        is_delta |= mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy) & is_near_smooth(table, bsdf, hit)
+    if near_smooth is not None:
+        is_delta |= mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy) & is_near_smooth(near_smooth, bsdf, hit)
     is_delta &= bs.pdf > 0
     stop = hit & (~is_delta | si.shape.is_emitter())
     cont = hit & ~stop
@@ -152,7 +153,7 @@ def _first_hits(mi, dr, scene, ray0, sampler, ctx, flags, R: int) -> tuple[dict,
 
 
 def _delta_chains(mi, dr, scene, ctx, flags, o: np.ndarray, v: np.ndarray, idx: np.ndarray, st: dict,
-                  max_delta: int, seed: int) -> None:
+                  max_delta: int, seed: int, near_smooth) -> None:
     """Carry the rays ``idx`` that go on through delta vertices with their float64 differentials (0, 1: lateral
     shifts of O along e1, e2; 2, 3: angular perturbations of v along them) and scatter what they end with into
     ``st``."""
@@ -161,7 +162,7 @@ def _delta_chains(mi, dr, scene, ctx, flags, o: np.ndarray, v: np.ndarray, idx: 
     e1 = np.cross(vv, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(vv, e1)
-    sub = _DeltaChain(mi, scene, ctx, flags, oo, vv, e1, e2, seed)
+    sub = _DeltaChain(mi, scene, ctx, flags, oo, vv, e1, e2, seed, near_smooth)
     sub.run(max_delta)
     lanes = mi.UInt32(aligned(idx, np.uint32))
     for name in ("d_out", "fin_o", "fin_d", "thr", "n_delta", "opl", "escaped", "done", "capped", "bad"):
@@ -194,14 +195,14 @@ class _DeltaChain:
     bounce traces only the lanes still in the chain (most paths leave after one or two delta vertices).
     """
 
-    def __init__(self, mi, scene, ctx, flags, oo, vv, e1, e2, seed):
+    def __init__(self, mi, scene, ctx, flags, oo, vv, e1, e2, seed, near_smooth=None):
         """oo, vv: float64 [n, 3] origins and unit directions of the lanes; e1, e2: unit vectors with (vv, e1, e2)
-        orthonormal."""
+        orthonormal; near_smooth: the scene's near-smooth BSDF table (holocore.trace.near_smooth), or None."""
         import drjit as dr
 
         F64, V3d = mi.Float64, mi.Vector3d
         self.mi, self.scene, self.ctx, self.flags = mi, scene, ctx, flags
-        self.near_smooth = near_smooth_table(scene)
+        self.near_smooth = near_smooth
         n = oo.shape[0]
         # Working state of the lanes still in the chain (compacted after every bounce); lane: their output slot.
         self.lane = dr.arange(mi.UInt32, n)
