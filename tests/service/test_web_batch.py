@@ -100,8 +100,10 @@ def test_cancel_delete_and_compare_the_ticked_jobs_of_the_list(page, server, sce
     assert not page.enabled("jobs-cancel-selected")  # a hidden ticked job (the third, cancelled) is not counted
     shown = page.js("return [...document.querySelectorAll('#jobs tbody tr:not([hidden])')].map((r) => r.dataset.jobId)")
     _click(page, "jobs-compare-selected")
-    page.until(lambda: page.js("return location.hash") == "#/compare/" + "/".join(shown) and _loaded(page, 3),
-               what="the three jobs compared")
+    page.until(lambda: page.js("return location.hash") == "#/compare/" + "/".join(shown),
+               what=f"the compare page of {shown}")
+    # three simulated views from the server: on a loaded machine this takes longer than a page's wait
+    page.until(lambda: _loaded(page, 3), what="the three jobs' views", timeout=240)
     page.go("#/")
     page.until(lambda: page.visible("home"))
     page.choose("filter-state", "")  # the filter is kept in the tab: leave none for the next test

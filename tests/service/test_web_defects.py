@@ -57,8 +57,13 @@ def test_rerun_with_changes_submits_every_option_of_the_job(page, server, made_j
                window.fetch = (u, o) => { if (String(u) === '/v1/jobs' && o && o.method === 'POST')
                                             window.posted.push(o.body); return f(u, o); };""")
     page.d.find_element(By.ID, "submit-button").click()
-    page.until(lambda: page.js("return window.posted.length") == 1 and page.text("job-id")
-               and page.text("job-id") != job["id"], what="the re-run job's page")
+    shown = {}  # the new job's id as its page shows it (the view redraws: read it once, in the wait)
+
+    def on_new_page() -> bool:
+        shown["id"] = page.text("job-id")
+        return page.js("return window.posted.length") == 1 and shown["id"] not in ("", job["id"])
+
+    page.until(on_new_page, what="the re-run job's page")
     sent = json.loads(page.js("return window.posted[0]"))
     asked = DIRECT_JOB if which == "direct" else WRP6_JOB
     for key, value in asked.items():
@@ -66,7 +71,7 @@ def test_rerun_with_changes_submits_every_option_of_the_job(page, server, made_j
             continue
         got = sent.get(key) if key != "optics" else {k: sent["optics"][k] for k in value}
         assert got == value, f"{key}: sent {got!r}, the job had {value!r}"
-    new_id = page.text("job-id")
+    new_id = shown["id"]
     with server.client("submit") as c:
         again = c.get(f"/v1/jobs/{new_id}").json()
         c.delete(f"/v1/jobs/{new_id}")

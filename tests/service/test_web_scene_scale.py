@@ -48,9 +48,13 @@ def test_a_far_scene_is_offered_a_scale_which_the_job_and_its_rerun_keep(page, s
     for field, value in (("frames", "1"), ("res-h", "48"), ("res-w", "64"), ("spp", "4"), ("iterations", "20")):
         page.set(field, value)
     page.set("scene-scale", suggested)
-    page.until(lambda: page.enabled("submit-button") and "focus:" in page.text("form-plan"), what="the estimate")
-    focus = [ln for ln in page.text("form-plan").splitlines() if ln.startswith("focus:")][0]
-    assert _depths_of_field(focus) >= 1, focus
+    def focus_line() -> str:
+        return next((ln for ln in page.text("form-plan").splitlines() if ln.startswith("focus:")), "")
+
+    # the plan shown until the estimate comes back is the unscaled one: wait for the scaled plan's focus line
+    page.until(lambda: page.enabled("submit-button") and focus_line()
+               and "no focus change" not in focus_line(), what="the scaled scene's estimate")
+    assert _depths_of_field(focus_line()) >= 1, focus_line()
     page.d.find_element(By.ID, "submit-button").click()
     page.until(lambda: re.search(r"#/jobs/j\w+$", page.d.current_url), what="the job's page")
     jid = page.d.current_url.rsplit("/", 1)[1]
