@@ -20,14 +20,16 @@ def register(app: typer.Typer) -> None:
 def encode(
     result: Path = typer.Argument(..., help="RESULT.npz from `holo render`."),
     out: Path = typer.Option(..., "--out", help="Where to write STACK.npz."),
-    method: Optional[str] = typer.Option(None, help="sgd (complex-supervised Adam, default) | dpac (double phase) | "
-                                                    "naive (arg of the ideal SLM field, for tests)."),
+    method: Optional[str] = typer.Option(None, help="sgd (complex-supervised, default) | dpac (double phase) | naive "
+                                                    "(arg of the ideal SLM field, for tests)."),
     iterations: Optional[int] = typer.Option(None, help="Most Adam steps for sgd (0..1000000; default "
                                                         f"{DEFAULT_MAX_ITERATIONS}); stops earlier once converged."),
     options_json: Optional[Path] = typer.Option(None, "--options-json", help="The hologram's options as one JSON "
                                                 "document (docs/options.md): its encoder and iterations; the flags "
                                                 "above override them."),
-    lr: float = typer.Option(0.2, help="Adam step for sgd, rad (> 0)."),
+    optimiser: str = typer.Option("adam", help="sgd's steps: adam (default) | lbfgs (memoryless BFGS: Adam's "
+                                               "error in about two thirds of its first 30-50 iterations)."),
+    lr: float = typer.Option(0.2, help="sgd's step, rad (> 0): Adam's, or lbfgs's first largest pixel change."),
     stop_db: float = typer.Option(0.05, "--stop-db", help="sgd stops a (frame, color) once its field SNR gained "
                                                          "less than this many dB over 30 steps (0: run every step)."),
     tol: Optional[float] = typer.Option(None, help="Instead of --stop-db: stop when the loss falls by less than "
@@ -76,16 +78,14 @@ def encode(
         meta = read_meta(result)
     except (ValueError, OSError, KeyError) as exc:
         fail(f"cannot read {result}: {exc}")
-    lut_table = None
-    if lut is not None:
-        try:
-            lut_table = encoding.load_lut(lut, wavelengths_m=meta.wavelengths_m)
-        except ValueError as exc:
-            fail(str(exc))
+    try:
+        lut_table = None if lut is None else encoding.load_lut(lut, wavelengths_m=meta.wavelengths_m)
+    except ValueError as exc:
+        fail(str(exc))
     write_progress = progress_writer(progress_jsonl)
     write_progress("load", 1, 1)
-    options = dict(iterations=iterations, lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=efficiency_weight) \
-        if method == "sgd" else {}
+    options = dict(iterations=iterations, lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=efficiency_weight,
+                   optimiser=optimiser) if method == "sgd" else {}
     t0 = time.perf_counter()
     try:
         res, _ = encode_file(result, out, method=method, fourier_filter=fourier_filter,

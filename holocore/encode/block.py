@@ -14,10 +14,12 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
+from holocore.encode.lbfgs import optimise_lbfgs
 from holocore.encode.sgd import Operator, encoder_grid, inner_energy, optimise
 from holocore.optics.propagation import PitchLike
 
 SUPERVISIONS = ("cone", "full")
+OPTIMISERS = {"adam": optimise, "lbfgs": optimise_lbfgs}
 
 
 @dataclass
@@ -59,8 +61,10 @@ def dpac_phase(u0: torch.Tensor) -> torch.Tensor:
 def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m: float, pitch_m: PitchLike,
                  supervision: str = "cone", init: Optional[torch.Tensor] = None, iterations: int = 500,
                  lr: float = 0.2, stop_db: Optional[float] = 0.05, tol: Optional[float] = None,
-                 efficiency_weight: float = 0.0, progress: Optional[Callable[[int], None]] = None) -> BlockResult:
-    """Encode target [B, H, W] (complex64, one color) with ``method`` (sgd | naive | dpac)."""
+                 efficiency_weight: float = 0.0, optimiser: str = "adam",
+                 progress: Optional[Callable[[int], None]] = None) -> BlockResult:
+    """Encode target [B, H, W] (complex64, one color) with ``method`` (sgd | naive | dpac); sgd's steps are
+    ``optimiser``'s (adam | lbfgs)."""
     if supervision not in SUPERVISIONS:
         raise ValueError(f"supervision must be one of {SUPERVISIONS}, got {supervision!r}")
     b, h, w = target.shape
@@ -92,7 +96,8 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
     black = black_t.cpu().numpy()
     op = op_cone if supervision == "cone" else op_full
     if method == "sgd":
-        out = optimise(phi0, t_unit, op, lit=~black, iterations=iterations, lr=lr, stop_db=stop_db, tol=tol,
+        out = OPTIMISERS[optimiser](phi0, t_unit, op, lit=~black, iterations=iterations, lr=lr, stop_db=stop_db,
+                                    tol=tol,
                        efficiency_weight=efficiency_weight, progress=progress)
         phi, iters, conv, trace = out.phase, out.iterations, out.converged, out.trace
     else:

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from holocore import validate
-from holocore.encode.block import SUPERVISIONS, BlockResult, encode_block
+from holocore.encode.block import OPTIMISERS, SUPERVISIONS, BlockResult, encode_block
 from holocore.encode.core import (
     TWO_PI,
     ArrayLike,
@@ -272,7 +272,9 @@ def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init,
         progress("encode", ran, ran)
 
 
-def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:
+def sgd_options(iterations, lr, tol, stop_db, efficiency_weight, optimiser="adam") -> dict:
+    if optimiser not in OPTIMISERS:
+        raise ValueError(f"optimiser must be one of {', '.join(OPTIMISERS)}, got {optimiser!r}")
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 10**6:
         raise ValueError(f"iterations must be an integer in 0..1000000, got {iterations!r}")
     lr = validate.bounded("lr", lr, low=0.0, low_inclusive=False, unit="rad")
@@ -282,7 +284,8 @@ def sgd_options(iterations, lr, tol, stop_db, efficiency_weight) -> dict:
     w = validate.bounded("efficiency_weight", efficiency_weight, low=0.0, low_inclusive=True, unit="")
     if w > 1.0:
         raise ValueError(f"efficiency_weight must be in [0, 1], got {efficiency_weight!r}")
-    return dict(iterations=int(iterations), lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=w)
+    return dict(iterations=int(iterations), lr=lr, tol=tol, stop_db=stop_db, efficiency_weight=w,
+                optimiser=optimiser)
 
 
 def _block_progress(progress: ProgressFn, ran: int, expect: int, *, left: int):
@@ -293,21 +296,23 @@ def _block_progress(progress: ProgressFn, ran: int, expect: int, *, left: int):
 
 def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,
                iterations: int = 500, lr: float = 0.2, init: Optional[ArrayLike] = None, tol: Optional[float] = None,
-               stop_db: float = 0.05, efficiency_weight: float = 0.0, fourier_filter: bool = True,
+               stop_db: float = 0.05, efficiency_weight: float = 0.0, optimiser: str = "adam",
+               fourier_filter: bool = True,
                chunk_frames: Optional[int] = None, device: Optional[Union[str, torch.device]] = None,
                progress: Optional[ProgressFn] = None) -> EncodeResult:
     """Optimise the SLM phase [F, C, H, W] so that ASM(exp(i phi), z_wrp) matches the target in amplitude and
     phase up to one complex scale per (frame, color) (docs/design.md §6; module docstring).
 
     ``target_wrp`` complex [F, C, H, W] on the WRP at ``z_wrp_m`` (m, > 0); ``wavelengths_m`` one per color;
-    ``pitch_m`` (m). Adam with step ``lr`` (rad) for at most ``iterations`` steps; each (frame, color) stops
-    once its field SNR 10 log10((1-E)/E) gained less than ``stop_db`` dB over 30 iterations (0: never), or, if
-    ``tol`` is given, once E fell by less than that fraction over 30 iterations (0: never). ``init``: phase in
-    rad (default arg u0). ``fourier_filter``: the display's (module docstring). ``chunk_frames``: frames per
+    ``pitch_m`` (m). ``optimiser`` (adam, default: Adam with step ``lr``, rad; lbfgs: memoryless BFGS,
+    :mod:`holocore.encode.lbfgs`, ``lr`` its first step's largest change) for at most ``iterations`` steps;
+    each (frame, color) stops once its field SNR 10 log10((1-E)/E) gained less than ``stop_db`` dB over 30
+    iterations (0: never), or, if ``tol`` is given, once E fell by less than that fraction over 30 iterations
+    (0: never). ``init``: phase in rad (default arg u0). ``fourier_filter``: the display's (module docstring). ``chunk_frames``: frames per
     block (default all; the result does not depend on it). ``progress(stage, done, total)``.
     """
-    sgd = sgd_options(iterations, lr, tol, stop_db, efficiency_weight)
-    opts = {"lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"],
+    sgd = sgd_options(iterations, lr, tol, stop_db, efficiency_weight, optimiser)
+    opts = {"optimiser": sgd["optimiser"], "lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"],
             "efficiency_weight": sgd["efficiency_weight"],
             "max_iterations": sgd["iterations"], "init": "naive" if init is None else "given",
             "device": str(device if device is not None else (target_wrp.device if isinstance(target_wrp, torch.Tensor)

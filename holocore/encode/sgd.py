@@ -49,6 +49,48 @@ def inner_energy(t: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.
     return a, e
 
 
+@dataclass
+class Work:
+    """The H x W buffers of one evaluation, reused across iterations: cos and sin of phi, J A u, and dO/dphi."""
+
+    cos: torch.Tensor
+    sin: torch.Tensor
+    p: torch.Tensor
+    grad: torch.Tensor
+
+    @classmethod
+    def like(cls, phi: torch.Tensor, t: torch.Tensor) -> "Work":
+        return cls(torch.empty_like(phi), torch.empty_like(phi), torch.empty_like(t), torch.empty_like(phi))
+
+    def narrow(self, n: int) -> "Work":
+        return Work(self.cos[:n], self.sin[:n], self.p[:n], self.grad[:n])
+
+
+def objective_grad(phi: torch.Tensor, t: torch.Tensor, op: Operator, w_eff: float,
+                   work: Work) -> tuple[torch.Tensor, torch.Tensor]:
+    """O and rho^2 ([B]) at phi, with 2 HW dO/dphi written into ``work.grad`` (module docstring): four padded
+    ``fft2``, two multiplies on the padded grid, the passes over H x W listed there. t and ``work.p`` are
+    flipped (J)."""
+    n, dev = phi.shape[0], phi.device
+    hw = float(phi.shape[-2] * phi.shape[-1])
+    cos, sin, p = work.cos, work.sin, work.p
+    torch.cos(phi, out=cos)
+    torch.sin(phi, out=sin)
+    torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the FFT input
+    p.copy_(op.apply("in", n, dev))  # J A u (the crop copy; the padded result is freed)
+    a, e = inner_energy(t, p)
+    e = e.clamp_min(1e-30)
+    rho2 = (a.real.square() + a.imag.square()) / e
+    q = (e / hw) ** w_eff if w_eff > 0 else torch.ones_like(e)
+    c1 = (-2.0 * hw * (q / e) * a)[:, None, None]  # 2 HW dO/dp* = c1 t + c2 p, flipped like t and p
+    c2 = (2.0 * hw * (q / e) * (1.0 - w_eff) * rho2)[:, None, None]  # real: a cheaper multiply
+    torch.mul(p, c2, out=op.window("adj", n, dev)).addcmul_(t, c1)
+    gu = op.apply("adj", n, dev, adjoint=True)  # 2 HW dO/du*, natural order (Eq. 2)
+    # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g); the 2 rides on c1, c2
+    torch.mul(cos, gu.imag, out=work.grad).addcmul_(sin, gu.real, value=-1.0)
+    return 1.0 - q * rho2, rho2
+
+
 def _adam(phi: torch.Tensor, lr: float, state: Optional[dict]) -> torch.optim.Adam:
     """torch's Adam on phi (fused on CPU and CUDA: one pass per step), optionally with a given state."""
     phi.requires_grad_(False)
@@ -92,7 +134,6 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
     are not ``lit`` (black targets) are never updated. ``stop_db`` / ``tol`` (relative objective decrease over
     30 iterations; used when given): per-item stop rules, 0 never stops."""
     b_all, h, w = phi0.shape
-    hw = float(h * w)
     phi_out = phi0.clone()
     iters = np.zeros(b_all, np.int64)
     conv = ~lit.copy()
@@ -113,28 +154,12 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
     opt = _adam(phi, lr, None)
     w_eff = float(efficiency_weight)
     with torch.no_grad(), heap_reuse(dev.type == "cpu"):
-        p = torch.empty_like(t)
-        cos, sin, grad = torch.empty_like(phi), torch.empty_like(phi), torch.empty_like(phi)
+        work = Work.like(phi, t)
         for it in range(1, iterations + 1):
-            n = phi.shape[0]
-            torch.cos(phi, out=cos)
-            torch.sin(phi, out=sin)
-            torch.complex(cos, sin, out=op.window("in", n, dev))  # u = exp(i phi), straight into the FFT input
-            p.copy_(op.apply("in", n, dev))  # J A u (the crop copy; the padded result is freed)
-            a, e = inner_energy(t, p)
-            e = e.clamp_min(1e-30)
-            rho2 = (a.real.square() + a.imag.square()) / e
-            q = (e / hw) ** w_eff if w_eff > 0 else torch.ones_like(e)
-            obj = 1.0 - q * rho2
+            obj, rho2 = objective_grad(phi, t, op, w_eff, work)
             if it == 1:
                 loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
-            c1 = (-2.0 * hw * (q / e) * a)[:, None, None]  # 2 HW dO/dp* = c1 t + c2 p, flipped like t and p
-            c2 = (2.0 * hw * (q / e) * (1.0 - w_eff) * rho2)[:, None, None]  # real: a cheaper multiply
-            torch.mul(p, c2, out=op.window("adj", n, dev)).addcmul_(t, c1)
-            gu = op.apply("adj", n, dev, adjoint=True)  # 2 HW dO/du*, natural order (Eq. 2)
-            # dO/dphi = 2 Im(conj(u) dO/du*) = 2 (cos Im g - sin Re g); the 2 rides on c1, c2
-            phi.grad = torch.mul(cos, gu.imag, out=grad).addcmul_(sin, gu.real, value=-1.0)
-            del gu
+            phi.grad = work.grad
             opt.step()
             iters[active] = it
             if it % CHECK_EVERY and it != iterations:
@@ -161,7 +186,7 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
                 opt = _adam(phi, lr, {k: (v.index_select(0, sel).contiguous() if v.dim() else v.clone())
                                       for k, v in state.items()})
                 t = t.index_select(0, sel).contiguous()
-                p, cos, sin, grad = p[: len(sel)], cos[: len(sel)], sin[: len(sel)], grad[: len(sel)]
+                work = work.narrow(len(sel))
         if active.size:
             phi_out.index_copy_(0, idx, phi)
     return SgdOutcome(phi_out, iters, conv, trace, loss_init)

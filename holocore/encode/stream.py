@@ -104,7 +104,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     fourier_filter, source = _fourier_filter(meta.display, fourier_filter)
     sup = supervision_for(fourier_filter)
     sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
-                               "efficiency_weight": 0.0, **sgd}) if method == "sgd" else {}
+                               "efficiency_weight": 0.0, "optimiser": "adam", **sgd}) if method == "sgd" else {}
     init_src = None if init_path is None else _start_phase(init_path, (F, C, H, W), method)
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
@@ -166,7 +166,8 @@ def _sgd_meta(sgd_opts: dict, init_path: Optional[Union[str, Path]]) -> dict:
     """What the stack's meta says of the SGD's options and its start (nothing for another encoder)."""
     if not sgd_opts:
         return {}
-    return {"lr": sgd_opts["lr"], "tol": sgd_opts["tol"], "stop_db": sgd_opts["stop_db"],
+    return {"optimiser": sgd_opts["optimiser"], "lr": sgd_opts["lr"], "tol": sgd_opts["tol"],
+            "stop_db": sgd_opts["stop_db"],
             "efficiency_weight": sgd_opts["efficiency_weight"], "max_iterations": sgd_opts["iterations"],
             "init": "naive" if init_path is None else f"stack {Path(init_path).name}"}
 
