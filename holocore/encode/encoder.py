@@ -308,8 +308,9 @@ def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence
     :mod:`holocore.encode.lbfgs`, ``lr`` its first step's largest change) for at most ``iterations`` steps;
     each (frame, color) stops once its field SNR 10 log10((1-E)/E) gained less than ``stop_db`` dB over 30
     iterations (0: never), or, if ``tol`` is given, once E fell by less than that fraction over 30 iterations
-    (0: never). ``init``: phase in rad (default arg u0). ``fourier_filter``: the display's (module docstring). ``chunk_frames``: frames per
-    block (default all; the result does not depend on it). ``progress(stage, done, total)``.
+    (0: never). ``init``: phase in rad (default arg u0). ``fourier_filter``: the display's (module docstring).
+    ``chunk_frames``: frames per block (default all; the result does not depend on it). ``progress(stage, done,
+    total)``.
     """
     sgd = sgd_options(iterations, lr, tol, stop_db, efficiency_weight, optimiser)
     opts = {"optimiser": sgd["optimiser"], "lr": sgd["lr"], "tol": sgd["tol"], "stop_db": sgd["stop_db"],
