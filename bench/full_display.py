@@ -101,7 +101,8 @@ def main() -> int:
     ap.add_argument("--pupil-mm", type=float, default=4.0)
     ap.add_argument("--render-s", type=float, default=90.0, help="wall-time budget of the render (s)")
     ap.add_argument("--spp", type=int, default=None, help="a fixed ray count instead of --render-s")
-    ap.add_argument("--ladder", default="25,50,100,200", help="fixed SGD iteration counts to score")
+    ap.add_argument("--ladder", default="25,50,100,200",
+                    help="fixed SGD iteration counts to score, each optionally OPTIMISER:COUNT (e.g. lbfgs:20)")
     ap.add_argument("--default-rule", type=int, default=1, help="1: also the default encode (stop rule, 500 max)")
     ap.add_argument("--gt-spp", type=int, default=256)
     ap.add_argument("--truth", choices=("wave", "thinlens"), default="wave", help="ground truth (docs/evaluation.md)")
@@ -175,8 +176,9 @@ def main() -> int:
     print("complex field:", doc["complex"], flush=True)
     save()
 
-    ladder = [int(v) for v in args.ladder.split(",") if v]
-    runs = [(f"{k} it", dict(iterations=k, stop_db=0.0)) for k in ladder]
+    ladder = [v.split(":") if ":" in v else ("adam", v) for v in args.ladder.split(",") if v]
+    runs = [(f"{k} it" + (f" {o}" if o != "adam" else ""), dict(iterations=int(k), stop_db=0.0, optimiser=o))
+            for o, k in ladder]
     if args.default_rule:
         runs.append(("default (stop rule)", dict(iterations=500, stop_db=0.05)))
     doc["ladder"] = []
@@ -202,7 +204,7 @@ def main() -> int:
             doc["ladder"].append(row)
             print("encode:", json.dumps(row, default=float), flush=True)
             save()
-            if best is None or kw["stop_db"] > 0 or kw["iterations"] >= max(ladder):
+            if best is None or kw["stop_db"] > 0 or kw["iterations"] >= max(int(k) for _, k in ladder):
                 best = (label, seen)
         except Exception:  # noqa: BLE001 - keep what the other runs measure
             traceback.print_exc()
