@@ -2,10 +2,10 @@
 against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x 3 x 24.
 
     python bench/bench_encode.py floor  [--hw 1080x1920] [--frames 2] [--z-mm 85] [--repeats 3]
-    python bench/bench_encode.py error  [--hw 1080x1920] [--frames 1] [--iterations 400] [--z-mm 85]
+    python bench/bench_encode.py error  [--hw 1080x1920] [--frames 1] [--iterations 400] [--z-mm 85] [--optimiser lbfgs]
     python bench/bench_encode.py rss    [--frames 24] [--iterations 3] [--workdir /tmp/enc_rss]
 
-floor: the same run times (a) one iteration of the encoder's optimiser on a block of ``frames`` frames of one
+floor: the same run times (a) one iteration of the encoder's optimiser (Adam, and L-BFGS) on a block of ``frames`` frames of one
 color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
 padded grid, (c) the same on the 2x grid of docs/design.md §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
 (row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from holocore.encode.block import encode_block  # noqa: E402
 from holocore.encode.operator import heap_reuse  # noqa: E402
+from holocore.encode.lbfgs import optimise_lbfgs  # noqa: E402
 from holocore.encode.sgd import Operator, optimise, spread_px  # noqa: E402
 from holocore.optics.propagation import padded_shape  # noqa: E402
 from holocore.trace.randomfield import random_field  # noqa: E402
@@ -81,10 +82,10 @@ def floor(args) -> None:
         phi0 = torch.angle(u0)
     lit = np.ones(args.frames, bool)
 
-    def run(n):
-        optimise(phi0, tb, op, lit=lit, iterations=n, lr=0.2, stop_db=0.0, tol=None, efficiency_weight=0.0)
+    def one_iteration(fn=optimise):  # (11 iterations - 1) / 10: set-up excluded, one stop-rule check included
+        def run(n):
+            fn(phi0, tb, op, lit=lit, iterations=n, lr=0.2, stop_db=0.0, tol=None, efficiency_weight=0.0)
 
-    def one_iteration():  # (11 iterations - 1 iteration) / 10: set-up excluded, one stop-rule check included
         t0 = time.perf_counter()
         run(1)
         t1 = time.perf_counter()
@@ -113,10 +114,11 @@ def floor(args) -> None:
         with mock.patch("holocore.encode.sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
             return one_iteration()
 
-    best = {k: math.inf for k in ("iter", "iter_mmap", "own", "own_heap", "2x", "pruned")}
-    one_iteration(), pairs(x_own), pairs(x_2x), pruned()  # warm up (plans, caches, workspaces)
+    best = {k: math.inf for k in ("iter", "iter_lbfgs", "iter_mmap", "own", "own_heap", "2x", "pruned")}
+    one_iteration(), one_iteration(optimise_lbfgs), pairs(x_own), pairs(x_2x), pruned()  # warm up (plans, caches)
     for _ in range(args.repeats):
         best["iter"] = min(best["iter"], one_iteration())
+        best["iter_lbfgs"] = min(best["iter_lbfgs"], one_iteration(optimise_lbfgs))
         best["iter_mmap"] = min(best["iter_mmap"], iteration_mmap())
         best["own_heap"] = min(best["own_heap"], pairs_heap())
         for key, fn in (("own", lambda: pairs(x_own)), ("2x", lambda: pairs(x_2x)), ("pruned", pruned)):
@@ -130,7 +132,8 @@ def floor(args) -> None:
           f"spread r = {r} px, encoder grid {op.hp}x{op.wp} (2x grid {g2[0]}x{g2[1]})\n")
     print("| | seconds | per frame | / floor on own grid | / same, heap reuse | / floor on 2x grid |\n"
           "|---|---|---|---|---|---|")
-    for key, name in (("iter", "one SGD iteration"), ("iter_mmap", "one SGD iteration without heap reuse"),
+    for key, name in (("iter", "one SGD iteration"), ("iter_lbfgs", "one L-BFGS iteration (--optimiser lbfgs)"),
+                      ("iter_mmap", "one SGD iteration without heap reuse"),
                       ("own", "floor: 2 x (fft2 + ifft2), own grid"),
                       ("own_heap", "floor: the same under heap reuse"),
                       ("pruned", "pruned: the same from 1-D FFTs (zero rows skipped)"),
@@ -145,17 +148,18 @@ def error(args) -> None:
     hw = tuple(int(v) for v in args.hw.split("x"))
     z = args.z_mm * 1e-3
     print(f"### Error vs iterations ({time.strftime('%Y-%m-%d')}, {_machine()})\n")
-    print(f"{hw[0]}x{hw[1]}, {args.frames} frame(s), z_wrp {args.z_mm} mm, Adam lr {args.lr}; E = 1 - rho^2 under "
+    print(f"{hw[0]}x{hw[1]}, {args.frames} frame(s), z_wrp {args.z_mm} mm, {args.optimiser} lr {args.lr}; "
+          f"E = 1 - rho^2 under "
           f"each supervision, SNR = 10 log10((1-E)/E)\n")
     for lam in LAMS[: args.colors]:
         t = _target(args.frames, hw, lam)
         for sup in ("cone", "full"):
             t0 = time.perf_counter()
             full = encode_block("sgd", t, z_m=z, wavelength_m=lam, pitch_m=P, supervision=sup,
-                                iterations=args.iterations, lr=args.lr, stop_db=0.0)
+                                iterations=args.iterations, lr=args.lr, stop_db=0.0, optimiser=args.optimiser)
             secs = time.perf_counter() - t0
             stop = encode_block("sgd", t, z_m=z, wavelength_m=lam, pitch_m=P, supervision=sup,
-                                iterations=args.iterations, lr=args.lr, stop_db=0.05)
+                                iterations=args.iterations, lr=args.lr, stop_db=0.05, optimiser=args.optimiser)
             tr = np.array(full.trace[0])
             snr = 10 * np.log10((1 - tr) / tr)
             marks = [k for k in (10, 20, 50, 100, 200, 300, 400, 600, 800, 1000) if k <= len(tr) * 10]
@@ -227,6 +231,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--lr", type=float, default=0.2)
+    ap.add_argument("--optimiser", default="adam", choices=("adam", "lbfgs"))
     ap.add_argument("--warm", action="store_true")
     ap.add_argument("--memory-limit-gb", type=float, default=8.0)
     ap.add_argument("--workdir", default="/tmp/enc_rss")
