@@ -5,7 +5,7 @@ against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x
     python bench/bench_encode.py error  [--hw 1080x1920] [--frames 1] [--iterations 400] [--z-mm 85] [--optimiser lbfgs]
     python bench/bench_encode.py rss    [--frames 24] [--iterations 3] [--workdir /tmp/enc_rss]
 
-floor: the same run times (a) one iteration of the encoder's optimiser (Adam, and L-BFGS) on a block of ``frames`` frames of one
+floor: the same run times (a) one iteration of the optimiser (Adam, and L-BFGS) on a block of ``frames`` frames of one
 color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
 padded grid, (c) the same on the 2x grid of docs/design.md §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
 (row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
