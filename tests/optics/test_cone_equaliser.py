@@ -197,8 +197,10 @@ def test_a_white_card_keeps_its_colour_in_every_view(planes):
                           frames=8, focal_length_mm=F_M * 1e3, z_inf_mm=4.0)
     ref = _pupil_powers(render_layers(sc, optics, planes=planes, spp=16).wrp_field)
     off = {}
+    # 512 rays for two planes too: measured over seeds 0-3 the equalised error is 3-5 % (< 8 %) and the unequalised
+    # 15-16 % (> 10 %), as at 1024 rays (4 %, 16 %), in half the time
     for eq in (False, True):
-        r = render_loaded(sc, optics, RenderOptions(preset="fast", spp=512 * planes, wrp_planes=planes,
+        r = render_loaded(sc, optics, RenderOptions(preset="fast", spp=512, wrp_planes=planes,
                                                     cone_equaliser=eq))
         assert np.all(np.isfinite(r.wrp_field)) and np.all(np.isfinite(r.slm_field))
         assert len(r.meta["wrp_planes_m"]) == planes
