@@ -143,7 +143,9 @@ def test_a_tilted_plate_is_as_bright_from_the_left_as_from_the_right():
     """A plate turned 12 degrees leans ~1.2 degrees in hologram space; without Eq. B1's depth part its points'
     waves would leave in phase towards u_m tilted by twice that, out of the cone for most frames, and one side
     view would go dark."""
-    _, tilted = _plate_views("directional", 12.0)
+    # 128 rays: the side views' balance is geometry, not noise (measured over seeds 0-2: left / right within 0.2 %
+    # and the dimmer side 1.12x the centre at 128 rays as at 256), so fewer rays keep the same margins
+    _, tilted = _plate_views("directional", 12.0, spp=128)
     left, centre, right = tilted[-0.5].sum(), tilted[0.0].sum(), tilted[0.5].sum()
     assert left / right == pytest.approx(1.0, abs=0.06), (left, right)
     assert min(left, right) > 0.7 * centre, (left, centre, right)
