@@ -97,6 +97,21 @@ def test_encode_writes_a_numpy_readable_stack(stack_npz):
     assert e["loss_mean"] < e["loss_init_mean"] and np.asarray(e["illumination"]).shape == (2, 2)
 
 
+def test_encode_with_lbfgs_steps(result_npz, tmp_path):
+    enc = {}
+    for opt in ("lbfgs", "adam"):
+        out = tmp_path / f"{opt}.npz"
+        r = runner.invoke(app, ["encode", str(result_npz), "--out", str(out), "--optimiser", opt, "--iterations",
+                                "30", "--stop-db", "0"])
+        assert r.exit_code == 0, r.output
+        with np.load(out, allow_pickle=False) as z:
+            enc[opt] = json.loads(str(z["meta"]))["encoder"]
+    e = enc["lbfgs"]
+    assert e["optimiser"] == "lbfgs" and enc["adam"]["optimiser"] == "adam" and e["iterations"] == 30
+    assert e["loss_mean"] < 0.5 * e["loss_init_mean"], e
+    assert e["loss_mean"] < enc["adam"]["loss_mean"], (e["loss_mean"], enc["adam"]["loss_mean"])  # in as many steps
+
+
 @pytest.mark.parametrize("method", ["dpac", "naive"])
 def test_encode_baselines_with_a_lookup_table(result_npz, tmp_path, method):
     lut = tmp_path / "cal.json"
@@ -206,6 +221,7 @@ def test_black_stack_views_black(tmp_path):
     (["view", "{t}/missing.npz", "--focus-mm", "1", "--out", "{t}/x.png"], "not found"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--method", "gs"], "--method"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--lr", "0"], "lr"),
+    (["encode", "{r}", "--out", "{t}/s.npz", "--optimiser", "newton"], "optimiser must be one of adam, lbfgs"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--lut", "{t}/nolut.json"], "not found"),
 ])
 def test_bad_input_exits_2_with_a_message(result_npz, tmp_path, args, message):
