@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from holocore.encode.operator import Operator, flip, heap_reuse
-from holocore.encode.sgd import CHECK_EVERY, SgdOutcome, Work, _stop, inner_energy, objective_grad
+from holocore.encode.sgd import CHECK_EVERY, Items, SgdOutcome, Work, objective_grad
 
 __all__ = ["optimise_lbfgs"]
 
@@ -90,28 +90,16 @@ def optimise_lbfgs(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, li
                    progress: Optional[Callable[[int], None]] = None) -> SgdOutcome:
     """L-BFGS on phi [B, H, W] against unit-norm targets t [B, H, W] through ``op``; the arguments and the
     outcome are :func:`holocore.encode.sgd.optimise`'s (``lr``: the first step's largest pixel change, rad)."""
-    b_all = phi0.shape[0]
-    phi_out = phi0.clone()
-    iters = np.zeros(b_all, np.int64)
-    conv = ~lit.copy()
-    trace: list[list[float]] = [[] for _ in range(b_all)]
-    loss_init = np.ones(b_all)
-    active = np.flatnonzero(lit)
-    if iterations == 0 or active.size == 0:
-        conv[:] = conv | (iterations == 0)
-        if active.size:
-            with torch.no_grad():
-                a, e = inner_energy(t_unit[active], op(torch.polar(torch.ones_like(phi0[active]), phi0[active])))
-                loss_init[active] = (1 - (a.abs().square() / e.clamp_min(1e-30)).double().clamp(0, 1)).cpu().numpy()
-        return SgdOutcome(phi_out, iters, conv, trace, loss_init)
+    run = Items(phi0, t_unit, op, lit, iterations)
+    if run.idle:
+        return run.out
     dev, w_eff = phi0.device, float(efficiency_weight)
-    idx = torch.from_numpy(active).to(dev)
-    phi = phi0.index_select(0, idx).contiguous()
-    t = flip(t_unit.index_select(0, idx))  # J t: the WRP side is held flipped (operator, Eq. 1)
+    phi = phi0.index_select(0, run.idx).contiguous()
+    t = flip(t_unit.index_select(0, run.idx))  # J t: the WRP side is held flipped (operator, Eq. 1)
     with torch.no_grad(), heap_reuse(dev.type == "cpu"):
         work = Work.like(phi, t)
         f, rho2 = objective_grad(phi, t, op, w_eff, work)  # f: O at phi, the point the steps start from
-        loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
+        run.out.loss_init[run.active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
         g = work.grad.clone()  # 2 HW dO/dphi at phi
         first = float(lr)  # the first step's largest pixel change (rad)
         pair = _Pair(phi)
@@ -134,30 +122,18 @@ def optimise_lbfgs(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, li
                 retry = None
                 g, work.grad = work.grad, g  # the new gradient is kept; its old buffer takes the next one
             f = torch.where(taken, f_new, f)
-            iters[active] = it
+            run.out.iterations[run.active] = it
             if it % CHECK_EVERY and it != iterations:
                 continue
-            objs = f.double().cpu().numpy()
-            keep = []
-            for j, k in enumerate(active):
-                trace[k].append(float(objs[j]))
-                conv[k] = _stop(trace[k], stop_db, tol)
-                keep.append(not conv[k])
+            sel = run.check(f, phi, stop_db=stop_db, tol=tol)
             if progress is not None:
                 progress(it)
-            if not all(keep):
-                done = torch.tensor([j for j, kp in enumerate(keep) if not kp], device=dev)
-                phi_out.index_copy_(0, idx.index_select(0, done), phi.index_select(0, done))
-                sel = torch.tensor([j for j, kp in enumerate(keep) if kp], dtype=torch.long, device=dev)
-                active = active[np.asarray(keep)]
-                if active.size == 0:
+            if sel is not None:
+                if run.active.size == 0:
                     break
-                idx, phi, g = idx.index_select(0, sel), phi.index_select(0, sel), g.index_select(0, sel)
-                f, t = f.index_select(0, sel), t.index_select(0, sel)
+                phi, g, f, t = (v.index_select(0, sel) for v in (phi, g, f, t))
                 if retry is not None:
                     retry, missed = retry.index_select(0, sel), missed.index_select(0, sel)
                 pair.select(sel)
                 work = work.narrow(len(sel))
-        if active.size:
-            phi_out.index_copy_(0, idx, phi)
-    return SgdOutcome(phi_out, iters, conv, trace, loss_init)
+        return run.finish(phi)

@@ -127,30 +127,65 @@ class SgdOutcome:
     loss_init: np.ndarray  # float64 [B]
 
 
+class Items:
+    """The bookkeeping both optimisers share: the outcome filled item by item, the lit items still stepping
+    (``active``, and ``idx`` on the device), the stop rule at every check and the retiring of stopped items."""
+
+    def __init__(self, phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, lit: np.ndarray,
+                 iterations: int) -> None:
+        b_all = phi0.shape[0]
+        self.out = SgdOutcome(phi0.clone(), np.zeros(b_all, np.int64), ~lit.copy(), [[] for _ in range(b_all)],
+                              np.ones(b_all))
+        self.active = np.flatnonzero(lit)
+        self.idx = torch.from_numpy(self.active).to(phi0.device)
+        self.idle = iterations == 0 or self.active.size == 0  # nothing to step: the outcome is final now
+        if self.idle:
+            self.out.converged[:] = self.out.converged | (iterations == 0)
+            if self.active.size:
+                act = self.active
+                with torch.no_grad():
+                    a, e = inner_energy(t_unit[act], op(torch.polar(torch.ones_like(phi0[act]), phi0[act])))
+                rho2 = (a.abs().square() / e.clamp_min(1e-30)).double().clamp(0, 1)
+                self.out.loss_init[act] = (1 - rho2).cpu().numpy()
+
+    def check(self, obj: torch.Tensor, phi: torch.Tensor, *, stop_db: Optional[float],
+              tol: Optional[float]) -> Optional[torch.Tensor]:
+        """At a check: each active item's objective into its trace and the stop rule; stopped items' phases out.
+        Returns the positions in the batch of the items that go on when some stopped (None: all go on)."""
+        objs = obj.double().cpu().numpy()
+        keep = []
+        for j, k in enumerate(self.active):
+            self.out.trace[k].append(float(objs[j]))
+            self.out.converged[k] = _stop(self.out.trace[k], stop_db, tol)
+            keep.append(not self.out.converged[k])
+        if all(keep):
+            return None
+        dev = phi.device
+        done = torch.tensor([j for j, kp in enumerate(keep) if not kp], device=dev)
+        self.out.phase.index_copy_(0, self.idx.index_select(0, done), phi.index_select(0, done))
+        sel = torch.tensor([j for j, kp in enumerate(keep) if kp], dtype=torch.long, device=dev)
+        self.active = self.active[np.asarray(keep)]
+        self.idx = self.idx.index_select(0, sel)
+        return sel
+
+    def finish(self, phi: torch.Tensor) -> SgdOutcome:
+        if self.active.size:
+            self.out.phase.index_copy_(0, self.idx, phi)
+        return self.out
+
+
 def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.ndarray, iterations: int,
              lr: float, stop_db: Optional[float], tol: Optional[float], efficiency_weight: float,
              progress: Optional[Callable[[int], None]] = None) -> SgdOutcome:
     """Adam on phi [B, H, W] against unit-norm targets t [B, H, W] through ``op`` (module docstring). Items that
     are not ``lit`` (black targets) are never updated. ``stop_db`` / ``tol`` (relative objective decrease over
     30 iterations; used when given): per-item stop rules, 0 never stops."""
-    b_all, h, w = phi0.shape
-    phi_out = phi0.clone()
-    iters = np.zeros(b_all, np.int64)
-    conv = ~lit.copy()
-    trace: list[list[float]] = [[] for _ in range(b_all)]
-    loss_init = np.ones(b_all)
-    active = np.flatnonzero(lit)
-    if iterations == 0 or active.size == 0:
-        conv[:] = conv | (iterations == 0)
-        if active.size:
-            with torch.no_grad():
-                a, e = inner_energy(t_unit[active], op(torch.polar(torch.ones_like(phi0[active]), phi0[active])))
-                loss_init[active] = (1 - (a.abs().square() / e.clamp_min(1e-30)).double().clamp(0, 1)).cpu().numpy()
-        return SgdOutcome(phi_out, iters, conv, trace, loss_init)
+    run = Items(phi0, t_unit, op, lit, iterations)
+    if run.idle:
+        return run.out
     dev = phi0.device
-    idx = torch.from_numpy(active).to(dev)
-    phi = phi0.index_select(0, idx).contiguous()
-    t = flip(t_unit.index_select(0, idx))  # J t: the WRP side is held flipped (encoding_op, Eq. 1)
+    phi = phi0.index_select(0, run.idx).contiguous()
+    t = flip(t_unit.index_select(0, run.idx))  # J t: the WRP side is held flipped (encoding_op, Eq. 1)
     opt = _adam(phi, lr, None)
     w_eff = float(efficiency_weight)
     with torch.no_grad(), heap_reuse(dev.type == "cpu"):
@@ -158,35 +193,22 @@ def optimise(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, lit: np.
         for it in range(1, iterations + 1):
             obj, rho2 = objective_grad(phi, t, op, w_eff, work)
             if it == 1:
-                loss_init[active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
+                run.out.loss_init[run.active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
             phi.grad = work.grad
             opt.step()
-            iters[active] = it
+            run.out.iterations[run.active] = it
             if it % CHECK_EVERY and it != iterations:
                 continue
-            objs = obj.double().cpu().numpy()
-            keep = []
-            for j, k in enumerate(active):
-                trace[k].append(float(objs[j]))
-                done = _stop(trace[k], stop_db, tol)
-                conv[k] = done
-                keep.append(not done)
+            sel = run.check(obj, phi, stop_db=stop_db, tol=tol)
             if progress is not None:
                 progress(it)
-            if not all(keep):
-                finished = torch.tensor([j for j, kp in enumerate(keep) if not kp], device=dev)
-                phi_out.index_copy_(0, idx.index_select(0, finished), phi.index_select(0, finished))
-                sel = torch.tensor([j for j, kp in enumerate(keep) if kp], dtype=torch.long, device=dev)
-                active = active[np.asarray(keep)]
-                if active.size == 0:
+            if sel is not None:
+                if run.active.size == 0:
                     break
-                idx = idx.index_select(0, sel)
                 state = opt.state[phi]
                 phi = phi.index_select(0, sel).contiguous()
                 opt = _adam(phi, lr, {k: (v.index_select(0, sel).contiguous() if v.dim() else v.clone())
                                       for k, v in state.items()})
                 t = t.index_select(0, sel).contiguous()
                 work = work.narrow(len(sel))
-        if active.size:
-            phi_out.index_copy_(0, idx, phi)
-    return SgdOutcome(phi_out, iters, conv, trace, loss_init)
+        return run.finish(phi)
