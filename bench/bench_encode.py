@@ -218,7 +218,7 @@ save_result("{result}", slm_field=field, wrp_field=field, meta=meta)
         subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
     out = work / "STACK.npz"
     cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "holo", "encode", str(result), "--out", str(out),
-           "--iterations", str(args.iterations), "--stop-db", "0", "--device", "cpu",
+           "--iterations", str(args.iterations), "--stop-db", "0", "--optimiser", args.optimiser, "--device", "cpu",
            "--memory-limit-gb", str(args.memory_limit_gb)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
@@ -227,7 +227,7 @@ save_result("{result}", slm_field=field, wrp_field=field, meta=meta)
     line = [ln for ln in proc.stderr.splitlines() if ln.startswith("encoded")]
     print(f"### Peak RSS of holo encode ({time.strftime('%Y-%m-%d')}, {_machine()})\n")
     print(f"RESULT {F}x{C}x{H}x{W} ({result.stat().st_size / 2**30:.2f} GiB), z_wrp {args.z_mm} mm, "
-          f"{args.iterations} iteration(s), --memory-limit-gb {args.memory_limit_gb}: peak RSS "
+          f"{args.iterations} {args.optimiser} iteration(s), --memory-limit-gb {args.memory_limit_gb}: peak RSS "
           f"{peak_kb / 2**20:.2f} GiB, wall {wall:.0f} s, exit {proc.returncode}\n")
     print(line[0] if line else proc.stderr[-2000:])
 

@@ -48,14 +48,23 @@ def read_meta(path: Union[str, Path]) -> ResultMeta:
         return parse_result_meta(json.loads(str(z["meta"])), what=str(path))
 
 
-def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int]) -> int:
+# What L-BFGS holds beyond Adam per SLM pixel: the gradient kept between steps, the (s, y) pair, the step, and the
+# step's and the kept gradient's temporaries when some items' steps are not taken. Measured: at 1080x1920 x 24
+# frames a block of 24 frames peaked 1.77 GiB above Adam's, 38 bytes per pixel (bench/results/encode.md).
+LBFGS_EXTRA_BYTES_PER_PIXEL = 40
+
+
+def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int], optimiser: str = "adam") -> int:
     """Working set of one frame of a block: ~100 bytes per SLM pixel (target, ideal field, phase, Adam state,
-    fields and gradients, output) and three complex64 padded grids (workspace, spectrum, FFT output)."""
-    return 100 * shape_hw[0] * shape_hw[1] + 24 * grid[0] * grid[1]
+    fields and gradients, output; L-BFGS: ``LBFGS_EXTRA_BYTES_PER_PIXEL`` more) and three complex64 padded grids
+    (workspace, spectrum, FFT output)."""
+    px = 100 + (LBFGS_EXTRA_BYTES_PER_PIXEL if optimiser == "lbfgs" else 0)
+    return px * shape_hw[0] * shape_hw[1] + 24 * grid[0] * grid[1]
 
 
-def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int) -> int:
-    per = bytes_per_frame(shape_hw, grid)
+def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int,
+                     optimiser: str = "adam") -> int:
+    per = bytes_per_frame(shape_hw, grid, optimiser)
     fixed = BASE_BYTES + 32 * grid[0] * grid[1]  # + four cached multipliers of the color
     n = int((memory_limit_bytes - fixed) // per)
     if n < 1:
@@ -107,7 +116,8 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                                "efficiency_weight": 0.0, "optimiser": "adam", **sgd}) if method == "sgd" else {}
     init_src = None if init_path is None else _start_phase(init_path, (F, C, H, W), method)
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
-    fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes))
+    fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes),
+                                          sgd_opts.get("optimiser", "adam"))
     n_blocks = math.ceil(F / fb)
     total = sgd_opts.get("iterations", 0) * n_blocks * C
     acc = Assembler(F, C)

@@ -78,3 +78,13 @@ def test_an_unknown_optimiser_is_refused_in_one_line():
     with pytest.raises(ValueError, match=r"^optimiser must be one of adam, lbfgs, got 'newton'$"):
         encode_sgd(np.ones((1, 1, 8, 8), np.complex64), z_wrp_m=1e-3, wavelengths_m=[LAM], pitch_m=P,
                    optimiser="newton")
+
+
+def test_the_stream_plans_lbfgs_blocks_with_its_extra_buffers():
+    from holocore.encode.stream import LBFGS_EXTRA_BYTES_PER_PIXEL, bytes_per_frame, frames_per_block
+
+    hw, grid = (1080, 1920), (1536, 2400)  # the paper display at z_wrp 85 mm, 640 nm
+    assert bytes_per_frame(hw, grid, "lbfgs") - bytes_per_frame(hw, grid) == LBFGS_EXTRA_BYTES_PER_PIXEL * 1080 * 1920
+    # within 8 GiB Adam takes all 24 frames at once; L-BFGS, which peaked at 8.47 GiB so, takes fewer
+    assert frames_per_block(hw, 24, grid, 8 * 2**30) == 24
+    assert frames_per_block(hw, 24, grid, 8 * 2**30, "lbfgs") < 24
