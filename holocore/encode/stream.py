@@ -108,8 +108,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
         raise ValueError(f"{result_path}: wrp_field must be [F, C, H, W], got {src.shape}")
     F, C, H, W = src.shape
     z = validate.bounded("z_wrp_m", meta.z_wrp_m, low=0.0, low_inclusive=False, unit="m")
-    lams = validate.wavelengths(meta.wavelengths_m, C)
-    pitch = meta.pitch_m
+    lams, pitch = validate.wavelengths(meta.wavelengths_m, C), meta.pitch_m
     fourier_filter, source = _fourier_filter(meta.display, fourier_filter)
     sup = supervision_for(fourier_filter)
     sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
