@@ -3,18 +3,18 @@ and outcome as Adam (:mod:`holocore.encode.sgd`), in fewer iterations.
 
 Why: one iteration is four padded FFTs whichever optimiser takes the step, so the optimiser that needs fewer
 of them wins outright. On this objective (a smooth function of the phase, ill-conditioned across the band)
-L-BFGS with a short memory reaches in 20 iterations the field SNR Adam reaches in 30, and in 30 what Adam
-reaches in about 45 (bench/results/encode.md). Its step needs no tuning after the first: the first step of an
-item moves its largest pixel by ``lr`` rad along the negative gradient, later ones are the quasi-Newton step of
-length 1 (Nocedal & Wright, Numerical Optimization, Algorithm 7.4, the two-loop recursion, with the initial
-Hessian scaled by s.y / y.y).
+memoryless BFGS (L-BFGS with one (s, y) pair: three or five pairs do no better here) reaches in 20 iterations the
+field SNR Adam reaches in 30, and in 30 what Adam reaches in about 45 (bench/results/encode.md). Its step needs
+no tuning after the first: the first step of an item moves its largest pixel by ``lr`` rad along the negative
+gradient, later ones are the quasi-Newton step of length 1 (Nocedal & Wright, Numerical Optimization, Eq. 7.19
+with m = 1 and the initial Hessian scaled by s.y / y.y), written out in closed form (:meth:`_Pair.step`).
 
-Safeguard instead of a line search: a step that raises an item's objective is not taken (its pair is kept out
-of the history), and that item's next iteration tries half of it (a backtracking step spread over
+Safeguard instead of a line search: a step that does not lower an item's objective is not taken (nor is its
+pair kept), and that item's next iteration tries half of it (a backtracking step spread over
 iterations). On the encoder's targets this happens a few times in the first iterations and rarely after, so
 every iteration costs one evaluation, as Adam's does.
 
-Every number is per (frame, color) item (dots, steps, histories, the stop rule), so a block's result does not
+Every number is per (frame, color) item (dots, steps, pairs, the stop rule), so a block's result does not
 depend on which other items share it, as with Adam.
 """
 
@@ -76,11 +76,10 @@ class _Pair:
         else:
             peak = g.abs().amax(dim=(-2, -1)).clamp_min(1e-30)
             gamma = torch.where(has, self.sy / torch.where(has, self.yy, one), first / peak)
-        sg, yg = (_dots(self.s, g), _dots(self.y, g)) if bool(has.any()) else (rho, rho)
-        a = rho * sg
-        b = rho * gamma * (yg - a * self.yy)
         d = torch.mul(g, _col(-gamma))
         if bool(has.any()):
+            a = rho * _dots(self.s, g)
+            b = rho * gamma * (_dots(self.y, g) - a * self.yy)
             d.addcmul_(self.y, _col(gamma * a)).addcmul_(self.s, _col(b - a))
         return d
 
