@@ -33,7 +33,9 @@ def submit(
     time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="Render for about this many "
                                                  "seconds (rays until the time is spent)."),
     encoder: Optional[str] = typer.Option(None, help="sgd (default) | dpac"),
-    iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd)."),
+    optimiser: Optional[str] = typer.Option(None, help="sgd's steps: lbfgs (default, 30 iterations) | adam (until "
+                                                       "its stop rule)."),
+    iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd; default: the optimiser's)."),
     method: Optional[str] = typer.Option(None, help="wrp (default) | direct"),
     wrp_planes: Optional[str] = typer.Option(
         None, "--wrp-planes", help=f"Wave recording planes: 1..{MAX_WRP_PLANES}, or auto "
@@ -64,7 +66,7 @@ def submit(
         fail(f"scene not found: {scene}")
     hopts = hologram_options(options_json, "submit", preset=preset, frames=optics.frames, spp=spp, max_spp=max_spp,
                              render_time_limit_s=time_limit_s, encoder=encoder, iterations=iterations,
-                             method=method, wrp_planes=wrp_planes, quality_db=quality_db)
+                             optimiser=optimiser, method=method, wrp_planes=wrp_planes, quality_db=quality_db)
     _, cfg = optics.resolve()
     body = {"optics": cfg.model_dump(mode="json"), **hopts.model_dump(mode="json"), "display": to_display,
             "name": name, "evaluate": evaluate or None}
@@ -129,7 +131,7 @@ def _print_ahead(console, ahead: dict, quality_db: Optional[float]) -> None:
     if ahead.get("options"):
         o = ahead["options"]
         rays = o["spp"] or "the preset's"
-        its = o["iterations"] or "the stop rule's"
+        its = o["iterations"] or "the optimiser's default"
         console.print(f"  for {quality_db:g} dB the service chose {o['frames']} frames, {rays} rays per "
                       f"pixel, {its} encoder iterations")
     for w in ahead.get("warnings") or []:

@@ -9,13 +9,14 @@ from pathlib import Path
 from holo.common import fail
 from holo.render_quality import estimate_lines, quality_context
 from holocore.plan.estimate import (
+    encode_iterations,
     encode_work,
     estimate_seconds,
     load_calibration,
     machine_load,
-    stop_iterations,
     user_calibration_path,
 )
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER, rule
 from holocore.plan.estimate_probe import estimate_with_probe, process_age_s
 from holocore.plan.memory_estimate import estimate_memory
 
@@ -65,9 +66,13 @@ def print_estimate(scene: Path, loaded, optics_cfg, options, profile, console) -
 
 
 def _encode_estimate(optics_cfg, options, pl, cal) -> str:
-    """The line on `holo encode`'s time (sgd, its stop rule): the median and 90th percentile of the iterations
-    that rule runs at this size, on the encoder's grid at this scene's WRP distance."""
-    med, p90 = (stop_iterations(optics_cfg.height, optics_cfg.width, quantile=q) for q in ("median", "p90"))
+    """The line on `holo encode`'s time (sgd, its default optimiser's iterations; Adam's stop rule for the one who
+    asks for Adam: the median and 90th percentile of the iterations that rule runs at this size), on the
+    encoder's grid at this scene's WRP distance."""
+    h, w = optics_cfg.height, optics_cfg.width
+    n = encode_iterations(h, w)
+    med, p90 = (encode_iterations(h, w, optimiser="adam", quantile=q) for q in ("median", "p90"))
     per_it = cal["rates"]["enc"] * encode_work(optics_cfg, pl.analysis.z_wrp_m)
-    return (f"estimated `holo encode` time (sgd): {per_it * med:.1f} s ({med} iterations, its stop rule's median "
-            f"at this size; up to {per_it * p90:.1f} s at its 90th percentile, {p90})")
+    return (f"estimated `holo encode` time (sgd): {per_it * rule(None).cost * n:.1f} s ({n} {DEFAULT_OPTIMISER} "
+            f"iterations); with --optimiser adam {per_it * med:.1f} s ({med} iterations, its stop rule's median at "
+            f"this size; up to {per_it * p90:.1f} s at its 90th percentile, {p90})")

@@ -29,7 +29,7 @@ def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None
     from which the preset chooses its rays), the picture's image statistic, the light seen through glass."""
     from holocore.evaluate.groundtruth import camera_picture
     from holocore.evaluate.metrics import white_power
-    from holocore.plan.estimate import estimate_breakdown, stop_iterations
+    from holocore.plan.estimate import encode_iterations, estimate_breakdown
     from holocore.plan.estimate_probe import estimate_with_probe
 
     try:
@@ -43,7 +43,7 @@ def quality_context(loaded, pl, profile, optics, *, probe=None, calibration=None
     prims = pl.inventory.primitives
 
     def seconds(o, opt, it, encode: bool = True) -> float:
-        iters = (stop_iterations(o.height, o.width) if it is None else int(it)) if encode else 0
+        iters = encode_iterations(o.height, o.width, iterations=it) if encode else 0  # the default optimiser's
         stages = estimate_breakdown(o, opt, scene_primitives=prims, subhologram_radius_px=radius,
                                     encode_iterations=iters, z_wrp_m=pl.analysis.z_wrp_m, calibration=calibration)
         if probe is None:
@@ -65,8 +65,8 @@ def estimate_lines(ctx: QualityContext, optics, options, *, most_frames: int) ->
     pred = predict_for(optics, options, subhologram_radius_px=ctx.radius_px, image_q=ctx.image_q,
                        refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter)
     now_s = ctx.seconds(optics, options, None)
-    lines = [f"predicted quality (with `holo encode`'s default SGD): {pred.words()}; render and encode about "
-             f"{now_s:.0f} s"]
+    lines = [f"predicted quality (with `holo encode`'s default: SGD, 30 L-BFGS steps): {pred.words()}; render and "
+             f"encode about {now_s:.0f} s"]
     lines += [f"warning: {w}" for w in pred.warnings]
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,
                        image_q=ctx.image_q, refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter,

@@ -131,7 +131,7 @@ def _encode_samples(repeats: int, tick) -> list[dict]:
 
         def enc(tgt=tgt, it=it, z=z) -> float:
             t0 = time.perf_counter()
-            encode_sgd(tgt, z_wrp_m=z, wavelengths_m=lams, pitch_m=8e-6, iterations=it, tol=0.0)
+            encode_sgd(tgt, z_wrp_m=z, wavelengths_m=lams, pitch_m=8e-6, iterations=it, tol=0.0, optimiser="adam")
             return time.perf_counter() - t0
 
         grid = OpticsConfig(resolution_hw=(H, W), frames=F, pitch_um=8.0, wavelengths_nm=[x * 1e9 for x in lams])

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal, Mapping, Optional, Union, get_args, 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 __all__ = ["HologramOptions", "PresetName", "RenderMethod", "MAX_WRP_PLANES", "Encoder", "ENCODERS", "WrpPlanes",
+           "Optimiser", "OPTIMISERS", "DEFAULT_OPTIMISER",
            "CLI_FLAGS", "MAX_FRAMES", "MAX_SPP", "MAX_ITERATIONS", "QUALITY_DB_RANGE", "bounds", "choices", "explain",
            "check", "option_table"]
 
@@ -25,6 +26,11 @@ RenderMethod = Literal["wrp", "direct"]
 MAX_WRP_PLANES = 8  # the most wave recording planes a render may use (holocore.plan.wrp_planes chooses up to it)
 Encoder = Literal["sgd", "dpac"]  # the encoders a job may ask for (`holo encode` also has "naive", for tests)
 ENCODERS: tuple[Encoder, ...] = ("sgd", "dpac")
+# The SGD encoder's steps: memoryless BFGS for a fixed count (default) or Adam until its stop rule; what each runs
+# and costs is holocore.plan.encode_steps.
+Optimiser = Literal["lbfgs", "adam"]
+OPTIMISERS: tuple[Optimiser, ...] = ("lbfgs", "adam")
+DEFAULT_OPTIMISER: Optimiser = "lbfgs"
 MAX_FRAMES = 256
 MAX_SPP = 1_000_000
 MAX_ITERATIONS = 1_000_000
@@ -50,9 +56,12 @@ class HologramOptions(BaseModel):
     render_time_limit_s: Optional[float] = Field(
         default=None, gt=0, lt=MAX_TIME_LIMIT_S, allow_inf_nan=False, description="Render for about this many "
         "seconds: passes of rays until the time is spent (spp is then the most rays per pixel).")
-    encoder: Encoder = Field(default="sgd", description="sgd (complex-supervised Adam) or dpac (double phase).")
+    encoder: Encoder = Field(default="sgd", description="sgd (complex-supervised phase optimisation) or dpac (double "
+                                                            "phase).")
+    optimiser: Optimiser = Field(default=DEFAULT_OPTIMISER, description="sgd's steps: lbfgs (memoryless BFGS, "
+                                 "30 iterations by default) or adam (until its stop rule, about 140-160).")
     iterations: Optional[int] = Field(default=None, ge=0, le=MAX_ITERATIONS, description="Encoder iterations "
-                                      "(sgd; default: its stop rule ends it).")
+                                      "(sgd; default: the optimiser's, lbfgs 30, adam until its stop rule).")
     quality_db: Optional[float] = Field(
         default=None, ge=QUALITY_DB_RANGE[0], le=QUALITY_DB_RANGE[1], allow_inf_nan=False, description="Aim at "
         "this viewer-faithful PSNR, dB: frames (up to frames), spp and iterations predicted to reach it soonest "
@@ -90,6 +99,7 @@ CLI_FLAGS: Mapping[str, tuple[Optional[str], Optional[str], Optional[str]]] = {
     "max_spp": ("--max-spp", None, "--max-spp"),
     "render_time_limit_s": ("--time-limit-s", None, "--time-limit-s"),
     "encoder": (None, "--method", "--encoder"),
+    "optimiser": (None, "--optimiser", "--optimiser"),
     "iterations": (None, "--iterations", "--iterations"),
     "quality_db": ("--quality-db", None, "--quality-db"),
     "method": ("--method", None, "--method"),

@@ -11,11 +11,11 @@ from types import SimpleNamespace
 from typing import Any, Optional
 
 from holocore.plan.estimate import (
+    encode_iterations,
     estimate_breakdown,
     features,
     load_calibration,
     machine_load,
-    stop_iterations,
 )
 from holocore.plan.estimate_probe import Probe, estimate_with_probe
 from holocore.plan.memory_estimate import MemoryEstimate, admit_planes, deepest_border_px, estimate_memory
@@ -131,8 +131,8 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
-    # without an asked count the encoder runs to at most 500 iterations, but its stop rule ends it far sooner
-    iters = req.iterations if req.iterations is not None else stop_iterations(h, w)
+    # without an asked count: the optimiser's default (L-BFGS 30; Adam's stop rule ends its 500 far sooner)
+    iters = encode_iterations(h, w, optimiser=req.optimiser, iterations=req.iterations)
     # each of the job's four processes (driver, render, encode, preview) starts Python and its imports: 3.5 s
     start = 3.5
     encoder_fixed = 1e-7 * pix if req.encoder == "dpac" else 0.0
@@ -155,7 +155,8 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
         radius = recording_radius(scene_plan) if scene_plan else None
         stages = estimate_breakdown(o, options, scene_primitives=inv.get("primitives"), subhologram_radius_px=radius,
                                     encode_iterations=iters if req.encoder == "sgd" else 0,
-                                    z_wrp_m=wrp_distance_m(scene_plan, o), calibration=cal)
+                                    encode_optimiser=req.optimiser, z_wrp_m=wrp_distance_m(scene_plan, o),
+                                    calibration=cal)
         encode = stages.get("encode", 0.0)
         render = stages["total"] - encode
         probe = _scene_probe(scene_plan)

@@ -38,8 +38,8 @@ class JobRequest(JobFields):
                                             "part of the result's content address.")
 
 
-SWEEP_OPTIONS = ("frames", "spp", "iterations", "encoder", "preset", "method", "wrp_planes", "render_time_limit_s",
-                 "quality_db", "max_spp")
+SWEEP_OPTIONS = ("frames", "spp", "iterations", "optimiser", "encoder", "preset", "method", "wrp_planes",
+                 "render_time_limit_s", "quality_db", "max_spp")
 
 
 class SweepRequest(BaseModel):

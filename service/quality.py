@@ -67,7 +67,8 @@ def _candidates(req, *, facts: tuple, max_spp: Optional[int], seconds_of) -> lis
 
     # the most frames a choice takes: those given with a target, else what the display's optics show
     most = req.frames if req.quality_db is not None and req.frames is not None else req.optics.frames
-    return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, seconds=seconds,
+    return candidates(effective_optics(req), _options(req, max_spp), encoder=req.encoder, optimiser=req.optimiser,
+                      seconds=seconds,
                       subhologram_radius_px=radius, image_q=q, refracted_share=diel, frames=frames_upto(most),
                       spp=CANDIDATE_SPP, iterations=CANDIDATE_ITERATIONS)
 
@@ -80,7 +81,8 @@ def job_quality(req, *, scene_plan: Optional[dict], max_spp: Optional[int], seco
 
     facts = radius, q, diel = _scene_facts(scene_plan)
     pred = predict_for(effective_optics(req), _options(req, max_spp), encoder=req.encoder,
-                       iterations=req.iterations, subhologram_radius_px=radius, image_q=q, refracted_share=diel)
+                       iterations=req.iterations, optimiser=req.optimiser, subhologram_radius_px=radius, image_q=q,
+                       refracted_share=diel)
     out = pred.as_dict()
     out["words"] = pred.words()
     out["scene_facts"] = "the scene's plan" if radius is not None else "a shallow, typical scene (its plan is pending)"

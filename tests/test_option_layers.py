@@ -20,7 +20,7 @@ from service.workers.driver import render_args, write_options
 REPO = Path(__file__).resolve().parents[1]
 # a value other than the default for every option
 OTHER = {"preset": "fast", "frames": 3, "spp": 7, "max_spp": 9, "render_time_limit_s": 5.0, "encoder": "dpac",
-         "iterations": 11, "quality_db": None, "method": "wrp", "wrp_planes": 6}
+         "optimiser": "adam", "iterations": 11, "quality_db": None, "method": "wrp", "wrp_planes": 6}
 # options the page's form does not offer, and why
 FORM_LEAVES_OUT = {"max_spp": "the service's own cap bounds the preset's rays; `holo submit --max-spp` and the API "
                               "set a lower one"}

@@ -16,6 +16,7 @@ import torch
 
 from holocore.encode.lbfgs import optimise_lbfgs
 from holocore.encode.sgd import Operator, encoder_grid, inner_energy, optimise
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 from holocore.optics.propagation import PitchLike
 
 SUPERVISIONS = ("cone", "full")
@@ -59,14 +60,19 @@ def dpac_phase(u0: torch.Tensor) -> torch.Tensor:
 
 
 def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m: float, pitch_m: PitchLike,
-                 supervision: str = "cone", init: Optional[torch.Tensor] = None, iterations: int = 500,
+                 supervision: str = "cone", init: Optional[torch.Tensor] = None, iterations: Optional[int] = None,
                  lr: float = 0.2, stop_db: Optional[float] = 0.05, tol: Optional[float] = None,
-                 efficiency_weight: float = 0.0, optimiser: str = "adam",
+                 efficiency_weight: float = 0.0, optimiser: Optional[str] = None,
                  progress: Optional[Callable[[int], None]] = None) -> BlockResult:
     """Encode target [B, H, W] (complex64, one color) with ``method`` (sgd | naive | dpac); sgd's steps are
-    ``optimiser``'s (adam | lbfgs)."""
+    ``optimiser``'s (lbfgs | adam; None: the default, :mod:`holocore.plan.encode_steps`), ``iterations`` None: its
+    default count."""
     if supervision not in SUPERVISIONS:
         raise ValueError(f"supervision must be one of {SUPERVISIONS}, got {supervision!r}")
+    optimiser = DEFAULT_OPTIMISER if optimiser is None else optimiser
+    if optimiser not in OPTIMISERS:
+        raise ValueError(f"optimiser must be one of {', '.join(OPTIMISERS)}, got {optimiser!r}")
+    iterations = default_iterations(optimiser, iterations)
     b, h, w = target.shape
     dev = target.device
     grid = encoder_grid((h, w), z_m, wavelength_m, pitch_m)

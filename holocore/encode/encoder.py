@@ -45,6 +45,7 @@ from holocore.encode.core import (
 from holocore.encode.output import load_lut, quantize, save_encoded
 from holocore.encode.sgd import encoder_grid, spread_px
 from holocore.optics.propagation import PitchLike
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 from holocore.plan.estimate import stop_iterations
 
 __all__ = ["EncodeResult", "encode_sgd", "encode_naive", "encode_dpac", "encode", "METHODS", "SUPERVISIONS",
@@ -272,9 +273,13 @@ def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init,
         progress("encode", ran, ran)
 
 
-def sgd_options(iterations, lr, tol, stop_db, efficiency_weight, optimiser="adam") -> dict:
+def sgd_options(iterations, lr, tol, stop_db, efficiency_weight, optimiser=None) -> dict:
+    """The SGD's options checked, each refusal one line; ``optimiser`` None: the default
+    (:mod:`holocore.plan.encode_steps`), ``iterations`` None: that optimiser's default count."""
+    optimiser = DEFAULT_OPTIMISER if optimiser is None else optimiser
     if optimiser not in OPTIMISERS:
         raise ValueError(f"optimiser must be one of {', '.join(OPTIMISERS)}, got {optimiser!r}")
+    iterations = default_iterations(optimiser, iterations)
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 10**6:
         raise ValueError(f"iterations must be an integer in 0..1000000, got {iterations!r}")
     lr = validate.bounded("lr", lr, low=0.0, low_inclusive=False, unit="rad")
@@ -295,8 +300,9 @@ def _block_progress(progress: ProgressFn, ran: int, expect: int, *, left: int):
 
 
 def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: PitchLike,
-               iterations: int = 500, lr: float = 0.2, init: Optional[ArrayLike] = None, tol: Optional[float] = None,
-               stop_db: float = 0.05, efficiency_weight: float = 0.0, optimiser: str = "adam",
+               iterations: Optional[int] = None, lr: float = 0.2, init: Optional[ArrayLike] = None,
+               tol: Optional[float] = None, stop_db: float = 0.05, efficiency_weight: float = 0.0,
+               optimiser: Optional[str] = None,
                fourier_filter: bool = True,
                chunk_frames: Optional[int] = None, device: Optional[Union[str, torch.device]] = None,
                progress: Optional[ProgressFn] = None) -> EncodeResult:
@@ -304,8 +310,9 @@ def encode_sgd(target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: Sequence
     phase up to one complex scale per (frame, color) (docs/design.md §6; module docstring).
 
     ``target_wrp`` complex [F, C, H, W] on the WRP at ``z_wrp_m`` (m, > 0); ``wavelengths_m`` one per color;
-    ``pitch_m`` (m). ``optimiser`` (adam, default: Adam with step ``lr``, rad; lbfgs: memoryless BFGS,
-    :mod:`holocore.encode.lbfgs`, ``lr`` its first step's largest change) for at most ``iterations`` steps;
+    ``pitch_m`` (m). ``optimiser`` (None: the default, :mod:`holocore.plan.encode_steps`; lbfgs: memoryless BFGS,
+    :mod:`holocore.encode.lbfgs`, ``lr`` its first step's largest change; adam: Adam with step ``lr``, rad) for
+    at most ``iterations`` steps (None: the optimiser's default count, 30 for lbfgs, 500 for adam);
     each (frame, color) stops once its field SNR 10 log10((1-E)/E) gained less than ``stop_db`` dB over 30
     iterations (0: never), or, if ``tol`` is given, once E fell by less than that fraction over 30 iterations
     (0: never). ``init``: phase in rad (default arg u0). ``fourier_filter``: the display's (module docstring).

@@ -33,6 +33,7 @@ from holocore.encode.encoder import (
 )
 from holocore.encode.output import quantize, stack_meta
 from holocore.encode.sgd import encoder_grid
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER
 from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
 from holocore.formats.npz import MemberShapeError
 from holocore.io import NpyMember
@@ -54,16 +55,16 @@ def read_meta(path: Union[str, Path]) -> ResultMeta:
 LBFGS_EXTRA_BYTES_PER_PIXEL = 40
 
 
-def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int], optimiser: str = "adam") -> int:
+def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int], optimiser: Optional[str] = None) -> int:
     """Working set of one frame of a block: ~100 bytes per SLM pixel (target, ideal field, phase, Adam state,
     fields and gradients, output; L-BFGS: ``LBFGS_EXTRA_BYTES_PER_PIXEL`` more) and three complex64 padded grids
     (workspace, spectrum, FFT output)."""
-    px = 100 + (LBFGS_EXTRA_BYTES_PER_PIXEL if optimiser == "lbfgs" else 0)
+    px = 100 + (LBFGS_EXTRA_BYTES_PER_PIXEL if (optimiser or DEFAULT_OPTIMISER) == "lbfgs" else 0)
     return px * shape_hw[0] * shape_hw[1] + 24 * grid[0] * grid[1]
 
 
 def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int,
-                     optimiser: str = "adam") -> int:
+                     optimiser: Optional[str] = None) -> int:
     per = bytes_per_frame(shape_hw, grid, optimiser)
     fixed = BASE_BYTES + 32 * grid[0] * grid[1]  # + four cached multipliers of the color
     n = int((memory_limit_bytes - fixed) // per)
@@ -111,12 +112,12 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     lams, pitch = validate.wavelengths(meta.wavelengths_m, C), meta.pitch_m
     fourier_filter, source = _fourier_filter(meta.display, fourier_filter)
     sup = supervision_for(fourier_filter)
-    sgd_opts = sgd_options(**{"iterations": 500, "lr": 0.2, "tol": None, "stop_db": 0.05,
-                               "efficiency_weight": 0.0, "optimiser": "adam", **sgd}) if method == "sgd" else {}
+    sgd_opts = sgd_options(**{"iterations": None, "lr": 0.2, "tol": None, "stop_db": 0.05,
+                               "efficiency_weight": 0.0, "optimiser": None, **sgd}) if method == "sgd" else {}
     init_src = None if init_path is None else _start_phase(init_path, (F, C, H, W), method)
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
     fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes),
-                                          sgd_opts.get("optimiser", "adam"))
+                                          sgd_opts.get("optimiser"))
     n_blocks = math.ceil(F / fb)
     total = sgd_opts.get("iterations", 0) * n_blocks * C
     acc = Assembler(F, C)

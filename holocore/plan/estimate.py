@@ -41,12 +41,13 @@ from pathlib import Path
 from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
+from holocore.plan.encode_steps import default_iterations, rule
 from holocore.optics.grids import encoder_grid
 from holocore.plan.effects import choose_spp
 from holocore.plan.presets import PRESETS
 
-__all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_work", "load_slowdown", "machine_load",
-           "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
+__all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_iterations", "encode_work", "load_slowdown",
+           "machine_load", "estimate_seconds", "estimate_breakdown", "estimate_layers_seconds", "load_calibration",
            "user_calibration_path", "DEFAULT_CALIBRATION", "CALIBRATION_VERSION", "save_calibration", "features"]
 
 # Where the SGD encoder's default stop rule (holocore.encode.sgd) typically ends, whatever the size (the
@@ -140,6 +141,15 @@ def stop_iterations(height: int, width: int, *, quantile: str = "median") -> int
         if x <= x1:
             return int(round(y0 + (y1 - y0) * (x - x0) / (x1 - x0)))
     return int(round(pts[-1][1]))
+
+
+def encode_iterations(height: int, width: int, *, optimiser: Optional[str] = None, iterations: Optional[int] = None,
+                      quantile: str = "median") -> int:
+    """Iterations the encoder is expected to run per frame and colour at an H x W SLM: those given, else the
+    optimiser's default count (:mod:`holocore.plan.encode_steps`; None: the default optimiser), fewer where its stop
+    rule usually ends it first (Adam's, measured by size: :func:`stop_iterations`)."""
+    n = default_iterations(optimiser, iterations)
+    return min(n, stop_iterations(height, width, quantile=quantile)) if rule(optimiser).stops_early else n
 
 
 def load_slowdown(other_load: float, cores: int) -> float:
@@ -266,9 +276,11 @@ def _ray_rate(rates: dict, key: str) -> float:
 
 def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
                        subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
-                       z_wrp_m: Optional[float] = None, calibration: Optional[dict] = None) -> dict[str, float]:
+                       encode_optimiser: Optional[str] = None, z_wrp_m: Optional[float] = None,
+                       calibration: Optional[dict] = None) -> dict[str, float]:
     """Predicted seconds per stage (see the module docstring) and ``total``; ``z_wrp_m``: the WRP's distance
-    from the SLM, which sizes the encoder's grid (:func:`encode_work`)."""
+    from the SLM, which sizes the encoder's grid (:func:`encode_work`); ``encode_optimiser``: whose iterations
+    ``encode_iterations`` counts (None: the default's; the calibration times Adam's)."""
     if not isinstance(optics, OpticsConfig):
         raise ValueError(f"optics must be an OpticsConfig, got {type(optics).__name__}")
     if isinstance(encode_iterations, bool) or not isinstance(encode_iterations, numbers.Integral) \
@@ -288,19 +300,20 @@ def estimate_breakdown(optics: OpticsConfig, options: Any, *, scene_primitives: 
         "overhead": r["overhead"],
     }
     if encode_iterations:
-        out["encode"] = r["enc"] * encode_iterations * encode_work(optics, z_wrp_m)
+        out["encode"] = r["enc"] * encode_iterations * rule(encode_optimiser).cost * encode_work(optics, z_wrp_m)
     out["total"] = float(sum(out.values()))
     return {k: float(v) for k, v in out.items()}
 
 
 def estimate_seconds(optics: OpticsConfig, options: Any, *, scene_primitives: Optional[int] = None,
                      subhologram_radius_px: Optional[float] = None, encode_iterations: int = 0,
-                     z_wrp_m: Optional[float] = None, calibration: Optional[dict] = None) -> float:
+                     encode_optimiser: Optional[str] = None, z_wrp_m: Optional[float] = None,
+                     calibration: Optional[dict] = None) -> float:
     """Predicted wall time (s) of ``holocore.pipeline.render`` with these optics and options on this machine
-    (warm), plus ``encode_iterations`` SGD steps of phase-only encoding if asked."""
+    (warm), plus ``encode_iterations`` iterations of ``encode_optimiser``'s phase-only encoding if asked."""
     return estimate_breakdown(optics, options, scene_primitives=scene_primitives,
                               subhologram_radius_px=subhologram_radius_px, encode_iterations=encode_iterations,
-                              z_wrp_m=z_wrp_m, calibration=calibration)["total"]
+                              encode_optimiser=encode_optimiser, z_wrp_m=z_wrp_m, calibration=calibration)["total"]
 
 
 def estimate_layers_seconds(optics: OpticsConfig, *, planes: int = 8, spp: int = 64,

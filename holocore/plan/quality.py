@@ -16,7 +16,9 @@ sum of parts, each from what a job's options and the scene's plan say before any
                                       surface a ray goes on by reflection or by refraction, drawn by their
                                       Fresnel weights, a binary choice whose variance a mirror's one path lacks
     encoder   q e(method, it) / F^a   the phase-only encoder's error: SGD e_sgd (1 + i_half / it) after it
-                                      iterations (its stop rule: ``TYPICAL_STOP_ITERATIONS``), averaging over
+                                      Adam iterations (its stop rule: ``TYPICAL_STOP_ITERATIONS``; another
+                                      optimiser's counted as the Adam iterations that reach its field error,
+                                      ``holocore.plan.encode_steps``: L-BFGS's 30 as 42), averaging over
                                       frames as speckle does (a = a_m); DPAC e_dpac / F^a_dpac: its checkerboard
                                       puts the light the amplitude does not need back into the recording cone
                                       wherever that cone fills the SLM's band, much the same in every frame
@@ -41,6 +43,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
+from holocore.plan.encode_steps import rule
 from holocore.plan.effects import noise_factor
 from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, features
 
@@ -105,7 +108,7 @@ def _check_count(name: str, v, low: int = 1) -> int:
     return v
 
 
-def _error_power(c: dict, *, F: int, mode: str, nsr: float, encoder: str, it: int, q: float,
+def _error_power(c: dict, *, F: int, mode: str, nsr: float, encoder: str, it: float, q: float,
                  refracted: float) -> dict[str, float]:
     """The parts' error powers (module docstring) with coefficients ``c``."""
     q_dpac = q ** c["k_dpac"]  # DPAC's checkerboard spreads its error over the picture, not with the light
@@ -128,19 +131,24 @@ def _psnr(power: dict[str, float]) -> float:
 
 
 def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, encoder: str,
-                    iterations: Optional[int] = None, image_q: Optional[float] = None,
+                    iterations: Optional[int] = None, optimiser: Optional[str] = None, image_q: Optional[float] = None,
                     refracted_share: float = 0.0, fourier_filter: bool = True,
                     model: Optional[dict] = None) -> QualityPrediction:
     """Predicted viewer-faithful PSNR of a job (module docstring). ``noise_to_signal``: the plan's Monte Carlo
     noise-to-signal power of its rays per pixel (:func:`holocore.plan.effects.noise_factor` rho^2 / N);
-    ``iterations``: the SGD encoder's (None: its stop rule); ``image_q``: the scene's image statistic (None: a
+    ``iterations``: the SGD encoder's (None: its ``optimiser``'s default run; None: the default optimiser);
+    ``image_q``: the scene's image statistic (None: a
     typical scene's); ``refracted_share``: the share of the light seen through glass (the plan's analysis)."""
     F = _check_count("frames", frames)
     if not (isinstance(noise_to_signal, (int, float)) and math.isfinite(noise_to_signal) and noise_to_signal >= 0):
         raise ValueError(f"noise_to_signal must be finite and >= 0, got {noise_to_signal!r}")
     if encoder not in ("sgd", "dpac", "naive"):
         raise ValueError(f"encoder must be sgd, dpac or naive, got {encoder!r}")
-    it = TYPICAL_STOP_ITERATIONS if iterations is None else _check_count("iterations", iterations, 0)
+    steps = rule(optimiser)
+    if iterations is None:
+        it = TYPICAL_STOP_ITERATIONS if steps.stops_early else steps.max_iterations * steps.adam_equivalent
+    else:
+        it = _check_count("iterations", iterations, 0) * steps.adam_equivalent
     q = DEFAULT_IMAGE_Q if image_q is None else float(image_q)
     if not (math.isfinite(q) and 0 < q <= 1):
         raise ValueError(f"image_q must be in (0, 1], got {image_q!r}")
@@ -180,8 +188,8 @@ def recording_radius_px(*, noise_to_signal: float, spp: int, theta_max: float) -
 
 
 def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[int] = None,
-                subhologram_radius_px: Optional[float] = None, image_q: Optional[float] = None,
-                refracted_share: float = 0.0, fourier_filter: bool = True,
+                optimiser: Optional[str] = None, subhologram_radius_px: Optional[float] = None,
+                image_q: Optional[float] = None, refracted_share: float = 0.0, fourier_filter: bool = True,
                 model: Optional[dict] = None) -> QualityPrediction:
     """:func:`predict_quality` for a render's optics and options (``holocore.render_setup.RenderOptions`` or
     anything with ``preset``, ``spp``, ``max_spp``): the rays per pixel the preset picks for the scene's depth
@@ -192,7 +200,8 @@ def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[i
     theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
     nsr = noise_factor(theta) * radius ** 2 / max(1, int(x["spp"]))
     pred = predict_quality(frames=optics.frames, frame_phases=optics.frame_phases, noise_to_signal=nsr,
-                           encoder=encoder, iterations=iterations, image_q=image_q, refracted_share=refracted_share,
+                           encoder=encoder, iterations=iterations, optimiser=optimiser, image_q=image_q,
+                           refracted_share=refracted_share,
                            fourier_filter=fourier_filter, model=model)
     if int(x["spp"]) < MIN_FITTED_SPP:
         pred.warnings.append(f"{int(x['spp'])} rays per pixel is below the {MIN_FITTED_SPP} the prediction was "

@@ -26,7 +26,7 @@ __all__ = ["Candidate", "candidates", "frames_upto", "front", "choose_for_qualit
 FRAME_CHOICES = (1, 2, 4, 8, 12, 16, 24, 32, 48)
 SPP_CHOICES = (None, 16, 32, 64, 128, 256, 512, 1024)  # None: the preset's choice from the scene's depth; from
 # MIN_FITTED_SPP up (holocore.plan.quality)
-ITERATION_CHOICES = (None, 20, 40, 80)  # None: the encoder's stop rule
+ITERATION_CHOICES = (None, 20, 40, 80)  # the optimiser's; None: its default run (holocore.plan.encode_steps)
 
 
 @dataclass(frozen=True)
@@ -34,12 +34,12 @@ class Candidate:
     frames: int
     spp: int  # rays per pixel (the preset's choice resolved)
     spp_asked: Optional[int]  # what the options say (None: the preset's)
-    iterations: Optional[int]  # SGD iterations (None: the stop rule)
+    iterations: Optional[int]  # SGD iterations (None: the optimiser's default run)
     psnr_db: float
     seconds: float
 
     def words(self) -> str:
-        it = "the encoder's stop rule" if self.iterations is None else f"{self.iterations} encoder iterations"
+        it = "the encoder's default run" if self.iterations is None else f"{self.iterations} encoder iterations"
         return f"{self.frames} frames, {self.spp} rays per pixel, {it}: about {self.psnr_db:.0f} dB in " \
                f"{_fmt_s(self.seconds)}"
 
@@ -48,12 +48,14 @@ def _fmt_s(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min"
 
 
-def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any, Any, Optional[int]], float],
+def candidates(optics, options, *, encoder: str = "sgd", optimiser: Optional[str] = None,
+               seconds: Callable[[Any, Any, Optional[int]], float],
                subhologram_radius_px: Optional[float] = None, image_q: Optional[float] = None,
                refracted_share: float = 0.0, fourier_filter: bool = True, frames: Sequence[int] = FRAME_CHOICES,
                spp: Sequence[Optional[int]] = SPP_CHOICES,
                iterations: Sequence[Optional[int]] = ITERATION_CHOICES) -> list[Candidate]:
-    """Every mix of ``frames`` x ``spp`` x ``iterations`` (iterations only for SGD) with its predicted PSNR and
+    """Every mix of ``frames`` x ``spp`` x ``iterations`` (iterations only for SGD, ``optimiser``'s: None the
+    default) with its predicted PSNR and
     ``seconds(optics, options, iterations)``. ``options`` is copied with each spp (a dataclass or a pydantic
     model or a namespace with ``spp``), ``optics`` (an OpticsConfig) with each frame count."""
     out = []
@@ -64,8 +66,9 @@ def candidates(optics, options, *, encoder: str = "sgd", seconds: Callable[[Any,
             opt = _with_spp(options, n)
             n_res = int(features(o, opt, subhologram_radius_px=subhologram_radius_px)["spp"])
             for it in its:
-                q = predict_for(o, opt, encoder=encoder, iterations=it, subhologram_radius_px=subhologram_radius_px,
-                                image_q=image_q, refracted_share=refracted_share, fourier_filter=fourier_filter)
+                q = predict_for(o, opt, encoder=encoder, iterations=it, optimiser=optimiser,
+                                subhologram_radius_px=subhologram_radius_px, image_q=image_q,
+                                refracted_share=refracted_share, fourier_filter=fourier_filter)
                 out.append(Candidate(frames=int(F), spp=n_res, spp_asked=n, iterations=it, psnr_db=q.psnr_db,
                                      seconds=float(seconds(o, opt, it))))
     return out

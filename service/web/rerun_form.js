@@ -27,6 +27,7 @@ export async function prefillRerun(job) {
   $("frames").value = o.frames ?? optics.frames;
   $("preset").value = o.preset;
   $("encoder").value = o.encoder;
+  $("optimiser").value = o.optimiser || "lbfgs";
   $("method").value = o.method || "wrp";
   $("time-limit").value = o.render_time_limit_s ?? "";
   $("spp").value = o.spp ?? "";  // a time-limited job's is its cap of rays per pixel

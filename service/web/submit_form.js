@@ -79,6 +79,7 @@ function jobBody() {
   const body = { scene_id: state.scene.id, optics: o, preset: $("preset").value, frames: Number($("frames").value),
                  encoder: $("encoder").value };
   if ($("spp").value) body.spp = Number($("spp").value);
+  if (body.encoder === "sgd") body.optimiser = $("optimiser").value;
   if ($("iterations").value && body.encoder === "sgd") body.iterations = Number($("iterations").value);
   if ($("time-limit").value) body.render_time_limit_s = Number($("time-limit").value);
   body.method = $("method").value;
@@ -301,7 +302,7 @@ function showQuality(q, chosen) {
   out.append(el("span", { id: "quality-predicted" },
     `Quality: expected about ${Math.round(q.psnr_db)} dB (±${q.uncertainty_db}) viewer-faithful PSNR; what each part costs: ${parts}`));
   if (chosen) {
-    const it = chosen.iterations === null ? "the encoder's stop rule" : `${chosen.iterations} encoder iterations`;
+    const it = chosen.iterations === null ? "the encoder's default run" : `${chosen.iterations} encoder iterations`;
     out.append(el("span", { id: "quality-chosen" },
       ` · for ${q.target_db} dB: ${chosen.frames} frames, ${chosen.spp === null ? "the preset's rays" : `${chosen.spp} rays per pixel`}, ${it}`));
   }

@@ -9,7 +9,7 @@ import { actOnSelected, compareHash, selectionActions, showSelection, tickBox, t
 import { sweepChart } from "./sweep_chart.js";
 import { FINAL, aborted, plural, state, status } from "./state.js";
 
-const WORDS = new Set(["encoder", "preset", "method"]);  // the options whose values are words, not numbers
+const WORDS = new Set(["encoder", "optimiser", "preset", "method"]);  // the options whose values are words, not numbers
 
 // The form's sweep: null without one, {error} when its values cannot be read, else {option, values}.
 export function sweepChoice() {

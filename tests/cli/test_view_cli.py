@@ -221,7 +221,7 @@ def test_black_stack_views_black(tmp_path):
     (["view", "{t}/missing.npz", "--focus-mm", "1", "--out", "{t}/x.png"], "not found"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--method", "gs"], "--method"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--lr", "0"], "lr"),
-    (["encode", "{r}", "--out", "{t}/s.npz", "--optimiser", "newton"], "optimiser must be one of adam, lbfgs"),
+    (["encode", "{r}", "--out", "{t}/s.npz", "--optimiser", "newton"], "--optimiser: Input should be 'lbfgs' or 'adam'"),
     (["encode", "{r}", "--out", "{t}/s.npz", "--lut", "{t}/nolut.json"], "not found"),
 ])
 def test_bad_input_exits_2_with_a_message(result_npz, tmp_path, args, message):

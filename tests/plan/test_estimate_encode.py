@@ -91,3 +91,30 @@ def test_the_load_is_the_runnable_threads_sampled_now_not_the_lagging_average(mo
     monkeypatch.setattr(estimate, "_SAMPLED", {})
     fresh = estimate._runnable_now(samples=3, interval_s=0.01)
     assert fresh is None or fresh >= 0.0
+
+
+def test_the_plan_counts_the_default_optimisers_iterations_at_their_cost():
+    """The time model's encode follows the optimiser (holocore.plan.encode_steps): the default L-BFGS runs its 30
+    iterations at every size, each 1.17 of Adam's; Adam runs until its stop rule (its measured median). The
+    quality model counts L-BFGS's iterations as the Adam iterations that reach the same error."""
+    from holocore.plan.encode_steps import rule
+    from holocore.plan.estimate import encode_iterations
+    from holocore.plan.quality import predict_quality
+
+    for hw in ((135, 240), (1080, 1920)):
+        assert encode_iterations(*hw) == 30
+        assert encode_iterations(*hw, optimiser="adam") == stop_iterations(*hw)
+        assert encode_iterations(*hw, iterations=12) == 12
+    assert encode_iterations(1080, 1920, optimiser="adam", iterations=40) == 40
+    o = OpticsConfig(resolution_hw=(135, 240), frames=3, pitch_um=8.0)
+    opts = RenderOptions(preset="balanced", spp=16)
+    lb = estimate_breakdown(o, opts, encode_iterations=30)["encode"]
+    ad = estimate_breakdown(o, opts, encode_iterations=30, encode_optimiser="adam")["encode"]
+    assert lb / ad == pytest.approx(rule("lbfgs").cost)
+    common = dict(frames=24, frame_phases="coded", noise_to_signal=0.01, encoder="sgd")
+    default = predict_quality(**common).psnr_db
+    assert default == pytest.approx(predict_quality(**common, optimiser="lbfgs", iterations=30).psnr_db)
+    assert default == pytest.approx(predict_quality(**common, optimiser="adam", iterations=42).psnr_db, abs=1e-6)
+    assert default < predict_quality(**common, optimiser="adam").psnr_db  # the stop rule's 160: a little better
+    with pytest.raises(ValueError, match="optimiser must be one of lbfgs, adam"):
+        encode_iterations(10, 10, optimiser="newton")

@@ -9,7 +9,7 @@ from service.models import JobRequest, cache_key
 from service.settings import JobLimits
 
 # a value other than the default for each field (frames lives in the effective optics, also in the address)
-OTHER = {"preset": "fast", "frames": 3, "spp": 7, "render_time_limit_s": 5.0, "encoder": "dpac", "iterations": 9,
+OTHER = {"preset": "fast", "frames": 3, "spp": 7, "render_time_limit_s": 5.0, "encoder": "dpac", "optimiser": "adam", "iterations": 9,
          "method": "direct", "wrp_planes": 1, "evaluate": True, "quality_db": 20.0, "max_spp": 7}
 # a quality target is resolved into frames, spp and iterations before a job is stored (service/quality.py)
 RESOLVED_AWAY = {"quality_db"}

@@ -156,7 +156,11 @@ def test_estimate_is_a_dry_run_with_the_submit_checks(server, scene):
         # the estimate is the one the submit records
         job = c.post("/v1/jobs", json=body)
         assert job.status_code == 202, job.text
-        assert job.json()["estimate"] == e["estimate"]
+        # the same figures; the one-minute load average it reports alongside is read anew and may have moved
+        recorded = job.json()["estimate"]
+        for est_doc in (recorded, e["estimate"]):
+            est_doc.get("load", {}).pop("load_1min", None)
+        assert recorded == e["estimate"]
         assert c.delete(f"/v1/jobs/{job.json()['id']}").status_code == 202  # frees the worker for the browser
     with server.client("reader") as c:
         assert c.post("/v1/jobs/estimate", json=body).status_code == 403
