@@ -87,7 +87,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="default 24; 2 for --dry-run")
     ap.add_argument("--convergence", type=float, default=0.8, help="signal share of the farthest image point")
     ap.add_argument("--max-spp", type=int, default=None, help="cap on rays per pixel (default none; 8 dry)")
-    ap.add_argument("--iterations", type=int, default=None, help="SGD iterations at most (default 500; 3 dry)")
+    ap.add_argument("--iterations", type=int, default=None, help="SGD iterations (default: the default encode's; "
+                                                                 "2 dry)")
     ap.add_argument("--work", type=Path, default=None, help="folder for the scene and files (default: a temp one)")
     ap.add_argument("--out-json", type=Path, default=None, help="where to write the figures (default: $OUT/"
                                                                 "device_check.json if OUT is set, else the work folder)")
@@ -96,7 +97,7 @@ def main() -> None:
     device = args.device or ("cpu" if dry else "cuda")
     res = args.resolution or ("96x128" if dry else "1080x1920")
     frames = args.frames or (2 if dry else 24)
-    iters = args.iterations if args.iterations is not None else (2 if dry else 500)
+    iters = args.iterations if args.iterations is not None else (2 if dry else None)
     max_spp = args.max_spp or (8 if dry else None)
     if not 0.0 < args.convergence < 1.0:
         raise SystemExit("--convergence must be in (0, 1)")
@@ -133,10 +134,14 @@ def main() -> None:
     rows[-1]["rays"] = meta["stats"]["rays"]
     rows[-1]["device"] = meta.get("device")
     rows[-1]["variant"] = meta["versions"]["variant"]
-    rows.append(stage("encode", ["encode", str(result), "--out", str(stack), "--iterations", str(iters),
-                                 "--device", device], env))
+    rows.append(stage("encode", ["encode", str(result), "--out", str(stack), "--device", device,
+                                 *([] if iters is None else ["--iterations", str(iters)])], env))
     smeta = read_npz_meta(stack)
-    done = int((smeta.get("encoder") or {}).get("iterations") or iters)
+    enc = smeta.get("encoder") or {}
+    done = int(enc.get("iterations") or iters or 0)
+    from holocore.plan.encode_steps import rule
+
+    per_iteration = rule(enc.get("optimiser") or "adam").cost  # the CPU reference times Adam's iterations
     rows[-1]["iterations"] = done
     ana = meta.get("analysis") or {}
     z = 0.5 * (float(ana.get("z_near_holo_m") or meta["z_inf_m"]) + float(ana.get("z_far_holo_m") or meta["z_inf_m"]))
@@ -147,7 +152,7 @@ def main() -> None:
     H, W = (int(v) for v in res.split("x"))
     same = list(ref["size"]) == [H, W, len(meta["wavelengths_m"]), frames]
     cpu = {"render": ref["render_s"] * (rows[0]["rays"] / ref["render_rays"]),  # the CPU at these rays
-           "encode": ref["encode_s_per_iteration"] * done, "view": ref["view_s"]}
+           "encode": ref["encode_s_per_iteration"] * per_iteration * done, "view": ref["view_s"]}
     total = sum(r["seconds"] for r in rows)
     print(f"\ndevice check: {res} x {len(meta['wavelengths_m'])} colors x {frames} frames on {device} "
           f"({rows[0]['variant']}), {spp} rays/px ({100 * reached:.2g}% convergence), {done} SGD iteration(s)")

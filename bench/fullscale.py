@@ -7,7 +7,8 @@ which ends once 30 iterations gain less than 0.05 dB of field SNR), and both sta
 brightness per colour) against the wave ground truth, computed once for both. Writes ``fullscale.md`` and
 ``fullscale.json`` under ``--out``.
 
-    .venv/bin/python bench/fullscale.py                               # the paper's size, ~35 min on 2 cores
+    .venv/bin/python bench/fullscale.py --preset fast --work /tmp/fs   # the paper's size, about an hour on 2 cores
+    .venv/bin/python bench/fullscale.py --work /tmp/fs --stages encode   # the encode again on the same RESULT
     .venv/bin/python bench/fullscale.py --resolution 135x240 --frames 4 --out /tmp/fs   # a minute
 
 Run it alone: every stage uses every core.
@@ -81,21 +82,25 @@ def score(stacks: dict[str, Path], scene: Path, *, pupil_mm: float, eye_grid: in
 def report(r: dict) -> str:
     s, gib = r["stages"], 2 ** 30
     e2e = s["render"]["s"] + s["encode"]["s"] + s["view"]["s"]
-    rows = [f"| {name} | {s[k]['s']:.0f} | {s[k]['s'] / e2e:.0%} | {s[k]['peak_bytes'] / gib:.2f} |"
+    def peak(v: dict) -> str:
+        return "-" if v.get("peak_bytes") is None else f"{v['peak_bytes'] / gib:.2f}"
+
+    rows = [f"| {name} | {s[k]['s']:.0f} | {s[k]['s'] / e2e:.0%} | {peak(s[k])} |"
             for k, name in (("render", f"render (`holo render`, {r['preset']} preset)"),
                             ("encode", "encode (`holo encode`, default: 30 L-BFGS iterations)"),
                             ("view", "one eye view (`holo view`, 4 mm pupil)"))]
     lines = [f"# The paper's full hologram end to end ({r['size']})", "",
              f"{r['date']}; {r['machine']}; load average before the run {r['load_before']}. "
              f"`{r['command']}`.", "",
+             *([f"Stages kept from earlier runs: {r['first_run']}.", ""] if r.get("first_run") else []),
              "| stage | s | share | peak GiB |", "|---|---|---|---|", *rows,
              f"| **render + encode + view** | **{e2e:.0f}** ({e2e / 60:.1f} min) | | "
-             f"{max(v['peak_bytes'] for v in s.values() if v) / gib:.2f} |", ""]
-    if "converged" in s:
+             f"{max((v['peak_bytes'] or 0) for v in s.values()) / gib:.2f} |", ""]
+    if "converged" in s and "score" in r:
         sc = r["score"]
         d, c = sc["default"], sc["converged"]
         lines += [f"Converged reference: `holo encode --optimiser adam` (Adam until its stop rule) on the same RESULT, "
-                  f"{s['converged']['s']:.0f} s, peak {s['converged']['peak_bytes'] / gib:.2f} GiB.", "",
+                  f"{s['converged']['s']:.0f} s, peak {peak(s['converged'])} GiB.", "",
                   f"What an eye sees (holocore.evaluate.viewer: a {r['pupil_mm']:g} mm pupil, a {r['eye_grid']} x "
                   f"{r['eye_grid']} jittered eye grid, {r['focus_planes']} focus planes across the image volume, one "
                   f"brightness per colour; wave ground truth at {r['gt_spp']} samples per pixel):", "",
@@ -105,6 +110,9 @@ def report(r: dict) -> str:
                   "", f"The default is {c['psnr_db'] - d['psnr_db']:.2f} dB below the converged encode in "
                   f"{s['encode']['s'] / s['converged']['s']:.0%} of its time.", ""]
     return "\n".join(lines)
+
+
+STAGES = ("render", "encode", "view", "converged", "score")
 
 
 def main() -> None:
@@ -117,38 +125,47 @@ def main() -> None:
     ap.add_argument("--eye-grid", type=int, default=3)
     ap.add_argument("--focus-planes", type=int, default=3)
     ap.add_argument("--gt-spp", type=int, default=64)
-    ap.add_argument("--no-converged", action="store_true", help="time the stages only")
+    ap.add_argument("--stages", default=",".join(STAGES), help="those to run; the others' figures are kept from "
+                                                               "the last fullscale.json under --out")
+    ap.add_argument("--work", type=Path, default=None, help="keep the scene, RESULT and stacks here (default: a "
+                                                            "temporary folder); a later run's stages reuse them")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args()
     from holocore.options import HologramOptions
     from holocore.scene.demo import write_demo_scene
 
+    todo = [x for x in args.stages.split(",") if x]
+    if not set(todo) <= set(STAGES):
+        raise SystemExit(f"--stages takes {', '.join(STAGES)}")
     preset = args.preset or HologramOptions().preset
-    r = {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine(),
-         "load_before": " ".join(Path("/proc/loadavg").read_text().split()[:3]),
-         "size": f"{args.resolution} x 3 colours x {args.frames} frames", "preset": preset,
-         "command": "python bench/fullscale.py " + " ".join(sys.argv[1:]), "pupil_mm": args.pupil_mm,
-         "eye_grid": args.eye_grid, "focus_planes": args.focus_planes, "gt_spp": args.gt_spp, "stages": {}}
+    last = args.out / "fullscale.json"
+    r = json.loads(last.read_text()) if set(todo) != set(STAGES) and last.is_file() else {"stages": {}}
+    r.update({"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine(),
+              "load_before": " ".join(Path("/proc/loadavg").read_text().split()[:3]),
+              "size": f"{args.resolution} x 3 colours x {args.frames} frames", "preset": preset,
+              "command": "python bench/fullscale.py " + " ".join(sys.argv[1:]), "pupil_mm": args.pupil_mm,
+              "eye_grid": args.eye_grid, "focus_planes": args.focus_planes, "gt_spp": args.gt_spp})
     with tempfile.TemporaryDirectory() as tmp:
-        t = Path(tmp)
-        write_demo_scene(t / "scene")
+        t = args.work or Path(tmp)
+        t.mkdir(parents=True, exist_ok=True)
+        if not (t / "scene").is_dir():
+            write_demo_scene(t / "scene")
         res, stack, conv = t / "RESULT.npz", t / "STACK.npz", t / "CONVERGED.npz"
-        stages = r["stages"]
-        stages["render"] = timed([*HOLO, "render", str(t / "scene"), "--out", str(res), "--resolution",
-                                  args.resolution, "--frames", str(args.frames), "--preset", preset])
-        print(f"render {stages['render']['s']:.0f} s", flush=True)
-        stages["encode"] = timed([*HOLO, "encode", str(res), "--out", str(stack)])
-        print(f"encode {stages['encode']['s']:.0f} s", flush=True)
-        stages["view"] = timed([*HOLO, "view", str(stack), "--focus-mm", args.focus_mm, "--pupil-mm",
-                                f"{args.pupil_mm:g}", "--out", str(t / "view.png")])
-        print(f"view {stages['view']['s']:.0f} s", flush=True)
-        if not args.no_converged:
-            stages["converged"] = timed([*HOLO, "encode", str(res), "--out", str(conv), "--optimiser", "adam"])
-            print(f"converged encode {stages['converged']['s']:.0f} s", flush=True)
+        commands = {
+            "render": [*HOLO, "render", str(t / "scene"), "--out", str(res), "--resolution", args.resolution,
+                       "--frames", str(args.frames), "--preset", preset],
+            "encode": [*HOLO, "encode", str(res), "--out", str(stack)],
+            "view": [*HOLO, "view", str(stack), "--focus-mm", args.focus_mm, "--pupil-mm", f"{args.pupil_mm:g}",
+                     "--out", str(t / "view.png")],
+            "converged": [*HOLO, "encode", str(res), "--out", str(conv), "--optimiser", "adam"]}
+        for name in (x for x in STAGES if x in todo and x in commands):
+            r["stages"][name] = timed(commands[name])
+            print(f"{name} {r['stages'][name]['s']:.0f} s", flush=True)
+        if "score" in todo:
             r["score"] = score({"default": stack, "converged": conv}, t / "scene", pupil_mm=args.pupil_mm,
                                eye_grid=args.eye_grid, focus_planes=args.focus_planes, gt_spp=args.gt_spp)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "fullscale.json").write_text(json.dumps(r, indent=1))
+    last.write_text(json.dumps(r, indent=1))
     text = report(r)
     (args.out / "fullscale.md").write_text(text + "\n")
     print(text)

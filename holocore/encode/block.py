@@ -8,6 +8,7 @@ once (tests/encode/test_encoding.py checks it), and memory grows with the block,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -15,6 +16,7 @@ import numpy as np
 import torch
 
 from holocore.encode.lbfgs import optimise_lbfgs
+from holocore.encode.operator import heap_reuse
 from holocore.encode.sgd import Operator, encoder_grid, inner_energy, optimise
 from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 from holocore.optics.propagation import PitchLike
@@ -59,14 +61,40 @@ def dpac_phase(u0: torch.Tensor) -> torch.Tensor:
     return torch.angle(u0) + sign * offset
 
 
+
+def make_operators(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike,
+                   device: torch.device) -> tuple[Operator, Operator]:
+    """A color's operators on its encoder grid, full band and recording cone, sharing one set of workspaces
+    (building them is about a second at the paper's size: the transfer function and the cone's disc in float64)."""
+    grid = encoder_grid(shape_hw, z_m, wavelength_m, pitch_m)
+    op_full = Operator(shape_hw, z_m, wavelength_m, pitch_m, cone=False, device=device, grid=grid)
+    op_cone = Operator(shape_hw, z_m, wavelength_m, pitch_m, cone=True, device=device, grid=grid)
+    op_cone.share_buffers(op_full)
+    return op_full, op_cone
+
+
+def _on_reused_heap(fn):
+    """``fn(method, target, **options)`` with every FFT output on reused heap pages on a CPU (operator.heap_reuse):
+    the set-up's and the final check's transforms as much as the optimiser's, which on fresh pages took twice as
+    long."""
+    @functools.wraps(fn)
+    def run(method: str, target: torch.Tensor, **kw):
+        with heap_reuse(target.device.type == "cpu"):
+            return fn(method, target, **kw)
+    return run
+
+
+@_on_reused_heap
 def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m: float, pitch_m: PitchLike,
                  supervision: str = "cone", init: Optional[torch.Tensor] = None, iterations: Optional[int] = None,
                  lr: float = 0.2, stop_db: Optional[float] = 0.05, tol: Optional[float] = None,
                  efficiency_weight: float = 0.0, optimiser: Optional[str] = None,
-                 progress: Optional[Callable[[int], None]] = None) -> BlockResult:
+                 progress: Optional[Callable[[int], None]] = None,
+                 operators: Optional[tuple[Operator, Operator]] = None) -> BlockResult:
     """Encode target [B, H, W] (complex64, one color) with ``method`` (sgd | naive | dpac); sgd's steps are
     ``optimiser``'s (lbfgs | adam; None: the default, :mod:`holocore.plan.encode_steps`), ``iterations`` None: its
-    default count."""
+    default count. ``operators``: the color's :func:`make_operators`, kept by a caller that encodes several
+    blocks of it (built here otherwise); their workspaces are freed at the end."""
     if supervision not in SUPERVISIONS:
         raise ValueError(f"supervision must be one of {SUPERVISIONS}, got {supervision!r}")
     optimiser = DEFAULT_OPTIMISER if optimiser is None else optimiser
@@ -75,10 +103,7 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
     iterations = default_iterations(optimiser, iterations)
     b, h, w = target.shape
     dev = target.device
-    grid = encoder_grid((h, w), z_m, wavelength_m, pitch_m)
-    op_full = Operator((h, w), z_m, wavelength_m, pitch_m, cone=False, device=dev, grid=grid)
-    op_cone = Operator((h, w), z_m, wavelength_m, pitch_m, cone=True, device=dev, grid=grid)
-    op_cone.share_buffers(op_full)  # one set of workspaces for the color
+    op_full, op_cone = operators or make_operators((h, w), z_m, wavelength_m, pitch_m, dev)
     with torch.no_grad():
         peak = _peaks(target)
         scale = torch.where(peak > 0, 1.0 / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(peak))
@@ -103,8 +128,7 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
     op = op_cone if supervision == "cone" else op_full
     if method == "sgd":
         out = OPTIMISERS[optimiser](phi0, t_unit, op, lit=~black, iterations=iterations, lr=lr, stop_db=stop_db,
-                                    tol=tol,
-                       efficiency_weight=efficiency_weight, progress=progress)
+                                    tol=tol, efficiency_weight=efficiency_weight, progress=progress)
         phi, iters, conv, trace = out.phase, out.iterations, out.converged, out.trace
     else:
         phi, iters, conv, trace = phi0, np.zeros(b, np.int64), np.ones(b, bool), [[] for _ in range(b)]
@@ -124,6 +148,7 @@ def encode_block(method: str, target: torch.Tensor, *, z_m: float, wavelength_m:
             black=black, efficiency=(e_c / hw).cpu().numpy(), efficiency_target=(matched / hw).cpu().numpy(),
             in_window=(e_f / hw).cpu().numpy(), target_energy=(e_t * peak.square()).cpu().numpy(),
             matched_energy=matched.cpu().numpy(), iterations=iters, converged=conv, trace=trace)
+    op_full.release_buffers()
     if method == "sgd":
         res.loss_init = np.where(black, 1.0, out.loss_init)
     else:

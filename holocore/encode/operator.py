@@ -58,6 +58,7 @@ from holocore.trace.randomfield import passband_mask
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters (malloc.h)
 _DYN_MMAP_MAX = 32 << 20  # glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit: where its dynamic rule settles
+_HEAP_REUSE = {"depth": 0}  # heap_reuse contexts open now (the setting is process-wide)
 
 
 def _glibc() -> Optional[ctypes.CDLL]:
@@ -76,18 +77,23 @@ def heap_reuse(enabled: bool = True) -> Iterator[None]:
     ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the largest values glibc's dynamic
     rule reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are returned
     (malloc_trim). The setting is process-wide: overlapping uses from several threads only lose the speed-up.
-    A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself)."""
+    A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself). Nested uses keep the
+    setting until the outermost one ends."""
     libc = _glibc() if enabled else None
-    if libc is None or not libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30):
+    if libc is None or (_HEAP_REUSE["depth"] == 0 and not libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30)):
         yield
         return
-    libc.mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1)
+    if _HEAP_REUSE["depth"] == 0:
+        libc.mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1)
+    _HEAP_REUSE["depth"] += 1
     try:
         yield
     finally:
-        libc.mallopt(_M_MMAP_THRESHOLD, _DYN_MMAP_MAX)
-        libc.mallopt(_M_TRIM_THRESHOLD, 2 * _DYN_MMAP_MAX)
-        libc.malloc_trim(0)
+        _HEAP_REUSE["depth"] -= 1
+        if _HEAP_REUSE["depth"] == 0:
+            libc.mallopt(_M_MMAP_THRESHOLD, _DYN_MMAP_MAX)
+            libc.mallopt(_M_TRIM_THRESHOLD, 2 * _DYN_MMAP_MAX)
+            libc.malloc_trim(0)
 
 
 def flip(x: torch.Tensor) -> torch.Tensor:
@@ -137,6 +143,10 @@ class Operator:
         """Use ``other``'s workspaces (same grid): one set per color, whatever the number of operators."""
         assert (self.hp, self.wp, self.dtype) == (other.hp, other.wp, other.dtype)
         self._owner = other
+
+    def release_buffers(self) -> None:
+        """Free the workspaces (the multipliers stay): the next use allocates them anew."""
+        (self._owner or self)._ws.clear()
 
     def workspace(self, name: str, b: int, device: torch.device) -> torch.Tensor:
         """Zero-padded [b, Hp, Wp] buffer ``name``; only its [:, :H, :W] window is ever written, so the rest

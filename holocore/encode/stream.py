@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from holocore import validate
-from holocore.encode.block import encode_block
+from holocore.encode.block import encode_block, make_operators
 from holocore.encode.core import wrap_phase
 from holocore.encode.encoder import (
     Assembler,
@@ -64,9 +64,11 @@ def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int], optimiser:
 
 
 def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int,
-                     optimiser: Optional[str] = None) -> int:
+                     optimiser: Optional[str] = None, *, colours: int = 1) -> int:
+    """The most frames a block may hold within ``memory_limit_bytes`` while ``colours`` colors' operators are
+    kept (four complex64 multipliers on the grid each)."""
     per = bytes_per_frame(shape_hw, grid, optimiser)
-    fixed = BASE_BYTES + 32 * grid[0] * grid[1]  # + four cached multipliers of the color
+    fixed = BASE_BYTES + 32 * grid[0] * grid[1] * max(1, int(colours))
     n = int((memory_limit_bytes - fixed) // per)
     if n < 1:
         need = (fixed + per) / 2**30
@@ -116,10 +118,9 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                                "efficiency_weight": 0.0, "optimiser": None, **sgd}) if method == "sgd" else {}
     init_src = None if init_path is None else _start_phase(init_path, (F, C, H, W), method)
     grid = max((encoder_grid((H, W), z, lam, pitch) for lam in lams), key=lambda g: g[0] * g[1])
-    fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes),
-                                          sgd_opts.get("optimiser"))
-    n_blocks = math.ceil(F / fb)
-    total = sgd_opts.get("iterations", 0) * n_blocks * C
+    fb = block_frames or frames_per_block((H, W), F, grid, int(memory_limit_bytes), sgd_opts.get("optimiser"),
+                                          colours=C)
+    total = sgd_opts.get("iterations", 0) * math.ceil(F / fb) * C  # iterations of every block and color
     acc = Assembler(F, C)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".tmp")
@@ -130,7 +131,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     try:
         with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf, \
                 open(tmp_u8, "wb") as u8f:
-            ph_out = _StreamedNpy(zf, "phase", (F, C, H, W), np.float32)
+            ph_out, ops = _StreamedNpy(zf, "phase", (F, C, H, W), np.float32), {}  # ops: each color's, kept
             for bi, f0 in enumerate(range(0, F, fb)):
                 f1 = min(F, f0 + fb)
                 block = np.empty((f1 - f0, C, H, W), np.float32)
@@ -139,8 +140,9 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                     cb = None if progress is None or method != "sgd" else \
                         (lambda it, _d=done: progress("encode", _d + it, total))
                     t, phi0 = _block_inputs(src, init_src, f0, f1, c, device=device, what=(result_path, init_path))
+                    ops[c] = ops.get(c) or make_operators((H, W), z, lam, pitch, torch.device(device))  # once
                     blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
-                                       progress=cb, init=phi0, **sgd_opts)
+                                       operators=ops[c], progress=cb, init=phi0, **sgd_opts)
                     del t
                     block[:, c] = wrap_phase(blk.phase)
                     acc.add(f0, c, blk)
