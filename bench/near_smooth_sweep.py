@@ -59,19 +59,10 @@ def highlight_scene(kind: str, alpha: float):
 
 def blob(img: np.ndarray) -> tuple[float, float]:
     """(radius px holding half the light of the brightest blob, its centroid x px), in a +-24 px window."""
-    from scipy.ndimage import gaussian_filter
+    from holocore.evaluate.metrics import brightest_blob
 
-    img = img.sum(axis=0)
-    py, px = np.unravel_index(np.argmax(gaussian_filter(img, 2.0)), img.shape)
-    y0, x0 = max(0, py - 24), max(0, px - 24)
-    win = img[y0:py + 25, x0:px + 25]
-    win = np.clip(win - np.percentile(win, 10), 0, None)
-    yy, xx = np.mgrid[y0:y0 + win.shape[0], x0:x0 + win.shape[1]]
-    s = win.sum()
-    cy, cx = (win * yy).sum() / s, (win * xx).sum() / s
-    rr = np.hypot(yy - cy, xx - cx).ravel()
-    order = np.argsort(rr)
-    return float(rr[order][np.searchsorted(np.cumsum(win.ravel()[order]) / s, 0.5)]), float(cx)
+    r50, _, cx = brightest_blob(img)
+    return r50, cx
 
 
 def measure(view, depths: np.ndarray, z_plate: float, eye_mm: float) -> dict:

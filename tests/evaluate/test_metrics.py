@@ -142,3 +142,17 @@ def test_invalid_inputs(pred, ref, match):
 def test_invalid_data_range():
     with pytest.raises(ValueError, match="data_range"):
         psnr(np.ones((4, 4)), np.zeros((4, 4)), data_range=0.0)
+
+
+def test_brightest_blob_finds_a_gaussian_spots_centre_and_half_light_radius():
+    """A 2-D Gaussian of width sigma holds half its light within sigma sqrt(2 ln 2) of its centre; a dimmer
+    spot elsewhere is not the brightest blob."""
+    from holocore.evaluate.metrics import brightest_blob
+
+    yy, xx = np.mgrid[0:96, 0:128].astype(np.float64)
+    sigma, cy, cx = 3.0, 40.3, 71.6
+    img = np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * sigma ** 2))
+    img += 0.3 * np.exp(-((yy - 20) ** 2 + (xx - 20) ** 2) / 8.0)
+    r50, y, x = brightest_blob(np.stack([img, 0.5 * img]))
+    assert (y, x) == pytest.approx((cy, cx), abs=0.05)
+    assert r50 == pytest.approx(sigma * np.sqrt(2 * np.log(2)), rel=0.08)

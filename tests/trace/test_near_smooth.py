@@ -91,19 +91,9 @@ def _highlight_scene(bsdf: dict, *, behind_glass: bool):
 
 def _r50(img: np.ndarray) -> float:
     """Radius (px) holding half the light of the brightest blob (a window of +-24 px around it)."""
-    from scipy.ndimage import gaussian_filter
+    from holocore.evaluate.metrics import brightest_blob
 
-    img = img.sum(axis=0)
-    py, px = np.unravel_index(np.argmax(gaussian_filter(img, 2.0)), img.shape)
-    y0, x0 = max(0, py - 24), max(0, px - 24)
-    win = img[y0:py + 25, x0:px + 25]
-    win = np.clip(win - np.percentile(win, 10), 0, None)
-    yy, xx = np.mgrid[y0:y0 + win.shape[0], x0:x0 + win.shape[1]]
-    s = win.sum()
-    cy, cx = (win * yy).sum() / s, (win * xx).sum() / s
-    rr = np.hypot(yy - cy, xx - cx).ravel()
-    order = np.argsort(rr)
-    return float(rr[order][np.searchsorted(np.cumsum(win.ravel()[order]) / s, 0.5)])
+    return brightest_blob(img)[0]
 
 
 def _best_focus(view, depths) -> float:
