@@ -39,12 +39,16 @@ def highlight_scene(kind: str, alpha: float):
     mi = mitsuba()
     T = mi.ScalarTransform4f
     fov = 2 * math.degrees(math.atan(W * P_M / 2 / F_M))
+    smooth = alpha == 0  # alpha 0: the smooth (delta) surface, the paper's own coherent chain
     if kind == "glass":
-        plate = {"type": "cube", "bsdf": {"type": "roughdielectric", "alpha": alpha, "int_ior": 1.5},
+        bsdf = {"type": "dielectric", "int_ior": 1.5} if smooth else \
+            {"type": "roughdielectric", "alpha": alpha, "int_ior": 1.5}
+        plate = {"type": "cube", "bsdf": bsdf,
                  "to_world": T().translate([0, 0, -Z_PLATE_M]).scale([0.05, 0.05, 0.0025])}
         ball = [0.0, 0.0, -Z_BALL_M]
     else:
-        plate = {"type": "rectangle", "bsdf": {"type": "roughconductor", "alpha": alpha},
+        plate = {"type": "rectangle", "bsdf": {"type": "conductor"} if smooth else
+                 {"type": "roughconductor", "alpha": alpha},
                  "to_world": T().translate([0, 0, -Z_PLATE_M]).rotate([0, 1, 0], 12.0).scale(0.05)}
         ang = math.radians(24.0)  # the ball 1 m from the plate along the reflected axis: its image 1.5 m away
         ball = [math.sin(ang), 0.0, -Z_PLATE_M + math.cos(ang)]
@@ -114,7 +118,7 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--alphas", default="0.001,0.003,0.01,0.03,0.1,0.3")
+    ap.add_argument("--alphas", default="0,0.001,0.003,0.01,0.03,0.1,0.3", help="0: the smooth surface")
     ap.add_argument("--kinds", default="metal,glass")
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("--gt-spp", type=int, default=256)
