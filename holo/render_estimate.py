@@ -8,6 +8,7 @@ from pathlib import Path
 
 from holo.common import fail
 from holo.render_quality import estimate_lines, quality_context
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER, rule
 from holocore.plan.estimate import (
     encode_iterations,
     encode_work,
@@ -16,7 +17,6 @@ from holocore.plan.estimate import (
     machine_load,
     user_calibration_path,
 )
-from holocore.plan.encode_steps import DEFAULT_OPTIMISER, rule
 from holocore.plan.estimate_probe import estimate_with_probe, process_age_s
 from holocore.plan.memory_estimate import estimate_memory
 

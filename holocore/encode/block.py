@@ -18,8 +18,8 @@ import torch
 from holocore.encode.lbfgs import optimise_lbfgs
 from holocore.encode.operator import heap_reuse
 from holocore.encode.sgd import Operator, encoder_grid, inner_energy, optimise
-from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 from holocore.optics.propagation import PitchLike
+from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 
 SUPERVISIONS = ("cone", "full")
 OPTIMISERS = {"adam": optimise, "lbfgs": optimise_lbfgs}
@@ -59,7 +59,6 @@ def dpac_phase(u0: torch.Tensor) -> torch.Tensor:
     cols = torch.arange(w, device=u0.device)[None, :]
     sign = 1.0 - 2.0 * ((rows + cols) % 2).to(offset.dtype)  # +1 on even, -1 on odd squares
     return torch.angle(u0) + sign * offset
-
 
 
 def make_operators(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike,

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from holocore import validate
-from holocore.encode.block import OPTIMISERS, SUPERVISIONS, BlockResult, encode_block
+from holocore.encode.block import OPTIMISERS, SUPERVISIONS, BlockResult, encode_block, make_operators
 from holocore.encode.core import (
     TWO_PI,
     ArrayLike,
@@ -259,12 +259,15 @@ def _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init,
     ran = 0  # iterations of the blocks done
     k = 0
     for c, lam in enumerate(lams):
+        ops = None  # the color's operators, built with its first block and kept for the others
         for f0 in range(0, F, chunk_frames):
             f1 = min(F, f0 + chunk_frames)
             cb = None if progress is None or method != "sgd" else _block_progress(progress, ran, expect,
                                                                                     left=n_blocks - k - 1)
-            blk = encode_block(method, _block(t, f0, f1, c, dev), z_m=z, wavelength_m=lam, pitch_m=pitch_m,
-                               supervision=sup, init=None if init is None else phi_init[f0:f1, c], progress=cb, **sgd)
+            target = _block(t, f0, f1, c, dev)
+            ops = ops or make_operators(tuple(target.shape[-2:]), z, lam, pitch_m, target.device)
+            blk = encode_block(method, target, z_m=z, wavelength_m=lam, pitch_m=pitch_m, supervision=sup,
+                               init=None if init is None else phi_init[f0:f1, c], progress=cb, operators=ops, **sgd)
             phase[f0:f1, c] = wrap_phase(blk.phase)
             acc.add(f0, c, blk)
             ran += int(np.max(blk.iterations)) if np.size(blk.iterations) else 0

@@ -23,7 +23,6 @@ __all__ = ["Optimiser", "OPTIMISERS", "DEFAULT_OPTIMISER", "StepRule", "RULES", 
            "default_iterations"]
 
 
-
 @dataclass(frozen=True)
 class StepRule:
     """One optimiser as the planner sees it."""

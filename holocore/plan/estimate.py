@@ -41,9 +41,9 @@ from pathlib import Path
 from typing import Any, Optional
 
 from holocore.display.optics import OpticsConfig
-from holocore.plan.encode_steps import default_iterations, rule
 from holocore.optics.grids import encoder_grid
 from holocore.plan.effects import choose_spp
+from holocore.plan.encode_steps import default_iterations, rule
 from holocore.plan.presets import PRESETS
 
 __all__ = ["TYPICAL_STOP_ITERATIONS", "stop_iterations", "encode_iterations", "encode_work", "load_slowdown",

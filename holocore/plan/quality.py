@@ -43,8 +43,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-from holocore.plan.encode_steps import rule
 from holocore.plan.effects import noise_factor
+from holocore.plan.encode_steps import rule
 from holocore.plan.estimate import TYPICAL_STOP_ITERATIONS, features
 
 __all__ = ["QualityPrediction", "predict_quality", "predict_for", "recording_radius_px", "MIN_FITTED_SPP",
@@ -137,8 +137,8 @@ def predict_quality(*, frames: int, frame_phases: str, noise_to_signal: float, e
     """Predicted viewer-faithful PSNR of a job (module docstring). ``noise_to_signal``: the plan's Monte Carlo
     noise-to-signal power of its rays per pixel (:func:`holocore.plan.effects.noise_factor` rho^2 / N);
     ``iterations``: the SGD encoder's (None: its ``optimiser``'s default run; None: the default optimiser);
-    ``image_q``: the scene's image statistic (None: a
-    typical scene's); ``refracted_share``: the share of the light seen through glass (the plan's analysis)."""
+    ``image_q``: the scene's image statistic (None: a typical scene's); ``refracted_share``: the share of the
+    light seen through glass (the plan's analysis)."""
     F = _check_count("frames", frames)
     if not (isinstance(noise_to_signal, (int, float)) and math.isfinite(noise_to_signal) and noise_to_signal >= 0):
         raise ValueError(f"noise_to_signal must be finite and >= 0, got {noise_to_signal!r}")
@@ -201,8 +201,7 @@ def predict_for(optics, options, *, encoder: str = "sgd", iterations: Optional[i
     nsr = noise_factor(theta) * radius ** 2 / max(1, int(x["spp"]))
     pred = predict_quality(frames=optics.frames, frame_phases=optics.frame_phases, noise_to_signal=nsr,
                            encoder=encoder, iterations=iterations, optimiser=optimiser, image_q=image_q,
-                           refracted_share=refracted_share,
-                           fourier_filter=fourier_filter, model=model)
+                           refracted_share=refracted_share, fourier_filter=fourier_filter, model=model)
     if int(x["spp"]) < MIN_FITTED_SPP:
         pred.warnings.append(f"{int(x['spp'])} rays per pixel is below the {MIN_FITTED_SPP} the prediction was "
                              "fitted from: expect less than predicted")

@@ -55,9 +55,9 @@ def candidates(optics, options, *, encoder: str = "sgd", optimiser: Optional[str
                spp: Sequence[Optional[int]] = SPP_CHOICES,
                iterations: Sequence[Optional[int]] = ITERATION_CHOICES) -> list[Candidate]:
     """Every mix of ``frames`` x ``spp`` x ``iterations`` (iterations only for SGD, ``optimiser``'s: None the
-    default) with its predicted PSNR and
-    ``seconds(optics, options, iterations)``. ``options`` is copied with each spp (a dataclass or a pydantic
-    model or a namespace with ``spp``), ``optics`` (an OpticsConfig) with each frame count."""
+    default) with its predicted PSNR and ``seconds(optics, options, iterations)``. ``options`` is copied with
+    each spp (a dataclass or a pydantic model or a namespace with ``spp``), ``optics`` (an OpticsConfig) with
+    each frame count."""
     out = []
     its = list(iterations) if encoder == "sgd" else [None]
     for F in frames:
