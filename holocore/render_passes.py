@@ -12,6 +12,7 @@ from dataclasses import replace
 from typing import Optional
 
 from holocore.display.optics import OpticsConfig
+from holocore.optics.grids import reach_grid
 from holocore.optics.plane_chain import chain_planes
 from holocore.optics.propagation import asm
 from holocore.plan.time_budget import SppSchedule
@@ -137,7 +138,8 @@ def propagate_other(setup: RenderSetup, sink, *, timings: dict, progress=None) -
             if cut is not None:
                 u = asm(u, 0.0, lam, optics.pitch_m, cone_sine=cut)
                 sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
-            block[:, c] = asm(u, dz, lam, optics.pitch_m).cpu().numpy()
+            grid = reach_grid((H, W), dz, lam, optics.pitch_m)  # the SLM's window only: its reach, not 2x
+            block[:, c] = asm(u, dz, lam, optics.pitch_m, grid=grid).cpu().numpy()
             del u
         sink.write_other(f0, block)
         del block

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from holocore import validate
+from holocore.formats.chunks import map_pieces
 from holocore.optics.propagation import PitchLike, asm, ifft2
 from holocore.trace.randomfield import passband_mask
 
@@ -144,6 +145,9 @@ def reach_margin_px(*, z_wrp_m: float, wavelengths_m: Sequence[float], pitch_m: 
 def wrap_phase(phase: ArrayLike) -> np.ndarray:
     """Phase (rad) wrapped to [0, 2pi) as float32 numpy; float32 rounding never yields 2pi (mapped to 0)."""
     ph = phase.detach().cpu().numpy() if isinstance(phase, torch.Tensor) else np.asarray(phase)
-    out = np.mod(ph.astype(np.float64), TWO_PI).astype(np.float32)
-    out[out >= np.float32(TWO_PI)] = 0.0
-    return out
+
+    def piece(p: np.ndarray) -> np.ndarray:
+        out = np.mod(p.astype(np.float64), TWO_PI).astype(np.float32)
+        out[out >= np.float32(TWO_PI)] = 0.0
+        return out
+    return map_pieces(piece, ph, np.float32)

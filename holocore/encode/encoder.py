@@ -42,6 +42,7 @@ from holocore.encode.core import (
     reach_margin_px,
     wrap_phase,
 )
+from holocore.encode.operator import heap_reuse
 from holocore.encode.output import load_lut, quantize, save_encoded
 from holocore.encode.sgd import encoder_grid, spread_px
 from holocore.optics.propagation import PitchLike
@@ -218,7 +219,8 @@ def _run(method: str, target_wrp: ArrayLike, *, z_wrp_m: float, wavelengths_m: S
     total = sgd.get("iterations", 0)
     n_blocks = C * math.ceil(F / chunk_frames)
     grid = max((encoder_grid((H, W), z, lam, pitch_m) for lam in lams), key=lambda g: g[0] * g[1])
-    with small_ops_on_one_thread(method, dev, min(chunk_frames, F) * grid[0] * grid[1]):
+    on_cpu = dev is None or torch.device(dev).type == "cpu"  # one heap for every block (as stream.encode_file)
+    with small_ops_on_one_thread(method, dev, min(chunk_frames, F) * grid[0] * grid[1]), heap_reuse(on_cpu):
         _encode_blocks(method, t, lams, F, chunk_frames, z, pitch_m, sup, dev, init, phi_init if init is not None
                        else None, sgd, progress, total, n_blocks, phase, acc)
     opts = {"fourier_filter": bool(fourier_filter), "chunk_frames": int(chunk_frames),

@@ -60,13 +60,13 @@ def load_lut(source: Union[str, Path, ArrayLike], *, wavelengths_m: Sequence[flo
     return np.stack([check_lut_table(f"lut[{c}]", arr[c]) for c in range(arr.shape[0])])
 
 
-def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None) -> np.ndarray:
+def quantize(phase: ArrayLike, *, lut: Optional[np.ndarray] = None, wrapped: bool = False) -> np.ndarray:
     """8-bit SLM frames uint8 [F, C, H, W]: round(phase / 2pi * 256) mod 256 (docs/design.md §2, ``io.phase_to_u8``),
     then, if given, each color's row of ``lut`` (uint8 [C, 256] from :func:`load_lut`)."""
     ph = phase.detach().cpu().numpy() if isinstance(phase, torch.Tensor) else np.asarray(phase)
     if ph.ndim != 4:
         raise ValueError(f"phase must be [F, C, H, W], got shape {ph.shape}")
-    levels = phase_to_u8(wrap_phase(ph))
+    levels = phase_to_u8(ph if wrapped else wrap_phase(ph))
     if lut is None:
         return levels
     table = np.asarray(lut)

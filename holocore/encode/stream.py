@@ -9,6 +9,7 @@ written next to its destination and renamed into place.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -31,6 +32,7 @@ from holocore.encode.encoder import (
     small_ops_on_one_thread,
     supervision_for,
 )
+from holocore.encode.operator import heap_reuse
 from holocore.encode.output import quantize, stack_meta
 from holocore.encode.sgd import encoder_grid
 from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
@@ -126,8 +128,7 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
     fd, tmp = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".tmp")
     fd_u8, tmp_u8 = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.", suffix=".u8")
     os.close(fd_u8)
-    threads = small_ops_on_one_thread(method, device, min(fb, F) * grid[0] * grid[1])
-    threads.__enter__()
+    held = _threads_and_heap(method, device, min(fb, F) * grid[0] * grid[1])
     try:
         with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf, \
                 open(tmp_u8, "wb") as u8f:
@@ -144,10 +145,10 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
                     blk = encode_block(method, t, z_m=z, wavelength_m=lam, pitch_m=pitch, supervision=sup,
                                        operators=ops[c], progress=cb, init=phi0, **sgd_opts)
                     del t
-                    block[:, c] = wrap_phase(blk.phase)
+                    block[:, c] = wrap_phase(blk.phase)  # [0, 2pi) float32, as quantize's levels want it
                     acc.add(f0, c, blk)
                 ph_out.write(block)
-                u8f.write(quantize(block, lut=lut).tobytes())
+                u8f.write(quantize(block, lut=lut, wrapped=True).tobytes())
                 del block
             ph_out.close()
             u8f.flush()
@@ -170,8 +171,18 @@ def encode_file(result_path: Union[str, Path], out_path: Union[str, Path], *, me
         raise
     finally:
         Path(tmp_u8).unlink(missing_ok=True)
-        threads.__exit__(None, None, None)
+        held.close()
     return res, out_meta
+
+
+def _threads_and_heap(method: str, device: Union[str, torch.device], elements: int) -> contextlib.ExitStack:
+    """Entered: the block's thread setting (encoder.small_ops_on_one_thread) and one heap for the whole file,
+    so that the pages a block's transforms freed serve the next block's (each block's own heap_reuse would hand
+    them back to the kernel at its end, and the next block would fault them in again)."""
+    held = contextlib.ExitStack()
+    held.enter_context(small_ops_on_one_thread(method, device, elements))
+    held.enter_context(heap_reuse(torch.device(device).type == "cpu"))
+    return held
 
 
 def _sgd_meta(sgd_opts: dict, init_path: Optional[Union[str, Path]]) -> dict:

@@ -11,7 +11,7 @@ import math
 from holocore import validate
 from holocore.validate import PitchLike
 
-__all__ = ["smooth_at_least", "padded_shape", "spread_px", "encoder_grid"]
+__all__ = ["smooth_at_least", "padded_shape", "spread_px", "reach_grid", "encoder_grid"]
 
 
 def smooth_at_least(n: int) -> int:
@@ -50,10 +50,15 @@ def spread_px(z_m: float, wavelength_m: float, pitch_m: PitchLike) -> int:
     return int(math.ceil(abs(z_m) * s / (p * math.sqrt(1.0 - 2.0 * s * s)) - 1e-9))
 
 
-def encoder_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike) -> tuple[int, int]:
-    """Padded FFT grid (rows, cols) of the encoder's ASM: the smallest 7-smooth n + r + 8 + n/64, at most 2x."""
+def reach_grid(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, pitch_m: PitchLike) -> tuple[int, int]:
+    """Padded FFT grid (rows, cols) of an ASM over ``z_m`` whose output is cropped to the input's window: the
+    smallest 7-smooth n + r + 8 + n/64 (r = :func:`spread_px`), at most 2x (why this is exact:
+    ``holocore.encode.operator``, "Padding")."""
     full = padded_shape(shape_hw, 2)
     r = spread_px(z_m, wavelength_m, pitch_m)
     if r < 0:
         return full
     return tuple(min(smooth_at_least(n + r + 8 + n // 64), m) for n, m in zip(shape_hw, full))  # type: ignore
+
+
+encoder_grid = reach_grid  # the encoder's operator uses the same grid (holocore.encode.operator)

@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from holocore.io import ScratchArray
+from holocore.optics.grids import reach_grid
 
 __all__ = ["chain_planes"]
 
@@ -71,7 +72,8 @@ def _add_to_front(k, planes, sink, scratch, *, lams, borders, steps, f0, n_f, li
                 u = _own(scratch, equalisers, k, a, e, ci, lam, **own)
             else:  # done in place above, with the deeper planes' fields added since
                 u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
-            v = asm(u, planes.z_m[k - 1] - planes.z_m[k], lam, optics.pitch_m)
+            dz = planes.z_m[k - 1] - planes.z_m[k]  # a few millimetres: a grid a few pixels wider, not 2x
+            v = asm(u, dz, lam, optics.pitch_m, grid=reach_grid(tuple(u.shape[-2:]), dz, lam, optics.pitch_m))
             v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
             if k - 1 == 0:
                 sink.add_rows(f0 + a, [lit_idx[ci]], 0, v[:, None])

@@ -184,22 +184,28 @@ def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
 
 
 def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: PitchLike, *,
-        pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None) -> torch.Tensor:
+        pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None,
+        grid: tuple[int, int] | None = None) -> torch.Tensor:
     """Propagate a complex field ``[..., H, W]`` by ``distance_m`` (m; < 0 back-propagates, 0 is a copy).
 
     ``cone_sine`` (0 < s <= 1, None: no cut): keep only the plane waves whose direction sine is <= s (at any
     distance, 0 included: then a low-pass filter of the field).
 
     ``wavelength_m`` in m, ``pitch_m`` a float or ``(pitch_y, pitch_x)`` in m. Zero-pads to
-    :func:`padded_shape` (``pad_factor`` >= 1), applies the band-limited transfer function (docs/design.md §5) and
-    crops back. Returns a new tensor of the input's shape, dtype and device. Differentiable.
+    :func:`padded_shape` (``pad_factor`` >= 1), or to ``grid`` (rows, cols) when given (e.g.
+    ``holocore.optics.grids.reach_grid``: the field's size plus the distance's sideways reach, exact for the
+    cropped output and far smaller than 2x over short distances), applies the band-limited transfer function
+    (docs/design.md §5) and crops back. Returns a new tensor of the input's shape, dtype and device.
+    Differentiable.
     """
     field = _check_field(field)
     z = validate.real("distance_m", distance_m)
     lam = validate.positive("wavelength_m", wavelength_m)
     py, px = validate.pitch_pair(pitch_m)
     h, w = field.shape[-2], field.shape[-1]
-    hp, wp = padded_shape((h, w), pad_factor)
+    hp, wp = padded_shape((h, w), pad_factor) if grid is None else (int(grid[0]), int(grid[1]))
+    if hp < h or wp < w:
+        raise ValueError(f"grid {grid} must be at least the field's size {h}x{w}")
     if cone_sine is not None:
         cone_sine = validate.real("cone_sine", cone_sine)
         if not 0.0 < cone_sine <= 1.0:
