@@ -14,7 +14,7 @@ from typing import Optional
 from holocore.display.optics import OpticsConfig
 from holocore.optics.grids import reach_grid
 from holocore.optics.plane_chain import chain_planes
-from holocore.optics.propagation import asm
+from holocore.optics.propagation import asm, asm_to
 from holocore.plan.time_budget import SppSchedule
 from holocore.render_setup import RenderOptions, RenderSetup
 from holocore.trace.hologram_rays import RecordingGrid, trace_field
@@ -135,12 +135,14 @@ def propagate_other(setup: RenderSetup, sink, *, timings: dict, progress=None) -
             if c not in setup.lit_idx:
                 continue  # the field of an unlit color is zero on both planes
             u = torch.from_numpy(sink.read_traced(f0, f1, c)).to(setup.device)
-            if cut is not None:
-                u = asm(u, 0.0, lam, optics.pitch_m, cone_sine=cut)
-                sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
             grid = reach_grid((H, W), dz, lam, optics.pitch_m)  # the SLM's window only: its reach, not 2x
-            block[:, c] = asm(u, dz, lam, optics.pitch_m, grid=grid).cpu().numpy()
-            del u
+            if cut is not None:  # the cut field and its propagation from one transform of the traced field
+                u, v = asm_to(u, [0.0, dz], lam, optics.pitch_m, cone_sine=cut, grid=grid)
+                sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
+            else:
+                v = asm(u, dz, lam, optics.pitch_m, grid=grid)
+            block[:, c] = v.cpu().numpy()
+            del u, v
         sink.write_other(f0, block)
         del block
         if progress:

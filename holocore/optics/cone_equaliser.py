@@ -287,16 +287,29 @@ class PlaneEqualiser:
         """``field_`` [..., H, W] of lit color ``color`` equalised (the same tensor when there is nothing to do)."""
         if not self.active(color):
             return field_
-        h, w = field_.shape[-2], field_.shape[-1]
+        return equalise_plane(field_, self.gain(field_, color, wavelength_m, pitch_m))
+
+    def own_grid(self, shape_hw: tuple[int, int]) -> tuple[int, int]:
+        """The padded grid the filter needs on a field of ``shape_hw``: its border more, at most 2x."""
+        h, w = shape_hw
         b = min(self.border_px, h, w)  # at most the ASM's own 2x padding
-        shape = (smooth_at_least(h + b), smooth_at_least(w + b))
+        return smooth_at_least(h + b), smooth_at_least(w + b)
+
+    def gain(self, field_: torch.Tensor, color: int, wavelength_m: float, pitch_m: float,
+             grid: Optional[tuple[int, int]] = None) -> torch.Tensor:
+        """The gain of lit color ``color`` (active) on ``grid`` (default :meth:`own_grid`; a larger one holds the
+        filter followed by a propagation, ``holocore.optics.plane_chain``), in ``field_``'s precision and device.
+        Eq. C4's noise is fitted once per color, on the first frame it sees (the render's 0), on the own grid."""
+        h, w = field_.shape[-2], field_.shape[-1]
+        own = self.own_grid((h, w))
+        shape = own if grid is None else tuple(grid)
         g = self._gains.get(color)
         if g is None or tuple(g.shape) != shape or g.device != field_.device:
             # once per color of a plane (its chunks of frames alternate colors), in the field's precision
             fit = self.noise.get(color, NoiseFit(0.0, 0.0))  # fitted once: a gain rebuilt keeps frame 0's fit
-            if self.noise_aware and color not in self.noise:  # Eq. C4: the first frame it sees (the render's 0)
+            if self.noise_aware and color not in self.noise:
                 first = field_.reshape(-1, h, w)[0]
-                power = (torch.fft.fft2(first, s=shape).abs() ** 2).cpu().numpy()
+                power = (torch.fft.fft2(first, s=own).abs() ** 2).cpu().numpy()
                 pix = first.abs().double() ** 2
                 # pixels lit: 2 (sum I)^2 / sum I^2, the count of a uniformly lit region under full speckle
                 lit = float(2.0 * pix.sum() ** 2 / max(float((pix * pix).sum()), 1e-300))
@@ -305,7 +318,7 @@ class PlaneEqualiser:
             self.noise[color] = fit
             g = equaliser_gain(self.spectra[color], wavelength_m, pitch_m, shape, noise=fit.noise)
             g = self._gains[color] = g.to(device=field_.device, dtype=field_.real.dtype)
-        return equalise_plane(field_, g)
+        return g
 
 
 def plane_equalisers(distances_by_plane_m: Sequence[Sequence[float]], wavelengths_m: Sequence[float],

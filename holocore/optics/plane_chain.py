@@ -1,7 +1,11 @@
 """Several recording planes chained to the WRP by the band-limited ASM (paper Sec. 6; docs/design.md §5): one
 trace records every ray on the plane in front of its image point; each deeper plane, held in a scratch file on a
-grid wider than the WRP's by its border, is propagated to the plane in front of it, cropped and added, down to
-the WRP. Units: metres."""
+grid wider than the WRP's by its border, is equalised, propagated to the WRP, cropped to its window and added.
+
+Why straight to the WRP rather than plane by plane: the ASM is linear and a plane's grid is wider than the WRP's
+by exactly the reach from it to the WRP, so the sum is the same, and each plane then costs one FFT pair for its
+equaliser and its propagation together (on one grid holding both paddings), with no read-add-write of the planes
+in between. Units: metres."""
 
 from __future__ import annotations
 
@@ -34,62 +38,51 @@ def _scale_wrp(sink, lams, *, f0, n_f, fp, lit_idx, scale, equalisers, optics, d
             del u, v
 
 
-def _own(scratch, equalisers, k, a, e, ci, lam, *, scale, optics, dev):
-    """Plane k's own recording, frames a..e of lit colour ci, scaled and equalised (on the device)."""
+def _add_to_wrp(k, planes, sink, scratch, *, lams, border, step, f0, n_f, lit_idx, scale, equalisers, optics,
+                dev) -> None:
+    """Plane k's own recording (k >= 1), scaled, equalised and propagated by the ASM to the WRP in one transform
+    pair (the equaliser's gain and the transfer function on one grid: :func:`_to_wrp`), cropped to the WRP's
+    window and added to the sink's traced field, a chunk of ``step`` frames at a time. Closes plane k's scratch
+    file."""
     import torch
 
-    u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
-    if scale != 1.0:
-        u = u * scale
-    return equalisers[k].apply(u, ci, lam, optics.pitch_m) if equalisers is not None else u
-
-
-def _add_to_front(k, planes, sink, scratch, *, lams, borders, steps, f0, n_f, lit_idx, scale, equalisers, optics,
-                  dev) -> None:
-    """Propagate plane k (k >= 1) by the ASM to the plane in front of it, crop it to that plane's grid and add it
-    there (the sink's traced field for the WRP), a chunk of ``steps[k]`` frames at a time; the plane in front
-    first gets its own recording scaled and equalised. Closes plane k's scratch file."""
-    import torch
-
-    from holocore.optics.propagation import asm, clear_cache
+    from holocore.optics.propagation import clear_cache
 
     H, W = optics.resolution_hw
-    own = dict(scale=scale, optics=optics, dev=dev)
-    d = borders[k] - borders[k - 1]
-    Hn, Wn = H + 2 * borders[k - 1], W + 2 * borders[k - 1]
-    if k - 1 >= 1 and (scale != 1.0 or equalisers is not None):
-        # the plane in front gets its own recording scaled and equalised before this plane's field is
-        # added to it: each recording is filtered by its own plane's equaliser, once
-        for a in range(0, n_f, steps[k - 1]):
-            e = min(n_f, a + steps[k - 1])
-            for ci, lam in enumerate(lams):
-                u = _own(scratch, equalisers, k - 1, a, e, ci, lam, **own)
-                scratch[k - 1].write_rows(a, [ci], 0, u.cpu().numpy()[:, None])
-    for a in range(0, n_f, steps[k]):
-        e = min(n_f, a + steps[k])
+    dz = planes.z_m[0] - planes.z_m[k]
+    for a in range(0, n_f, step):
+        e = min(n_f, a + step)
         for ci, lam in enumerate(lams):
-            if k == planes.count - 1:  # the deepest plane holds its own recording alone
-                u = _own(scratch, equalisers, k, a, e, ci, lam, **own)
-            else:  # done in place above, with the deeper planes' fields added since
-                u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
-            dz = planes.z_m[k - 1] - planes.z_m[k]  # a few millimetres: a grid a few pixels wider, not 2x
-            v = asm(u, dz, lam, optics.pitch_m, grid=reach_grid(tuple(u.shape[-2:]), dz, lam, optics.pitch_m))
-            v = v[:, d:d + Hn, d:d + Wn].cpu().numpy()
-            if k - 1 == 0:
-                sink.add_rows(f0 + a, [lit_idx[ci]], 0, v[:, None])
-            else:
-                scratch[k - 1].add_rows(a, [ci], 0, v[:, None])
+            u = torch.from_numpy(scratch[k].read_fc(a, e, ci)).to(dev)
+            if scale != 1.0:
+                u = u * scale
+            eq = None if equalisers is None or not equalisers[k].active(ci) else equalisers[k]
+            v = _to_wrp(u, dz, lam, optics.pitch_m, eq, ci)[:, border:border + H, border:border + W]
+            sink.add_rows(f0 + a, [lit_idx[ci]], 0, v.cpu().numpy()[:, None])
             del u, v
     scratch[k].close()
-    clear_cache()  # this plane pair's transfer functions and padding workspaces are not used again
+    clear_cache()  # this plane's transfer functions and padding workspaces are not used again
+
+
+def _to_wrp(u, dz, lam, pitch_m, eq, ci):
+    """u [n, Hk, Wk] equalised by ``eq`` (None: not) and propagated by dz, on a grid that pads by the filter's
+    border and the distance's reach together (docs/design.md §5): one FFT pair for both."""
+    from holocore.optics.propagation import asm, smooth_at_least
+
+    reach = reach_grid(tuple(u.shape[-2:]), dz, lam, pitch_m)
+    if eq is None:
+        return asm(u, dz, lam, pitch_m, grid=reach)
+    own = eq.own_grid(tuple(u.shape[-2:]))
+    grid = tuple(smooth_at_least(r + o - n) for r, o, n in zip(reach, own, u.shape[-2:]))
+    return asm(u, dz, lam, pitch_m, grid=grid, gain=eq.gain(u, ci, lam, pitch_m, grid))
 
 
 def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev, timings,
                  equalisers=None) -> None:
     """Trace the recording planes into the sink's traced field (frames f0..f0+n_f): one trace from the WRP
     records every ray on the plane in front of its image point (holocore.trace.hologram_rays, ``planes``); each
-    deeper plane, on a grid wider than the WRP's by its border and held in a scratch file, is then propagated by the
-    ASM to the plane in front of it, cropped to that plane's grid and added, down to the WRP.
+    deeper plane, on a grid wider than the WRP's by its border and held in a scratch file, is then equalised,
+    propagated by the ASM to the WRP, cropped to its window and added.
     ``trace_plane(spec, on_plane_rows)`` runs the trace: ``on_plane_rows(k, r0, block, add=False)`` writes (or
     adds) rows of plane k; it returns a factor for every recording (None: 1), applied once after all the trace's
     passes (a time-limited render adds its passes' sums and divides by their rays here). ``equalisers``: one
@@ -118,11 +111,10 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
         _scale_wrp(sink, lams, fp=fp, **common)
         if equalisers is not None:
             timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
-        # The chunk planner sized fp for the WRP's grid; a deeper plane's grid is wider, and the sum with the
-        # plane in front is held too: fewer frames per chunk.
-        steps = [max(1, fp * H * W // (2 * (H + 2 * b) * (W + 2 * b))) for b in borders]
-        for k in range(planes.count - 1, 0, -1):  # the deepest first, each added to the plane in front
-            _add_to_front(k, planes, sink, scratch, lams=lams, borders=borders, steps=steps, **common)
+        # The chunk planner sized fp for the WRP's grid; a deeper plane's grid is wider: fewer frames per chunk.
+        for k in range(planes.count - 1, 0, -1):  # each deeper plane straight to the WRP
+            step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
+            _add_to_wrp(k, planes, sink, scratch, lams=lams, border=borders[k], step=step, **common)
         if planes.count > 1:
             timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
     finally:

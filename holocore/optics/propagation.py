@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
-from typing import Union
+from typing import Sequence, Union
 
 import torch
 
@@ -29,7 +29,7 @@ from holocore import validate
 from holocore.optics.grids import padded_shape, smooth_at_least  # noqa: F401  (re-exported: the ASM's grid)
 from holocore.validate import PitchLike
 
-__all__ = ["asm", "ifft2", "transfer_function", "transfer_at", "padded_shape", "clear_cache", "PitchLike"]
+__all__ = ["asm", "asm_to", "ifft2", "transfer_function", "transfer_at", "padded_shape", "clear_cache", "PitchLike"]
 
 
 _TF_CACHE_MAX_ENTRIES = 16
@@ -185,7 +185,7 @@ def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
 
 def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: PitchLike, *,
         pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None,
-        grid: tuple[int, int] | None = None) -> torch.Tensor:
+        grid: tuple[int, int] | None = None, gain: torch.Tensor | None = None) -> torch.Tensor:
     """Propagate a complex field ``[..., H, W]`` by ``distance_m`` (m; < 0 back-propagates, 0 is a copy).
 
     ``cone_sine`` (0 < s <= 1, None: no cut): keep only the plane waves whose direction sine is <= s (at any
@@ -195,31 +195,60 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
     :func:`padded_shape` (``pad_factor`` >= 1), or to ``grid`` (rows, cols) when given (e.g.
     ``holocore.optics.grids.reach_grid``: the field's size plus the distance's sideways reach, exact for the
     cropped output and far smaller than 2x over short distances), applies the band-limited transfer function
-    (docs/design.md §5) and crops back. Returns a new tensor of the input's shape, dtype and device.
-    Differentiable.
+    (docs/design.md §5) and crops back. ``gain``: a real filter on the padded grid (unshifted DFT order) applied
+    with the transfer function, e.g. a recording plane's equaliser (``holocore.optics.plane_chain``). Returns a
+    new tensor of the input's shape, dtype and device. Differentiable.
     """
+    return asm_to(field, [distance_m], wavelength_m, pitch_m, pad_factor=pad_factor, band_limit=band_limit,
+                  cone_sine=cone_sine, grid=grid, gain=gain)[0]
+
+
+def asm_to(field: torch.Tensor, distances_m: Sequence[float], wavelength_m: float, pitch_m: PitchLike, *,
+           pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None,
+           grid: tuple[int, int] | None = None, gain: torch.Tensor | None = None) -> list[torch.Tensor]:
+    """:func:`asm` of ``field`` by each of ``distances_m`` (same options, the same grid for all), from one
+    transform of it: n + 1 FFTs instead of 2 n (e.g. a field cut to the eyebox at 0 and propagated to the SLM)."""
     field = _check_field(field)
-    z = validate.real("distance_m", distance_m)
+    zs = [validate.real("distance_m", d) for d in distances_m]
     lam = validate.positive("wavelength_m", wavelength_m)
     py, px = validate.pitch_pair(pitch_m)
     h, w = field.shape[-2], field.shape[-1]
     hp, wp = padded_shape((h, w), pad_factor) if grid is None else (int(grid[0]), int(grid[1]))
+    if not zs:
+        raise ValueError("distances_m must hold at least one distance")
     if hp < h or wp < w:
         raise ValueError(f"grid {grid} must be at least the field's size {h}x{w}")
     if cone_sine is not None:
         cone_sine = validate.real("cone_sine", cone_sine)
         if not 0.0 < cone_sine <= 1.0:
             raise ValueError(f"cone_sine must be a direction sine in (0, 1], got {cone_sine}")
-    if z == 0.0 and cone_sine is None:
-        return field.clone()
+    if gain is not None and (tuple(gain.shape) != (hp, wp) or gain.is_complex()):
+        raise ValueError(f"gain must be real and on the padded grid {hp}x{wp}, got {tuple(gain.shape)}")
+    if cone_sine is None and gain is None and all(z == 0.0 for z in zs):
+        return [field.clone() for _ in zs]
     # The inverse transform is a forward one: IFFT(S H) = conj(FFT(conj(S) conj(H) / N)) (see :func:`ifft2`).
-    tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True,
-                     cone_sine=cone_sine)
     needs_graph = torch.is_grad_enabled() and field.requires_grad
     if needs_graph or field.device.type != "cpu":
         spec = torch.fft.fft2(field, s=(hp, wp))  # pads with zeros at the end of each axis
-        spec = spec.conj() * tfc if needs_graph else spec.conj_physical_().mul_(tfc)
-        return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])
+        spec = spec.conj() if needs_graph else spec.conj_physical_()
+    else:  # CPU fast path: reuse a zero-padded workspace, conjugate and multiply in place, one crop copy
+        buf = _workspace(tuple(field.shape[:-2]) + (hp, wp), field.dtype)
+        buf[..., :h, :w].copy_(field)
+        spec = torch.fft.fft2(buf).conj_physical_()
+    if gain is not None:  # real: the conjugate of the filtered spectrum is the conjugate filtered
+        g = gain.to(device=field.device, dtype=field.real.dtype)
+        spec = spec * g if needs_graph else spec.mul_(g)
+    out = []
+    for i, z in enumerate(zs):
+        if z == 0.0 and cone_sine is None and gain is None:
+            out.append(field.clone())
+            continue
+        tfc = _cached_tf((hp, wp), z, lam, py, px, band_limit, field.device, field.dtype, conj_scaled=True,
+                         cone_sine=cone_sine)
+        last = i == len(zs) - 1 and not needs_graph
+        prod = spec.mul_(tfc) if last else spec * tfc  # the last one in place
+        out.append(torch.conj_physical(torch.fft.fft2(prod)[..., :h, :w]))
+    return out
     # CPU fast path: reuse a zero-padded workspace, multiply in place, one crop copy.
     buf = _workspace(tuple(field.shape[:-2]) + (hp, wp), field.dtype)
     buf[..., :h, :w].copy_(field)

@@ -27,6 +27,12 @@ class Gain:
     def apply(self, u, color, wavelength_m, pitch_m):
         return u * self.g
 
+    def own_grid(self, shape_hw):
+        return tuple(shape_hw)
+
+    def gain(self, u, color, wavelength_m, pitch_m, grid):
+        return torch.full(tuple(grid), float(self.g))
+
 
 def _chain(source_plane, gains, scale=None):
     optics = OpticsConfig(resolution_hw=(24, 32), frames=1, wavelengths_nm=(640.0,))

@@ -83,24 +83,27 @@ def test_the_phase_bank_is_freed_before_the_slm_propagation(demo, tmp_path, monk
     import holocore.render_passes as passes
 
     banks, alive_at_asm = [], []
-    make_banks, asm = passes.frame_banks, prop.asm
+    make_banks = passes.frame_banks
 
     def tracked_banks(*a, **k):
         out = make_banks(*a, **k)
         banks.extend(weakref.ref(t) for t in out)
         return out
 
-    def spy_asm(*a, **k):
-        gc.collect()
-        alive_at_asm.append(sum(r() is not None for r in banks))
-        return asm(*a, **k)
+    def spy(fn):
+        def run(*a, **k):
+            gc.collect()
+            alive_at_asm.append(sum(r() is not None for r in banks))
+            return fn(*a, **k)
+        return run
 
     monkeypatch.setattr(passes, "frame_banks", tracked_banks)
     import holocore.render_setup as setup
 
-    for module in (prop, passes, setup):  # every module that holds the name
-        if hasattr(module, "asm"):
-            monkeypatch.setattr(module, "asm", spy_asm)
+    for name in ("asm", "asm_to"):  # the plain ASM and the one that gives the cut field and its propagation
+        for module in (prop, passes, setup):  # every module that holds the name
+            if hasattr(module, name):
+                monkeypatch.setattr(module, name, spy(getattr(module, name)))
     optics = OpticsConfig(resolution_hw=(24, 32), frames=2, seed=3)
     pipeline.render_to_file(demo, tmp_path / "RESULT.npz", optics,
                             pipeline.RenderOptions(preset="fast", wrp_planes=1, cone_equaliser=False))
