@@ -14,7 +14,8 @@ import time
 import numpy as np
 
 from holocore.io import ScratchArray
-from holocore.optics.grids import reach_grid
+from holocore.optics.grids import reach_grid, smooth_at_least
+from holocore.optics.propagation import asm, clear_cache
 
 __all__ = ["chain_planes"]
 
@@ -46,8 +47,6 @@ def _add_to_wrp(k, planes, sink, scratch, *, lams, border, step, f0, n_f, lit_id
     file."""
     import torch
 
-    from holocore.optics.propagation import clear_cache
-
     H, W = optics.resolution_hw
     dz = planes.z_m[0] - planes.z_m[k]
     for a in range(0, n_f, step):
@@ -67,8 +66,6 @@ def _add_to_wrp(k, planes, sink, scratch, *, lams, border, step, f0, n_f, lit_id
 def _to_wrp(u, dz, lam, pitch_m, eq, ci):
     """u [n, Hk, Wk] equalised by ``eq`` (None: not) and propagated by dz, on a grid that pads by the filter's
     border and the distance's reach together (docs/design.md §5): one FFT pair for both."""
-    from holocore.optics.propagation import asm, smooth_at_least
-
     reach = reach_grid(tuple(u.shape[-2:]), dz, lam, pitch_m)
     if eq is None:
         return asm(u, dz, lam, pitch_m, grid=reach)
