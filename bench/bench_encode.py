@@ -40,7 +40,7 @@ from holocore.encode.block import encode_block  # noqa: E402
 from holocore.encode.operator import heap_reuse  # noqa: E402
 from holocore.encode.lbfgs import optimise_lbfgs  # noqa: E402
 from holocore.encode.sgd import Operator, optimise, spread_px  # noqa: E402
-from holocore.optics.propagation import padded_shape  # noqa: E402
+from holocore.optics.propagation import asm, padded_shape  # noqa: E402
 from holocore.trace.randomfield import random_field  # noqa: E402
 
 P = 8e-6
@@ -119,19 +119,25 @@ def floor(args) -> None:
             pairs(x_own)
             return time.perf_counter() - t0
 
+    def asm_steps():  # two of the render's ASM steps (propagation.asm, the reach grid): pad, 2 fft2, multiply, crop
+        with torch.no_grad():
+            for _ in range(2):
+                asm(x_win, z, lam, P, grid=(op.hp, op.wp))
+
     def iteration_mmap():  # the optimiser without heap_reuse: every FFT output on fresh pages
         with mock.patch("holocore.encode.sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
             return one_iteration()
 
-    best = {k: math.inf for k in ("iter", "iter_lbfgs", "iter_mmap", "own", "own_heap", "pocket", "2x", "pruned")}
-    one_iteration(), one_iteration(optimise_lbfgs), pairs(x_own), pairs(x_2x), pruned(), pocket()  # warm up
+    best = {k: math.inf for k in ("iter", "iter_lbfgs", "iter_mmap", "asm", "own", "own_heap", "pocket", "2x",
+                                  "pruned")}
+    one_iteration(), one_iteration(optimise_lbfgs), pairs(x_own), pairs(x_2x), pruned(), pocket(), asm_steps()
     for _ in range(args.repeats):
         best["iter"] = min(best["iter"], one_iteration())
         best["iter_lbfgs"] = min(best["iter_lbfgs"], one_iteration(optimise_lbfgs))
         best["iter_mmap"] = min(best["iter_mmap"], iteration_mmap())
         best["own_heap"] = min(best["own_heap"], pairs_heap())
         for key, fn in (("own", lambda: pairs(x_own)), ("2x", lambda: pairs(x_2x)), ("pruned", pruned),
-                        ("pocket", pocket)):
+                        ("pocket", pocket), ("asm", asm_steps)):
             t0 = time.perf_counter()
             fn()
             best[key] = min(best[key], time.perf_counter() - t0)
@@ -144,6 +150,7 @@ def floor(args) -> None:
           "| / floor on 2x grid |\n|---|---|---|---|---|---|---|")
     for key, name in (("iter", "one SGD iteration"), ("iter_lbfgs", "one L-BFGS iteration (--optimiser lbfgs)"),
                       ("iter_mmap", "one SGD iteration without heap reuse"),
+                      ("asm", "two ASM steps of the render (propagation.asm on the same grid)"),
                       ("own", "floor: 2 x (fft2 + ifft2), own grid"),
                       ("own_heap", "floor: the same under heap reuse"),
                       ("pocket", "floor: the same by scipy's pocketfft, in place"),

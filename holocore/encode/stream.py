@@ -67,8 +67,9 @@ def bytes_per_frame(shape_hw: tuple[int, int], grid: tuple[int, int], optimiser:
 
 def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, int], memory_limit_bytes: int,
                      optimiser: Optional[str] = None, *, colours: int = 1) -> int:
-    """The most frames a block may hold within ``memory_limit_bytes`` while ``colours`` colors' operators are
-    kept (four complex64 multipliers on the grid each)."""
+    """Frames per block: as few blocks as ``memory_limit_bytes`` allows while ``colours`` colors' operators are
+    kept (four complex64 multipliers on the grid each), the frames shared evenly between them (blocks of 12 and
+    12 rather than 18 and 6: a block steps its items together, and a small one costs more per item)."""
     per = bytes_per_frame(shape_hw, grid, optimiser)
     fixed = BASE_BYTES + 32 * grid[0] * grid[1] * max(1, int(colours))
     n = int((memory_limit_bytes - fixed) // per)
@@ -76,7 +77,8 @@ def frames_per_block(shape_hw: tuple[int, int], frames: int, grid: tuple[int, in
         need = (fixed + per) / 2**30
         raise ValueError(f"a memory limit of {memory_limit_bytes / 2**30:.2f} GiB cannot hold one frame of "
                          f"{shape_hw[0]}x{shape_hw[1]} (needs about {need:.2f} GiB)")
-    return min(frames, n)
+    blocks = math.ceil(frames / min(frames, n))
+    return math.ceil(frames / blocks)
 
 
 class _StreamedNpy:
