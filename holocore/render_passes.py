@@ -17,6 +17,7 @@ from holocore.optics.plane_chain import chain_planes
 from holocore.optics.propagation import asm, asm_to
 from holocore.plan.time_budget import SppSchedule
 from holocore.render_setup import RenderOptions, RenderSetup
+from holocore.runtime.heap import heap_reuse
 from holocore.trace.hologram_rays import RecordingGrid, trace_field
 from holocore.trace.hologram_rays import TraceStats
 
@@ -117,37 +118,45 @@ def _trace_pass(setup: RenderSetup, sink, k: int, f0: int, stats, *, timings: di
 def propagate_other(setup: RenderSetup, sink, *, timings: dict, progress=None) -> None:
     """The other plane's field from the traced one by the ASM, chunk by chunk of frames; with a common eyebox
     both fields of every colour are first cut to its disc of directions (docs/physics.md)."""
-    import numpy as np
     import torch
 
     optics = setup.optics
-    F, C, H, W = setup.shape_fchw
+    F = setup.shape_fchw[0]
     z_wrp = setup.scene.analysis.z_wrp_m
     t4 = time.perf_counter()
     dz = z_wrp if setup.direct else -z_wrp
     cut = optics.eyebox_sine()  # a common eyebox: both fields of every colour within one disc of directions
     fp = setup.frames_per_chunk
     chunks = list(range(0, F, fp))
-    for ci, f0 in enumerate(chunks):
-        f1 = min(F, f0 + fp)
-        block = np.zeros((f1 - f0, C, H, W), dtype=np.complex64)
-        for c, lam in enumerate(optics.wavelengths_m):
-            if c not in setup.lit_idx:
-                continue  # the field of an unlit color is zero on both planes
-            u = torch.from_numpy(sink.read_traced(f0, f1, c)).to(setup.device)
-            grid = reach_grid((H, W), dz, lam, optics.pitch_m)  # the SLM's window only: its reach, not 2x
-            if cut is not None:  # the cut field and its propagation from one transform of the traced field
-                u, v = asm_to(u, [0.0, dz], lam, optics.pitch_m, cone_sine=cut, grid=grid)
-                sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
-            else:
-                v = asm(u, dz, lam, optics.pitch_m, grid=grid)
-            block[:, c] = v.cpu().numpy()
-            del u, v
-        sink.write_other(f0, block)
-        del block
-        if progress:
-            progress("propagate", ci + 1, len(chunks))
+    with heap_reuse(torch.device(setup.device).type == "cpu"):  # the transforms' outputs on reused pages
+        for ci, f0 in enumerate(chunks):
+            _propagate_chunk(setup, sink, f0, min(F, f0 + fp), dz, cut)
+            if progress:
+                progress("propagate", ci + 1, len(chunks))
     timings["propagate_s"] = time.perf_counter() - t4
+
+
+def _propagate_chunk(setup: RenderSetup, sink, f0: int, f1: int, dz: float, cut) -> None:
+    """Frames f0..f1 of :func:`propagate_other`."""
+    import numpy as np
+    import torch
+
+    optics = setup.optics
+    _, C, H, W = setup.shape_fchw
+    block = np.zeros((f1 - f0, C, H, W), dtype=np.complex64)
+    for c, lam in enumerate(optics.wavelengths_m):
+        if c not in setup.lit_idx:
+            continue  # the field of an unlit color is zero on both planes
+        u = torch.from_numpy(sink.read_traced(f0, f1, c)).to(setup.device)
+        grid = reach_grid((H, W), dz, lam, optics.pitch_m)  # the SLM's window only: its reach, not 2x
+        if cut is not None:  # the cut field and its propagation from one transform of the traced field
+            u, v = asm_to(u, [0.0, dz], lam, optics.pitch_m, cone_sine=cut, grid=grid)
+            sink.write_rows(f0, [c], 0, u.cpu().numpy()[:, None])
+        else:
+            v = asm(u, dz, lam, optics.pitch_m, grid=grid)
+        block[:, c] = v.cpu().numpy()
+        del u, v
+    sink.write_other(f0, block)
 
 
 def _trace_to_deadline(schedule: SppSchedule, run, on_plane_rows, *, ray_seed, first_chunk, progress, chunk) -> float:

@@ -12,10 +12,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import torch
 
 from holocore.io import ScratchArray
 from holocore.optics.grids import reach_grid, smooth_at_least
 from holocore.optics.propagation import asm, clear_cache
+from holocore.runtime.heap import heap_reuse
 
 __all__ = ["chain_planes"]
 
@@ -23,8 +25,6 @@ __all__ = ["chain_planes"]
 def _scale_wrp(sink, lams, *, f0, n_f, fp, lit_idx, scale, equalisers, optics, dev) -> None:
     """Scale and equalise the WRP's own recording in the sink's traced field (frames f0..f0+n_f), in place,
     before the deeper planes are added to it; colours that neither applies to are left as they are."""
-    import torch
-
     for ci, lam in enumerate(lams):
         active = equalisers is not None and equalisers[0].active(ci)
         if not active and scale == 1.0:
@@ -45,8 +45,6 @@ def _add_to_wrp(k, planes, sink, scratch, *, lams, border, step, f0, n_f, lit_id
     pair (the equaliser's gain and the transfer function on one grid: :func:`_to_wrp`), cropped to the WRP's
     window and added to the sink's traced field, a chunk of ``step`` frames at a time. Closes plane k's scratch
     file."""
-    import torch
-
     H, W = optics.resolution_hw
     dz = planes.z_m[0] - planes.z_m[k]
     for a in range(0, n_f, step):
@@ -104,14 +102,15 @@ def chain_planes(sink, planes, trace_plane, *, f0, n_f, fp, lit_idx, optics, dev
         scale = 1.0 if scale is None else float(scale)
         t0 = time.perf_counter()
         common = dict(f0=f0, n_f=n_f, lit_idx=lit_idx, scale=scale, equalisers=equalisers, optics=optics, dev=dev)
-        # the WRP's own rays (scaled, equalised), before the deeper planes are added to it
-        _scale_wrp(sink, lams, fp=fp, **common)
-        if equalisers is not None:
-            timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
-        # The chunk planner sized fp for the WRP's grid; a deeper plane's grid is wider: fewer frames per chunk.
-        for k in range(planes.count - 1, 0, -1):  # each deeper plane straight to the WRP
-            step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
-            _add_to_wrp(k, planes, sink, scratch, lams=lams, border=borders[k], step=step, **common)
+        with heap_reuse(torch.device(dev).type == "cpu"):  # the transforms' outputs on reused pages
+            # the WRP's own rays (scaled, equalised), before the deeper planes are added to it
+            _scale_wrp(sink, lams, fp=fp, **common)
+            if equalisers is not None:
+                timings["equalise_s"] = timings.get("equalise_s", 0.0) + time.perf_counter() - t0
+            # The chunk planner sized fp for the WRP's grid; a deeper plane's grid is wider: fewer frames a chunk.
+            for k in range(planes.count - 1, 0, -1):  # each deeper plane straight to the WRP
+                step = max(1, fp * H * W // (2 * (H + 2 * borders[k]) * (W + 2 * borders[k])))
+                _add_to_wrp(k, planes, sink, scratch, lams=lams, border=borders[k], step=step, **common)
         if planes.count > 1:
             timings["planes_propagate_s"] = timings.get("planes_propagate_s", 0.0) + time.perf_counter() - t0
     finally:
