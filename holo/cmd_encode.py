@@ -21,7 +21,7 @@ def encode(
     method: Optional[str] = typer.Option(None, help="sgd (complex-supervised, default) | dpac (double phase) | naive "
                                                     "(arg of the ideal SLM field, for tests)."),
     iterations: Optional[int] = typer.Option(None, help="Most sgd steps (0..1000000; default: the optimiser's, "
-                                                        "lbfgs 30, adam 500 and stops earlier once converged)."),
+                                                        "lbfgs 28, adam 500 and stops earlier once converged)."),
     options_json: Optional[Path] = typer.Option(None, "--options-json", help="The hologram's options as one JSON "
                                                 "document (docs/options.md): its encoder and iterations; the flags "
                                                 "above override them."),

@@ -33,7 +33,7 @@ def submit(
     time_limit_s: Optional[float] = typer.Option(None, "--time-limit-s", help="Render for about this many "
                                                  "seconds (rays until the time is spent)."),
     encoder: Optional[str] = typer.Option(None, help="sgd (default) | dpac"),
-    optimiser: Optional[str] = typer.Option(None, help="sgd's steps: lbfgs (default, 30 iterations) | adam (until "
+    optimiser: Optional[str] = typer.Option(None, help="sgd's steps: lbfgs (default, 28 iterations) | adam (until "
                                                        "its stop rule)."),
     iterations: Optional[int] = typer.Option(None, help="Encoder iterations (sgd; default: the optimiser's)."),
     method: Optional[str] = typer.Option(None, help="wrp (default) | direct"),

@@ -65,7 +65,7 @@ def estimate_lines(ctx: QualityContext, optics, options, *, most_frames: int) ->
     pred = predict_for(optics, options, subhologram_radius_px=ctx.radius_px, image_q=ctx.image_q,
                        refracted_share=ctx.refracted_share, fourier_filter=ctx.fourier_filter)
     now_s = ctx.seconds(optics, options, None)
-    lines = [f"predicted quality (with `holo encode`'s default: SGD, 30 L-BFGS steps): {pred.words()}; render and "
+    lines = [f"predicted quality (with `holo encode`'s default: SGD, 28 L-BFGS steps): {pred.words()}; render and "
              f"encode about {now_s:.0f} s"]
     lines += [f"warning: {w}" for w in pred.warnings]
     cands = candidates(optics, options, seconds=ctx.seconds, subhologram_radius_px=ctx.radius_px,

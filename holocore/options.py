@@ -59,9 +59,9 @@ class HologramOptions(BaseModel):
     encoder: Encoder = Field(default="sgd", description="sgd (complex-supervised phase optimisation) or dpac (double "
                                                             "phase).")
     optimiser: Optimiser = Field(default=DEFAULT_OPTIMISER, description="sgd's steps: lbfgs (memoryless BFGS, "
-                                 "30 iterations by default) or adam (until its stop rule, about 140-160).")
+                                 "28 iterations by default) or adam (until its stop rule, about 140-160).")
     iterations: Optional[int] = Field(default=None, ge=0, le=MAX_ITERATIONS, description="Encoder iterations "
-                                      "(sgd; default: the optimiser's, lbfgs 30, adam until its stop rule).")
+                                      "(sgd; default: the optimiser's, lbfgs 28, adam until its stop rule).")
     quality_db: Optional[float] = Field(
         default=None, ge=QUALITY_DB_RANGE[0], le=QUALITY_DB_RANGE[1], allow_inf_nan=False, description="Aim at "
         "this viewer-faithful PSNR, dB: frames (up to frames), spp and iterations predicted to reach it soonest "

@@ -131,7 +131,7 @@ def _hologram_time(req: JobRequest, *, scene_plan: Optional[dict] = None, max_sp
     spp = _spp(req) if max_spp is None else min(_spp(req), max_spp)
     rays = h * w * c * spp
     pix = h * w * c * f
-    # without an asked count: the optimiser's default (L-BFGS 30; Adam's stop rule ends its 500 far sooner)
+    # without an asked count: the optimiser's default (L-BFGS 28; Adam's stop rule ends its 500 far sooner)
     iters = encode_iterations(h, w, optimiser=req.optimiser, iterations=req.iterations)
     # each of the job's four processes (driver, render, encode, preview) starts Python and its imports: 3.5 s
     start = 3.5

@@ -18,7 +18,7 @@ sum of parts, each from what a job's options and the scene's plan say before any
     encoder   q e(method, it) / F^a   the phase-only encoder's error: SGD e_sgd (1 + i_half / it) after it
                                       Adam iterations (its stop rule: ``TYPICAL_STOP_ITERATIONS``; another
                                       optimiser's counted as the Adam iterations that reach its field error,
-                                      ``holocore.plan.encode_steps``: L-BFGS's 30 as 42), averaging over
+                                      ``holocore.plan.encode_steps``: L-BFGS's 28 as 39), averaging over
                                       frames as speckle does (a = a_m); DPAC e_dpac / F^a_dpac: its checkerboard
                                       puts the light the amplitude does not need back into the recording cone
                                       wherever that cone fills the SLM's band, much the same in every frame

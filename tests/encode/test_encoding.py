@@ -289,7 +289,7 @@ def test_sgd_on_a_traced_scene(traced):
     kw = dict(z=m["z_wrp_m"], lams=m["wavelengths_m"], pitch=m["pitch_m"])
     e_sgd = _interior_error(sgd.phase, result.wrp_field, **kw)
     e_naive = _interior_error(naive.phase, result.wrp_field, **kw)
-    # Measured with the default encode (30 L-BFGS iterations): sgd 0.097-0.120 per item (mean 0.108), naive 0.25
+    # Measured with the default encode (28 L-BFGS iterations): sgd 0.097-0.120 per item (mean 0.108), naive 0.25
     # (interior, band-limited); view PSNR 26.5 vs 20.6 dB. (Adam to its stop rule, 430 iterations: 0.085.)
     assert e_sgd.max() < 0.13, e_sgd
     assert e_sgd.mean() < 0.5 * e_naive.mean(), (e_sgd.mean(), e_naive.mean())
