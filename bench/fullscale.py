@@ -107,6 +107,9 @@ def report(r: dict) -> str:
                   "| encode | s | viewer-faithful PSNR dB | SSIM |", "|---|---|---|---|",
                   f"| default (28 L-BFGS iterations) | {s['encode']['s']:.0f} | {d['psnr_db']:.2f} | {d['ssim']:.3f} |",
                   f"| converged (Adam, stop rule) | {s['converged']['s']:.0f} | {c['psnr_db']:.2f} | {c['ssim']:.3f} |",
+                  *[f"| {k} | - | {v['psnr_db']:.2f} | {v['ssim']:.3f} |" for k, v in sc.items()
+                    if k not in ("default", "converged")],
+                  *(["", r["score_note"]] if r.get("score_note") else []),
                   "", f"The default is {c['psnr_db'] - d['psnr_db']:.2f} dB below the converged encode in "
                   f"{s['encode']['s'] / s['converged']['s']:.0%} of its time.", ""]
     return "\n".join(lines)
