@@ -9,7 +9,7 @@ floor: the same run times (a) one iteration of the optimiser (Adam, and L-BFGS) 
 color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
 padded grid, (c) the same on the 2x grid of docs/design.md §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
 (row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
-``encoding_op.heap_reuse`` and (b) again under it; interleaved, best of ``repeats``.
+``holocore.runtime.heap.heap_reuse`` and (b) again under it; interleaved, best of ``repeats``.
 error: E (and the field SNR 10 log10((1-E)/E)) every 10 iterations with no stop rule, where the 0.05 dB rule
 stops, for both supervisions. rss: writes a synthetic RESULT (a random smooth complex field; no render) and
 runs `holo encode` under /usr/bin/time -v. Run one at a time; each prints a markdown block.
@@ -37,10 +37,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from holocore.encode.block import encode_block  # noqa: E402
-from holocore.encode.operator import heap_reuse  # noqa: E402
 from holocore.encode.lbfgs import optimise_lbfgs  # noqa: E402
 from holocore.encode.sgd import Operator, optimise, spread_px  # noqa: E402
 from holocore.optics.propagation import asm, padded_shape  # noqa: E402
+from holocore.runtime.heap import heap_reuse  # noqa: E402
 from holocore.trace.randomfield import random_field  # noqa: E402
 
 P = 8e-6
@@ -112,7 +112,7 @@ def floor(args) -> None:
             scipy.fft.ifft2(scipy.fft.fft2(x_pocket, overwrite_x=True, workers=torch.get_num_threads()),
                             overwrite_x=True, workers=torch.get_num_threads())
 
-    def pairs_heap():  # the same with the allocator setting the optimiser runs under (encoding_op.heap_reuse)
+    def pairs_heap():  # the same with the allocator setting the optimiser runs under (runtime.heap.heap_reuse)
         with heap_reuse():
             pairs(x_own)
             t0 = time.perf_counter()

@@ -16,10 +16,10 @@ import numpy as np
 import torch
 
 from holocore.encode.lbfgs import optimise_lbfgs
-from holocore.encode.operator import heap_reuse
 from holocore.encode.sgd import Operator, encoder_grid, inner_energy, optimise
 from holocore.optics.propagation import PitchLike
 from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
+from holocore.runtime.heap import heap_reuse
 
 SUPERVISIONS = ("cone", "full")
 OPTIMISERS = {"adam": optimise, "lbfgs": optimise_lbfgs}
@@ -73,7 +73,7 @@ def make_operators(shape_hw: tuple[int, int], z_m: float, wavelength_m: float, p
 
 
 def _on_reused_heap(fn):
-    """``fn(method, target, **options)`` with every FFT output on reused heap pages on a CPU (operator.heap_reuse):
+    """``fn(method, target, **options)`` with every FFT output on reused heap pages on a CPU (holocore.runtime.heap):
     the set-up's and the final check's transforms as much as the optimiser's, which on fresh pages took twice as
     long."""
     @functools.wraps(fn)

@@ -42,12 +42,12 @@ from holocore.encode.core import (
     reach_margin_px,
     wrap_phase,
 )
-from holocore.encode.operator import heap_reuse
 from holocore.encode.output import load_lut, quantize, save_encoded
 from holocore.encode.sgd import encoder_grid, spread_px
 from holocore.optics.propagation import PitchLike
 from holocore.plan.encode_steps import DEFAULT_OPTIMISER, default_iterations
 from holocore.plan.estimate import stop_iterations
+from holocore.runtime.heap import heap_reuse
 
 __all__ = ["EncodeResult", "encode_sgd", "encode_naive", "encode_dpac", "encode", "METHODS", "SUPERVISIONS",
            "ideal_slm_field", "propagate_to_wrp", "passband_filter", "field_error", "reach_margin_px", "wrap_phase",

@@ -25,8 +25,9 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from holocore.encode.operator import Operator, flip, heap_reuse
+from holocore.encode.operator import Operator, flip
 from holocore.encode.sgd import CHECK_EVERY, Items, SgdOutcome, Work, objective_grad
+from holocore.runtime.heap import heap_reuse
 
 __all__ = ["optimise_lbfgs"]
 

@@ -51,7 +51,6 @@ import torch
 
 from holocore.optics.grids import encoder_grid, spread_px  # noqa: F401  (re-exported: the encoder's grid)
 from holocore.optics.propagation import PitchLike, transfer_function
-from holocore.runtime.heap import heap_reuse  # noqa: F401  (re-exported: the encoder's allocator setting)
 from holocore.trace.randomfield import passband_mask
 
 

@@ -31,7 +31,8 @@ import numpy as np
 import torch
 
 import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
-from holocore.encode.operator import Operator, encoder_grid, flip, heap_reuse, spread_px
+from holocore.encode.operator import Operator, encoder_grid, flip, spread_px
+from holocore.runtime.heap import heap_reuse
 
 __all__ = ["Operator", "encoder_grid", "spread_px", "inner_energy", "optimise", "SgdOutcome"]
 

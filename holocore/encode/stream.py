@@ -32,13 +32,13 @@ from holocore.encode.encoder import (
     small_ops_on_one_thread,
     supervision_for,
 )
-from holocore.encode.operator import heap_reuse
 from holocore.encode.output import quantize, stack_meta
 from holocore.encode.sgd import encoder_grid
 from holocore.formats.meta import ResultMeta, parse_result_meta, parse_stack_meta
 from holocore.formats.npz import MemberShapeError
 from holocore.io import NpyMember
 from holocore.plan.encode_steps import DEFAULT_OPTIMISER
+from holocore.runtime.heap import heap_reuse
 
 BASE_BYTES = 1 << 30  # interpreter, torch, transfer functions and slack outside the per-frame working set
 

@@ -249,9 +249,3 @@ def asm_to(field: torch.Tensor, distances_m: Sequence[float], wavelength_m: floa
         prod = spec.mul_(tfc) if last else spec * tfc  # the last one in place
         out.append(torch.conj_physical(torch.fft.fft2(prod)[..., :h, :w]))
     return out
-    # CPU fast path: reuse a zero-padded workspace, multiply in place, one crop copy.
-    buf = _workspace(tuple(field.shape[:-2]) + (hp, wp), field.dtype)
-    buf[..., :h, :w].copy_(field)
-    spec = torch.fft.fft2(buf)
-    spec.conj_physical_().mul_(tfc)
-    return torch.conj_physical(torch.fft.fft2(spec)[..., :h, :w])

@@ -27,12 +27,11 @@ def _glibc() -> Optional[ctypes.CDLL]:
 def heap_reuse(enabled: bool = True) -> Iterator[None]:
     """Inside: glibc's malloc serves large blocks from its heap, so the padded FFT outputs that every transform
     allocates (``holocore.encode.operator.Operator.apply``) reuse the pages freed by the previous ones instead of
-    fresh mmap'd pages
-    (which the kernel faults in and zeroes: at 1536 x 2400 x 2 that is ~10 ms of a ~20 ms ``fft2`` on CPU;
-    ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the largest values glibc's dynamic
-    rule reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are returned
-    (malloc_trim). The setting is process-wide: overlapping uses from several threads only lose the speed-up.
-    A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself). Nested uses keep the
+    fresh mmap'd pages (which the kernel faults in and zeroes: at 1536 x 2400 x 2 that is ~10 ms of a ~20 ms
+    ``fft2`` on CPU; ``fft2``'s ``out=`` only adds a copy). On exit the thresholds go to the largest values glibc's
+    dynamic rule reaches in a process that frees large tensors (mmap 32 MiB, trim 64 MiB) and free pages are
+    returned (malloc_trim). The setting is process-wide: overlapping uses from several threads only lose the
+    speed-up. A no-op without glibc or with ``enabled`` False (e.g. on CUDA, which caches itself). Nested uses keep the
     setting until the outermost one ends."""
     libc = _glibc() if enabled else None
     if libc is None or (_HEAP_REUSE["depth"] == 0 and not libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30)):

@@ -489,12 +489,12 @@ def test_written_out_gradient_is_autograds(cone, w):
 
 @pytest.mark.slow
 def test_heap_reuse_changes_no_number(monkeypatch):
-    """The optimiser's allocator setting (encoding_op.heap_reuse) is a speed matter only: the stack is the same
+    """The optimiser's allocator setting (runtime.heap.heap_reuse) is a speed matter only: the stack is the same
     bit for bit without it, and the context can be entered twice in a row."""
     import contextlib
 
     from holocore.encode import sgd as encoding_sgd
-    from holocore.encode.operator import heap_reuse
+    from holocore.runtime.heap import heap_reuse
 
     target = _small_target(frames=2)
     kw = dict(z_wrp_m=Z, wavelengths_m=LAMS, pitch_m=P, iterations=40)
