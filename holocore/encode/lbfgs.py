@@ -100,7 +100,7 @@ def optimise_lbfgs(phi0: torch.Tensor, t_unit: torch.Tensor, op: Operator, *, li
         work = Work.like(phi, t)
         f, rho2 = objective_grad(phi, t, op, w_eff, work)  # f: O at phi, the point the steps start from
         run.out.loss_init[run.active] = (1.0 - rho2.double().clamp(0, 1)).cpu().numpy()
-        g = work.grad.clone()  # 2 HW dO/dphi at phi
+        g = work.grad.clone()  # HW dO/dphi at phi
         first = float(lr)  # the first step's largest pixel change (rad)
         pair = _Pair(phi)
         retry = None  # the halved step of the items whose last step was not taken (None: every step was)

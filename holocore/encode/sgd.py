@@ -11,8 +11,9 @@ iteration is four padded ``fft2`` (Eqs. 1-2 of :mod:`holocore.encode.operator`),
 and ten passes over H x W: cos, sin, u = exp(i phi) straight into the FFT input, the crop copy of J p, the
 dots (one BLAS dot each), dO/dp* straight into the adjoint's input (two), the gradient (two), fused Adam.
 No autograd tape. The WRP-side fields (t, p, dO/dp*) are held flipped (J; the dots do not depend on the
-order), the SLM side (phi, u, the gradient) in natural order. The gradient is scaled by 2 HW so that Adam's
-eps stays negligible at every size (Adam is otherwise scale-free).
+order), the SLM side (phi, u, the gradient) in natural order. The gradient is HW dO/dphi
+(the adjoint returns 2 HW dO/du*, and dO/dphi = 2 Im(conj(u) dO/du*)), scaled so that Adam's eps stays
+negligible at every size (Adam is otherwise scale-free).
 
 Adam, per element (Kingma & Ba 2015; the same update as ``torch.optim.Adam``). Each (frame, color) has its
 own stop rule: every 10 iterations its field SNR, 10 log10((1 - O) / O) dB, is compared with the value 30
@@ -69,7 +70,7 @@ class Work:
 
 def objective_grad(phi: torch.Tensor, t: torch.Tensor, op: Operator, w_eff: float,
                    work: Work) -> tuple[torch.Tensor, torch.Tensor]:
-    """O and rho^2 ([B]) at phi, with 2 HW dO/dphi written into ``work.grad`` (module docstring): four padded
+    """O and rho^2 ([B]) at phi, with HW dO/dphi written into ``work.grad`` (module docstring): four padded
     ``fft2``, two multiplies on the padded grid, the passes over H x W listed there. t and ``work.p`` are
     flipped (J)."""
     n, dev = phi.shape[0], phi.device
