@@ -1,15 +1,9 @@
-"""Encoder benchmarks: one SGD iteration against its FFT floor, error
-against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x 3 x 24.
+"""Encoder benchmarks: error against iterations, and the peak RSS of `holo encode` at the paper's 1080x1920 x 3
+x 24. One iteration against the FFT floor: bench/bench_floor.py.
 
-    python bench/bench_encode.py floor  [--hw 1080x1920] [--frames 2] [--z-mm 85] [--repeats 3]
     python bench/bench_encode.py error  [--hw 1080x1920] [--frames 1] [--iterations 400] [--z-mm 85] [--optimiser lbfgs]
     python bench/bench_encode.py rss    [--frames 24] [--iterations 3] [--workdir /tmp/enc_rss]
 
-floor: the same run times (a) one iteration of the optimiser (Adam, and L-BFGS) on a block of ``frames`` frames of one
-color, (b) the FFT work it needs, two bare batched fft2 + ifft2 pairs (forward and adjoint) on the encoder's
-padded grid, (c) the same on the 2x grid of docs/design.md §5, and (d) the FFT work of (b) done as pruned 1-D FFTs
-(row FFTs of the H nonzero input rows only, row FFTs of the H kept output rows only); (a) again without
-``holocore.runtime.heap.heap_reuse`` and (b) again under it; interleaved, best of ``repeats``.
 error: E (and the field SNR 10 log10((1-E)/E)) every 10 iterations with no stop rule, where the 0.05 dB rule
 stops, for both supervisions. rss: writes a synthetic RESULT (a random smooth complex field; no render) and
 runs `holo encode` under /usr/bin/time -v. Run one at a time; each prints a markdown block.
@@ -18,9 +12,6 @@ runs `holo encode` under /usr/bin/time -v. Run one at a time; each prints a mark
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
-import math
 import os
 import platform
 import re
@@ -28,7 +19,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 import torch
@@ -37,10 +27,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from holocore.encode.block import encode_block  # noqa: E402
-from holocore.encode.lbfgs import optimise_lbfgs  # noqa: E402
-from holocore.encode.sgd import Operator, optimise, spread_px  # noqa: E402
-from holocore.optics.propagation import asm, padded_shape  # noqa: E402
-from holocore.runtime.heap import heap_reuse  # noqa: E402
 from holocore.trace.randomfield import random_field  # noqa: E402
 
 P = 8e-6
@@ -65,106 +51,6 @@ def _machine() -> str:
     except OSError:
         pass
     return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__} ({torch.get_num_threads()} threads)"
-
-
-def floor(args) -> None:
-    hw = tuple(int(v) for v in args.hw.split("x"))
-    z, lam = args.z_mm * 1e-3, LAMS[0]  # the widest cone: the largest spread and grid
-    t = _target(args.frames, hw, lam)
-    op = Operator(hw, z, lam, P, cone=True, device=torch.device("cpu"))
-    g2 = padded_shape(hw, 2)
-    x_own = torch.randn(args.frames, op.hp, op.wp, dtype=torch.complex64)
-    x_2x = torch.randn(args.frames, *g2, dtype=torch.complex64)
-    with torch.no_grad():
-        u0 = op(t, adjoint=True)
-        tb = op(u0)
-        tb = tb / tb.abs().square().sum(dim=(-2, -1), keepdim=True).sqrt()
-        phi0 = torch.angle(u0)
-    lit = np.ones(args.frames, bool)
-
-    def one_iteration(fn=optimise):  # (11 iterations - 1) / 10: set-up excluded, one stop-rule check included
-        def run(n):
-            fn(phi0, tb, op, lit=lit, iterations=n, lr=0.2, stop_db=0.0, tol=None, efficiency_weight=0.0)
-
-        t0 = time.perf_counter()
-        run(1)
-        t1 = time.perf_counter()
-        run(11)
-        return ((time.perf_counter() - t1) - (t1 - t0)) / 10
-
-    def pairs(x):
-        for _ in range(2):  # forward and adjoint
-            torch.fft.ifft2(torch.fft.fft2(x))
-
-    x_win = torch.randn(args.frames, *hw, dtype=torch.complex64)
-
-    def pruned():  # the same transforms from 1-D FFTs that skip the zero rows and the cropped-away rows
-        for _ in range(2):
-            s = torch.fft.fft(torch.fft.fft(x_win, n=op.wp, dim=-1), n=op.hp, dim=-2)  # H nonzero rows only
-            torch.fft.fft(torch.fft.fft(s, dim=-2)[..., :hw[0], :], dim=-1)  # only the H rows kept
-
-    x_pocket = x_own.numpy().copy()
-
-    def pocket():  # the same transforms by scipy's pocketfft, in place: no output to allocate or fault in
-        import scipy.fft
-
-        for _ in range(2):
-            scipy.fft.ifft2(scipy.fft.fft2(x_pocket, overwrite_x=True, workers=torch.get_num_threads()),
-                            overwrite_x=True, workers=torch.get_num_threads())
-
-    def pairs_heap():  # the same with the allocator setting the optimiser runs under (runtime.heap.heap_reuse)
-        with heap_reuse():
-            pairs(x_own)
-            t0 = time.perf_counter()
-            pairs(x_own)
-            return time.perf_counter() - t0
-
-    def asm_steps():  # two of the render's ASM steps (propagation.asm, the reach grid: pad, 2 fft2, multiply,
-        # crop) under the allocator setting the render's propagations run under; the second pair timed
-        with torch.no_grad(), heap_reuse():
-            for k in range(2):
-                t0 = time.perf_counter()
-                for _ in range(2):
-                    asm(x_win, z, lam, P, grid=(op.hp, op.wp))
-            return time.perf_counter() - t0
-
-    def iteration_mmap():  # the optimiser without heap_reuse: every FFT output on fresh pages
-        with mock.patch("holocore.encode.sgd.heap_reuse", lambda enabled=True: contextlib.nullcontext()):
-            return one_iteration()
-
-    best = {k: math.inf for k in ("iter", "iter_lbfgs", "iter_mmap", "asm", "own", "own_heap", "pocket", "2x",
-                                  "pruned")}
-    one_iteration(), one_iteration(optimise_lbfgs), pairs(x_own), pairs(x_2x), pruned(), pocket(), asm_steps()
-    for _ in range(args.repeats):
-        best["iter"] = min(best["iter"], one_iteration())
-        best["iter_lbfgs"] = min(best["iter_lbfgs"], one_iteration(optimise_lbfgs))
-        best["iter_mmap"] = min(best["iter_mmap"], iteration_mmap())
-        best["own_heap"] = min(best["own_heap"], pairs_heap())
-        best["asm"] = min(best["asm"], asm_steps())
-        for key, fn in (("own", lambda: pairs(x_own)), ("2x", lambda: pairs(x_2x)), ("pruned", pruned),
-                        ("pocket", pocket)):
-            t0 = time.perf_counter()
-            fn()
-            best[key] = min(best[key], time.perf_counter() - t0)
-    r = spread_px(z, lam, P)
-    print(f"### Iteration vs FFT floor ({time.strftime('%Y-%m-%d %H:%M')}, {_machine()}, load average "
-          f"{' '.join(f'{v:.2f}' for v in os.getloadavg())})\n")
-    print(f"{hw[0]}x{hw[1]}, {args.frames} frame(s) of one color ({lam * 1e9:.1f} nm), z_wrp {args.z_mm} mm: "
-          f"spread r = {r} px, encoder grid {op.hp}x{op.wp} (2x grid {g2[0]}x{g2[1]})\n")
-    print("| | seconds | per frame | / floor on own grid | / same, heap reuse | / pocketfft in place "
-          "| / floor on 2x grid |\n|---|---|---|---|---|---|---|")
-    for key, name in (("iter", "one SGD iteration"), ("iter_lbfgs", "one L-BFGS iteration (--optimiser lbfgs)"),
-                      ("iter_mmap", "one SGD iteration without heap reuse"),
-                      ("asm", "two ASM steps of the render (propagation.asm on the same grid, heap reuse)"),
-                      ("own", "floor: 2 x (fft2 + ifft2), own grid"),
-                      ("own_heap", "floor: the same under heap reuse"),
-                      ("pocket", "floor: the same by scipy's pocketfft, in place"),
-                      ("pruned", "pruned: the same from 1-D FFTs (zero rows skipped)"),
-                      ("2x", "floor: 2 x (fft2 + ifft2), 2x grid")):
-        v = best[key]
-        print(f"| {name} | {v:.3f} | {v / args.frames:.3f} | {v / best['own']:.2f} | {v / best['own_heap']:.2f} "
-              f"| {v / best['pocket']:.2f} | {v / best['2x']:.2f} |")
-    print(json.dumps({"hw": hw, "frames": args.frames, "grid": [op.hp, op.wp], "best_s": best}))
 
 
 def error(args) -> None:
@@ -246,12 +132,11 @@ save_result("{result}", slm_field=field, wrp_field=field, meta=meta)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=("floor", "error", "rss"))
+    ap.add_argument("what", choices=("error", "rss"))
     ap.add_argument("--hw", default="1080x1920")
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--colors", type=int, default=1)
     ap.add_argument("--z-mm", type=float, default=85.0)
-    ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--lr", type=float, default=0.2)
     ap.add_argument("--optimiser", default="adam", choices=("adam", "lbfgs"))
@@ -260,10 +145,10 @@ def main() -> None:
     ap.add_argument("--workdir", default="/tmp/enc_rss")
     args = ap.parse_args()
     if args.frames is None:
-        args.frames = {"floor": 2, "error": 1, "rss": 24}[args.what]
+        args.frames = {"error": 1, "rss": 24}[args.what]
     if args.iterations is None:
-        args.iterations = {"floor": 1, "error": 400, "rss": 3}[args.what]
-    {"floor": floor, "error": error, "rss": rss}[args.what](args)
+        args.iterations = {"error": 400, "rss": 3}[args.what]
+    {"error": error, "rss": rss}[args.what](args)
 
 
 if __name__ == "__main__":

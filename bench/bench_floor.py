@@ -13,15 +13,17 @@ best of ``repeats``:
   pocketfft in place, and, where pyFFTW is installed (it is not a dependency of the project), FFTW in place
   (FFTW_MEASURE plans) batched over the frames, frame by frame, and one single-threaded plan per thread with
   the frames spread over the threads.
-Each row is also given over the fastest floor of the run. Prints a markdown block and one JSON line.
+Each row is given over the fastest floor (best of the rounds), and paired: the median over the rounds of its time
+over the fastest floor of the same round, which cancels the drift of a shared machine's speed between rounds.
+Prints a markdown block and one JSON line.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
+import statistics
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -177,24 +179,25 @@ def main() -> None:
     lit = np.ones(args.frames, bool)
     jobs = {"adam": _iteration(optimise, phi0, tb, op, lit), "lbfgs": _iteration(optimise_lbfgs, phi0, tb, op, lit),
             "asm": _asm_steps(args.frames, hw, z, lam, (op.hp, op.wp)), **_floors(args.frames, op.hp, op.wp)}
-    best = {k: math.inf for k in jobs}
-    for fn in jobs.values():  # warm-up: plans, compiled kernels, heap pages
+    for fn in jobs.values():  # warm-up: plans, heap pages
         fn()
-    for _ in range(args.repeats):
-        for k, fn in jobs.items():
-            best[k] = min(best[k], fn())
-    fastest = min((k for k in FLOORS if k in best), key=lambda k: best[k])
+    rounds = [{k: fn() for k, fn in jobs.items()} for _ in range(args.repeats)]
+    best = {k: min(r[k] for r in rounds) for k in jobs}
+    floors = [k for k in FLOORS if k in best]
+    fastest = min(floors, key=lambda k: best[k])
+    # the paired ratio: each round's time over the fastest floor of the same round (drift cancels), median
+    paired = {k: statistics.median(r[k] / min(r[f] for f in floors) for r in rounds) for k in jobs}
     print(f"### Iteration and ASM step vs the FFT floor ({time.strftime('%Y-%m-%d %H:%M')}, {_machine()}, load "
           f"average {' '.join(f'{v:.2f}' for v in os.getloadavg())}, {torch.get_num_threads()} threads)\n")
     print(f"{hw[0]}x{hw[1]}, {args.frames} frames of one color ({lam * 1e9:.1f} nm), z_wrp {args.z_mm} mm, encoder "
-          f"grid {op.hp}x{op.wp}; best of {args.repeats}, interleaved. The fastest floor: {NAMES[fastest]}.\n")
-    print("| | seconds | / the fastest floor |\n|---|---|---|")
+          f"grid {op.hp}x{op.wp}; {args.repeats} interleaved rounds. The fastest floor (best of the rounds): "
+          f"{NAMES[fastest]}. Paired: the median over rounds of the row's time over that round's fastest floor.\n")
+    print("| | best s | / the fastest floor (best) | paired, median |\n|---|---|---|---|")
     for k, v in best.items():
-        print(f"| {NAMES[k]} | {v:.3f} | {'**' if k in ('adam', 'lbfgs', 'asm') else ''}{v / best[fastest]:.2f}"
-              f"{'**' if k in ('adam', 'lbfgs', 'asm') else ''} |")
+        mark = "**" if k in ("adam", "lbfgs", "asm") else ""
+        print(f"| {NAMES[k]} | {v:.3f} | {mark}{v / best[fastest]:.2f}{mark} | {mark}{paired[k]:.2f}{mark} |")
     print(json.dumps({"hw": hw, "frames": args.frames, "grid": [op.hp, op.wp], "fastest": fastest,
-                      "best_s": best}))
-
+                      "best_s": best, "paired_median": paired, "rounds_s": rounds}))
 
 if __name__ == "__main__":
     main()

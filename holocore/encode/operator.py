@@ -34,8 +34,8 @@ over a distance z it moves sideways by z lambda f_x / sqrt(1 - lambda^2 (f_x^2 +
 The ASM is a circular convolution on the padded period N_p. An output pixel inside the H x W window receives
 from input pixels at most r away; a wrapped contribution lands inside the window only if N_p < n + r. So
 N_p >= n + r (+ a few pixels for the tails of the hard band edge) is exact, and when n >= r it also keeps
-Eq. 13's limit, tan(theta_lim) = N_p p / (2 z), beyond the band (N_p >= 2r). We take the smallest 7-smooth
-size >= n + r + 8 + n/64, and never more than the 2x grid of ``propagation.padded_shape``.
+Eq. 13's limit, tan(theta_lim) = N_p p / (2 z), beyond the band (N_p >= 2r). We take the smallest fast FFT
+size (``grids.fast_fft_size``) >= n + r + 8 + n/64, and never more than the 2x grid of ``propagation.padded_shape``.
 
 Measured against other layouts (bench/results/encode.md): transforms restricted to the H nonzero input rows and
 the cropped output rows (a "pruned" 2-D FFT from 1-D FFTs) are slower on CPU than one ``fft2`` of the whole
