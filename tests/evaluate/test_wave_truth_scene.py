@@ -1,14 +1,19 @@
 """The wave-optical ground truth's depth layers on the project's paper scenes (Mitsuba): a mirror's image lies
 at the unfolded distance, a glass ball's at its lens image, the sky at optical infinity, and the layers hold the
-light a pinhole render of the reference path tracer sees, split by depth, none lost."""
+light a pinhole render of the reference path tracer sees, split by depth, none lost; an off-centre eye sees a
+mirror image move by its geometric parallax."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from holocore.evaluate.wave_truth import depth_layers
+from holocore.display.optics import OpticsConfig
+from holocore.evaluate.wave_truth import WaveGroundTruth, depth_layers
+from holocore.pipeline import RenderOptions, render_loaded
+from holocore.scene.load import from_mitsuba_scene
 from holocore.scene.paper import scene_facts, write_paper_scene
+from tests.trace import test_far_image_parallax as far
 
 F_EYE, Z_INF = 0.05, 0.08
 H, W = 54, 96
@@ -75,3 +80,22 @@ def test_the_glass_ball_shows_the_card_at_its_lens_image(tmp_path):
     assert lay.lost < 0.01
     # the paraxial image of the card through the ball (the unfolded path would put it 5 m further)
     assert _centre_depth(lay, half=2) == pytest.approx(_z(facts["paraxial_image_zc_m"]), rel=0.002)
+
+
+def test_a_mirror_images_parallax_is_the_geometric_one_for_an_off_centre_eye():
+    """A glowing ball 1.5 m away seen in a tilted plane mirror (tests/trace/test_far_image_parallax.py's scene):
+    between eyes 0.8 mm left and right of the centre, the wave truth moves its image by the geometric parallax
+    -2 e (z - z_inf) / (f p) of its hologram depth z, focused on it or 0.8 mm in front of it (a 1 mm pupil, inside
+    the display's band: the pupil's own centre sets the parallax)."""
+    loaded = from_mitsuba_scene(far._scene())
+    optics = OpticsConfig(resolution_hw=(far.H, far.W), pitch_um=far.P * 1e6, frames=1,
+                          focal_length_mm=far.F_M * 1e3, z_inf_mm=far.Z_INF * 1e3, seed=1)
+    meta = render_loaded(loaded, optics, RenderOptions(preset="fast", spp=4, cone_equaliser=False)).meta
+    truth = WaveGroundTruth(loaded, meta, shape_hw=(far.H, far.W), spp=32)
+    want = -2 * 0.8e-3 * (far.Z_BALL - far.Z_INF) / (far.F_M * far.P)  # -6.67 px
+    for focus in (far.Z_BALL, far.Z_BALL - 0.8e-3):
+        cols = []
+        for e in far.EYES:
+            view = truth.channels(focus_z_m=focus, pupil_diameter_m=1e-3, view_offset_m=(e, 0.0))
+            cols.append(far._centroid_x(view, view))
+        assert abs((cols[1] - cols[0]) - want) < 0.3, (focus, cols, want)
