@@ -106,10 +106,7 @@ def _fftw(xn: np.ndarray, nt: int) -> dict:
     big = pyfftw.empty_aligned((frames, hp, wp), dtype="complex64")
     one = pyfftw.empty_aligned((hp, wp), dtype="complex64")
     big[:], one[:] = xn, xn[0]
-    flags = dict(threads=nt, flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"))
-    plans = {k: (pyfftw.FFTW(a, a, axes=(-2, -1), direction="FFTW_FORWARD", **flags),
-                 pyfftw.FFTW(a, a, axes=(-2, -1), direction="FFTW_BACKWARD", **flags)) for k, a in
-             (("batched", big), ("frames", one))}
+    plans = {"batched": _plan_pair(big, nt), "frames": _plan_pair(one, nt)}
 
     def fftw(kind, times):
         fwd, inv = plans[kind]
@@ -120,13 +117,16 @@ def _fftw(xn: np.ndarray, nt: int) -> dict:
             "fftw_items": _items(frames, hp, wp, nt)}
 
 
+def _plan_pair(buf: np.ndarray, threads: int) -> tuple:
+    """In-place forward and inverse 2-D FFTW plans (FFTW_MEASURE) of ``buf`` on ``threads`` threads."""
+    flags = dict(threads=threads, flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"))
+    return tuple(pyfftw.FFTW(buf, buf, axes=(-2, -1), direction=d, **flags) for d in ("FFTW_FORWARD", "FFTW_BACKWARD"))
+
+
 def _items(frames: int, hp: int, wp: int, workers: int):
     """The floor item by item: one single-threaded plan per thread, frames spread over the
     threads (no thread pool inside a transform)."""
-    bufs = [pyfftw.empty_aligned((hp, wp), dtype="complex64") for _ in range(workers)]
-    flags = dict(threads=1, flags=("FFTW_MEASURE", "FFTW_DESTROY_INPUT"))
-    plans = [(pyfftw.FFTW(b, b, axes=(-2, -1), direction="FFTW_FORWARD", **flags),
-              pyfftw.FFTW(b, b, axes=(-2, -1), direction="FFTW_BACKWARD", **flags)) for b in bufs]
+    plans = [_plan_pair(pyfftw.empty_aligned((hp, wp), dtype="complex64"), 1) for _ in range(workers)]
     pool = ThreadPoolExecutor(workers)
 
     def share(j):

@@ -14,17 +14,27 @@ from holocore.validate import PitchLike
 __all__ = ["smooth_at_least", "fast_fft_size", "padded_shape", "spread_px", "reach_grid", "encoder_grid"]
 
 
-def smooth_at_least(n: int) -> int:
-    """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
+def _smallest_at_least(n: int, most: dict[int, int]) -> int:
+    """Smallest integer >= n whose prime factors are the keys of ``most``, each at most its value times (-1: any)."""
     m = max(1, n)
     while True:
         k = m
-        for p in (2, 3, 5, 7):
+        for p, cap in most.items():
+            e = 0
             while k % p == 0:
                 k //= p
-        if k == 1:
-            return m
+                e += 1
+            if 0 <= cap < e:
+                break
+        else:
+            if k == 1:
+                return m
         m += 1
+
+
+def smooth_at_least(n: int) -> int:
+    """Smallest 2,3,5,7-smooth integer >= n (fast FFT sizes; 2x of 1024, 1080 and 1920 are already smooth)."""
+    return _smallest_at_least(n, {2: -1, 3: -1, 5: -1, 7: -1})
 
 
 def fast_fft_size(n: int) -> int:
@@ -32,21 +42,7 @@ def fast_fft_size(n: int) -> int:
     transforms keep their speed per point (measured, single-threaded FFTW on the encoder's grids: 1536 x 2400
     6.7 ns a point, 1440 x 2400 6.6, 1536 x 2304 7.1, but 1458 x 2304 (1458 = 2 3^6) 10.1 and 1440 x 2268
     (2268 = 2^2 3^4 7) 8.1)."""
-    m = max(1, n)
-    while True:
-        k = m
-        for p, most in ((3, 2), (5, 2)):
-            e = 0
-            while k % p == 0 and e <= most:
-                k //= p
-                e += 1
-            if e > most:
-                k = 0
-        while k and k % 2 == 0:
-            k //= 2
-        if k == 1:
-            return m
-        m += 1
+    return _smallest_at_least(n, {2: -1, 3: 2, 5: 2})
 
 
 def padded_shape(shape_hw: tuple[int, int], pad_factor: float = 2) -> tuple[int, int]:
