@@ -49,7 +49,6 @@ from typing import Optional
 
 import torch
 
-from holocore.optics import pruned_fft
 from holocore.optics.grids import encoder_grid, spread_px  # noqa: F401  (re-exported: the encoder's grid)
 from holocore.optics.propagation import PitchLike, transfer_function
 from holocore.trace.randomfield import passband_mask
@@ -97,8 +96,6 @@ class Operator:
         self.mult_adj = (_reverse(m).conj_physical_().mul_(ramp)).to(dtype)  # M3, Eq. (2)
         self._ws: dict[str, torch.Tensor] = {}
         self._owner: Optional["Operator"] = None
-        # on a CPU with FFTW, the pruned 1-D passes of holocore.optics.pruned_fft (workspaces [b, H, Wp])
-        self._pruned = device.type == "cpu" and pruned_fft.available(dtype)
 
     def share_buffers(self, other: "Operator") -> None:
         """Use ``other``'s workspaces (same grid): one set per color, whatever the number of operators."""
@@ -109,19 +106,13 @@ class Operator:
         """Free the workspaces (the multipliers stay): the next use allocates them anew."""
         (self._owner or self)._ws.clear()
 
-    def _filter(self) -> "pruned_fft.WindowFilter":
-        return pruned_fft.WindowFilter.get((self.h, self.w), (self.hp, self.wp), self.dtype, second_forward=True)
-
     def workspace(self, name: str, b: int, device: torch.device) -> torch.Tensor:
-        """Zero-padded [b, Hp, Wp] buffer ``name`` ([b, H, Wp] on the pruned path); only its [:, :H, :W] window is
-        ever written, so the rest stays zero."""
+        """Zero-padded [b, Hp, Wp] buffer ``name``; only its [:, :H, :W] window is ever written, so the rest
+        stays zero."""
         ws = (self._owner or self)._ws
         buf = ws.get(name)
         if buf is None or buf.shape[0] < b:
-            if self._pruned:
-                buf = ws[name] = self._filter().inputs(b)
-            else:
-                buf = ws[name] = torch.zeros((b, self.hp, self.wp), dtype=self.dtype, device=device)
+            buf = ws[name] = torch.zeros((b, self.hp, self.wp), dtype=self.dtype, device=device)
         return buf[:b]
 
     def window(self, name: str, b: int, device: torch.device) -> torch.Tensor:
@@ -130,13 +121,9 @@ class Operator:
 
     def apply(self, name: str, b: int, device: torch.device, *, adjoint: bool = False) -> torch.Tensor:
         """Eq. (1) (or (2) with ``adjoint``) of what workspace ``name`` holds: a [b, H, W] view into a new
-        padded tensor, J A u (or A^H g when the window holds J g). Two ``fft2`` and one multiply in place. On the
-        pruned path the view is into the workspace "out", valid until the next call."""
-        mult = self.mult_adj if adjoint else self.mult
-        if self._pruned:
-            return self._filter()(self.workspace(name, b, device), mult, self.workspace("out", b, device))
+        padded tensor, J A u (or A^H g when the window holds J g). Two ``fft2`` and one multiply in place."""
         spec = torch.fft.fft2(self.workspace(name, b, device))  # a fresh output: fft2's out= adds a copy
-        spec.mul_(mult)
+        spec.mul_(self.mult_adj if adjoint else self.mult)
         return torch.fft.fft2(spec)[..., :self.h, :self.w]
 
     def __call__(self, u: torch.Tensor, *, adjoint: bool = False) -> torch.Tensor:

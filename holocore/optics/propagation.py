@@ -26,7 +26,6 @@ import torch
 
 import holocore.runtime.torch_runtime  # noqa: F401  (reproducible CPU vector math; see its docstring)
 from holocore import validate
-from holocore.optics import pruned_fft
 from holocore.optics.grids import padded_shape, smooth_at_least  # noqa: F401  (re-exported: the ASM's grid)
 from holocore.validate import PitchLike
 
@@ -92,19 +91,18 @@ def transfer_at(fy: torch.Tensor, fx: torch.Tensor, distance_m: float, wavelengt
 
 
 def _cached_tf(shape: tuple[int, int], z: float, lam: float, py: float, px: float, band_limit: bool,
-               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False, scaled: bool = False,
+               device: torch.device, dtype: torch.dtype, *, conj_scaled: bool = False,
                cone_sine: float | None = None) -> torch.Tensor:
-    """The cached H; with ``conj_scaled`` the cached conj(H) / (Hp Wp) that :func:`ifft2`'s identity needs, with
-    ``scaled`` H / (Hp Wp) (an unnormalised backward transform's)."""
-    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled, scaled, cone_sine)
+    """The cached H; with ``conj_scaled`` the cached conj(H) / (Hp Wp) that :func:`ifft2`'s identity needs."""
+    key = (shape, py, px, lam, z, bool(band_limit), str(device), dtype, conj_scaled, cone_sine)
     with _tf_lock:
         tf = _tf_cache.get(key)
         if tf is not None:
             _tf_cache.move_to_end(key)
             return tf
-    if conj_scaled or scaled:
-        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype, cone_sine=cone_sine)
-        tf = (tf.conj_physical() if conj_scaled else tf.clone()).div_(shape[0] * shape[1])
+    if conj_scaled:
+        tf = _cached_tf(shape, z, lam, py, px, band_limit, device, dtype,
+                        cone_sine=cone_sine).conj_physical().div_(shape[0] * shape[1])
     else:
         tf = _build_tf(shape, z, lam, py, px, band_limit, device, dtype, cone_sine)
     nbytes = tf.numel() * tf.element_size()
@@ -160,7 +158,7 @@ def ifft2(spec: torch.Tensor) -> torch.Tensor:
     return torch.fft.fft2(spec.conj()).conj_physical_().div_(spec.shape[-2] * spec.shape[-1])
 
 
-def _workspace(shape: tuple[int, ...], dtype: torch.dtype, tag: str = "in") -> torch.Tensor:
+def _workspace(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
     """A per-thread zero-padded CPU buffer; only its top-left [..., :H, :W] block is ever written.
 
     Reusing it avoids allocating (and page-faulting) a fresh zero grid on every call, which alone costs about
@@ -169,7 +167,7 @@ def _workspace(shape: tuple[int, ...], dtype: torch.dtype, tag: str = "in") -> t
     bufs = getattr(_ws_local, "bufs", None)
     if bufs is None:
         bufs = _ws_local.bufs = OrderedDict()
-    key = (shape, dtype, tag)
+    key = (shape, dtype)
     buf = bufs.get(key)
     if buf is None:
         buf = torch.zeros(shape, dtype=dtype)
@@ -205,23 +203,6 @@ def asm(field: torch.Tensor, distance_m: float, wavelength_m: float, pitch_m: Pi
                   cone_sine=cone_sine, grid=grid, gain=gain)[0]
 
 
-def _asm_pruned(field: torch.Tensor, z: float, lam: float, pitch: tuple[float, float], grid: tuple[int, int],
-                band_limit: bool, cone_sine: float | None, gain: torch.Tensor | None) -> torch.Tensor:
-    """:func:`asm` of one distance on a CPU by FFTW's pruned passes (``holocore.optics.pruned_fft``): the input's
-    rows forward, columns forward, (H / N) gain, columns and output rows backward."""
-    h, w = field.shape[-2:]
-    b = field.numel() // (h * w)
-    filt = pruned_fft.WindowFilter.get((h, w), grid, field.dtype, second_forward=False)
-    mult = _cached_tf(grid, z, lam, pitch[0], pitch[1], band_limit, field.device, field.dtype, scaled=True,
-                      cone_sine=cone_sine)
-    if gain is not None:
-        mult = mult * gain.to(dtype=field.real.dtype)
-    x = _workspace((b, h, grid[1]), field.dtype)
-    x[:, :, :w].copy_(field.reshape(b, h, w))
-    out = filt(x, mult, _workspace((b, h, grid[1]), field.dtype, tag="out"))
-    return out.contiguous().view(field.shape)
-
-
 def asm_to(field: torch.Tensor, distances_m: Sequence[float], wavelength_m: float, pitch_m: PitchLike, *,
            pad_factor: float = 2, band_limit: bool = True, cone_sine: float | None = None,
            grid: tuple[int, int] | None = None, gain: torch.Tensor | None = None) -> list[torch.Tensor]:
@@ -247,8 +228,6 @@ def asm_to(field: torch.Tensor, distances_m: Sequence[float], wavelength_m: floa
         return [field.clone() for _ in zs]
     # The inverse transform is a forward one: IFFT(S H) = conj(FFT(conj(S) conj(H) / N)) (see :func:`ifft2`).
     needs_graph = torch.is_grad_enabled() and field.requires_grad
-    if len(zs) == 1 and not needs_graph and field.device.type == "cpu" and pruned_fft.available(field.dtype):
-        return [_asm_pruned(field, zs[0], lam, (py, px), (hp, wp), band_limit, cone_sine, gain)]
     if needs_graph or field.device.type != "cpu":
         spec = torch.fft.fft2(field, s=(hp, wp))  # pads with zeros at the end of each axis
         spec = spec.conj() if needs_graph else spec.conj_physical_()

@@ -409,27 +409,12 @@ def _plain_operator(shape_hw, z, lam, pitch, grid, cone):
     return (lambda u: run(u, m)), (lambda g: run(g, m.conj()))
 
 
-@pytest.fixture(params=["fftw", "torch"])
-def fft_path(request):
-    """The encoder's transforms by FFTW's pruned passes (where pyFFTW is installed) and by torch's fft2."""
-    from holocore.optics import pruned_fft
-
-    if request.param == "fftw":
-        if not pruned_fft.available():
-            pytest.skip("pyFFTW is not installed")
-        yield
-    else:
-        with pruned_fft.disabled():
-            yield
-
-
 @pytest.mark.parametrize("cone", [True, False])
 @pytest.mark.parametrize("shape, grid", [((24, 37), None), ((19, 30), (45, 49))])
-def test_encoder_operator_is_the_plain_padded_asm(cone, shape, grid, fft_path):
+def test_encoder_operator_is_the_plain_padded_asm(cone, shape, grid):
     """The encoder's two-forward-DFT operator (encoding_op, Eqs. 1-2: no conjugation, no ifft, flipped WRP
     side) equals the plain padded ASM and its adjoint: to complex128 rounding in complex128, to complex64
-    rounding in complex64, on even, odd and non-square grids, by either transform path; and
-    <A u, v> = <u, A^H v>."""
+    rounding in complex64, on even, odd and non-square grids; and <A u, v> = <u, A^H v>."""
     from holocore.encode.operator import Operator, flip
 
     z, lam = 1e-3, 640e-9
