@@ -127,6 +127,12 @@ def one(kind: str, alpha: float, *, spp: int, gt_spp: int, pupil_mm: float, eye_
             each = sum(eye_view(r.slm_field, res.meta, **kw) for r in runs)
             return np.clip((eye_view(total, res.meta, **kw) - each) / (k * (k - 1)), 0.0, None)
         row["ours_mean"] = measure(mean_field, depths, z_plate, z_ball, eye_mm)
+        # the glow's light against the image's in the eye, focused on the ball's image, against the plan's estimate
+        kw = dict(focus_z_m=z_ball, pupil_diameter_m=pupil)
+        each = sum(float(eye_view(r.slm_field, res.meta, **kw).sum()) for r in runs) / k
+        signal = float(mean_field(z_ball, (0.0, 0.0)).sum())
+        row["glow_to_signal"] = (each - signal) / signal if signal > 0 else float("inf")
+        row["plan_noise_to_signal"] = float(res.meta["plan"]["noise_to_signal"])
     return row
 
 
@@ -137,7 +143,8 @@ def table(rows: list[dict]) -> str:
            "the plan |", "|---|---|---|---|---|---|---|"]
     mean = "ours_mean" in rows[0]
     if mean:  # ours as single render / mean field of the renders
-        out = [out[0].replace("ours / truth", "ours, single / mean field / truth"), out[1]]
+        out = [out[0].replace("ours / truth", "ours, single / mean field / truth")
+               + " glow / image light in the eye (the plan's noise estimate) |", out[1] + "---|"]
     for r in rows:
         o, t = r["ours"], r["truth"]
         m = r.get("ours_mean")
@@ -149,7 +156,8 @@ def table(rows: list[dict]) -> str:
         out.append(f"| {r['kind']} | {r['alpha']:g} | {focus} / {(zp - t['best_focus_m']) * 1e3:.2f} | "
                    f"{r50} / {t['r50_px']:.1f} | {shift} / {t['shift_px']:+.1f} | "
                    f"{shift_b} / {t['shift_ball_px']:+.1f} | "
-                   f"{'; '.join(r['plan']) or '-'} |")
+                   f"{'; '.join(r['plan']) or '-'} |"
+                   + (f" {r['glow_to_signal']:.2f} ({r['plan_noise_to_signal']:.2f}) |" if m else ""))
     return "\n".join(out)
 
 
