@@ -19,7 +19,7 @@ from holocore.optics.cone_equaliser import plane_equalisers
 from holocore.optics.propagation import asm, padded_shape
 from holocore.options import HologramOptions, check
 from holocore.plan.analysis import analyze
-from holocore.plan.effects import capped_share, inventory, make_plan
+from holocore.plan.effects import capped_share, inventory, lobe_spread_px, make_plan
 from holocore.plan.memory_estimate import DEFAULT_TILE_RAYS, admit_placed_planes
 from holocore.plan.focus_depth import focus_depth
 from holocore.plan.presets import PresetName, RenderMethod
@@ -106,7 +106,9 @@ def plan_scene(loaded, optics: OpticsConfig, options: RenderOptions = RenderOpti
                      delta_bounces=ana.delta_bounces,
                      subhologram_radius_px=radius_px, theta_max=theta_max, wrp_planes_m=list(planes.z_m),
                      wrp_planes_asked=options.wrp_planes if options.method == "wrp" else 1,
-                     z_inf_m=optics.z_inf_m)
+                     z_inf_m=optics.z_inf_m,
+                     lobe_spread_px=lobe_spread_px(inv.near_smooth.values(), focal_length_m=f, pitch_m=optics.pitch_m,
+                                                   zc_surface_m=ana.zc_first_min_m, zc_image_m=ana.zc_image_max_m))
     ignored = [f"ignored: {what}" for what in (getattr(loaded.bundle, "ignored", None) or [])]
     focus = focus_depth(image_depths_holo_m=depths, z_inf_m=optics.z_inf_m, focal_length_m=f,
                         wavelengths_m=optics.wavelengths_m, pitch_m=optics.pitch_m,

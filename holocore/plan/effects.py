@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from typing import Optional
+from typing import Iterable, Optional
 
 from pydantic import BaseModel, Field
 
@@ -19,7 +19,7 @@ from holocore.plan.presets import PRESETS, PresetName
 from holocore.runtime.mitsuba_env import mitsuba
 from holocore.scene.features import absorbing_media, is_mixed_delta, near_smooth_bsdfs, shape_name
 
-__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor"]
+__all__ = ["SceneInventory", "EffectPlan", "inventory", "make_plan", "choose_spp", "noise_factor", "lobe_spread_px"]
 
 MAX_DELTA_CAP = 16  # the delta-bounce cap the surfaces' count may ask for, and a forced plan's
 DELTA_CAP_LIMIT = 32  # the most a pre-pass that sees longer chains (a mirror hall) raises it to; also its probe cap
@@ -30,6 +30,21 @@ def noise_factor(theta_max: float) -> float:
     """k(theta) = Omega / tan^2(theta): noise-to-signal = k rho^2 / N (rho in pixels, N rays per pixel)."""
     t = min(theta_max, MAX_CONE_HALF_ANGLE_RAD)
     return 2.0 * math.pi * (1.0 - math.cos(t)) / math.tan(t) ** 2
+
+
+def lobe_spread_px(alphas: Iterable[float], *, focal_length_m: float, pitch_m: float,
+                   zc_surface_m: Optional[float], zc_image_m: Optional[float]) -> float:
+    """How far a near-smooth surface's lobe spreads, over the recording plane, the rays that reach one image point
+    behind it (px; docs/physics.md, "Near-smooth surfaces"). Each ray leaves along its own micro-normal: a tilt of
+    about 2 alpha (a reflection's; refraction through a plate deviates about half as much), magnified z_s / f in
+    hologram space, over the f^2 (1 / z_s - 1 / z_i) between the surface's image and the point's, is
+    2 alpha f (1 - z_s / z_i) / p. Its Monte Carlo noise is the sub-hologram's of radius hypot(rho, spread).
+    Conservative: the roughest surface, the nearest surface depth and the farthest image point (camera distances,
+    m). 0 without near-smooth surfaces or depths."""
+    a = max((float(v) for v in alphas), default=0.0)
+    if a <= 0.0 or not zc_surface_m or not zc_image_m or zc_image_m <= zc_surface_m:
+        return 0.0
+    return 2.0 * a * float(focal_length_m) * (1.0 - float(zc_surface_m) / float(zc_image_m)) / float(pitch_m)
 
 
 def choose_spp(preset: PresetName, subhologram_radius_px: float, theta_max: float,
@@ -131,6 +146,7 @@ def make_plan(
     wrp_planes_m: Optional[list[float]] = None,
     wrp_planes_asked: object = 1,
     z_inf_m: float = 0.0,
+    lobe_spread_px: float = 0.0,
 ) -> EffectPlan:
     """Decide what to simulate. ``max_delta_seen``: the deepest delta chain the pre-pass met; ``delta_bounces``:
     its rays by the delta bounces they needed (holocore.plan.analysis), from which the cap's loss is told."""
@@ -173,10 +189,13 @@ def make_plan(
                                            if random_phase else "one frame, no random-phase bank (smooth phase)"))
     planes = list(wrp_planes_m or [])
     words += _planes_words(planes, wrp_planes_asked=wrp_planes_asked, z_inf_m=z_inf_m)
-    n = spp if spp is not None else choose_spp(preset, subhologram_radius_px, theta_max, max_spp)
-    ratio = noise_factor(theta_max) * subhologram_radius_px ** 2 / n
+    radius = math.hypot(subhologram_radius_px, lobe_spread_px)  # near-smooth lobes widen it (lobe_spread_px)
+    n = spp if spp is not None else choose_spp(preset, radius, theta_max, max_spp)
+    ratio = noise_factor(theta_max) * radius ** 2 / n
+    widened = f", {radius:.1f} px with the near-smooth lobes' spread" if lobe_spread_px > 0 else ""
     words.append(f"{n} rays per WRP pixel ({'given' if spp is not None else 'chosen from the scene depth'}): the "
-                 f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px, "
+                 f"farthest image point's sub-hologram on its plane has a radius of {subhologram_radius_px:.1f} px"
+                 f"{widened}, "
                  f"Monte Carlo noise about {ratio:.2g}x its signal power; {amp_spp} radiance sample(s) per "
                  f"image point" + (" (absorbing media: the tracer's own)" if amp_spp < p.amp_spp else ""))
     return EffectPlan(coherent_delta=coherent, max_delta=cap, delta_capped_share=lost, view_dependent=view_dep,

@@ -18,11 +18,11 @@ from typing import Any, Optional
 from holocore.display.optics import MAX_CONE_HALF_ANGLE_RAD, OpticsConfig
 from holocore.display.profiles import field_of_view_report
 from holocore.options import HologramOptions
-from holocore.plan.effects import SceneInventory, make_plan
+from holocore.plan.effects import SceneInventory, lobe_spread_px, make_plan
 from holocore.plan.focus_depth import focus_depth
 
 __all__ = ["stored", "depth_scale", "wrp_distance_m", "wrp_margin_m", "scene_depth_m", "image_depths_m",
-           "subhologram_radius_px", "plan_at_options"]
+           "subhologram_radius_px", "lobe_spread", "plan_at_options"]
 
 _UNREADABLE = (KeyError, TypeError, ValueError, ZeroDivisionError)
 
@@ -95,14 +95,29 @@ def image_depths_m(plan: Optional[dict], optics: OpticsConfig) -> Optional[list[
         return None
 
 
-def subhologram_radius_px(plan: dict, optics: OpticsConfig) -> float:
+def subhologram_radius_px(plan: dict, optics: OpticsConfig, *, lobes: bool = True) -> float:
     """The farthest image point's sub-hologram radius (px) on the WRP with ``optics``: its distance from the WRP
-    (:func:`scene_depth_m`) times tan(theta) / pitch; the plan's own when it does not say its depths."""
+    (:func:`scene_depth_m`) times tan(theta) / pitch; the plan's own when it does not say its depths. With
+    ``lobes``, widened by the near-smooth lobes' spread (:func:`lobe_spread`) as the render's noise sees it."""
     depth = scene_depth_m(plan, optics)
     if not depth:
-        return float((plan.get("analysis") or {}).get("subhologram_radius_px") or 0.0)
-    theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
-    return depth * math.tan(min(theta, MAX_CONE_HALF_ANGLE_RAD)) / optics.pitch_m
+        radius = float((plan.get("analysis") or {}).get("subhologram_radius_px") or 0.0)
+    else:
+        theta = max(optics.theta_max(lam) for lam in optics.wavelengths_m)
+        radius = depth * math.tan(min(theta, MAX_CONE_HALF_ANGLE_RAD)) / optics.pitch_m
+    return math.hypot(radius, lobe_spread(plan, optics)) if lobes else radius
+
+
+def lobe_spread(plan: dict, optics: OpticsConfig) -> float:
+    """``effects.lobe_spread_px`` of the stored plan's near-smooth surfaces with ``optics`` (0 when it has none or
+    cannot say)."""
+    try:
+        alphas = ((plan.get("inventory") or {}).get("near_smooth") or {}).values()
+        ana = plan.get("analysis") or {}
+        return lobe_spread_px(alphas, focal_length_m=optics.focal_length_m(_camera_fov(plan)), pitch_m=optics.pitch_m,
+                              zc_surface_m=ana.get("zc_first_min_m"), zc_image_m=ana.get("zc_image_max_m"))
+    except _UNREADABLE:
+        return 0.0
 
 
 def plan_at_options(plan: Optional[dict], optics: OpticsConfig, options: HologramOptions, *,
@@ -123,8 +138,9 @@ def plan_at_options(plan: Optional[dict], optics: OpticsConfig, options: Hologra
                           max_delta_seen=ana.get("max_delta_seen"),
                           prepass_capped=int(ana.get("prepass_capped") or 0),
                           delta_bounces=_delta_bounces(ana),
-                          subhologram_radius_px=subhologram_radius_px(plan, optics), theta_max=theta,
-                          wrp_planes_asked=1, z_inf_m=optics.z_inf_m).summary
+                          subhologram_radius_px=subhologram_radius_px(plan, optics, lobes=False), theta_max=theta,
+                          wrp_planes_asked=1, z_inf_m=optics.z_inf_m,
+                          lobe_spread_px=lobe_spread(plan, optics)).summary
         words += _planes_words(options)
         if _camera_fov(plan) is not None:
             words.append(field_of_view_report(optics, float(_camera_fov(plan)))["summary"])
