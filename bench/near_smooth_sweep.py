@@ -122,16 +122,15 @@ def one(kind: str, alpha: float, *, spp: int, gt_spp: int, pupil_mm: float, eye_
     if renders > 1:
         total, k = sum(r.slm_field for r in runs), len(runs)
 
-        def mean_field(z, o):
+        def views(z, o):
+            """(the glow-free mean field's view, the renders' average view)."""
             kw = dict(focus_z_m=z, pupil_diameter_m=pupil, view_offset_m=o)
             each = sum(eye_view(r.slm_field, res.meta, **kw) for r in runs)
-            return np.clip((eye_view(total, res.meta, **kw) - each) / (k * (k - 1)), 0.0, None)
-        row["ours_mean"] = measure(mean_field, depths, z_plate, z_ball, eye_mm)
+            return np.clip((eye_view(total, res.meta, **kw) - each) / (k * (k - 1)), 0.0, None), each / k
+        row["ours_mean"] = measure(lambda z, o: views(z, o)[0], depths, z_plate, z_ball, eye_mm)
         # the glow's light against the image's in the eye, focused on the ball's image, against the plan's estimate
-        kw = dict(focus_z_m=z_ball, pupil_diameter_m=pupil)
-        each = sum(float(eye_view(r.slm_field, res.meta, **kw).sum()) for r in runs) / k
-        signal = float(mean_field(z_ball, (0.0, 0.0)).sum())
-        row["glow_to_signal"] = (each - signal) / signal if signal > 0 else float("inf")
+        mean, avg = (float(v.sum()) for v in views(z_ball, (0.0, 0.0)))
+        row["glow_to_signal"] = (avg - mean) / mean if mean > 0 else float("inf")
         row["plan_noise_to_signal"] = float(res.meta["plan"]["noise_to_signal"])
     return row
 

@@ -88,8 +88,7 @@ def test_a_mirror_images_parallax_is_the_geometric_one_for_an_off_centre_eye():
     -2 e (z - z_inf) / (f p) of its hologram depth z, focused on it or 0.8 mm in front of it (a 1 mm pupil, inside
     the display's band: the pupil's own centre sets the parallax)."""
     loaded = from_mitsuba_scene(far._scene())
-    optics = OpticsConfig(resolution_hw=(far.H, far.W), pitch_um=far.P * 1e6, frames=1,
-                          focal_length_mm=far.F_M * 1e3, z_inf_mm=far.Z_INF * 1e3, seed=1)
+    optics = OpticsConfig(**{**far.OPTICS, "frames": 1})
     meta = render_loaded(loaded, optics, RenderOptions(preset="fast", spp=4, cone_equaliser=False)).meta
     truth = WaveGroundTruth(loaded, meta, shape_hw=(far.H, far.W), spp=32)
     want = -2 * 0.8e-3 * (far.Z_BALL - far.Z_INF) / (far.F_M * far.P)  # -6.67 px

@@ -69,30 +69,41 @@ def _centroid_x(img: np.ndarray, ref: np.ndarray) -> float:
     return float((win.sum(0) * (x0 + np.arange(win.shape[1]))).sum() / win.sum())
 
 
+OPTICS = dict(resolution_hw=(H, W), pitch_um=P * 1e6, frames=8, focal_length_mm=F_M * 1e3, z_inf_mm=Z_INF * 1e3,
+              seed=1)
+
+
+def _renders(loaded, **kw) -> list:
+    """The renders of SEEDS at 256 rays per pixel. No cone equaliser: it fits its filter to each render's own
+    spectrum, and the glow-free estimate needs the renders to differ by their rays alone."""
+    return [render_loaded(loaded, OpticsConfig(**OPTICS), RenderOptions(preset="fast", spp=256, ray_seed=s,
+                                                                         cone_equaliser=False, **kw))
+            for s in SEEDS]
+
+
+def _eye_rows(fields: list, gt) -> list[tuple]:
+    """Per eye, focused on the ball through a 1 mm pupil: (the first render's view, the glow-free mean field's
+    (module docstring), the ground truth's, the renders' average)."""
+    meta, total, k = fields[0].meta, sum(r.slm_field for r in fields), len(fields)
+    rows = []
+    for e in EYES:
+        kw_view = dict(focus_z_m=Z_BALL, pupil_diameter_m=1e-3, view_offset_m=(e, 0.0))
+        each = [eye_view(r.slm_field, meta, **kw_view) for r in fields]
+        rows.append((each[0], (eye_view(total, meta, **kw_view) - sum(each)) / (k * (k - 1)), gt.channels(**kw_view),
+                     sum(each) / k))
+    return rows
+
+
 @pytest.fixture(scope="module")
 def views():
-    """Per case: (the first render's eye views, the glow-free eye views, the ground truth's), one per eye."""
+    """Per case: :func:`_eye_rows` of the mirror scene's renders."""
     loaded = from_mitsuba_scene(_scene())
-    optics = OpticsConfig(resolution_hw=(H, W), pitch_um=P * 1e6, frames=8, focal_length_mm=F_M * 1e3,
-                          z_inf_mm=Z_INF * 1e3, seed=1)
     gt, out = None, {}
     for name, kw in CASES.items():
-        # No cone equaliser: it fits its filter to each render's own spectrum, and the glow-free estimate needs
-        # the renders to differ by their rays alone.
-        fields = [render_loaded(loaded, optics, RenderOptions(preset="fast", spp=256, ray_seed=s,
-                                                              cone_equaliser=False, **kw))
-                  for s in SEEDS]
+        fields = _renders(loaded, **kw)
         if gt is None:
             gt = GroundTruth(loaded, fields[0].meta, shape_hw=(H, W), spp=64)
-        meta, total = fields[0].meta, sum(r.slm_field for r in fields)
-        K = len(fields)
-        row = []
-        for e in EYES:
-            kw_view = dict(focus_z_m=Z_BALL, pupil_diameter_m=1e-3, view_offset_m=(e, 0.0))
-            each = [eye_view(r.slm_field, meta, **kw_view) for r in fields]
-            mean_field = (eye_view(total, meta, **kw_view) - sum(each)) / (K * (K - 1))
-            row.append((each[0], mean_field, gt.channels(**kw_view)))
-        out[name] = row
+        out[name] = _eye_rows(fields, gt)
     return out
 
 
@@ -100,7 +111,7 @@ def views():
 def test_mean_field_parallax_matches_ground_truth(views, case):
     """The traced field's mean shows the ball where the ground truth does from both eye positions, recorded on
     one plane 4.5 mm in front of it or on the SLM 5.7 mm behind it."""
-    for e, (_single, mean_field, truth) in zip(EYES, views[case]):
+    for e, (_single, mean_field, truth, _avg) in zip(EYES, views[case]):
         ours, want = _centroid_x(mean_field, truth), _centroid_x(truth, truth)
         assert abs(ours - want) < TOL_PX, f"{case}, eye {e * 1e3:+.1f} mm: column {ours:.2f}, ground truth {want:.2f}"
 
@@ -110,7 +121,7 @@ def test_mean_field_parallax_matches_ground_truth(views, case):
                                        "ball moves about 2.9x as far as the ground truth's between the eyes "
                                        "(columns 73.4 / 54.4 against 66.9 / 60.3)")
 def test_single_render_parallax_one_plane(views):
-    for _e, (single, _mean, truth) in zip(EYES, views["one_plane"]):
+    for _e, (single, _mean, truth, _avg) in zip(EYES, views["one_plane"]):
         assert abs(_centroid_x(single, truth) - _centroid_x(truth, truth)) < TOL_PX
 
 
@@ -147,21 +158,11 @@ def _near_smooth_scene(kind: str, alpha: float):
 
 @pytest.fixture(scope="module", params=list(NEAR_SMOOTH))
 def near_smooth_views(request):
-    """(the first render's, the mean field's and the ground truth's eye views), one per eye, focused on the ball."""
+    """(the case, :func:`_eye_rows` of its renders, the plan's noise-to-signal estimate)."""
     loaded = from_mitsuba_scene(_near_smooth_scene(*NEAR_SMOOTH[request.param]))
-    optics = OpticsConfig(resolution_hw=(H, W), pitch_um=P * 1e6, frames=8, focal_length_mm=F_M * 1e3,
-                          z_inf_mm=Z_INF * 1e3, seed=1)
-    fields = [render_loaded(loaded, optics, RenderOptions(preset="fast", spp=256, ray_seed=s, cone_equaliser=False))
-              for s in SEEDS]
+    fields = _renders(loaded)
     gt = GroundTruth(loaded, fields[0].meta, shape_hw=(H, W), spp=64)
-    meta, total, k = fields[0].meta, sum(r.slm_field for r in fields), len(fields)
-    row = []
-    for e in EYES:
-        kw_view = dict(focus_z_m=Z_BALL, pupil_diameter_m=1e-3, view_offset_m=(e, 0.0))
-        each = [eye_view(r.slm_field, meta, **kw_view) for r in fields]
-        row.append((each[0], (eye_view(total, meta, **kw_view) - sum(each)) / (k * (k - 1)), gt.channels(**kw_view),
-                    sum(each) / k))
-    return request.param, row, float(meta["plan"]["noise_to_signal"])
+    return request.param, _eye_rows(fields, gt), float(fields[0].meta["plan"]["noise_to_signal"])
 
 
 def test_near_smooth_image_moves_with_the_eye_as_the_ground_truth(near_smooth_views):
